@@ -1,0 +1,190 @@
+"""Plain data that ``stage/`` produces from a USD stage and ``trace/`` consumes.
+
+Nothing here imports pxr: everything downstream of the stage reader is testable without USD.
+
+Conventions (hold for every field below):
+
+* Lengths are in **metres** in world space: the stage reader multiplies by the stage's
+  ``metersPerUnit``. Light sizes are already folded into ``world_from_light``.
+* Transforms are 4×4 float64 matrices in the **column-vector** convention,
+  ``p_world = world_from_x @ [x, y, z, 1]`` (USD stores row vectors; the reader transposes).
+* Colours are linear RGB in the rendering colour space (linear Rec.709 / sRGB primaries).
+* Light radiance is in the UsdLux unit (1 = one nit at exposure 0), with ``intensity``,
+  ``exposure``, ``color``, colour temperature and ``normalize`` already folded in, so the
+  tracer never needs the authored attributes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Union
+
+import numpy as np
+
+FLOAT = np.float32
+INDEX = np.int32
+
+WrapMode = Literal["repeat", "mirror", "clamp", "black"]
+
+
+@dataclass(frozen=True)
+class TextureImage:
+    """A decoded image.
+
+    pixels : (h, w, c) float32, linear values (``sourceColorSpace`` already applied);
+             row 0 is the **top** row of the file, so UsdUVTexture's st = (0, 0) is
+             ``pixels[h - 1, 0]``.
+    """
+
+    path: str
+    pixels: np.ndarray
+
+
+@dataclass(frozen=True)
+class TextureInput:
+    """A material input driven by a UsdUVTexture.
+
+    value(st) = texel(st)[channels] * scale[channels] + bias[channels], sampled bilinearly.
+    ``channels`` picks the texture output the input connects to: (0, 1, 2) for ``rgb``,
+    (0,) for ``r``, (3,) for ``a`` (an image with fewer channels than asked for is
+    expanded by the reader: grey → rgb, alpha = 1).
+    """
+
+    texture: int  # index into SceneData.textures
+    channels: tuple[int, ...]
+    scale: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
+    bias: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    wrap_s: WrapMode = "repeat"
+    wrap_t: WrapMode = "repeat"
+
+
+Color = Union[tuple[float, float, float], TextureInput]
+Scalar = Union[float, TextureInput]
+
+
+@dataclass(frozen=True)
+class Material:
+    """A UsdPreviewSurface with the spec's fallbacks for anything not authored."""
+
+    name: str
+    path: str
+    diffuse_color: Color = (0.18, 0.18, 0.18)
+    emissive_color: Color = (0.0, 0.0, 0.0)
+    roughness: Scalar = 0.5
+    metallic: Scalar = 0.0
+    specular_color: Color = (0.0, 0.0, 0.0)
+    use_specular_workflow: bool = False
+    ior: float = 1.5
+    opacity: Scalar = 1.0
+    opacity_threshold: float = 0.0
+    clearcoat: Scalar = 0.0
+    clearcoat_roughness: Scalar = 0.01
+
+
+DEFAULT_MATERIAL_PATH = "<default>"
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """One renderable gprim (or one instance of it), triangulated, in world space.
+
+    points            : (v, 3) float32, metres, world space
+    triangles         : (t, 3) int32 indices into points, counter-clockwise seen from the
+                        front (``orientation = leftHanded`` already flipped)
+    normals           : (t, 3, 3) float32 unit shading normal per triangle corner, world
+                        space, or None (flat shading from the geometric normal)
+    uvs               : (t, 3, 2) float32 st per triangle corner (the primvar the bound
+                        material reads), or None
+    triangle_material : (t,) int32 index into SceneData.materials (GeomSubsets resolved)
+    """
+
+    name: str
+    path: str
+    points: np.ndarray
+    triangles: np.ndarray
+    normals: np.ndarray | None
+    uvs: np.ndarray | None
+    triangle_material: np.ndarray
+
+
+LightKind = Literal["rect", "disk", "sphere", "cylinder", "distant", "dome"]
+
+
+@dataclass(frozen=True)
+class Light:
+    """A UsdLux light.
+
+    world_from_light : (4, 4) float64; maps the light's local frame (emission along −Z
+                       for rect/disk/distant, UsdLux sizes in local units) to world metres.
+    radiance         : (3,) float64 emitted radiance (see module docstring). For a distant
+                       light this is the radiance inside its cone; with ``angle = 0`` it is
+                       the irradiance on a surface facing the light.
+    width, height    : rect size in local units
+    radius           : disk / sphere / cylinder radius in local units
+    length           : cylinder length along local X in local units
+    angle            : distant light angular diameter in degrees
+    texture          : dome lat-long image (index into SceneData.textures), None = constant;
+                       the dome's orientation (``poleAxis``, up axis) is in world_from_light
+    """
+
+    name: str
+    path: str
+    kind: LightKind
+    world_from_light: np.ndarray
+    radiance: np.ndarray
+    width: float = 1.0
+    height: float = 1.0
+    radius: float = 0.5
+    length: float = 1.0
+    angle: float = 0.53
+    texture: int | None = None
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A UsdGeom.Camera.
+
+    world_from_camera : (4, 4) float64, camera looks along its local −Z with +Y up,
+                        translation in metres (any scale removed)
+    focal_length, *_aperture, *_aperture_offset : in the same (authored) unit, only their
+                        ratios matter for a pinhole
+    clipping          : (near, far) in metres
+    """
+
+    name: str
+    path: str
+    world_from_camera: np.ndarray
+    projection: Literal["perspective", "orthographic"] = "perspective"
+    focal_length: float = 50.0
+    horizontal_aperture: float = 20.955
+    vertical_aperture: float = 15.2908
+    horizontal_aperture_offset: float = 0.0
+    vertical_aperture_offset: float = 0.0
+    clipping: tuple[float, float] = (0.01, 1.0e6)
+
+
+@dataclass(frozen=True)
+class RenderSpec:
+    """What to render, flattened from UsdRender settings and command-line flags."""
+
+    camera: Camera
+    resolution: tuple[int, int] = (512, 512)  # (width, height) in pixels
+    pixel_aspect_ratio: float = 1.0
+    aspect_ratio_conform_policy: str = "expandAperture"
+    settings_path: str | None = None  # the RenderSettings prim read, if any
+    material_binding_purposes: tuple[str, ...] = ("full", "")
+
+
+@dataclass(frozen=True)
+class SceneData:
+    """Everything the tracer needs about a stage at one time code."""
+
+    stage_path: str
+    frame: float
+    meshes: tuple[Mesh, ...]
+    materials: tuple[Material, ...]
+    lights: tuple[Light, ...]
+    textures: tuple[TextureImage, ...] = ()
+    meters_per_unit: float = 1.0
+    up_axis: Literal["Y", "Z"] = "Y"
+    warnings: tuple[str, ...] = field(default=())

@@ -1,0 +1,1 @@
+"""Embedded default scenes and presets (declarative USD); found with importlib.resources."""
