@@ -1,0 +1,123 @@
+"""Surface points and UsdPreviewSurface inputs evaluated for batches of ray hits."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..scene import FLOAT, Material, SceneData, TextureInput
+from .textures import sample_bilinear
+from .world import World
+
+_COLOR_INPUTS = ("diffuse_color", "emissive_color", "specular_color")
+_SCALAR_INPUTS = ("roughness", "metallic", "opacity", "clearcoat", "clearcoat_roughness")
+
+
+@dataclass
+class SurfacePoints:
+    """Geometry at n hit points (world space, metres).
+
+    position         : (n, 3) float32
+    geometric_normal : (n, 3) float32 unit, from the triangle's winding (not flipped)
+    shading_normal   : (n, 3) float32 unit, interpolated
+    st               : (n, 2) float32
+    triangle         : (n,) int32
+    """
+
+    position: np.ndarray
+    geometric_normal: np.ndarray
+    shading_normal: np.ndarray
+    st: np.ndarray
+    triangle: np.ndarray
+
+
+def surface_points(world: World, triangle: np.ndarray, u: np.ndarray, v: np.ndarray) -> SurfacePoints:
+    """Interpolate position, normal and st at barycentrics (u, v) of `triangle` (all (n,))."""
+    w = (1.0 - u - v).astype(FLOAT)[:, None]
+    u_ = u.astype(FLOAT)[:, None]
+    v_ = v.astype(FLOAT)[:, None]
+    corners = world.vertices[world.triangles[triangle]]  # (n, 3, 3)
+    position = corners[:, 0] * w + corners[:, 1] * u_ + corners[:, 2] * v_
+    normals = world.corner_normals[triangle]
+    shading = normals[:, 0] * w + normals[:, 1] * u_ + normals[:, 2] * v_
+    shading /= np.maximum(np.linalg.norm(shading, axis=1, keepdims=True), 1e-12)
+    uvs = world.corner_uvs[triangle]
+    st = uvs[:, 0] * w + uvs[:, 1] * u_ + uvs[:, 2] * v_
+    return SurfacePoints(position, world.geometric_normal[triangle], shading.astype(FLOAT), st, triangle)
+
+
+@dataclass
+class SurfaceInputs:
+    """UsdPreviewSurface inputs at n points; shapes (n, 3) for colours, (n,) for scalars."""
+
+    diffuse_color: np.ndarray
+    emissive_color: np.ndarray
+    specular_color: np.ndarray
+    roughness: np.ndarray
+    metallic: np.ndarray
+    opacity: np.ndarray
+    clearcoat: np.ndarray
+    clearcoat_roughness: np.ndarray
+    use_specular_workflow: np.ndarray  # (n,) bool
+    ior: np.ndarray
+    opacity_threshold: np.ndarray
+
+
+class MaterialTable:
+    """Every material's constant inputs as arrays, plus the list of texture-driven inputs."""
+
+    def __init__(self, scene: SceneData):
+        materials = scene.materials or (Material(name="default", path="<default>"),)
+        self._textures = scene.textures
+        self._constants: dict[str, np.ndarray] = {}
+        self._textured: list[tuple[str, int, TextureInput]] = []
+        for name in _COLOR_INPUTS + _SCALAR_INPUTS:
+            width = 3 if name in _COLOR_INPUTS else 1
+            table = np.zeros((len(materials), width), FLOAT)
+            for index, material in enumerate(materials):
+                value = getattr(material, name)
+                if isinstance(value, TextureInput):
+                    self._textured.append((name, index, value))
+                else:
+                    table[index] = value
+            self._constants[name] = table if width == 3 else table[:, 0]
+        self._use_specular_workflow = np.array([m.use_specular_workflow for m in materials], bool)
+        self._ior = np.array([m.ior for m in materials], FLOAT)
+        self._opacity_threshold = np.array([m.opacity_threshold for m in materials], FLOAT)
+        self.emissive = (self._constants["emissive_color"].max(axis=1) > 0) | np.array(
+            [isinstance(m.emissive_color, TextureInput) for m in materials]
+        )
+
+    def evaluate(self, material: np.ndarray, st: np.ndarray, only: tuple[str, ...] | None = None) -> SurfaceInputs:
+        """Inputs of `material` (n,) int32 at texture coordinates st (n, 2)."""
+        values = {name: table[material] for name, table in self._constants.items() if only is None or name in only}
+        for name, material_index, texture_input in self._textured:
+            if name not in values:
+                continue
+            lanes = np.flatnonzero(material == material_index)
+            if len(lanes):
+                values[name][lanes] = self._lookup(texture_input, st[lanes], values[name].ndim)
+        if only is not None:
+            return values  # type: ignore[return-value]
+        return SurfaceInputs(
+            **values,
+            use_specular_workflow=self._use_specular_workflow[material],
+            ior=self._ior[material],
+            opacity_threshold=self._opacity_threshold[material],
+        )
+
+    def emission(self, material: np.ndarray, st: np.ndarray) -> np.ndarray:
+        """emissiveColor (n, 3) at st (n, 2) of `material` (n,)."""
+        return self.evaluate(material, st, only=("emissive_color",))["emissive_color"]
+
+    def _lookup(self, texture_input: TextureInput, st: np.ndarray, ndim: int) -> np.ndarray:
+        image = self._textures[texture_input.texture].pixels
+        texels = sample_bilinear(image, st, texture_input.wrap_s, texture_input.wrap_t)
+        channels = list(texture_input.channels)
+        scale = np.asarray(texture_input.scale, FLOAT)[channels]
+        bias = np.asarray(texture_input.bias, FLOAT)[channels]
+        value = texels[:, channels] * scale + bias
+        if ndim == 1:
+            return value[:, 0]
+        return value if value.shape[1] == 3 else np.repeat(value[:, :1], 3, axis=1)

@@ -1,0 +1,190 @@
+"""Flatten SceneData into the tracer's world: one triangle soup with per-triangle tables.
+
+Meshes come first, then the tessellated shapes of the area lights (rect, disk, sphere,
+cylinder), so a ray that reaches a light hits real geometry and the same triangles are
+sampled for next-event estimation. Light triangles are wound so that their geometric
+normal points the way the light emits.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import RenderSettingsError
+from ..scene import FLOAT, INDEX, Light, SceneData
+
+log = logging.getLogger(__name__)
+
+NOT_A_LIGHT = -1
+DISK_SEGMENTS = 64
+SPHERE_RINGS, SPHERE_SEGMENTS = 24, 48
+CYLINDER_SEGMENTS = 48
+
+
+@dataclass(frozen=True)
+class World:
+    """The scene as flat arrays, t triangles over v vertices, world space in metres.
+
+    vertices         : (v, 3) float32
+    triangles        : (t, 3) int32
+    geometric_normal : (t, 3) float32 unit, right-handed from the winding
+    area             : (t,) float32 square metres
+    corner_normals   : (t, 3, 3) float32 unit shading normals (flat where none authored)
+    corner_uvs       : (t, 3, 2) float32 (zeros where none authored)
+    triangle_object  : (t,) int32 index into object_names / object_paths
+    triangle_material: (t,) int32 index into SceneData.materials, -1 on light shapes
+    triangle_light   : (t,) int32 index into SceneData.lights, -1 on surfaces
+    center, radius   : bounding sphere of all vertices (metres)
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    geometric_normal: np.ndarray
+    area: np.ndarray
+    corner_normals: np.ndarray
+    corner_uvs: np.ndarray
+    triangle_object: np.ndarray
+    triangle_material: np.ndarray
+    triangle_light: np.ndarray
+    object_names: tuple[str, ...]
+    object_paths: tuple[str, ...]
+    center: np.ndarray
+    radius: float
+
+    @property
+    def triangle_count(self) -> int:
+        return len(self.triangles)
+
+
+def build_world(scene: SceneData) -> World:
+    """Concatenate every mesh and area-light shape of `scene` into one World."""
+    pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray, int]] = []
+    names: list[str] = []
+    paths: list[str] = []
+    for mesh in scene.meshes:
+        if len(mesh.triangles) == 0:
+            continue
+        pieces.append((mesh.points, mesh.triangles, mesh.normals, mesh.uvs, mesh.triangle_material, NOT_A_LIGHT))
+        names.append(mesh.name)
+        paths.append(mesh.path)
+    for light_index, light in enumerate(scene.lights):
+        shape = light_shape(light)
+        if shape is None:
+            continue
+        points, triangles = shape
+        materials = np.full(len(triangles), -1, dtype=INDEX)
+        pieces.append((points, triangles, None, None, materials, light_index))
+        names.append(light.name)
+        paths.append(light.path)
+    if not pieces:
+        raise RenderSettingsError(f"{scene.stage_path}: nothing to render (no geometry and no area lights)")
+
+    vertex_offset = 0
+    vertices, triangles, normals, uvs, objects, materials, lights = [], [], [], [], [], [], []
+    for object_index, (points, tris, corner_normals, corner_uvs, tri_material, light_index) in enumerate(pieces):
+        points = np.asarray(points, dtype=FLOAT)
+        tris = np.asarray(tris, dtype=INDEX)
+        vertices.append(points)
+        triangles.append(tris + vertex_offset)
+        normals.append(None if corner_normals is None else np.asarray(corner_normals, dtype=FLOAT))
+        uvs.append(np.zeros((len(tris), 3, 2), FLOAT) if corner_uvs is None else np.asarray(corner_uvs, dtype=FLOAT))
+        objects.append(np.full(len(tris), object_index, dtype=INDEX))
+        materials.append(np.asarray(tri_material, dtype=INDEX))
+        lights.append(np.full(len(tris), light_index, dtype=INDEX))
+        vertex_offset += len(points)
+
+    all_vertices = np.concatenate(vertices)
+    all_triangles = np.concatenate(triangles)
+    corners = all_vertices[all_triangles]  # (t, 3, 3)
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    double_area = np.linalg.norm(cross, axis=1)
+    geometric_normal = (cross / np.maximum(double_area, 1e-30)[:, None]).astype(FLOAT)
+    flat = np.repeat(geometric_normal[:, None, :], 3, axis=1)
+    corner_normals = np.concatenate(
+        [flat[start:start + len(t)] if n is None else n for n, t, start in zip(normals, triangles, _starts(triangles))]
+    )
+
+    low, high = all_vertices.min(axis=0), all_vertices.max(axis=0)
+    center = (low + high) / 2
+    return World(
+        vertices=all_vertices,
+        triangles=all_triangles,
+        geometric_normal=geometric_normal,
+        area=(double_area / 2).astype(FLOAT),
+        corner_normals=corner_normals.astype(FLOAT),
+        corner_uvs=np.concatenate(uvs),
+        triangle_object=np.concatenate(objects),
+        triangle_material=np.concatenate(materials),
+        triangle_light=np.concatenate(lights),
+        object_names=tuple(names),
+        object_paths=tuple(paths),
+        center=center.astype(np.float64),
+        radius=float(np.linalg.norm(high - low) / 2) or 1.0,
+    )
+
+
+def _starts(arrays: list[np.ndarray]) -> list[int]:
+    return list(np.cumsum([0] + [len(a) for a in arrays[:-1]]))
+
+
+def light_shape(light: Light) -> tuple[np.ndarray, np.ndarray] | None:
+    """World-space triangles of an area light, wound so the normal is the emitting side.
+
+    Returns (points (v, 3) float32 metres, triangles (t, 3) int32), or None for lights with
+    no shape (distant, dome).
+    """
+    if light.kind == "rect":
+        w, h = light.width / 2, light.height / 2
+        local = np.array([[-w, -h, 0], [w, -h, 0], [w, h, 0], [-w, h, 0]], dtype=np.float64)
+        # Counter-clockwise seen from +Z gives a +Z normal; rect lights emit along -Z.
+        triangles = np.array([[0, 2, 1], [0, 3, 2]])
+    elif light.kind == "disk":
+        angles = np.linspace(0, 2 * np.pi, DISK_SEGMENTS, endpoint=False)
+        rim = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1) * light.radius
+        local = np.vstack([[0.0, 0.0, 0.0], rim])
+        nxt = np.roll(np.arange(DISK_SEGMENTS), -1) + 1
+        triangles = np.stack([np.zeros(DISK_SEGMENTS, int), nxt, np.arange(DISK_SEGMENTS) + 1], axis=1)
+    elif light.kind == "sphere":
+        local, triangles = _uv_sphere(light.radius)
+    elif light.kind == "cylinder":
+        local, triangles = _open_cylinder(light.radius, light.length)
+    else:
+        return None
+    homogeneous = np.hstack([local, np.ones((len(local), 1))])
+    world = (homogeneous @ np.asarray(light.world_from_light, dtype=np.float64).T)[:, :3]
+    if np.linalg.det(np.asarray(light.world_from_light)[:3, :3]) < 0:
+        triangles = triangles[:, ::-1]  # a mirroring transform flips the winding
+    return world.astype(FLOAT), np.ascontiguousarray(triangles, dtype=INDEX)
+
+
+def _uv_sphere(radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Outward-facing UV sphere: (points, triangles)."""
+    theta = np.linspace(0, np.pi, SPHERE_RINGS + 1)
+    phi = np.linspace(0, 2 * np.pi, SPHERE_SEGMENTS, endpoint=False)
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    points = np.stack([np.sin(t) * np.cos(p), np.cos(t), np.sin(t) * np.sin(p)], axis=-1).reshape(-1, 3) * radius
+    ring = lambda i, j: i * SPHERE_SEGMENTS + (j % SPHERE_SEGMENTS)  # noqa: E731
+    triangles = []
+    for i in range(SPHERE_RINGS):
+        for j in range(SPHERE_SEGMENTS):
+            a, b, c, d = ring(i, j), ring(i, j + 1), ring(i + 1, j), ring(i + 1, j + 1)
+            if i > 0:
+                triangles.append([a, b, c])
+            if i < SPHERE_RINGS - 1:
+                triangles.append([b, d, c])
+    return points, np.array(triangles)
+
+
+def _open_cylinder(radius: float, length: float) -> tuple[np.ndarray, np.ndarray]:
+    """Outward-facing tube along local X (UsdLux CylinderLight): (points, triangles)."""
+    phi = np.linspace(0, 2 * np.pi, CYLINDER_SEGMENTS, endpoint=False)
+    ring = np.stack([np.zeros_like(phi), np.cos(phi) * radius, np.sin(phi) * radius], axis=1)
+    points = np.vstack([ring + [-length / 2, 0, 0], ring + [length / 2, 0, 0]])
+    j = np.arange(CYLINDER_SEGMENTS)
+    k = (j + 1) % CYLINDER_SEGMENTS
+    n = CYLINDER_SEGMENTS
+    triangles = np.vstack([np.stack([j, k, j + n], 1), np.stack([k, k + n, j + n], 1)])
+    return points, triangles
