@@ -1,1 +1,1 @@
-"""."""
+"""Images out: EXR files (and later previews and layer extraction)."""

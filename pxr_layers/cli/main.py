@@ -1,0 +1,54 @@
+"""The `pxr-layers` command: one module per subcommand, each with add_arguments() and run()."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+
+from .. import __version__
+from ..errors import PxrLayersError
+from . import demo, render
+
+SUBCOMMANDS = {"render": render, "demo": demo}
+EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE = 0, 1, 2
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="pxr-layers",
+        description="Path-trace a USD stage with Embree and write a beauty EXR. "
+        "Later steps of the flow cut light-path layers from the render's index.",
+    )
+    parser.add_argument("--version", action="version", version=f"pxr-layers {__version__}")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, module in SUBCOMMANDS.items():
+        sub = commands.add_parser(name, help=module.HELP, description=module.DESCRIPTION)
+        module.add_arguments(sub)
+        sub.add_argument("-q", "--quiet", action="store_true", help="no progress bar, warnings and errors only")
+        sub.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exit_:  # argparse: 0 for --help/--version, 2 for bad usage
+        return int(exit_.code or 0)
+    level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
+    logging.basicConfig(level=level, format="pxr-layers: %(levelname)s: %(message)s", stream=sys.stderr)
+    args.show_progress = not args.quiet and not os.environ.get("CI")
+    try:
+        return SUBCOMMANDS[args.command].run(args)
+    except PxrLayersError as error:
+        print(f"pxr-layers: error: {error}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("pxr-layers: interrupted; nothing was written", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,103 @@
+"""`pxr-layers render`: path-trace a USD stage into a beauty EXR."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import math
+from pathlib import Path
+
+from .. import __version__
+from ..layers.exr import write_rgba
+from ..trace import TraceSettings
+from ..trace import render as trace_render
+
+HELP = "render a USD stage to a beauty EXR"
+DESCRIPTION = (
+    "Path-trace STAGE (any USD file) with Embree. Camera, resolution and material binding "
+    "purposes come from the stage's UsdRender settings when it has them (else its first "
+    "camera); the flags below override them."
+)
+DEFAULT_SPP = 64
+DEFAULT_MAX_DEPTH = 8
+log = logging.getLogger(__name__)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("stage", metavar="STAGE", help="the USD stage to render (.usd, .usda, .usdc, .usdz)")
+    add_render_flags(parser)
+
+
+def add_render_flags(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "-o", "--output", metavar="OUT",
+        help="a path ending in .exr names the beauty file; anything else is a directory that "
+        "receives STEM.exr (STEM.FFFF.exr with --frame). Default: the current directory",
+    )
+    parser.add_argument("--spp", type=_positive, default=DEFAULT_SPP, metavar="N",
+                        help=f"samples per pixel (default {DEFAULT_SPP})")
+    parser.add_argument("--max-depth", type=_non_negative, default=DEFAULT_MAX_DEPTH, metavar="N",
+                        help=f"most scattering events per path; 1 = direct light only (default {DEFAULT_MAX_DEPTH})")
+    parser.add_argument("--resolution", type=_positive, nargs=2, metavar=("W", "H"),
+                        help="image size in pixels (default: the render settings', else 512 512)")
+    parser.add_argument("--seed", type=int, default=0, metavar="N", help="random seed (default 0)")
+    parser.add_argument("--frame", type=float, metavar="F",
+                        help="time code to render (default: the stage's start time code)")
+    parser.add_argument("--camera", metavar="PRIM", help="camera prim path (default: the settings' camera)")
+    parser.add_argument("--settings", metavar="PRIM",
+                        help="UsdRender RenderSettings prim (default: the stage's renderSettingsPrimPath)")
+    parser.add_argument("--threads", type=_positive, metavar="N", help="render threads (default: all cores)")
+
+
+def run(args: argparse.Namespace) -> int:
+    render_stage(Path(args.stage), args)
+    return 0
+
+
+def render_stage(stage_path: Path, args: argparse.Namespace) -> Path:
+    """Load, render and write the beauty EXR; returns its path."""
+    from ..stage import load_stage  # the only module that imports pxr; load it when needed
+
+    scene, spec = load_stage(stage_path, frame=args.frame, camera=args.camera, settings=args.settings)
+    if args.resolution:
+        spec = dataclasses.replace(spec, resolution=tuple(args.resolution))
+    settings = TraceSettings(spp=args.spp, max_depth=args.max_depth, seed=args.seed)
+    output = beauty_path(stage_path, args.output, args.frame)
+    result = trace_render(scene, spec, settings, threads=args.threads, show_progress=args.show_progress)
+    metadata = {
+        "version": __version__,
+        "stage": str(stage_path.resolve()),
+        "camera": spec.camera.path,
+        "frame": "default" if math.isnan(scene.frame) else repr(scene.frame),
+        "spp": str(settings.spp),
+        "maxDepth": str(settings.max_depth),
+        "seed": str(settings.seed),
+    }
+    write_rgba(output, result.rgba, metadata)
+    log.info("wrote %s", output)
+    return output
+
+
+def beauty_path(stage_path: Path, output: str | None, frame: float | None) -> Path:
+    """Where the beauty goes: OUT.exr as given, else STEM[.FFFF].exr in the OUT directory."""
+    if output and output.lower().endswith(".exr"):
+        return Path(output)
+    stem = stage_path.stem
+    if frame is not None:
+        stem += f".{frame:04.0f}" if float(frame).is_integer() else f".{frame:g}"
+    return Path(output or ".") / f"{stem}.exr"
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+def _non_negative(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 or more, got {text}")
+    return value

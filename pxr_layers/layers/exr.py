@@ -1,0 +1,56 @@
+"""OpenEXR output. Files appear atomically: written under a temporary name, then renamed."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+
+from ..errors import OutputError
+
+# Linear Rec.709 / sRGB primaries and D65 white: the rendering colour space.
+REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+METADATA_PREFIX = "pxrLayers/"
+
+
+def write_rgba(path: str | os.PathLike, rgba: np.ndarray, metadata: dict[str, str] | None = None) -> Path:
+    """Write one RGBA float32 part (ZIP, lossless) with namespaced string metadata.
+
+    rgba : (h, w, 4) float32 linear. Returns the final path.
+    """
+    path = Path(path)
+    header = {
+        "compression": OpenEXR.ZIP_COMPRESSION,
+        "type": OpenEXR.scanlineimage,
+        "chromaticities": REC709_CHROMATICITIES,
+    }
+    for key, value in (metadata or {}).items():
+        header[METADATA_PREFIX + key] = str(value)
+    pixels = np.ascontiguousarray(rgba, dtype=np.float32)
+    write_atomically(path, lambda temporary: OpenEXR.File(header, {"RGBA": pixels}).write(str(temporary)))
+    return path
+
+
+def write_atomically(path: Path, write) -> None:
+    """Call write(temporary_path) in path's folder, then rename over `path`.
+
+    A crash or error leaves no partial file under `path` (and removes the temporary).
+    """
+    folder = path.parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OutputError(f"{folder}: cannot create the output folder ({error.strerror})") from error
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp" + path.suffix, dir=folder)
+    os.close(handle)
+    try:
+        write(Path(temporary))
+        os.replace(temporary, path)
+    except Exception as error:
+        Path(temporary).unlink(missing_ok=True)
+        if isinstance(error, OSError):
+            raise OutputError(f"{path}: cannot write ({error.strerror or error})") from error
+        raise
