@@ -1,0 +1,185 @@
+"""Decode texture files once per (file, colour space) with OpenImageIO.
+
+Pixels are stored linear, float32, (h, w, 4) with row 0 = the top row of the file, as
+scene.TextureImage documents. Channel expansion follows UsdUVTexture: one channel is grey
+(rgb = value, alpha = 1), two channels are grey + alpha, three get alpha = 1; channels past
+the fourth are dropped because no UsdUVTexture output can reach them.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import OpenImageIO as oiio
+from pxr import Sdf, Usd
+
+from pxr_layers.scene import FLOAT, TextureImage, WrapMode
+
+from .diagnostics import Diagnostics
+
+logger = logging.getLogger(__name__)
+
+ColorSpace = Literal["raw", "sRGB"]
+
+# OIIO's "wrapmodes" metadata ("s,t") uses RenderMan words; scene.py uses UsdUVTexture's.
+_OIIO_WRAP: dict[str, WrapMode] = {
+    "black": "black",
+    "clamp": "clamp",
+    "periodic": "repeat",
+    "mirror": "mirror",
+}
+
+
+@dataclass(frozen=True)
+class _DecodedFile:
+    """One file as stored: (h, w, c) float32 values in [0, 1] for integer formats."""
+
+    pixels: np.ndarray
+    is_uint8: bool
+    wrap_modes: tuple[WrapMode | None, WrapMode | None]
+
+
+@dataclass(frozen=True)
+class LoadedTexture:
+    """A texture ready to reference: its index in SceneData.textures and the file's wrap modes."""
+
+    index: int
+    wrap_modes: tuple[WrapMode | None, WrapMode | None]  # (s, t) from metadata, None = absent
+
+
+def anchored_asset_path(attribute: Usd.Attribute, asset: Sdf.AssetPath, time: Usd.TimeCode) -> str:
+    """Where an unresolvable asset path points: anchored to the layer that authored it.
+
+    ``resolvedPath`` is empty for a missing file, and the authored "../maps/x.exr" alone
+    does not tell the user which directory was searched.
+    """
+    for spec in attribute.GetPropertyStack(time):
+        if spec.HasDefaultValue() or spec.layer.GetNumTimeSamplesForPath(spec.path):
+            anchored = spec.layer.ComputeAbsolutePath(asset.path)
+            if not os.path.isabs(anchored) and spec.layer.realPath:
+                # Search paths ("maps/x.png", no ./) stay unanchored in Sdf, but the
+                # default resolver looks next to the layer first: report that place.
+                anchored = os.path.join(os.path.dirname(spec.layer.realPath), anchored)
+            return os.path.normpath(anchored)
+    return asset.path
+
+
+def srgb_to_linear(values: np.ndarray) -> np.ndarray:
+    """The sRGB EOTF (IEC 61966-2-1), elementwise; values below 0 stay on the linear segment."""
+    # np.maximum keeps the power's base positive so negative inputs cannot produce NaN.
+    curved = ((np.maximum(values, 0.04045) + 0.055) / 1.055) ** 2.4
+    return np.where(values <= 0.04045, values / 12.92, curved).astype(FLOAT)
+
+
+class TextureLibrary:
+    """Decoded images for one stage read, appended to ``images`` in first-use order."""
+
+    def __init__(self, diagnostics: Diagnostics) -> None:
+        self.images: list[TextureImage] = []
+        self._diagnostics = diagnostics
+        self._files: dict[str, _DecodedFile | None] = {}
+        self._indices: dict[tuple[str, ColorSpace], int] = {}
+
+    def load(
+        self, path: str, source_color_space: str, user_prim: str
+    ) -> LoadedTexture | None:
+        """Decode ``path`` (an already resolved file path) for the prim ``user_prim``.
+
+        source_color_space : "raw", "sRGB" or "auto" (UsdUVTexture's sourceColorSpace);
+                             "auto" decodes 8-bit files with 3+ channels as sRGB and
+                             everything else (float, 16-bit, grey) as raw.
+        Returns None after a warning (once per file) when the file cannot be read.
+        """
+        decoded = self._decode(path, user_prim)
+        if decoded is None:
+            return None
+        if source_color_space == "sRGB":
+            color_space: ColorSpace = "sRGB"
+        elif source_color_space == "raw":
+            color_space = "raw"
+        else:
+            if source_color_space != "auto":
+                self._diagnostics.note(
+                    "unknown-color-space",
+                    "unknown sourceColorSpace values treated as 'auto' on: {prims}",
+                    user_prim,
+                )
+            is_color_image = decoded.pixels.shape[2] >= 3
+            color_space = "sRGB" if decoded.is_uint8 and is_color_image else "raw"
+        key = (path, color_space)
+        if key not in self._indices:
+            self._indices[key] = len(self.images)
+            pixels = _expand_to_rgba(decoded.pixels, color_space)
+            self.images.append(TextureImage(path=path, pixels=pixels))
+        return LoadedTexture(self._indices[key], decoded.wrap_modes)
+
+    def _decode(self, path: str, user_prim: str) -> _DecodedFile | None:
+        if path in self._files:
+            return self._files[path]
+        decoded = None
+        try:
+            decoded = _read_file(path)
+        except OSError as error:
+            self._diagnostics.warn(
+                f"cannot read texture {path} (used by {user_prim}): {error}; "
+                "using the fallback value instead",
+                once_key=f"texture:{path}",
+            )
+        self._files[path] = decoded
+        return decoded
+
+
+def _read_file(path: str) -> _DecodedFile:
+    config = oiio.ImageSpec()
+    # OIIO premultiplies PNG/TIFF colour by alpha unless told otherwise; UsdUVTexture reads
+    # channels exactly as stored.
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    image_input = oiio.ImageInput.open(path, config)
+    if image_input is None:
+        raise OSError(oiio.geterror() or "unreadable image")
+    try:
+        spec = image_input.spec()
+        pixels = image_input.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        if pixels is None:
+            raise OSError(image_input.geterror() or "cannot decode pixels")
+    finally:
+        image_input.close()
+    pixels = np.asarray(pixels, dtype=FLOAT).reshape(spec.height, spec.width, spec.nchannels)
+    wrap_modes: list[WrapMode | None] = [None, None]
+    metadata = spec.get_string_attribute("wrapmodes")
+    if metadata:
+        words = metadata.split(",")
+        words = words if len(words) == 2 else [words[0], words[0]]
+        wrap_modes = [_OIIO_WRAP.get(word.strip()) for word in words]
+    logger.debug("decoded %s: %dx%d, %d channels of %s", path, spec.width, spec.height,
+                 spec.nchannels, spec.format)
+    return _DecodedFile(
+        pixels=pixels,
+        is_uint8=spec.format.basetype == oiio.UINT8,
+        wrap_modes=(wrap_modes[0], wrap_modes[1]),
+    )
+
+
+def _expand_to_rgba(pixels: np.ndarray, color_space: ColorSpace) -> np.ndarray:
+    """(h, w, c) stored values → (h, w, 4) linear float32; the EOTF never touches alpha."""
+    height, width, channels = pixels.shape
+    # One preallocated output written channel by channel: textures are large, and
+    # concatenating intermediate arrays doubles both the time and the peak memory.
+    rgba = np.empty((height, width, 4), dtype=FLOAT)
+    if channels >= 3:
+        rgba[:, :, :3] = pixels[:, :, :3]
+    else:
+        rgba[:, :, :3] = pixels[:, :, :1]
+    if color_space == "sRGB":
+        rgba[:, :, :3] = srgb_to_linear(rgba[:, :, :3])
+    if channels == 2:
+        rgba[:, :, 3] = pixels[:, :, 1]
+    elif channels >= 4:
+        rgba[:, :, 3] = pixels[:, :, 3]
+    else:
+        rgba[:, :, 3] = 1.0
+    return rgba

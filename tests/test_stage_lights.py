@@ -1,0 +1,253 @@
+"""stage/: UsdLux lights → scene.Light (radiance, normalize, transforms, dome orientation)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
+
+from pxr_layers.stage import load_stage
+
+
+def new_stage(tmp_path, *, up_axis=UsdGeom.Tokens.y, meters_per_unit=1.0) -> Usd.Stage:
+    stage = Usd.Stage.CreateNew(str(tmp_path / "scene.usda"))
+    UsdGeom.SetStageUpAxis(stage, up_axis)
+    UsdGeom.SetStageMetersPerUnit(stage, meters_per_unit)
+    UsdGeom.Camera.Define(stage, "/Camera")
+    return stage
+
+
+def load(stage: Usd.Stage):
+    stage.GetRootLayer().Save()
+    scene, _ = load_stage(stage.GetRootLayer().realPath)
+    return scene
+
+
+def only_light(scene):
+    assert len(scene.lights) == 1, [light.path for light in scene.lights]
+    return scene.lights[0]
+
+
+def test_intensity_exposure_and_color_fold_into_radiance(tmp_path):
+    stage = new_stage(tmp_path)
+    light = UsdLux.RectLight.Define(stage, "/Lights/key")
+    light.CreateIntensityAttr(2.0)
+    light.CreateExposureAttr(1.5)
+    light.CreateColorAttr(Gf.Vec3f(1.0, 0.5, 0.25))
+    got = only_light(load(stage))
+    assert (got.name, got.path, got.kind) == ("key", "/Lights/key", "rect")
+    np.testing.assert_allclose(got.radiance, 2.0 * 2**1.5 * np.array([1.0, 0.5, 0.25]))
+    assert got.radiance.shape == (3,)
+
+
+def test_color_temperature_multiplies_the_blackbody_colour(tmp_path):
+    stage = new_stage(tmp_path)
+    light = UsdLux.SphereLight.Define(stage, "/warm")
+    light.CreateIntensityAttr(3.0)
+    light.CreateEnableColorTemperatureAttr(True)
+    light.CreateColorTemperatureAttr(3000.0)
+    UsdLux.SphereLight.Define(stage, "/off").CreateColorTemperatureAttr(3000.0)  # not enabled
+    lights = {light.name: light for light in load(stage).lights}
+    np.testing.assert_allclose(
+        lights["warm"].radiance, 3.0 * np.array(UsdLux.BlackbodyTemperatureAsRgb(3000.0)),
+        rtol=1e-6,
+    )
+    np.testing.assert_allclose(lights["off"].radiance, [1.0, 1.0, 1.0])
+
+
+@pytest.mark.parametrize(
+    "schema, sizes, area",
+    [
+        (UsdLux.RectLight, {"width": 2.0, "height": 3.0}, 6.0),
+        (UsdLux.DiskLight, {"radius": 0.5}, math.pi * 0.25),
+        (UsdLux.SphereLight, {"radius": 2.0}, 4 * math.pi * 4.0),
+        (UsdLux.CylinderLight, {"radius": 1.0, "length": 4.0}, 2 * math.pi * 4.0),
+    ],
+    ids=["rect", "disk", "sphere", "cylinder"],
+)
+def test_normalize_divides_area_lights_by_their_stage_unit_area(tmp_path, schema, sizes, area):
+    # centimetre stage, light scaled ×2 by its parent: the area counts the scale, not the units
+    stage = new_stage(tmp_path, meters_per_unit=0.01)
+    UsdGeom.Xform.Define(stage, "/Rig").AddScaleOp().Set(Gf.Vec3f(2, 2, 2))
+    light = schema.Define(stage, "/Rig/light")
+    light.CreateNormalizeAttr(True)
+    light.CreateIntensityAttr(10.0)
+    for name, value in sizes.items():
+        light.GetPrim().GetAttribute(f"inputs:{name}").Set(value)
+    got = only_light(load(stage))
+    scaled_area = area * 4.0
+    np.testing.assert_allclose(got.radiance, [10.0 / scaled_area] * 3, rtol=2e-3)
+    for name, value in sizes.items():
+        assert getattr(got, name) == pytest.approx(value)  # sizes stay in local units
+
+
+def test_scaled_sphere_light_uses_the_ellipsoid_area(tmp_path):
+    stage = new_stage(tmp_path)
+    light = UsdLux.SphereLight.Define(stage, "/egg")
+    light.AddScaleOp().Set(Gf.Vec3f(1, 1, 3))
+    light.CreateRadiusAttr(1.0)
+    light.CreateNormalizeAttr(True)
+    # the surface area of a prolate spheroid with a = 1, c = 3
+    eccentricity = math.sqrt(1 - 1 / 9)
+    area = 2 * math.pi * (1 + 3 / eccentricity * math.asin(eccentricity))
+    np.testing.assert_allclose(only_light(load(stage)).radiance, [1 / area] * 3, rtol=0.011)
+
+
+@pytest.mark.parametrize(
+    "angle, size_factor",
+    [
+        (0.0, 1.0),
+        (10.0, math.pi * math.sin(math.radians(5.0)) ** 2),
+        (180.0, math.pi),
+        (270.0, (2 - math.sin(math.radians(135.0)) ** 2) * math.pi),
+    ],
+)
+def test_normalize_distant_light_by_its_cone(tmp_path, angle, size_factor):
+    stage = new_stage(tmp_path)
+    light = UsdLux.DistantLight.Define(stage, "/sun")
+    light.CreateAngleAttr(angle)
+    light.CreateIntensityAttr(100.0)
+    light.CreateNormalizeAttr(True)
+    got = only_light(load(stage))
+    assert got.kind == "distant" and got.angle == pytest.approx(angle)
+    np.testing.assert_allclose(got.radiance, [100.0 / size_factor] * 3, rtol=1e-6)
+
+
+def test_distant_light_default_intensity_without_normalize(tmp_path):
+    stage = new_stage(tmp_path)
+    UsdLux.DistantLight.Define(stage, "/sun")
+    np.testing.assert_allclose(only_light(load(stage)).radiance, [50000.0] * 3)
+
+
+def test_light_transform_keeps_scale_and_converts_to_metres(tmp_path):
+    stage = new_stage(tmp_path, meters_per_unit=0.01)
+    rig = UsdGeom.Xform.Define(stage, "/Rig")
+    rig.AddTranslateOp().Set(Gf.Vec3d(100, 200, 300))
+    rig.AddRotateYOp().Set(90.0)
+    light = UsdLux.RectLight.Define(stage, "/Rig/panel")
+    light.AddScaleOp().Set(Gf.Vec3f(2, 1, 1))
+    light.CreateWidthAttr(50.0)
+    got = only_light(load(stage))
+    matrix = got.world_from_light
+    assert matrix.shape == (4, 4) and matrix.dtype == np.float64
+    np.testing.assert_allclose(matrix[:3, 3], [1.0, 2.0, 3.0])
+    # column convention: local +X (scaled ×2, in cm) ends up along world −Z (rotateY 90°)
+    np.testing.assert_allclose(matrix[:3, 0], [0, 0, -0.02], atol=1e-12)
+    np.testing.assert_allclose(matrix[:3, 2], [0.01, 0, 0], atol=1e-12)
+    # the tracer's world width: local width times the matrix
+    assert np.linalg.norm(matrix[:3, 0] * got.width) == pytest.approx(1.0)
+
+
+def test_dome_ignores_normalize_and_reads_its_texture_raw(tmp_path):
+    pixels = np.array([[[4.0, 2.0, 1.0], [0.5, 0.25, 0.125]]], dtype=np.float32)
+    spec = oiio.ImageSpec(2, 1, 3, oiio.FLOAT)
+    output = oiio.ImageOutput.create(str(tmp_path / "sky.exr"))
+    output.open(str(tmp_path / "sky.exr"), spec)
+    output.write_image(pixels)
+    output.close()
+    stage = new_stage(tmp_path)
+    dome = UsdLux.DomeLight.Define(stage, "/sky")
+    dome.CreateTextureFileAttr(Sdf.AssetPath("sky.exr"))
+    dome.CreateIntensityAttr(0.5)
+    dome.CreateNormalizeAttr(True)
+    scene = load(stage)
+    got = only_light(scene)
+    assert got.kind == "dome"
+    np.testing.assert_allclose(got.radiance, [0.5] * 3)
+    texture = scene.textures[got.texture]
+    np.testing.assert_allclose(texture.pixels[0, :, :3], pixels[0])
+
+
+def test_missing_dome_texture_warns_and_leaves_a_constant_dome(tmp_path):
+    stage = new_stage(tmp_path)
+    UsdLux.DomeLight.Define(stage, "/sky").CreateTextureFileAttr(Sdf.AssetPath("./nope.exr"))
+    scene = load(stage)
+    assert only_light(scene).texture is None
+    assert any("nope.exr" in warning and "/sky" in warning for warning in scene.warnings)
+
+
+@pytest.mark.parametrize(
+    "schema, pole_axis, up_axis, y_goes_to",
+    [
+        (UsdLux.DomeLight, None, "Y", (0, 1, 0)),
+        (UsdLux.DomeLight, None, "Z", (0, 1, 0)),  # the plain DomeLight is always Y-up
+        (UsdLux.DomeLight_1, "scene", "Z", (0, 0, 1)),
+        (UsdLux.DomeLight_1, "scene", "Y", (0, 1, 0)),
+        (UsdLux.DomeLight_1, "Z", "Y", (0, 0, 1)),
+        (UsdLux.DomeLight_1, "Y", "Z", (0, 1, 0)),
+    ],
+)
+def test_dome_frame_follows_the_pole_axis(tmp_path, schema, pole_axis, up_axis, y_goes_to):
+    stage = new_stage(tmp_path, up_axis=up_axis)
+    dome = schema.Define(stage, "/sky")
+    if pole_axis is not None:
+        dome.CreatePoleAxisAttr(pole_axis)
+    matrix = only_light(load(stage)).world_from_light
+    np.testing.assert_allclose(matrix[:3, 1], y_goes_to, atol=1e-12)
+    np.testing.assert_allclose(matrix[:3, :3] @ matrix[:3, :3].T, np.eye(3), atol=1e-12)
+    if y_goes_to == (0, 0, 1):
+        # UsdLux: on a Z-up dome, longitude 0 (EXR +Z) points to −Y
+        np.testing.assert_allclose(matrix[:3, 2], [0, -1, 0], atol=1e-12)
+
+
+def test_dome_keeps_its_rotation_but_not_scale_or_translation(tmp_path):
+    stage = new_stage(tmp_path)
+    dome = UsdLux.DomeLight.Define(stage, "/sky")
+    dome.AddTranslateOp().Set(Gf.Vec3d(5, 5, 5))
+    dome.AddRotateYOp().Set(90.0)
+    dome.AddScaleOp().Set(Gf.Vec3f(3, 3, 3))
+    matrix = only_light(load(stage)).world_from_light
+    np.testing.assert_allclose(matrix[:3, 3], [0, 0, 0])
+    np.testing.assert_allclose(matrix[:3, 2], [1, 0, 0], atol=1e-12)  # +Z turned to +X
+
+
+def test_unsupported_lights_and_controls_warn_once_per_kind(tmp_path):
+    stage = new_stage(tmp_path)
+    mesh = UsdGeom.Mesh.Define(stage, "/glowing")
+    mesh.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (0, 1, 0)])
+    mesh.CreateFaceVertexCountsAttr([3])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2])
+    UsdLux.MeshLightAPI.Apply(mesh.GetPrim())
+    UsdLux.PortalLight.Define(stage, "/portal")
+    for name in ("a", "b"):
+        light = UsdLux.SphereLight.Define(stage, f"/{name}")
+        light.CreateTreatAsPointAttr(True)
+        UsdLux.ShapingAPI.Apply(light.GetPrim()).CreateShapingConeAngleAttr(30.0)
+    scene = load(stage)
+    assert [mesh.path for mesh in scene.meshes] == ["/glowing"]  # still rendered as geometry
+    assert sorted(light.path for light in scene.lights) == ["/a", "/b"]
+    unsupported = [w for w in scene.warnings if "unsupported lights" in w]
+    assert len(unsupported) == 1 and "/glowing" in unsupported[0] and "/portal" in unsupported[0]
+    shaping = [w for w in scene.warnings if "shaping" in w]
+    assert len(shaping) == 1 and "/a" in shaping[0] and "/b" in shaping[0]
+    assert len([w for w in scene.warnings if "treatAsPoint" in w]) == 1
+
+
+def test_invisible_lights_are_skipped(tmp_path):
+    stage = new_stage(tmp_path)
+    UsdLux.SphereLight.Define(stage, "/on")
+    UsdLux.SphereLight.Define(stage, "/off").MakeInvisible()
+    assert [light.path for light in load(stage).lights] == ["/on"]
+
+
+def test_no_lights_and_no_emission_warns_the_image_will_be_black(tmp_path):
+    stage = new_stage(tmp_path)
+    assert any("black" in warning for warning in load(stage).warnings)
+
+
+def test_an_emissive_material_counts_as_light(tmp_path):
+    stage = new_stage(tmp_path)
+    mesh = UsdGeom.Mesh.Define(stage, "/panel")
+    mesh.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (0, 1, 0)])
+    mesh.CreateFaceVertexCountsAttr([3])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2])
+    material = UsdShade.Material.Define(stage, "/Looks/glow")
+    shader = UsdShade.Shader.Define(stage, "/Looks/glow/Surface")
+    shader.CreateIdAttr("UsdPreviewSurface")
+    shader.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set((5, 5, 5))
+    material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
+    assert not any("black" in warning for warning in load(stage).warnings)
