@@ -31,6 +31,7 @@ import numpy as np
 
 from ..scene import FLOAT
 from .shading import SurfaceInputs
+from .vectors import dot, normalize
 
 DIFFUSE, SPECULAR, COAT, GLASS = range(4)
 GLOSSY_LOBES = (DIFFUSE, SPECULAR, COAT)  # the lobes a light sample can land in
@@ -146,12 +147,12 @@ def prepare(inputs: SurfaceInputs, cos_o: np.ndarray, entering: np.ndarray) -> L
 def _ggx_eval(wo, wi, alpha, f0, f90):
     """GGX reflection: f (n, 3) and its VNDF sampling pdf (n,) for wo, wi (n, 3) local."""
     half = wo + wi
-    half /= np.maximum(np.linalg.norm(half, axis=1, keepdims=True), 1e-12)
+    half = normalize(half, 1e-12)
     cos_o, cos_i, cos_h = wo[:, 2], wi[:, 2], half[:, 2]
     d = ggx_d(cos_h, alpha)
     g1_o = smith_g1(cos_o, alpha)
     g1_i = smith_g1(cos_i, alpha)
-    fresnel = schlick(f0, f90, np.sum(wo * half, axis=1))
+    fresnel = schlick(f0, f90, dot(wo, half))
     valid = (cos_i > 0) & (cos_o > 0)
     f = np.where(valid[:, None], fresnel * (d * g1_o * g1_i / np.maximum(4 * cos_o * cos_i, 1e-12))[:, None], 0.0)
     pdf = np.where(valid, g1_o * d / np.maximum(4 * cos_o, 1e-12), 0.0)
@@ -217,7 +218,7 @@ def _sample_ggx_visible_normal(wo: np.ndarray, alpha: np.ndarray, u1: np.ndarray
     """Heitz 2018: a microfacet normal (n, 3) distributed as GGX's visible normals from wo."""
     a = alpha[:, None]
     stretched = np.concatenate([wo[:, :2] * a, wo[:, 2:]], axis=1)
-    stretched /= np.linalg.norm(stretched, axis=1, keepdims=True)
+    stretched = normalize(stretched)
     length2 = stretched[:, 0] ** 2 + stretched[:, 1] ** 2
     inv_len = np.where(length2 > 0, 1.0 / np.sqrt(np.maximum(length2, 1e-30)), 0.0)
     t1 = np.stack([-stretched[:, 1] * inv_len, stretched[:, 0] * inv_len, np.zeros_like(inv_len)], axis=1)
@@ -232,11 +233,11 @@ def _sample_ggx_visible_normal(wo: np.ndarray, alpha: np.ndarray, u1: np.ndarray
     p3 = np.sqrt(np.maximum(1.0 - p1 * p1 - p2 * p2, 0.0))
     normal = p1[:, None] * t1 + p2[:, None] * t2 + p3[:, None] * stretched
     normal = np.concatenate([normal[:, :2] * a, np.maximum(normal[:, 2:], 1e-7)], axis=1)
-    return (normal / np.linalg.norm(normal, axis=1, keepdims=True)).astype(FLOAT)
+    return normalize(normal).astype(FLOAT)
 
 
 def _reflect(wo: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    return 2.0 * np.sum(wo * normal, axis=1, keepdims=True) * normal - wo
+    return 2.0 * dot(wo, normal)[:, None] * normal - wo
 
 
 def sample(lobes: Lobes, wo: np.ndarray, u: np.ndarray) -> BsdfSample:
@@ -282,7 +283,7 @@ def sample(lobes: Lobes, wo: np.ndarray, u: np.ndarray) -> BsdfSample:
         )
         wi = _reflect(wo_l, normal).astype(FLOAT)
         direction[lanes] = wi
-        fresnel = schlick(lane_f0, lane_f90, np.sum(wo_l * normal, axis=1))
+        fresnel = schlick(lane_f0, lane_f90, dot(wo_l, normal))
         # VNDF sampling: f·cos/pdf = F·G1(wi) for the microfacet lobe; F for a mirror.
         g1_i = np.where(singular, 1.0, smith_g1(wi[:, 2], alpha[lanes]))
         weight[lanes] = np.where((wi[:, 2] > 0)[:, None], fresnel * g1_i[:, None], 0.0) * layer_weight[lanes, None] / probability
@@ -307,5 +308,5 @@ def sample(lobes: Lobes, wo: np.ndarray, u: np.ndarray) -> BsdfSample:
         scatter[lanes] = SCATTER_SINGULAR
         transmit[lanes] = ~reflect
 
-    direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
+    direction = normalize(direction, 1e-12).astype(FLOAT)
     return BsdfSample(direction, weight, pdf, lobe, scatter, transmit, valid)

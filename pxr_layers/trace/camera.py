@@ -8,6 +8,7 @@ import numpy as np
 
 from ..errors import RenderSettingsError
 from ..scene import FLOAT, RenderSpec
+from .vectors import normalize
 
 
 @dataclass(frozen=True)
@@ -67,6 +68,6 @@ class PinholeCamera:
         y = (1.0 - 2.0 * film_y) * self.half_height + self.offset_y
         local = np.stack([x, y, -np.ones_like(x)], axis=1)
         world = local @ self.world_from_camera.T
-        world /= np.linalg.norm(world, axis=1, keepdims=True)
+        world = normalize(world)
         origins = np.broadcast_to(self.position, world.shape)
         return origins.astype(FLOAT), world.astype(FLOAT)

@@ -25,6 +25,7 @@ from .camera import PinholeCamera
 from .embree import RayCaster
 from .lights import LightSampler, orthonormal_basis
 from .shading import MaterialTable, surface_points
+from .vectors import dot, max3
 from .world import World
 
 T_INFINITY = np.float32(1e30)
@@ -145,7 +146,7 @@ class Integrator:
             triangle, directions, t_hit = triangle[keep], directions[keep], t_hit[keep]
             points = surface_points(self.world, triangle, bary_u[keep], bary_v[keep])
             wo = -directions
-            cos_geometric = np.sum(points.geometric_normal * wo, axis=1)
+            cos_geometric = dot(points.geometric_normal, wo)
 
             # -- emission from lights and emissive surfaces hit by the ray
             emitting = np.flatnonzero(self.triangle_emits[triangle])
@@ -177,16 +178,16 @@ class Integrator:
 
             # -- shading frame: normal on the viewer's side of the geometric normal
             shading_normal = np.where(
-                (np.sum(shading_normal * facing, axis=1) < 0)[:, None], -shading_normal, shading_normal
+                (dot(shading_normal, facing) < 0)[:, None], -shading_normal, shading_normal
             )
             shading_normal = np.where(
-                (np.sum(shading_normal * wo, axis=1) <= 1e-4)[:, None], facing, shading_normal
+                (dot(shading_normal, wo) <= 1e-4)[:, None], facing, shading_normal
             )
             tangent, bitangent = orthonormal_basis(shading_normal)
 
             def to_local(v):
                 return np.stack(
-                    [np.sum(v * tangent, 1), np.sum(v * bitangent, 1), np.sum(v * shading_normal, 1)], axis=1
+                    [dot(v, tangent), dot(v, bitangent), dot(v, shading_normal)], axis=1
                 )
 
             wo_local = to_local(wo)
@@ -206,7 +207,7 @@ class Integrator:
                 + sampled.direction[:, 1:2] * bitangent
                 + sampled.direction[:, 2:] * shading_normal
             ).astype(FLOAT)
-            side = np.sum(new_direction * facing, axis=1)
+            side = dot(new_direction, facing)
             consistent = np.where(sampled.transmit, side < 0, side > 0)
             scattered = sampled.valid & consistent & ~cut
             throughput = np.where(cut[:, None], throughput, throughput * sampled.weight)
@@ -220,11 +221,11 @@ class Integrator:
             # -- Russian roulette
             survive = cut | scattered
             if step + 1 >= self.settings.roulette_depth:
-                continue_probability = np.clip(throughput.max(axis=1), 0.05, 1.0)
+                continue_probability = np.clip(max3(throughput), 0.05, 1.0)
                 lucky = randoms[:, 7] < continue_probability
                 survive &= lucky | cut
                 throughput = np.where(cut[:, None], throughput, throughput / continue_probability[:, None])
-            survive &= throughput.max(axis=1) > 0
+            survive &= max3(throughput) > 0
             keep = np.flatnonzero(survive)
             pixel, keys, throughput, depth = pixel[keep], keys[keep], throughput[keep], depth[keep]
             previous_pdf, previous_singular = previous_pdf[keep], previous_singular[keep]
@@ -243,8 +244,8 @@ class Integrator:
         """Sample one light per lane, add each non-singular lobe's MIS-weighted share."""
         sample = self.lights.sample(position, u)
         f, lobe_pdf = bsdf.evaluate(lobes, wo_local, to_local(sample.direction))
-        cos_incident = np.sum(sample.direction * facing, axis=1)
-        useful = allowed & (sample.pdf > 0) & (cos_incident > 0) & (sample.radiance.max(axis=1) > 0)
+        cos_incident = dot(sample.direction, facing)
+        useful = allowed & (sample.pdf > 0) & (cos_incident > 0) & (max3(sample.radiance) > 0)
         useful &= f.reshape(len(f), -1).max(axis=1) > 0
         lanes = np.flatnonzero(useful)
         if not len(lanes):
@@ -264,7 +265,7 @@ class Integrator:
         )[:, None]
         for lobe in bsdf.GLOSSY_LOBES:
             lobe_f = f[lanes, lobe]
-            active = lobe_f.max(axis=1) > 0
+            active = max3(lobe_f) > 0
             if not active.any():
                 continue
             weight = np.where(delta, 1.0, power_heuristic(light_pdf, lobe_pdf[lanes, lobe]))

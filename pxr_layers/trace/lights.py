@@ -20,8 +20,9 @@ import numpy as np
 
 from ..scene import FLOAT, SceneData
 from .bsdf import luminance
-from .shading import MaterialTable
+from .shading import MaterialTable, interpolate
 from .textures import sample_bilinear
+from .vectors import dot, length
 from .world import World
 
 DOME_GRID = (64, 128)  # (rows, columns) of the dome's sampling distribution at most
@@ -231,7 +232,7 @@ class LightSampler:
         radiance[is_light] = self.light_radiance[light[is_light]]
         surface = np.flatnonzero(~is_light)
         if len(surface):
-            st = self.world.corner_uvs[triangles[surface]].mean(axis=1)
+            st = self.world.corner_uvs[:, triangles[surface]].mean(axis=0)
             radiance[surface] = self.materials.emission(self.world.triangle_material[triangles[surface]], st)
         return radiance
 
@@ -307,19 +308,17 @@ class LightSampler:
         root = np.sqrt(u[lanes, 1])
         bu = (u[lanes, 2] * root).astype(FLOAT)
         bv = (1.0 - root).astype(FLOAT)
-        corners = self.world.vertices[self.world.triangles[chosen]]
-        position = corners[:, 0] * (1 - bu - bv)[:, None] + corners[:, 1] * bu[:, None] + corners[:, 2] * bv[:, None]
+        position = interpolate(self.world.corner_positions, chosen, bu, bv)
         offset = position - points[lanes]
-        length = np.linalg.norm(offset, axis=1)
-        to_light = offset / np.maximum(length, 1e-12)[:, None]
-        normal = self.world.geometric_normal[chosen]
-        cos_light = -np.sum(normal * to_light, axis=1)
-        uvs = self.world.corner_uvs[chosen]
-        st = uvs[:, 0] * (1 - bu - bv)[:, None] + uvs[:, 1] * bu[:, None] + uvs[:, 2] * bv[:, None]
+        distance_to = length(offset)
+        to_light = offset / np.maximum(distance_to, 1e-12)[:, None]
+        normal = np.take(self.world.geometric_normal, chosen, axis=0)
+        cos_light = -dot(normal, to_light)
+        st = interpolate(self.world.corner_uvs, chosen, bu, bv)
         direction[lanes] = to_light
-        distance[lanes] = length
+        distance[lanes] = distance_to
         radiance[lanes] = self.emitted(chosen, st, cos_light)
-        pdf[lanes] = self.triangle_pdf(chosen, length, cos_light)
+        pdf[lanes] = self.triangle_pdf(chosen, distance_to, cos_light)
         light[lanes] = self.world.triangle_light[chosen]
         triangle[lanes] = chosen
 

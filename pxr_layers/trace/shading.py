@@ -8,6 +8,7 @@ import numpy as np
 
 from ..scene import FLOAT, Material, SceneData, TextureInput
 from .textures import sample_bilinear
+from .vectors import normalize
 from .world import World
 
 _COLOR_INPUTS = ("diffuse_color", "emissive_color", "specular_color")
@@ -34,17 +35,22 @@ class SurfacePoints:
 
 def surface_points(world: World, triangle: np.ndarray, u: np.ndarray, v: np.ndarray) -> SurfacePoints:
     """Interpolate position, normal and st at barycentrics (u, v) of `triangle` (all (n,))."""
-    w = (1.0 - u - v).astype(FLOAT)[:, None]
-    u_ = u.astype(FLOAT)[:, None]
-    v_ = v.astype(FLOAT)[:, None]
-    corners = world.vertices[world.triangles[triangle]]  # (n, 3, 3)
-    position = corners[:, 0] * w + corners[:, 1] * u_ + corners[:, 2] * v_
-    normals = world.corner_normals[triangle]
-    shading = normals[:, 0] * w + normals[:, 1] * u_ + normals[:, 2] * v_
-    shading /= np.maximum(np.linalg.norm(shading, axis=1, keepdims=True), 1e-12)
-    uvs = world.corner_uvs[triangle]
-    st = uvs[:, 0] * w + uvs[:, 1] * u_ + uvs[:, 2] * v_
-    return SurfacePoints(position, world.geometric_normal[triangle], shading.astype(FLOAT), st, triangle)
+    position = interpolate(world.corner_positions, triangle, u, v)
+    shading = normalize(interpolate(world.corner_normals, triangle, u, v), 1e-12)
+    st = interpolate(world.corner_uvs, triangle, u, v)
+    normal = np.take(world.geometric_normal, triangle, axis=0)
+    return SurfacePoints(position, normal, shading.astype(FLOAT), st, triangle)
+
+
+def interpolate(corners: np.ndarray, triangle: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Barycentric interpolation of corner-major data (3, t, k) at (u, v) of `triangle`
+    (all (n,)): (1 − u − v)·c0 + u·c1 + v·c2 -> (n, k) float32."""
+    u = u.astype(FLOAT)[:, None]
+    v = v.astype(FLOAT)[:, None]
+    c0 = np.take(corners[0], triangle, axis=0)
+    c1 = np.take(corners[1], triangle, axis=0)
+    c2 = np.take(corners[2], triangle, axis=0)
+    return c0 + (c1 - c0) * u + (c2 - c0) * v
 
 
 @dataclass

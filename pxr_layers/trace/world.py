@@ -32,8 +32,9 @@ class World:
     triangles        : (t, 3) int32
     geometric_normal : (t, 3) float32 unit, right-handed from the winding
     area             : (t,) float32 square metres
-    corner_normals   : (t, 3, 3) float32 unit shading normals (flat where none authored)
-    corner_uvs       : (t, 3, 2) float32 (zeros where none authored)
+    corner_positions : (3, t, 3) float32, corner-major so each corner gathers contiguously
+    corner_normals   : (3, t, 3) float32 unit shading normals (flat where none authored)
+    corner_uvs       : (3, t, 2) float32 (zeros where none authored)
     triangle_object  : (t,) int32 index into object_names / object_paths
     triangle_material: (t,) int32 index into SceneData.materials, -1 on light shapes
     triangle_light   : (t,) int32 index into SceneData.lights, -1 on surfaces
@@ -44,6 +45,7 @@ class World:
     triangles: np.ndarray
     geometric_normal: np.ndarray
     area: np.ndarray
+    corner_positions: np.ndarray
     corner_normals: np.ndarray
     corner_uvs: np.ndarray
     triangle_object: np.ndarray
@@ -114,8 +116,9 @@ def build_world(scene: SceneData) -> World:
         triangles=all_triangles,
         geometric_normal=geometric_normal,
         area=(double_area / 2).astype(FLOAT),
-        corner_normals=corner_normals.astype(FLOAT),
-        corner_uvs=np.concatenate(uvs),
+        corner_positions=_corner_major(corners),
+        corner_normals=_corner_major(corner_normals),
+        corner_uvs=_corner_major(np.concatenate(uvs)),
         triangle_object=np.concatenate(objects),
         triangle_material=np.concatenate(materials),
         triangle_light=np.concatenate(lights),
@@ -124,6 +127,11 @@ def build_world(scene: SceneData) -> World:
         center=center.astype(np.float64),
         radius=float(np.linalg.norm(high - low) / 2) or 1.0,
     )
+
+
+def _corner_major(per_triangle: np.ndarray) -> np.ndarray:
+    """(t, 3, k) per-triangle corners -> contiguous (3, t, k) float32."""
+    return np.ascontiguousarray(per_triangle.transpose(1, 0, 2), dtype=FLOAT)
 
 
 def _starts(arrays: list[np.ndarray]) -> list[int]:
