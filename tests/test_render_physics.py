@@ -8,7 +8,6 @@ Carlo noise at the sample counts used (relative standard errors measured well be
 from __future__ import annotations
 
 import math
-import textwrap
 
 import numpy as np
 import pytest
@@ -46,25 +45,8 @@ def stage_text(body: str, looks: str = "", camera: str = "") -> str:
         uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]
     }
 """
-    return textwrap.dedent(
-        f"""\
-        #usda 1.0
-        (
-            upAxis = "Y"
-            metersPerUnit = 1
-            defaultPrim = "World"
-        )
-        def Xform "World"
-        {{
-            def Scope "Looks"
-            {{
-        {looks}
-            }}
-        {body}
-        {camera}
-        }}
-        """
-    )
+    header = '#usda 1.0\n(\n    upAxis = "Y"\n    metersPerUnit = 1\n    defaultPrim = "World"\n)\n'
+    return header + f'def Xform "World"\n{{\n    def Scope "Looks"\n    {{\n{looks}\n    }}\n{body}\n{camera}\n}}\n'
 
 
 FLOOR = """

@@ -1,0 +1,111 @@
+"""The `pxr-layers` command as a user runs it: the real console script in a subprocess."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+import OpenImageIO as oiio
+import pytest
+
+from pxr_layers.cli.main import main
+from pxr_layers.layers.exr import write_atomically
+
+SCRIPT = shutil.which("pxr-layers", path=str(Path(sys.executable).parent)) or "pxr-layers"
+RENDER_DIR = Path(__file__).resolve().parents[1] / "render"
+SMALL = ["--spp", "2", "--resolution", "24", "24", "--max-depth", "3", "--quiet"]
+
+
+def run(*args: str, cwd=None) -> subprocess.CompletedProcess:
+    env = {**os.environ, "CI": "1"}
+    return subprocess.run([SCRIPT, *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=300)
+
+
+def test_help_lists_every_subcommand_and_flag():
+    top = run("--help")
+    assert top.returncode == 0
+    assert "render" in top.stdout and "demo" in top.stdout
+    sub = run("render", "--help")
+    assert sub.returncode == 0
+    for flag in ("-o", "--spp", "--max-depth", "--resolution", "--seed", "--frame", "--camera", "--settings"):
+        assert flag in sub.stdout
+
+
+@pytest.mark.parametrize("args", [["render"], ["render", "x.usda", "--spp", "0"], ["bogus"], ["render", "x.usda", "--nope"]])
+def test_usage_errors_exit_2(args):
+    assert main(args) == 2
+
+
+def test_missing_stage_is_one_line_and_exit_1(tmp_path):
+    result = run("render", str(tmp_path / "nowhere.usda"), "-o", str(tmp_path))
+    assert result.returncode == 1
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "nowhere.usda" in lines[0] and "Traceback" not in result.stderr
+    assert not list(tmp_path.iterdir())
+
+
+def test_garbage_file_is_a_user_error(tmp_path):
+    bad = tmp_path / "garbage.usda"
+    bad.write_bytes(b"\x00\x01 this is not usd")
+    result = run("render", str(bad), "-o", str(tmp_path / "out.exr"))
+    assert result.returncode == 1 and "garbage.usda" in result.stderr
+    assert not (tmp_path / "out.exr").exists()
+
+
+def test_render_writes_an_exr_that_openexr_and_oiio_read(tmp_path):
+    out = tmp_path / "shots" / "beauty.exr"
+    result = run("render", str(RENDER_DIR / "cornell.usda"), "-o", str(out), "--seed", "3", *SMALL)
+    assert result.returncode == 0, result.stderr
+    exr = OpenEXR.File(str(out))
+    header = exr.header()
+    assert header["pxrLayers/spp"] == "2" and header["pxrLayers/seed"] == "3"
+    assert header["pxrLayers/camera"] == "/World/Camera"
+    rgba = exr.channels()["RGBA"].pixels
+    assert rgba.shape == (24, 24, 4) and rgba.dtype == np.float32
+    assert np.isfinite(rgba).all() and rgba[..., :3].mean() > 0.05
+    assert np.all(rgba[2:-2, 2:-2, 3] == 1.0)  # inside the box every camera ray hits something
+    spec = oiio.ImageInput.open(str(out)).spec()
+    assert (spec.width, spec.height, spec.nchannels) == (24, 24, 4)
+    assert [p.name for p in out.parent.iterdir()] == ["beauty.exr"]  # no temporary left
+
+
+def test_output_directory_and_frame_name_the_file(tmp_path):
+    result = run("render", str(RENDER_DIR / "cornell.usda"), "-o", str(tmp_path / "dir"), "--frame", "1", *SMALL)
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "dir" / "cornell.0001.exr").exists()
+    result = run("render", str(RENDER_DIR / "cornell.usda"), *SMALL, cwd=tmp_path)
+    assert result.returncode == 0 and (tmp_path / "cornell.exr").exists()
+
+
+def test_same_command_gives_the_same_bytes(tmp_path):
+    for name in ("a.exr", "b.exr"):
+        assert run("render", str(RENDER_DIR / "cornell.usda"), "-o", str(tmp_path / name), *SMALL).returncode == 0
+    assert (tmp_path / "a.exr").read_bytes() == (tmp_path / "b.exr").read_bytes()
+
+
+def test_demo_renders_the_embedded_cornell_box(tmp_path):
+    result = run("demo", "-o", str(tmp_path), *SMALL)
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "cornell.exr").exists()
+
+
+def test_unknown_camera_is_a_user_error(tmp_path):
+    result = run("render", str(RENDER_DIR / "cornell.usda"), "--camera", "/World/NoSuchCamera", "-o", str(tmp_path), *SMALL)
+    assert result.returncode == 1 and "/World/NoSuchCamera" in result.stderr
+
+
+def test_failed_write_leaves_nothing_behind(tmp_path):
+    target = tmp_path / "beauty.exr"
+
+    def crash(temporary):
+        temporary.write_bytes(b"half an image")
+        raise RuntimeError("disk on fire")
+
+    with pytest.raises(RuntimeError):
+        write_atomically(target, crash)
+    assert list(tmp_path.iterdir()) == []
