@@ -91,7 +91,7 @@ def replay(caster: RayCaster, queries, threads: int):
             caster.intersect(origins, directions, t_max)
         else:
             caster.occluded(origins, directions, t_max)
-        return len(origins)
+        return origins.shape[1]  # (3, n)
 
     start = time.perf_counter()
     with ThreadPoolExecutor(threads) as pool:

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..errors import RenderSettingsError
 from ..scene import FLOAT, RenderSpec
-from .vectors import normalize
+from .vectors import normalize, transform_rows
 
 
 @dataclass(frozen=True)
@@ -62,12 +62,11 @@ class PinholeCamera:
     def rays(self, film_x: np.ndarray, film_y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World rays through film positions in [0, 1]² (x right, y down from the top row).
 
-        Returns origins (n, 3) and unit directions (n, 3), float32.
+        Returns origins (3, n) and unit directions (3, n), float32.
         """
         x = (2.0 * film_x - 1.0) * self.half_width + self.offset_x
         y = (1.0 - 2.0 * film_y) * self.half_height + self.offset_y
-        local = np.stack([x, y, -np.ones_like(x)], axis=1)
-        world = local @ self.world_from_camera.T
-        world = normalize(world)
-        origins = np.broadcast_to(self.position, world.shape)
-        return origins.astype(FLOAT), world.astype(FLOAT)
+        local = np.stack([x, y, -np.ones_like(x)]).astype(FLOAT)
+        direction = normalize(transform_rows(self.world_from_camera, local))
+        origins = np.repeat(self.position.astype(FLOAT)[:, None], len(x), axis=1)
+        return origins, direction.astype(FLOAT)

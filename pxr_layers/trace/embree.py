@@ -11,6 +11,7 @@ import numpy as np
 from embreex import mesh_construction, rtcore_scene
 
 from ..scene import FLOAT
+from .vectors import to_lanes
 from .world import World
 
 MISS = -1
@@ -29,25 +30,19 @@ class RayCaster:
     def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray):
         """Closest hits.
 
-        origins, directions : (n, 3) float32 (directions need not be unit; t is in their units)
+        origins, directions : (3, n) float32 (directions need not be unit; t is in their units)
         t_max               : (n,) float32
         Returns (triangle (n,) int32 with MISS for no hit, u (n,), v (n,), t (n,) float32);
         u and v are Embree's barycentrics: p = (1 - u - v) p0 + u p1 + v p2.
         """
         result = self._scene.run(
-            np.ascontiguousarray(origins, FLOAT),
-            np.ascontiguousarray(directions, FLOAT),
-            dists=np.ascontiguousarray(t_max, FLOAT),
-            output=1,
+            to_lanes(origins), to_lanes(directions), dists=np.ascontiguousarray(t_max, FLOAT), output=1
         )
         return result["primID"], result["u"], result["v"], result["tfar"]
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray) -> np.ndarray:
-        """Any hit with t < t_max: (n,) bool."""
+        """Any hit with t < t_max for origins, directions (3, n): (n,) bool."""
         hit = self._scene.run(
-            np.ascontiguousarray(origins, FLOAT),
-            np.ascontiguousarray(directions, FLOAT),
-            dists=np.ascontiguousarray(t_max, FLOAT),
-            query="OCCLUDED",
+            to_lanes(origins), to_lanes(directions), dists=np.ascontiguousarray(t_max, FLOAT), query="OCCLUDED"
         )
         return hit != MISS

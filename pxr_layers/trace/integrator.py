@@ -24,7 +24,7 @@ from . import bsdf, rng
 from .camera import PinholeCamera
 from .embree import RayCaster
 from .lights import LightSampler, orthonormal_basis
-from .shading import MaterialTable, surface_points
+from .shading import MaterialTable, interpolate, surface_points
 from .vectors import dot, max3
 from .world import World
 
@@ -64,6 +64,7 @@ class _Contributions:
     rgb: list[np.ndarray] = field(default_factory=list)
 
     def add(self, pixel: np.ndarray, rgb: np.ndarray) -> None:
+        """pixel (n,) int64, rgb (3, n) float32."""
         if len(pixel):
             self.pixels.append(pixel)
             self.rgb.append(rgb)
@@ -106,13 +107,13 @@ class Integrator:
         pixel_count = int(pixel[-1]) - first_pixel + 1
         keys = rng.path_keys(self.key, pixel, path % spp)
         jitter = rng.uniforms(keys, 0, 2)
-        film_x = ((pixel % self.width) + jitter[:, 0]) / self.width
-        film_y = ((pixel // self.width) + jitter[:, 1]) / self.height
+        film_x = ((pixel % self.width) + jitter[0]) / self.width
+        film_y = ((pixel // self.width) + jitter[1]) / self.height
         origins, directions = self.camera.rays(film_x, film_y)
         t_max = np.full(len(path), self.camera.t_max, FLOAT)
 
         n = len(path)
-        throughput = np.ones((n, 3), FLOAT)
+        throughput = np.ones((3, n), FLOAT)
         previous_pdf = np.zeros(n, FLOAT)
         previous_singular = np.ones(n, bool)  # the camera: what it sees directly is not MIS'd
         depth = np.zeros(n, np.int32)
@@ -131,144 +132,140 @@ class Integrator:
                 alpha += np.bincount(pixel[hit] - first_pixel, minlength=pixel_count)
 
             # -- escaped rays see the dome and distant lights' cones
-            missed = np.flatnonzero(~hit)
-            if len(missed) and self.has_infinite_lights:
-                for _, radiance, density in self.lights.escaped(directions[missed]):
+            if self.has_infinite_lights and not hit.all():
+                missed = np.flatnonzero(~hit)
+                for _, radiance, density in self.lights.escaped(directions[:, missed]):
                     weight = np.where(
                         previous_singular[missed], 1.0, power_heuristic(previous_pdf[missed], density)
                     )
-                    out.add(pixel[missed], throughput[missed] * radiance * weight[:, None])
-
-            keep = np.flatnonzero(hit)
-            pixel, keys, throughput, previous_pdf, previous_singular, depth = (
-                pixel[keep], keys[keep], throughput[keep], previous_pdf[keep], previous_singular[keep], depth[keep]
-            )
-            triangle, directions, t_hit = triangle[keep], directions[keep], t_hit[keep]
-            points = surface_points(self.world, triangle, bary_u[keep], bary_v[keep])
-            wo = -directions
-            cos_geometric = dot(points.geometric_normal, wo)
+                    out.add(pixel[missed], throughput[:, missed] * radiance * weight)
 
             # -- emission from lights and emissive surfaces hit by the ray
-            emitting = np.flatnonzero(self.triangle_emits[triangle])
+            emitting = np.flatnonzero(hit & np.take(self.triangle_emits, triangle))
             if len(emitting):
-                radiance = self.lights.emitted(triangle[emitting], points.st[emitting], cos_geometric[emitting])
-                density = self.lights.triangle_pdf(triangle[emitting], t_hit[emitting], cos_geometric[emitting])
+                tri = triangle[emitting]
+                cos_emitter = -dot(np.take(self.world.geometric_normal, tri, axis=1), directions[:, emitting])
+                st = interpolate(self.world.corner_uvs, tri, bary_u[emitting], bary_v[emitting])
+                radiance = self.lights.emitted(tri, st, cos_emitter)
+                density = self.lights.triangle_pdf(tri, t_hit[emitting], cos_emitter)
                 weight = np.where(
                     previous_singular[emitting], 1.0, power_heuristic(previous_pdf[emitting], density)
                 )
-                out.add(pixel[emitting], throughput[emitting] * radiance * weight[:, None])
+                out.add(pixel[emitting], throughput[:, emitting] * radiance * weight)
 
             # Lights absorb what reaches them; paths at max depth stop here.
-            alive = (self.world.triangle_light[triangle] < 0) & (depth < self.settings.max_depth)
+            alive = hit & (depth < self.settings.max_depth)
+            alive[alive] &= np.take(self.world.triangle_light, triangle[alive]) < 0
             keep = np.flatnonzero(alive)
             if not len(keep):
                 break
-            pixel, keys, throughput, depth = pixel[keep], keys[keep], throughput[keep], depth[keep]
+            pixel, keys, depth, triangle = pixel[keep], keys[keep], depth[keep], triangle[keep]
             previous_pdf, previous_singular = previous_pdf[keep], previous_singular[keep]
-            triangle, directions, wo, cos_geometric = triangle[keep], directions[keep], wo[keep], cos_geometric[keep]
-            position = points.position[keep]
-            geometric_normal = points.geometric_normal[keep]
-            shading_normal = points.shading_normal[keep]
-            inputs = self.materials.evaluate(self.world.triangle_material[triangle], points.st[keep])
+            throughput, directions = np.take(throughput, keep, axis=1), np.take(directions, keep, axis=1)
+            points = surface_points(self.world, triangle, bary_u[keep], bary_v[keep])
+            position, geometric_normal, shading_normal, st = (
+                points.position, points.geometric_normal, points.shading_normal, points.st
+            )
+            wo = -directions
+            cos_geometric = dot(geometric_normal, wo)
+            inputs = self.materials.evaluate(np.take(self.world.triangle_material, triangle), st)
 
             # -- cut-out (opacityThreshold): pass straight through, not a bounce
             cut = (inputs.opacity_threshold > 0) & (inputs.opacity < inputs.opacity_threshold)
-            facing = np.where(cos_geometric[:, None] < 0, -geometric_normal, geometric_normal)
+            facing = np.where(cos_geometric < 0, -geometric_normal, geometric_normal)
             offset = facing * self.epsilon
 
             # -- shading frame: normal on the viewer's side of the geometric normal
-            shading_normal = np.where(
-                (dot(shading_normal, facing) < 0)[:, None], -shading_normal, shading_normal
-            )
-            shading_normal = np.where(
-                (dot(shading_normal, wo) <= 1e-4)[:, None], facing, shading_normal
-            )
-            tangent, bitangent = orthonormal_basis(shading_normal)
+            shading_normal = np.where(dot(shading_normal, facing) < 0, -shading_normal, shading_normal)
+            shading_normal = np.where(dot(shading_normal, wo) <= 1e-4, facing, shading_normal)
+            frame = (*orthonormal_basis(shading_normal), shading_normal)
 
-            def to_local(v):
-                return np.stack(
-                    [dot(v, tangent), dot(v, bitangent), dot(v, shading_normal)], axis=1
-                )
-
-            wo_local = to_local(wo)
-            lobes = bsdf.prepare(inputs, wo_local[:, 2], cos_geometric > 0)
-            lobes.probability[cut] = 0.0
+            wo_local = to_local(frame, wo)
+            lobes = bsdf.prepare(inputs, wo_local[2], cos_geometric > 0)
+            lobes.probability[:, cut] = 0.0
             randoms = rng.uniforms(keys, 2 + step * RANDOMS_PER_STEP, RANDOMS_PER_STEP)
 
             # -- next-event estimation
             if self.lights.has_lights:
-                rays += self._next_event(out, pixel, throughput, position, offset, facing, wo_local, to_local,
-                                         lobes, randoms[:, 3:7], ~cut)
+                rays += self._next_event(out, pixel, throughput, position, offset, facing, wo_local, frame,
+                                         lobes, randoms[3:7], ~cut)
 
             # -- BSDF sampling
-            sampled = bsdf.sample(lobes, wo_local, randoms[:, :3])
-            new_direction = (
-                sampled.direction[:, :1] * tangent
-                + sampled.direction[:, 1:2] * bitangent
-                + sampled.direction[:, 2:] * shading_normal
-            ).astype(FLOAT)
+            sampled = bsdf.sample(lobes, wo_local, randoms[:3])
+            new_direction = to_world(frame, sampled.direction)
             side = dot(new_direction, facing)
             consistent = np.where(sampled.transmit, side < 0, side > 0)
             scattered = sampled.valid & consistent & ~cut
-            throughput = np.where(cut[:, None], throughput, throughput * sampled.weight)
-            new_direction = np.where(cut[:, None], directions, new_direction)
+            throughput = np.where(cut, throughput, throughput * sampled.weight)
+            new_direction = np.where(cut, directions, new_direction)
             previous_pdf = np.where(cut, previous_pdf, sampled.pdf)
             previous_singular = np.where(cut, previous_singular, sampled.pdf == 0)
             depth = depth + (~cut)
             crossing = cut | sampled.transmit
-            origins = position + np.where(crossing[:, None], -offset, offset)
+            origins = position + np.where(crossing, -offset, offset)
 
             # -- Russian roulette
             survive = cut | scattered
             if step + 1 >= self.settings.roulette_depth:
                 continue_probability = np.clip(max3(throughput), 0.05, 1.0)
-                lucky = randoms[:, 7] < continue_probability
+                lucky = randoms[7] < continue_probability
                 survive &= lucky | cut
-                throughput = np.where(cut[:, None], throughput, throughput / continue_probability[:, None])
+                throughput = np.where(cut, throughput, throughput / continue_probability)
             survive &= max3(throughput) > 0
             keep = np.flatnonzero(survive)
-            pixel, keys, throughput, depth = pixel[keep], keys[keep], throughput[keep], depth[keep]
+            pixel, keys, depth = pixel[keep], keys[keep], depth[keep]
             previous_pdf, previous_singular = previous_pdf[keep], previous_singular[keep]
-            origins, directions = origins[keep].astype(FLOAT), new_direction[keep]
+            throughput, origins, directions = (np.take(a, keep, axis=1) for a in (throughput, origins, new_direction))
             t_max = np.full(len(pixel), T_INFINITY, FLOAT)
 
         rgb = np.zeros((pixel_count, 3))
         if out.pixels:
             where = np.concatenate(out.pixels) - first_pixel
-            values = np.concatenate(out.rgb).astype(np.float64)
+            values = np.concatenate(out.rgb, axis=1).astype(np.float64)
             for channel in range(3):
-                rgb[:, channel] = np.bincount(where, weights=values[:, channel], minlength=pixel_count)
+                rgb[:, channel] = np.bincount(where, weights=values[channel], minlength=pixel_count)
         return BatchResult(first_pixel, rgb, alpha, rays)
 
-    def _next_event(self, out, pixel, throughput, position, offset, facing, wo_local, to_local, lobes, u, allowed):
+    def _next_event(self, out, pixel, throughput, position, offset, facing, wo_local, frame, lobes, u, allowed):
         """Sample one light per lane, add each non-singular lobe's MIS-weighted share."""
         sample = self.lights.sample(position, u)
-        f, lobe_pdf = bsdf.evaluate(lobes, wo_local, to_local(sample.direction))
+        wi_local = to_local(frame, sample.direction)
+        f, lobe_pdf = bsdf.evaluate(lobes, wo_local, wi_local)
         cos_incident = dot(sample.direction, facing)
         useful = allowed & (sample.pdf > 0) & (cos_incident > 0) & (max3(sample.radiance) > 0)
-        useful &= f.reshape(len(f), -1).max(axis=1) > 0
+        useful &= f.max(axis=(0, 1)) > 0
         lanes = np.flatnonzero(useful)
         if not len(lanes):
             return 0
         distance = sample.distance[lanes]
-        finite = np.isfinite(distance)
-        t_max = np.where(finite, distance * (1 - 1e-4) - 2 * self.epsilon, T_INFINITY).astype(FLOAT)
-        blocked = self.caster.occluded(position[lanes] + offset[lanes], sample.direction[lanes], t_max)
+        t_max = np.where(np.isfinite(distance), distance * (1 - 1e-4) - 2 * self.epsilon, T_INFINITY).astype(FLOAT)
+        origins = np.take(position, lanes, axis=1) + np.take(offset, lanes, axis=1)
+        blocked = self.caster.occluded(origins, np.take(sample.direction, lanes, axis=1), t_max)
         lanes = lanes[~blocked]
         if not len(lanes):
             return len(blocked)
         light_pdf = sample.pdf[lanes]
         delta = np.isinf(light_pdf)
-        cos_shading = to_local(sample.direction)[lanes, 2]
-        base = throughput[lanes] * sample.radiance[lanes] * (
-            np.abs(cos_shading) / np.where(delta, 1.0, light_pdf)
-        )[:, None]
+        cos_shading = np.abs(wi_local[2, lanes])
+        base = throughput[:, lanes] * sample.radiance[:, lanes] * (cos_shading / np.where(delta, 1.0, light_pdf))
         for lobe in bsdf.GLOSSY_LOBES:
-            lobe_f = f[lanes, lobe]
+            lobe_f = f[lobe][:, lanes]
             active = max3(lobe_f) > 0
             if not active.any():
                 continue
-            weight = np.where(delta, 1.0, power_heuristic(light_pdf, lobe_pdf[lanes, lobe]))
-            contribution = base * lobe_f * weight[:, None]
-            out.add(pixel[lanes[active]], contribution[active])
+            weight = np.where(delta, 1.0, power_heuristic(light_pdf, lobe_pdf[lobe, lanes]))
+            contribution = base * lobe_f * weight
+            out.add(pixel[lanes[active]], contribution[:, active])
         return len(blocked)
+
+
+def to_local(frame: tuple[np.ndarray, np.ndarray, np.ndarray], v: np.ndarray) -> np.ndarray:
+    """World vectors (3, n) into the shading frames (tangent, bitangent, normal) (3, n) each."""
+    tangent, bitangent, normal = frame
+    return np.stack([dot(v, tangent), dot(v, bitangent), dot(v, normal)])
+
+
+def to_world(frame: tuple[np.ndarray, np.ndarray, np.ndarray], v: np.ndarray) -> np.ndarray:
+    """Local vectors (3, n) back to world space, float32."""
+    tangent, bitangent, normal = frame
+    return (tangent * v[0] + bitangent * v[1] + normal * v[2]).astype(FLOAT)

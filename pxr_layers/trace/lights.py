@@ -10,6 +10,7 @@ Three kinds of emitters:
 
 One light per shading point is picked from a discrete distribution over "sources"
 (all emitting triangles count as one source) in proportion to an estimate of their power.
+Vectors and colours are component-major (3, n) arrays (see vectors.py).
 """
 
 from __future__ import annotations
@@ -19,10 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..scene import FLOAT, SceneData
-from .bsdf import luminance
 from .shading import MaterialTable, interpolate
 from .textures import sample_bilinear
-from .vectors import dot, length
+from .vectors import dot, length, luminance, transform_rows
 from .world import World
 
 DOME_GRID = (64, 128)  # (rows, columns) of the dome's sampling distribution at most
@@ -32,9 +32,9 @@ DOME_GRID = (64, 128)  # (rows, columns) of the dome's sampling distribution at 
 class LightSample:
     """n light samples toward points.
 
-    direction : (n, 3) unit, from the shading point toward the light
+    direction : (3, n) unit, from the shading point toward the light
     distance  : (n,) metres to the sampled point (inf for distant and dome)
-    radiance  : (n, 3) arriving radiance (irradiance for a delta distant light)
+    radiance  : (3, n) arriving radiance (irradiance for a delta distant light)
     pdf       : (n,) solid-angle density including the light selection (inf = delta)
     light     : (n,) int32 index into SceneData.lights, -1 for an emissive surface
     triangle  : (n,) int32 sampled emitting triangle, -1 for distant and dome
@@ -74,7 +74,7 @@ class DomeDistribution:
             lum = np.ones((rows, cols))
         else:
             rows, cols = min(rows, pixels.shape[0]), min(cols, pixels.shape[1])
-            lum = _block_mean(luminance(pixels[..., :3].astype(np.float64)), rows, cols)
+            lum = _block_mean(luminance(np.moveaxis(pixels[..., :3], -1, 0).astype(np.float64)), rows, cols)
         theta = (np.arange(rows) + 0.5) / rows * np.pi
         weights = np.maximum(lum, 0) * np.sin(theta)[:, None]
         weights += weights.mean() * 1e-3 + 1e-12  # every direction keeps a nonzero density
@@ -83,52 +83,54 @@ class DomeDistribution:
         self.row_cdf = _cumulative(self.cell_probability.sum(axis=1))
         self.column_cdf = np.cumsum(self.cell_probability, axis=1)
         self.column_cdf /= self.column_cdf[:, -1:]
-        self.mean_luminance = float(luminance(self.radiance) * (1.0 if pixels is None else luminance(pixels[..., :3]).mean()))
+        mean_texel = 1.0 if pixels is None else float(luminance(np.moveaxis(pixels[..., :3], -1, 0)).mean())
+        self.mean_luminance = float(luminance(self.radiance)) * mean_texel
 
     def radiance_toward(self, direction_world: np.ndarray) -> np.ndarray:
-        """Radiance (n, 3) arriving from world directions (n, 3)."""
+        """Radiance (3, n) arriving from world directions (3, n)."""
         if self.pixels is None:
-            return np.broadcast_to(self.radiance, direction_world.shape).astype(FLOAT)
-        st = self._st(direction_world @ self.light_from_world.T)
+            return np.repeat(self.radiance[:, None], direction_world.shape[1], axis=1)
+        st = self._st(transform_rows(self.light_from_world, direction_world))
         texels = sample_bilinear(self.pixels, st, "repeat", "clamp")
-        return texels[:, :3] * self.radiance
+        return texels[:3] * self.radiance[:, None]
 
     @staticmethod
     def _st(local: np.ndarray) -> np.ndarray:
-        latitude = np.arcsin(np.clip(local[:, 1], -1, 1))
-        longitude = np.arctan2(local[:, 0], local[:, 2])
+        """Lat-long st (2, n) of dome-frame directions (3, n)."""
+        latitude = np.arcsin(np.clip(local[1], -1, 1))
+        longitude = np.arctan2(local[0], local[2])
         s = (np.pi - longitude) / (2 * np.pi)
         t = (latitude + np.pi / 2) / np.pi  # st's t runs bottom to top
-        return np.stack([s, t], axis=1).astype(FLOAT)
+        return np.stack([s, t]).astype(FLOAT)
 
     def pdf(self, direction_world: np.ndarray) -> np.ndarray:
-        """Solid-angle density (n,) of sampling world directions (n, 3)."""
-        local = direction_world @ self.light_from_world.T
+        """Solid-angle density (n,) of sampling world directions (3, n)."""
+        local = transform_rows(self.light_from_world, direction_world)
         st = self._st(local)
         rows, cols = self.shape
-        column = np.clip((st[:, 0] * cols).astype(np.int64), 0, cols - 1)
-        row = np.clip(((1 - st[:, 1]) * rows).astype(np.int64), 0, rows - 1)
-        sin_theta = np.sqrt(np.maximum(1 - local[:, 1] ** 2, 1e-12))
+        column = np.clip((st[0] * cols).astype(np.int64), 0, cols - 1)
+        row = np.clip(((1 - st[1]) * rows).astype(np.int64), 0, rows - 1)
+        sin_theta = np.sqrt(np.maximum(1 - local[1] ** 2, 1e-12))
         return (self.cell_probability[row, column] * rows * cols / (2 * np.pi**2 * sin_theta)).astype(FLOAT)
 
     def sample(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Directions (n, 3) world and their densities (n,), from u (n, 2)."""
+        """Directions (3, n) world and their densities (n,), from u (2, n)."""
         rows, cols = self.shape
-        row = _pick(self.row_cdf, u[:, 0])
-        column = np.minimum((u[:, 1:2] >= self.column_cdf[row]).sum(axis=1), cols - 1)
+        row = _pick(self.row_cdf, u[0])
+        column = np.minimum((u[1][:, None] >= self.column_cdf[row]).sum(axis=1), cols - 1)
         # Reuse the fractional position inside the chosen cell for a continuous direction.
         row_low = np.where(row > 0, self.row_cdf[np.maximum(row - 1, 0)], 0.0)
-        row_fraction = (u[:, 0] - row_low) / np.maximum(self.row_cdf[row] - row_low, 1e-12)
+        row_fraction = (u[0] - row_low) / np.maximum(self.row_cdf[row] - row_low, 1e-12)
         column_low = np.where(column > 0, self.column_cdf[row, np.maximum(column - 1, 0)], 0.0)
-        column_fraction = (u[:, 1] - column_low) / np.maximum(self.column_cdf[row, column] - column_low, 1e-12)
+        column_fraction = (u[1] - column_low) / np.maximum(self.column_cdf[row, column] - column_low, 1e-12)
         v = (row + np.clip(row_fraction, 0, 1)) / rows
         s = (column + np.clip(column_fraction, 0, 1)) / cols
         latitude = np.pi / 2 - np.pi * v
         longitude = np.pi - 2 * np.pi * s
         local = np.stack(
-            [np.cos(latitude) * np.sin(longitude), np.sin(latitude), np.cos(latitude) * np.cos(longitude)], axis=1
-        )
-        world = (local @ self.light_from_world).astype(FLOAT)  # inverse rotation = transpose
+            [np.cos(latitude) * np.sin(longitude), np.sin(latitude), np.cos(latitude) * np.cos(longitude)]
+        ).astype(FLOAT)
+        world = transform_rows(self.light_from_world.T, local)  # inverse rotation = transpose
         return world, self.pdf(world)
 
 
@@ -174,7 +176,7 @@ class LightSampler:
         surface_emitter = (world.triangle_light < 0) & emissive_material[world.triangle_material]
         light_emitter = world.triangle_light >= 0
         self.emitter_triangles = np.flatnonzero(surface_emitter | light_emitter).astype(np.int32)
-        self.light_radiance = np.array([light.radiance for light in scene.lights], FLOAT).reshape(-1, 3)
+        self.light_radiance = np.array([light.radiance for light in scene.lights], FLOAT).reshape(-1, 3).T.copy()
 
         sources: list[tuple[str, object, float]] = []
         scene_area = np.pi * world.radius**2
@@ -225,30 +227,29 @@ class LightSampler:
         return bool(self.sources)
 
     def _triangle_radiance_estimate(self, triangles: np.ndarray) -> np.ndarray:
-        """Radiance (t, 3) of emitting triangles at their centroids (for power estimates)."""
-        light = self.world.triangle_light[triangles]
-        radiance = np.zeros((len(triangles), 3), FLOAT)
-        is_light = light >= 0
-        radiance[is_light] = self.light_radiance[light[is_light]]
-        surface = np.flatnonzero(~is_light)
-        if len(surface):
-            st = self.world.corner_uvs[:, triangles[surface]].mean(axis=0)
-            radiance[surface] = self.materials.emission(self.world.triangle_material[triangles[surface]], st)
-        return radiance
+        """Radiance (3, t) of emitting triangles at their centroids (for power estimates)."""
+        third = np.full(len(triangles), 1 / 3, FLOAT)
+        st = interpolate(self.world.corner_uvs, triangles, third, third)
+        return self.emitted(triangles, st, np.ones(len(triangles), FLOAT))
 
     def emitted(self, triangle: np.ndarray, st: np.ndarray, cos_toward_viewer: np.ndarray) -> np.ndarray:
-        """Radiance (n, 3) leaving emitting triangles toward a viewer.
+        """Radiance (3, n) leaving emitting triangles (n,) toward a viewer.
 
+        st                : (2, n) texture coordinates on the triangles
         cos_toward_viewer : (n,) cosine between the triangle's geometric normal and the
-        direction to the viewer; light shapes emit on their front side only.
+                            direction to the viewer; light shapes emit on their front only.
         """
-        light = self.world.triangle_light[triangle]
+        light = np.take(self.world.triangle_light, triangle)
         is_light = light >= 0
-        radiance = np.zeros((len(triangle), 3), FLOAT)
-        radiance[is_light] = self.light_radiance[light[is_light]] * (cos_toward_viewer[is_light] > 0)[:, None]
+        radiance = np.zeros((3, len(triangle)), FLOAT)
+        lights = np.flatnonzero(is_light)
+        if len(lights):
+            front = cos_toward_viewer[lights] > 0
+            radiance[:, lights] = np.take(self.light_radiance, light[lights], axis=1) * front
         surface = np.flatnonzero(~is_light)
         if len(surface):
-            radiance[surface] = self.materials.emission(self.world.triangle_material[triangle[surface]], st[surface])
+            material = np.take(self.world.triangle_material, triangle[surface])
+            radiance[:, surface] = self.materials.emission(material, st[:, surface])
         return radiance
 
     def triangle_pdf(self, triangle: np.ndarray, distance: np.ndarray, cos_light: np.ndarray) -> np.ndarray:
@@ -256,25 +257,27 @@ class LightSampler:
         `distance` (n,) on `triangle` (n,) under |cos_light| (n,)."""
         if self._area_probability == 0:
             return np.zeros(len(triangle), FLOAT)
-        area_density = self._area_probability * self.triangle_probability[triangle] / self.world.area[triangle]
+        area_density = self._area_probability * np.take(self.triangle_probability, triangle) / np.take(
+            self.world.area, triangle
+        )
         return (area_density * distance**2 / np.maximum(np.abs(cos_light), 1e-8)).astype(FLOAT)
 
     def source_probability_of(self, source: object) -> float:
         return self._probability_of.get(id(source), 0.0)
 
     def sample(self, points: np.ndarray, u: np.ndarray) -> LightSample:
-        """One light sample per point. points (n, 3) metres, u (n, 4) uniforms."""
-        n = len(points)
-        direction = np.zeros((n, 3), FLOAT)
-        direction[:, 2] = 1
+        """One light sample per point. points (3, n) metres, u (4, n) uniforms."""
+        n = points.shape[1]
+        direction = np.zeros((3, n), FLOAT)
+        direction[2] = 1
         distance = np.full(n, np.inf, FLOAT)
-        radiance = np.zeros((n, 3), FLOAT)
+        radiance = np.zeros((3, n), FLOAT)
         pdf = np.zeros(n, FLOAT)
         light = np.full(n, -1, np.int32)
         triangle = np.full(n, -1, np.int32)
         if not self.sources:
             return LightSample(direction, distance, radiance, pdf, light, triangle)
-        source = _pick(self.source_cdf, u[:, 0])
+        source = _pick(self.source_cdf, u[0])
         for source_index, (kind, obj, _) in enumerate(self.sources):
             lanes = np.flatnonzero(source == source_index)
             if not len(lanes):
@@ -285,47 +288,47 @@ class LightSampler:
             elif kind == "distant":
                 distant: DistantLight = obj  # type: ignore[assignment]
                 light[lanes] = distant.light_index
-                radiance[lanes] = distant.radiance
                 if distant.is_delta:
-                    direction[lanes] = distant.direction
+                    direction[:, lanes] = distant.direction[:, None]
                     pdf[lanes] = np.inf
-                    radiance[lanes] /= probability
+                    radiance[:, lanes] = (distant.radiance / probability)[:, None]
                 else:
-                    direction[lanes] = _sample_cone(distant.direction, distant.cos_max, u[lanes, 1], u[lanes, 2])
+                    direction[:, lanes] = _sample_cone(distant.direction, distant.cos_max, u[1, lanes], u[2, lanes])
                     pdf[lanes] = probability / distant.solid_angle
+                    radiance[:, lanes] = distant.radiance[:, None]
             else:
                 dome: DomeDistribution = obj  # type: ignore[assignment]
                 light[lanes] = dome.light_index
-                sampled, density = dome.sample(u[lanes, 1:3])
-                direction[lanes] = sampled
-                radiance[lanes] = dome.radiance_toward(sampled)
+                sampled, density = dome.sample(u[1:3, lanes])
+                direction[:, lanes] = sampled
+                radiance[:, lanes] = dome.radiance_toward(sampled)
                 pdf[lanes] = probability * density
         return LightSample(direction, distance, radiance, pdf, light, triangle)
 
     def _sample_triangles(self, points, u, lanes, direction, distance, radiance, pdf, light, triangle):
-        chosen = self.emitter_triangles[_pick(self.triangle_cdf, u[lanes, 3])]
-        # Uniform point on the triangle (u1 reused after rescaling keeps 4 uniforms enough).
-        root = np.sqrt(u[lanes, 1])
-        bu = (u[lanes, 2] * root).astype(FLOAT)
+        chosen = np.take(self.emitter_triangles, _pick(self.triangle_cdf, u[3, lanes]))
+        # A uniform point on the triangle.
+        root = np.sqrt(u[1, lanes])
+        bu = (u[2, lanes] * root).astype(FLOAT)
         bv = (1.0 - root).astype(FLOAT)
         position = interpolate(self.world.corner_positions, chosen, bu, bv)
-        offset = position - points[lanes]
+        offset = position - points[:, lanes]
         distance_to = length(offset)
-        to_light = offset / np.maximum(distance_to, 1e-12)[:, None]
-        normal = np.take(self.world.geometric_normal, chosen, axis=0)
+        to_light = offset / np.maximum(distance_to, 1e-12)
+        normal = np.take(self.world.geometric_normal, chosen, axis=1)
         cos_light = -dot(normal, to_light)
         st = interpolate(self.world.corner_uvs, chosen, bu, bv)
-        direction[lanes] = to_light
+        direction[:, lanes] = to_light
         distance[lanes] = distance_to
-        radiance[lanes] = self.emitted(chosen, st, cos_light)
+        radiance[:, lanes] = self.emitted(chosen, st, cos_light)
         pdf[lanes] = self.triangle_pdf(chosen, distance_to, cos_light)
-        light[lanes] = self.world.triangle_light[chosen]
+        light[lanes] = np.take(self.world.triangle_light, chosen)
         triangle[lanes] = chosen
 
     def escaped(self, directions: np.ndarray):
-        """Each infinite light seen along escaping directions (n, 3).
+        """Each infinite light seen along escaping directions (3, n).
 
-        Yields (light index, radiance (n, 3), density (n,) of NEE picking that direction).
+        Yields (light index, radiance (3, n), density (n,) of NEE picking that direction).
         """
         for dome in self.domes:
             probability = self.source_probability_of(dome)
@@ -333,32 +336,28 @@ class LightSampler:
         for distant in self.distant:
             if distant.is_delta:
                 continue
-            inside = directions @ distant.direction >= distant.cos_max
-            radiance = np.where(inside[:, None], distant.radiance, 0.0).astype(FLOAT)
+            inside = dot(directions, distant.direction[:, None]) >= distant.cos_max
+            radiance = np.where(inside, distant.radiance[:, None], 0.0).astype(FLOAT)
             density = np.where(inside, self.source_probability_of(distant) / distant.solid_angle, 0.0)
             yield distant.light_index, radiance, density.astype(FLOAT)
 
 
 def _sample_cone(axis: np.ndarray, cos_max: float, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
-    """Uniform directions (n, 3) within the cone around axis (3,)."""
+    """Uniform directions (3, n) within the cone around the unit axis (3,)."""
     cos_theta = 1.0 - u1 * (1.0 - cos_max)
     sin_theta = np.sqrt(np.maximum(1.0 - cos_theta**2, 0.0))
     phi = 2 * np.pi * u2
-    tangent, bitangent = orthonormal_basis(axis[None, :])
-    local = (
-        tangent * (sin_theta * np.cos(phi))[:, None]
-        + bitangent * (sin_theta * np.sin(phi))[:, None]
-        + axis[None, :] * cos_theta[:, None]
-    )
-    return local.astype(FLOAT)
+    tangent, bitangent = orthonormal_basis(axis[:, None].astype(FLOAT))
+    return (tangent * (sin_theta * np.cos(phi)) + bitangent * (sin_theta * np.sin(phi))
+            + axis[:, None] * cos_theta).astype(FLOAT)
 
 
 def orthonormal_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Tangent and bitangent (n, 3) completing unit normals (n, 3) (Duff et al. 2017)."""
-    x, y, z = normal[:, 0], normal[:, 1], normal[:, 2]
+    """Tangent and bitangent (3, n) completing unit normals (3, n) (Duff et al. 2017)."""
+    x, y, z = normal
     sign = np.where(z >= 0, 1.0, -1.0).astype(FLOAT)
     a = -1.0 / (sign + z)
     b = x * y * a
-    tangent = np.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=1)
-    bitangent = np.stack([b, sign + y * y * a, -y], axis=1)
+    tangent = np.stack([1.0 + sign * x * x * a, sign * b, -sign * x])
+    bitangent = np.stack([b, sign + y * y * a, -y])
     return tangent.astype(FLOAT), bitangent.astype(FLOAT)

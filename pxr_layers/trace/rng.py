@@ -45,9 +45,9 @@ def path_keys(key: np.uint64, pixel: np.ndarray, sample: np.ndarray) -> np.ndarr
 def uniforms(keys: np.ndarray, first_dimension: int, count: int) -> np.ndarray:
     """Uniform floats in [0, 1) for dimensions first_dimension .. +count of each stream.
 
-    keys : (n,) uint64 path keys -> (n, count) float32, 24 bits of precision.
+    keys : (n,) uint64 path keys -> (count, n) float32 (one row per dimension), 24 bits.
     """
     dims = (np.arange(first_dimension, first_dimension + count, dtype=np.uint64) + _U64(1)) * _GOLDEN
     with np.errstate(over="ignore"):
-        bits = mix64(keys[:, None] + dims[None, :])
+        bits = mix64(keys[None, :] + dims[:, None])
     return (bits >> _U64(40)).astype(np.float32) * _TO_UNIT

@@ -1,4 +1,7 @@
-"""Surface points and UsdPreviewSurface inputs evaluated for batches of ray hits."""
+"""Surface points and UsdPreviewSurface inputs evaluated for batches of ray hits.
+
+Vectors and colours are component-major (3, n) arrays (see vectors.py).
+"""
 
 from __future__ import annotations
 
@@ -19,10 +22,10 @@ _SCALAR_INPUTS = ("roughness", "metallic", "opacity", "clearcoat", "clearcoat_ro
 class SurfacePoints:
     """Geometry at n hit points (world space, metres).
 
-    position         : (n, 3) float32
-    geometric_normal : (n, 3) float32 unit, from the triangle's winding (not flipped)
-    shading_normal   : (n, 3) float32 unit, interpolated
-    st               : (n, 2) float32
+    position         : (3, n) float32
+    geometric_normal : (3, n) float32 unit, from the triangle's winding (not flipped)
+    shading_normal   : (3, n) float32 unit, interpolated
+    st               : (2, n) float32
     triangle         : (n,) int32
     """
 
@@ -38,24 +41,24 @@ def surface_points(world: World, triangle: np.ndarray, u: np.ndarray, v: np.ndar
     position = interpolate(world.corner_positions, triangle, u, v)
     shading = normalize(interpolate(world.corner_normals, triangle, u, v), 1e-12)
     st = interpolate(world.corner_uvs, triangle, u, v)
-    normal = np.take(world.geometric_normal, triangle, axis=0)
-    return SurfacePoints(position, normal, shading.astype(FLOAT), st, triangle)
+    normal = np.take(world.geometric_normal, triangle, axis=1)
+    return SurfacePoints(position, normal, shading, st, triangle)
 
 
 def interpolate(corners: np.ndarray, triangle: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Barycentric interpolation of corner-major data (3, t, k) at (u, v) of `triangle`
-    (all (n,)): (1 − u − v)·c0 + u·c1 + v·c2 -> (n, k) float32."""
-    u = u.astype(FLOAT)[:, None]
-    v = v.astype(FLOAT)[:, None]
-    c0 = np.take(corners[0], triangle, axis=0)
-    c1 = np.take(corners[1], triangle, axis=0)
-    c2 = np.take(corners[2], triangle, axis=0)
+    """(1 − u − v)·c0 + u·c1 + v·c2 of corner data (3 corners, k, t) at `triangle`, u, v
+    (all (n,)) -> (k, n) float32."""
+    u = u.astype(FLOAT, copy=False)
+    v = v.astype(FLOAT, copy=False)
+    c0 = np.take(corners[0], triangle, axis=1)
+    c1 = np.take(corners[1], triangle, axis=1)
+    c2 = np.take(corners[2], triangle, axis=1)
     return c0 + (c1 - c0) * u + (c2 - c0) * v
 
 
 @dataclass
 class SurfaceInputs:
-    """UsdPreviewSurface inputs at n points; shapes (n, 3) for colours, (n,) for scalars."""
+    """UsdPreviewSurface inputs at n points; (3, n) for colours, (n,) for scalars."""
 
     diffuse_color: np.ndarray
     emissive_color: np.ndarray
@@ -80,50 +83,53 @@ class MaterialTable:
         self._textured: list[tuple[str, int, TextureInput]] = []
         for name in _COLOR_INPUTS + _SCALAR_INPUTS:
             width = 3 if name in _COLOR_INPUTS else 1
-            table = np.zeros((len(materials), width), FLOAT)
+            table = np.zeros((width, len(materials)), FLOAT)
             for index, material in enumerate(materials):
                 value = getattr(material, name)
                 if isinstance(value, TextureInput):
                     self._textured.append((name, index, value))
                 else:
-                    table[index] = value
-            self._constants[name] = table if width == 3 else table[:, 0]
+                    table[:, index] = value
+            self._constants[name] = table if width == 3 else table[0]
         self._use_specular_workflow = np.array([m.use_specular_workflow for m in materials], bool)
         self._ior = np.array([m.ior for m in materials], FLOAT)
         self._opacity_threshold = np.array([m.opacity_threshold for m in materials], FLOAT)
-        self.emissive = (self._constants["emissive_color"].max(axis=1) > 0) | np.array(
+        self.emissive = (self._constants["emissive_color"].max(axis=0) > 0) | np.array(
             [isinstance(m.emissive_color, TextureInput) for m in materials]
         )
 
-    def evaluate(self, material: np.ndarray, st: np.ndarray, only: tuple[str, ...] | None = None) -> SurfaceInputs:
-        """Inputs of `material` (n,) int32 at texture coordinates st (n, 2)."""
-        values = {name: table[material] for name, table in self._constants.items() if only is None or name in only}
+    def evaluate(self, material: np.ndarray, st: np.ndarray) -> SurfaceInputs:
+        """Inputs of `material` (n,) int32 at texture coordinates st (2, n)."""
+        values = self._lookup_all(material, st, self._constants)
+        return SurfaceInputs(
+            **values,
+            use_specular_workflow=np.take(self._use_specular_workflow, material),
+            ior=np.take(self._ior, material),
+            opacity_threshold=np.take(self._opacity_threshold, material),
+        )
+
+    def emission(self, material: np.ndarray, st: np.ndarray) -> np.ndarray:
+        """emissiveColor (3, n) at st (2, n) of `material` (n,)."""
+        wanted = {"emissive_color": self._constants["emissive_color"]}
+        return self._lookup_all(material, st, wanted)["emissive_color"]
+
+    def _lookup_all(self, material, st, tables) -> dict[str, np.ndarray]:
+        values = {name: np.take(table, material, axis=-1) for name, table in tables.items()}
         for name, material_index, texture_input in self._textured:
             if name not in values:
                 continue
             lanes = np.flatnonzero(material == material_index)
             if len(lanes):
-                values[name][lanes] = self._lookup(texture_input, st[lanes], values[name].ndim)
-        if only is not None:
-            return values  # type: ignore[return-value]
-        return SurfaceInputs(
-            **values,
-            use_specular_workflow=self._use_specular_workflow[material],
-            ior=self._ior[material],
-            opacity_threshold=self._opacity_threshold[material],
-        )
+                values[name][..., lanes] = self._texture(texture_input, st[:, lanes], values[name].ndim)
+        return values
 
-    def emission(self, material: np.ndarray, st: np.ndarray) -> np.ndarray:
-        """emissiveColor (n, 3) at st (n, 2) of `material` (n,)."""
-        return self.evaluate(material, st, only=("emissive_color",))["emissive_color"]
-
-    def _lookup(self, texture_input: TextureInput, st: np.ndarray, ndim: int) -> np.ndarray:
+    def _texture(self, texture_input: TextureInput, st: np.ndarray, ndim: int) -> np.ndarray:
         image = self._textures[texture_input.texture].pixels
         texels = sample_bilinear(image, st, texture_input.wrap_s, texture_input.wrap_t)
         channels = list(texture_input.channels)
-        scale = np.asarray(texture_input.scale, FLOAT)[channels]
-        bias = np.asarray(texture_input.bias, FLOAT)[channels]
-        value = texels[:, channels] * scale + bias
+        scale = np.asarray(texture_input.scale, FLOAT)[channels, None]
+        bias = np.asarray(texture_input.bias, FLOAT)[channels, None]
+        value = texels[channels] * scale + bias
         if ndim == 1:
-            return value[:, 0]
-        return value if value.shape[1] == 3 else np.repeat(value[:, :1], 3, axis=1)
+            return value[0]
+        return value if len(value) == 3 else np.repeat(value[:1], 3, axis=0)

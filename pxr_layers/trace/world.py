@@ -28,13 +28,17 @@ CYLINDER_SEGMENTS = 48
 class World:
     """The scene as flat arrays, t triangles over v vertices, world space in metres.
 
-    vertices         : (v, 3) float32
+    vertices         : (v, 3) float32 (Embree's input layout)
     triangles        : (t, 3) int32
-    geometric_normal : (t, 3) float32 unit, right-handed from the winding
+    geometric_normal : (3, t) float32 unit, right-handed from the winding
     area             : (t,) float32 square metres
-    corner_positions : (3, t, 3) float32, corner-major so each corner gathers contiguously
-    corner_normals   : (3, t, 3) float32 unit shading normals (flat where none authored)
-    corner_uvs       : (3, t, 2) float32 (zeros where none authored)
+    corner_positions : (3 corners, 3, t) float32
+    corner_normals   : (3 corners, 3, t) float32 unit shading normals (flat where none
+                       authored)
+    corner_uvs       : (3 corners, 2, t) float32 (zeros where none authored)
+
+    Per-triangle vectors are component-major (see vectors.py): gathering lanes with
+    np.take(..., axis=-1) yields (3, n) rows directly.
     triangle_object  : (t,) int32 index into object_names / object_paths
     triangle_material: (t,) int32 index into SceneData.materials, -1 on light shapes
     triangle_light   : (t,) int32 index into SceneData.lights, -1 on surfaces
@@ -103,8 +107,8 @@ def build_world(scene: SceneData) -> World:
     corners = all_vertices[all_triangles]  # (t, 3, 3)
     cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     double_area = np.linalg.norm(cross, axis=1)
-    geometric_normal = (cross / np.maximum(double_area, 1e-30)[:, None]).astype(FLOAT)
-    flat = np.repeat(geometric_normal[:, None, :], 3, axis=1)
+    unit_normal = (cross / np.maximum(double_area, 1e-30)[:, None]).astype(FLOAT)
+    flat = np.repeat(unit_normal[:, None, :], 3, axis=1)
     corner_normals = np.concatenate(
         [flat[start:start + len(t)] if n is None else n for n, t, start in zip(normals, triangles, _starts(triangles))]
     )
@@ -114,7 +118,7 @@ def build_world(scene: SceneData) -> World:
     return World(
         vertices=all_vertices,
         triangles=all_triangles,
-        geometric_normal=geometric_normal,
+        geometric_normal=np.ascontiguousarray(unit_normal.T),
         area=(double_area / 2).astype(FLOAT),
         corner_positions=_corner_major(corners),
         corner_normals=_corner_major(corner_normals),
@@ -130,8 +134,8 @@ def build_world(scene: SceneData) -> World:
 
 
 def _corner_major(per_triangle: np.ndarray) -> np.ndarray:
-    """(t, 3, k) per-triangle corners -> contiguous (3, t, k) float32."""
-    return np.ascontiguousarray(per_triangle.transpose(1, 0, 2), dtype=FLOAT)
+    """(t, 3 corners, k) -> contiguous (3 corners, k, t) float32."""
+    return np.ascontiguousarray(per_triangle.transpose(1, 2, 0), dtype=FLOAT)
 
 
 def _starts(arrays: list[np.ndarray]) -> list[int]:
