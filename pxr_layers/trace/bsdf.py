@@ -224,6 +224,15 @@ def _reflect(wo: np.ndarray, normal: np.ndarray) -> np.ndarray:
     return 2.0 * dot(wo, normal) * normal - wo
 
 
+def _lanes(mask: np.ndarray):
+    """Indices of the True lanes, or a full slice when all are (saves a gather and scatter)."""
+    return slice(None) if mask.all() else np.flatnonzero(mask)
+
+
+def _count(lanes, n: int) -> int:
+    return n if isinstance(lanes, slice) else len(lanes)
+
+
 def sample(lobes: Lobes, wo: np.ndarray, u: np.ndarray) -> BsdfSample:
     """Choose a lobe and a direction. u : (3, n) uniforms (lobe, then two for the direction)."""
     n = wo.shape[1]
@@ -236,8 +245,8 @@ def sample(lobes: Lobes, wo: np.ndarray, u: np.ndarray) -> BsdfSample:
     scatter = np.full(n, SCATTER_DIFFUSE, np.int8)
     transmit = np.zeros(n, bool)
 
-    lanes = np.flatnonzero(valid & (lobe == DIFFUSE))
-    if len(lanes):
+    lanes = _lanes(valid & (lobe == DIFFUSE))
+    if _count(lanes, n):
         radius = np.sqrt(u[1, lanes])
         phi = 2 * np.pi * u[2, lanes]
         z = np.sqrt(np.maximum(1.0 - u[1, lanes], 0.0))
@@ -251,8 +260,8 @@ def sample(lobes: Lobes, wo: np.ndarray, u: np.ndarray) -> BsdfSample:
         (SPECULAR, lobes.alpha, lobes.specular_weight, lobes.f0, lobes.f90),
         (COAT, lobes.coat_alpha, lobes.coat_weight, None, None),
     ):
-        lanes = np.flatnonzero(valid & (lobe == which))
-        if not len(lanes):
+        lanes = _lanes(valid & (lobe == which))
+        if not _count(lanes, n):
             continue
         lane_f0 = COAT_F0 if f0 is None else f0[:, lanes]
         lane_f90 = np.float32(1.0) if f90 is None else f90[lanes]
@@ -274,8 +283,8 @@ def sample(lobes: Lobes, wo: np.ndarray, u: np.ndarray) -> BsdfSample:
         scatter[lanes] = np.where(singular, SCATTER_SINGULAR, SCATTER_GLOSSY)
         valid[lanes] &= wi[2] > 0
 
-    lanes = np.flatnonzero(valid & (lobe == GLASS))
-    if len(lanes):
+    lanes = _lanes(valid & (lobe == GLASS))
+    if _count(lanes, n):
         wo_l = wo[:, lanes]
         eta = lobes.eta[lanes]
         fresnel = fresnel_dielectric(wo_l[2], eta)
