@@ -237,3 +237,67 @@ def test_same_inputs_give_identical_bytes_whatever_threads_and_batches(tmp_path)
     assert one.tobytes() == two.tobytes()
     other_seed = render(scene, spec, TraceSettings(spp=8, max_depth=4, seed=8), show_progress=False).rgba
     assert other_seed.tobytes() != one.tobytes()
+
+
+def ggx_albedo_by_quadrature(alpha: float, cos_o: float) -> float:
+    """∫ f_GGX(wo, wi) cos θi dωi for F = 1 by midpoint quadrature over the hemisphere,
+    written out independently of the tracer's sampling code (isotropic GGX, separable
+    Smith shadowing)."""
+    theta = (np.arange(1500) + 0.5) / 1500 * (np.pi / 2)
+    phi = (np.arange(1500) + 0.5) / 1500 * (2 * np.pi)
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    wi = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)])
+    wo = np.array([np.sqrt(1 - cos_o**2), 0.0, cos_o])[:, None, None]
+    half = wi + wo
+    half /= np.linalg.norm(half, axis=0)
+    a2 = alpha**2
+    d = a2 / (np.pi * (half[2] ** 2 * (a2 - 1) + 1) ** 2)
+
+    def g1(c):
+        return 2 * c / (c + np.sqrt(a2 + (1 - a2) * c * c))
+
+    f = d * g1(cos_o) * g1(wi[2]) / (4 * cos_o * wi[2])
+    d_omega = np.sin(t) * (np.pi / 2 / 1500) * (2 * np.pi / 1500)
+    return float(np.sum(f * wi[2] * d_omega))
+
+
+@pytest.mark.parametrize("roughness", [0.5, 0.3])
+def test_white_metal_under_a_uniform_dome_reflects_the_ggx_albedo(tmp_path, roughness):
+    """A white metal plane (F = 1) under a uniform dome of radiance 1, seen at 60° from its
+    normal: radiance = the GGX directional albedo, combining light and BSDF sampling."""
+    looks = f"""
+        def Material "metal"
+        {{
+            token outputs:surface.connect = </World/Looks/metal/Surface.outputs:surface>
+            def Shader "Surface"
+            {{
+                uniform token info:id = "UsdPreviewSurface"
+                color3f inputs:diffuseColor = (1, 1, 1)
+                float inputs:metallic = 1
+                float inputs:roughness = {roughness}
+                token outputs:surface
+            }}
+        }}
+"""
+    body = FLOOR.replace("/World/Looks/grey", "/World/Looks/metal") + """
+    def DomeLight "sky"
+    {
+        float inputs:intensity = 1
+    }
+"""
+    camera = """
+    def Camera "Camera"
+    {
+        float focalLength = 500
+        float horizontalAperture = 10
+        float verticalAperture = 10
+        double3 xformOp:translate = (0, 2, 3.4641016)
+        float3 xformOp:rotateXYZ = (-30, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]
+    }
+"""
+    path = write(tmp_path, "metal.usda", stage_text(body, looks, camera))
+    rgb, _ = mean_rgb(path, spp=64, max_depth=1)
+    expected = ggx_albedo_by_quadrature(roughness**2, math.cos(math.radians(60)))
+    assert 0.8 < expected < 1.0
+    np.testing.assert_allclose(rgb, expected, rtol=0.01)
