@@ -301,3 +301,51 @@ def test_white_metal_under_a_uniform_dome_reflects_the_ggx_albedo(tmp_path, roug
     expected = ggx_albedo_by_quadrature(roughness**2, math.cos(math.radians(60)))
     assert 0.8 < expected < 1.0
     np.testing.assert_allclose(rgb, expected, rtol=0.01)
+
+
+def test_textured_dome_follows_the_openexr_lat_long_orientation(tmp_path):
+    """A lat-long dome bright only where longitude ∈ (−π/2, π/2), i.e. on the +Z side
+    (OpenEXR convention: longitude 0 is +Z), lights a plane facing +Z fully (L = ρ) and
+    one facing −Z not at all."""
+    import OpenImageIO as oiio
+
+    width, height = 64, 32
+    pixels = np.zeros((height, width, 3), np.float32)
+    pixels[:, width // 4: 3 * width // 4] = 1.0
+    image = oiio.ImageBuf(oiio.ImageSpec(width, height, 3, oiio.FLOAT))
+    image.set_pixels(oiio.ROI(), pixels)
+    assert image.write(str(tmp_path / "half.exr"))
+
+    looks = LAMBERT.format(name="grey", r=0.5, e=0)
+    results = {}
+    for facing, rotate in (("front", 0), ("back", 180)):
+        body = f"""
+    def Mesh "wall" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {{
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        point3f[] points = [(-50, -50, 0), (50, -50, 0), (50, 50, 0), (-50, 50, 0)]
+        float3 xformOp:rotateXYZ = (0, {rotate}, 0)
+        uniform token[] xformOpOrder = ["xformOp:rotateXYZ"]
+        rel material:binding = </World/Looks/grey>
+    }}
+    def DomeLight "sky"
+    {{
+        asset inputs:texture:file = @./half.exr@
+    }}
+"""
+        camera = f"""
+    def Camera "Camera"
+    {{
+        float focalLength = 50
+        float horizontalAperture = 10
+        float verticalAperture = 10
+        double3 xformOp:translate = (0, 0, {3 if rotate == 0 else -3})
+        float3 xformOp:rotateXYZ = (0, {rotate}, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]
+    }}
+"""
+        path = write(tmp_path, f"{facing}.usda", stage_text(body, looks, camera))
+        results[facing] = mean_rgb(path, spp=32, max_depth=1)[0]
+    np.testing.assert_allclose(results["front"], 0.5, rtol=0.02)
+    np.testing.assert_allclose(results["back"], 0.0, atol=0.01)
