@@ -349,3 +349,50 @@ def test_textured_dome_follows_the_openexr_lat_long_orientation(tmp_path):
         results[facing] = mean_rgb(path, spp=32, max_depth=1)[0]
     np.testing.assert_allclose(results["front"], 0.5, rtol=0.02)
     np.testing.assert_allclose(results["back"], 0.0, atol=0.01)
+
+
+@pytest.mark.parametrize("threshold, max_depth", [(0.0, 12), (0.5, 0)])
+def test_clear_glass_and_cut_out_spheres_vanish_in_a_uniform_dome(tmp_path, threshold, max_depth):
+    """White furnace for transmission: a smooth dielectric sphere (opacity 0, ior 1.5)
+    neither absorbs nor emits, so under a uniform dome every pixel sees the dome's
+    radiance; a cut-out (opacity below opacityThreshold) is crossed straight, which is
+    not a bounce, so even max_depth 0 sees through it."""
+    looks = f"""
+        def Material "glass"
+        {{
+            token outputs:surface.connect = </World/Looks/glass/Surface.outputs:surface>
+            def Shader "Surface"
+            {{
+                uniform token info:id = "UsdPreviewSurface"
+                float inputs:opacity = 0
+                float inputs:opacityThreshold = {threshold}
+                float inputs:ior = 1.5
+                token outputs:surface
+            }}
+        }}
+"""
+    body = """
+    def Sphere "ball" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {
+        double radius = 1
+        rel material:binding = </World/Looks/glass>
+    }
+    def DomeLight "sky"
+    {
+        float inputs:intensity = 1
+    }
+"""
+    camera = """
+    def Camera "Camera"
+    {
+        float focalLength = 50
+        float horizontalAperture = 20
+        float verticalAperture = 20
+        double3 xformOp:translate = (0, 0, 4)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+"""
+    path = write(tmp_path, "glass.usda", stage_text(body, looks, camera))
+    rgb, result = mean_rgb(path, spp=16, max_depth=max_depth)
+    assert result.rgba[8, 8, 3] == 1.0  # the sphere fills the centre of the frame
+    np.testing.assert_allclose(rgb, 1.0, rtol=0.01)

@@ -153,8 +153,8 @@ class Integrator:
                 )
                 out.add(pixel[emitting], throughput[:, emitting] * radiance * weight)
 
-            # Lights absorb what reaches them; paths at max depth stop here.
-            alive = hit & (depth < self.settings.max_depth)
+            # Lights absorb what reaches them. Paths at max depth go on only through cut-outs.
+            alive = hit.copy()
             alive[alive] &= np.take(self.world.triangle_light, triangle[alive]) < 0
             keep = np.flatnonzero(alive)
             if not len(keep):
@@ -172,6 +172,7 @@ class Integrator:
 
             # -- cut-out (opacityThreshold): pass straight through, not a bounce
             cut = (inputs.opacity_threshold > 0) & (inputs.opacity < inputs.opacity_threshold)
+            scatters = ~cut & (depth < self.settings.max_depth)
             facing = np.where(cos_geometric < 0, -geometric_normal, geometric_normal)
             offset = facing * self.epsilon
 
@@ -182,20 +183,20 @@ class Integrator:
 
             wo_local = to_local(frame, wo)
             lobes = bsdf.prepare(inputs, wo_local[2], cos_geometric > 0)
-            lobes.probability[:, cut] = 0.0
+            lobes.probability[:, ~scatters] = 0.0
             randoms = rng.uniforms(keys, 2 + step * RANDOMS_PER_STEP, RANDOMS_PER_STEP)
 
             # -- next-event estimation
             if self.lights.has_lights:
                 rays += self._next_event(out, pixel, throughput, position, offset, facing, wo_local, frame,
-                                         lobes, randoms[3:7], ~cut)
+                                         lobes, randoms[3:7], scatters)
 
             # -- BSDF sampling
             sampled = bsdf.sample(lobes, wo_local, randoms[:3])
             new_direction = to_world(frame, sampled.direction)
             side = dot(new_direction, facing)
             consistent = np.where(sampled.transmit, side < 0, side > 0)
-            scattered = sampled.valid & consistent & ~cut
+            scattered = sampled.valid & consistent & scatters
             throughput = np.where(cut, throughput, throughput * sampled.weight)
             new_direction = np.where(cut, directions, new_direction)
             previous_pdf = np.where(cut, previous_pdf, sampled.pdf)
