@@ -28,11 +28,6 @@ def normalize(a: np.ndarray, floor: float = 1e-30) -> np.ndarray:
     return a / np.maximum(length(a), floor)
 
 
-def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Per-lane cross product: (3, n), (3, n) -> (3, n)."""
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
 def max3(a: np.ndarray) -> np.ndarray:
     """Largest component per lane: (3, n) -> (n,)."""
     return np.maximum(np.maximum(a[0], a[1]), a[2])

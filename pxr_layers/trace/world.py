@@ -8,7 +8,6 @@ normal points the way the light emits.
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,7 +15,6 @@ import numpy as np
 from ..errors import RenderSettingsError
 from ..scene import FLOAT, INDEX, Light, SceneData
 
-log = logging.getLogger(__name__)
 
 NOT_A_LIGHT = -1
 DISK_SEGMENTS = 64
