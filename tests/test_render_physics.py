@@ -15,21 +15,31 @@ import pytest
 from pxr_layers.stage import load_stage
 from pxr_layers.trace import TraceSettings, render
 
-LAMBERT = """
+def preview_surface(name: str, **inputs: str) -> str:
+    """A UsdPreviewSurface Material prim under /World/Looks; inputs as 'type = value'."""
+    lines = "".join(f"                {kind} inputs:{key} = {value}\n" for key, (kind, value) in inputs.items())
+    return f"""
         def Material "{name}"
         {{
             token outputs:surface.connect = </World/Looks/{name}/Surface.outputs:surface>
             def Shader "Surface"
             {{
                 uniform token info:id = "UsdPreviewSurface"
-                color3f inputs:diffuseColor = ({r}, {r}, {r})
-                color3f inputs:emissiveColor = ({e}, {e}, {e})
-                int inputs:useSpecularWorkflow = 1
-                color3f inputs:specularColor = (0, 0, 0)
-                token outputs:surface
+{lines}                token outputs:surface
             }}
         }}
 """
+
+
+def lambert(name: str, r: float, e: float) -> str:
+    """A pure Lambertian (no specular lobe) of albedo r, emitting e."""
+    return preview_surface(
+        name,
+        diffuseColor=("color3f", f"({r}, {r}, {r})"),
+        emissiveColor=("color3f", f"({e}, {e}, {e})"),
+        useSpecularWorkflow=("int", "1"),
+        specularColor=("color3f", "(0, 0, 0)"),
+    )
 
 
 def stage_text(body: str, looks: str = "", camera: str = "") -> str:
@@ -77,7 +87,7 @@ def mean_rgb(path, spp=16, max_depth=8, resolution=(16, 16), **kwargs):
 def test_furnace_closed_sphere_converges_to_geometric_series(tmp_path, max_depth):
     """Inside a closed emissive sphere of albedo a, radiance is Le · Σ_{j ≤ depth} a^j."""
     albedo = 0.5
-    looks = LAMBERT.format(name="glow", r=albedo, e=1.0)
+    looks = lambert("glow", albedo, 1.0)
     body = """
     def Sphere "shell" (prepend apiSchemas = ["MaterialBindingAPI"])
     {
@@ -102,7 +112,7 @@ def test_furnace_closed_sphere_converges_to_geometric_series(tmp_path, max_depth
 @pytest.mark.parametrize("elevation", [90, 60, 30])
 def test_diffuse_plane_under_delta_distant_light(tmp_path, elevation):
     """L = ρ/π · E · cos θ for a Lambertian plane lit by a distant light of angle 0."""
-    looks = LAMBERT.format(name="grey", r=0.6, e=0)
+    looks = lambert("grey", 0.6, 0)
     body = FLOOR + f"""
     def DistantLight "sun"
     {{
@@ -121,7 +131,7 @@ def test_diffuse_plane_under_delta_distant_light(tmp_path, elevation):
 def test_normalized_distant_light_with_a_cone_gives_its_intensity_as_irradiance(tmp_path):
     """A normalized distant light's intensity is the irradiance it gives a facing surface;
     light sampling and BSDF sampling of its cone are combined by MIS."""
-    looks = LAMBERT.format(name="grey", r=0.5, e=0)
+    looks = lambert("grey", 0.5, 0)
     body = FLOOR + """
     def DistantLight "sun"
     {
@@ -142,7 +152,7 @@ def test_normalized_distant_light_with_a_cone_gives_its_intensity_as_irradiance(
 
 def test_uniform_dome_on_a_diffuse_plane(tmp_path):
     """A uniform dome of radiance Lc gives E = π·Lc on an unoccluded plane: L = ρ·Lc."""
-    looks = LAMBERT.format(name="grey", r=0.5, e=0)
+    looks = lambert("grey", 0.5, 0)
     body = FLOOR + """
     def DomeLight "sky"
     {
@@ -198,7 +208,7 @@ LOW_CAMERA = """
 def test_rect_light_and_equivalent_emissive_quad_give_the_same_image(tmp_path):
     """A one-sided RectLight and a two-sided emissive quad in its place light the floor the
     same; the camera sits below the panel, where both emit."""
-    looks = LAMBERT.format(name="grey", r=0.5, e=0) + LAMBERT.format(name="glow", r=0, e=4.0)
+    looks = lambert("grey", 0.5, 0) + lambert("glow", 0, 4.0)
     rect = write(tmp_path, "rect.usda",
                  stage_text(FLOOR + RECT_LIGHT.format(intensity=4.0, exposure=0, normalize=0), looks, LOW_CAMERA))
     quad = write(tmp_path, "quad.usda", stage_text(FLOOR + EMISSIVE_QUAD, looks, LOW_CAMERA))
@@ -213,7 +223,7 @@ def test_rect_light_and_equivalent_emissive_quad_give_the_same_image(tmp_path):
 def test_normalize_divides_by_area_and_exposure_doubles(tmp_path):
     """UsdLux: normalize divides radiance by the light's area (1 × 2 here); each stop of
     exposure doubles it. Single light, same samples: the images match to float rounding."""
-    looks = LAMBERT.format(name="grey", r=0.5, e=0)
+    looks = lambert("grey", 0.5, 0)
     images = {}
     for name, intensity, exposure, normalize in [
         ("plain", 2.0, 0, 0), ("normalized", 4.0, 0, 1), ("exposed", 1.0, 1, 0)
@@ -227,7 +237,7 @@ def test_normalize_divides_by_area_and_exposure_doubles(tmp_path):
 
 
 def test_same_inputs_give_identical_bytes_whatever_threads_and_batches(tmp_path):
-    looks = LAMBERT.format(name="grey", r=0.5, e=0)
+    looks = lambert("grey", 0.5, 0)
     path = write(tmp_path, "rect.usda", stage_text(FLOOR + RECT_LIGHT.format(intensity=4, exposure=0, normalize=0), looks))
     scene, spec = load_stage(path)
     spec = type(spec)(**{**spec.__dict__, "resolution": (20, 12)})
@@ -265,20 +275,12 @@ def ggx_albedo_by_quadrature(alpha: float, cos_o: float) -> float:
 def test_white_metal_under_a_uniform_dome_reflects_the_ggx_albedo(tmp_path, roughness):
     """A white metal plane (F = 1) under a uniform dome of radiance 1, seen at 60° from its
     normal: radiance = the GGX directional albedo, combining light and BSDF sampling."""
-    looks = f"""
-        def Material "metal"
-        {{
-            token outputs:surface.connect = </World/Looks/metal/Surface.outputs:surface>
-            def Shader "Surface"
-            {{
-                uniform token info:id = "UsdPreviewSurface"
-                color3f inputs:diffuseColor = (1, 1, 1)
-                float inputs:metallic = 1
-                float inputs:roughness = {roughness}
-                token outputs:surface
-            }}
-        }}
-"""
+    looks = preview_surface(
+        "metal",
+        diffuseColor=("color3f", "(1, 1, 1)"),
+        metallic=("float", "1"),
+        roughness=("float", str(roughness)),
+    )
     body = FLOOR.replace("/World/Looks/grey", "/World/Looks/metal") + """
     def DomeLight "sky"
     {
@@ -316,7 +318,7 @@ def test_textured_dome_follows_the_openexr_lat_long_orientation(tmp_path):
     image.set_pixels(oiio.ROI(), pixels)
     assert image.write(str(tmp_path / "half.exr"))
 
-    looks = LAMBERT.format(name="grey", r=0.5, e=0)
+    looks = lambert("grey", 0.5, 0)
     results = {}
     for facing, rotate in (("front", 0), ("back", 180)):
         body = f"""
@@ -357,20 +359,12 @@ def test_clear_glass_and_cut_out_spheres_vanish_in_a_uniform_dome(tmp_path, thre
     neither absorbs nor emits, so under a uniform dome every pixel sees the dome's
     radiance; a cut-out (opacity below opacityThreshold) is crossed straight, which is
     not a bounce, so even max_depth 0 sees through it."""
-    looks = f"""
-        def Material "glass"
-        {{
-            token outputs:surface.connect = </World/Looks/glass/Surface.outputs:surface>
-            def Shader "Surface"
-            {{
-                uniform token info:id = "UsdPreviewSurface"
-                float inputs:opacity = 0
-                float inputs:opacityThreshold = {threshold}
-                float inputs:ior = 1.5
-                token outputs:surface
-            }}
-        }}
-"""
+    looks = preview_surface(
+        "glass",
+        opacity=("float", "0"),
+        opacityThreshold=("float", str(threshold)),
+        ior=("float", "1.5"),
+    )
     body = """
     def Sphere "ball" (prepend apiSchemas = ["MaterialBindingAPI"])
     {
