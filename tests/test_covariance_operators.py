@@ -23,11 +23,6 @@ XU = (0, 2)
 YV = (1, 3)
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(20240603)
-
-
 def _one_lane(batched_operator):
     """Run a batched operator on a single (4, 4) Σ with scalar parameters."""
 

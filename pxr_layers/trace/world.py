@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import RenderSettingsError
 from ..scene import FLOAT, INDEX, Light, SceneData
+from .curvature import triangle_curvatures
 
 
 NOT_A_LIGHT = -1
@@ -34,6 +35,9 @@ class World:
     corner_normals   : (3 corners, 3, t) float32 unit shading normals (flat where none
                        authored)
     corner_uvs       : (3 corners, 2, t) float32 (zeros where none authored)
+    curvature_k1, curvature_k2 : (t,) float32 principal curvatures, 1/m, k1 ≥ k2, from
+                       the shading normals (see curvature.py; 0 on flat geometry)
+    principal_direction : (3, t) float32 unit direction of k1
 
     Per-triangle vectors are component-major (see vectors.py): gathering lanes with
     np.take(..., axis=-1) yields (3, n) rows directly.
@@ -50,6 +54,9 @@ class World:
     corner_positions: np.ndarray
     corner_normals: np.ndarray
     corner_uvs: np.ndarray
+    curvature_k1: np.ndarray
+    curvature_k2: np.ndarray
+    principal_direction: np.ndarray
     triangle_object: np.ndarray
     triangle_material: np.ndarray
     triangle_light: np.ndarray
@@ -111,6 +118,9 @@ def build_world(scene: SceneData) -> World:
         [flat[start:start + len(t)] if n is None else n for n, t, start in zip(normals, triangles, _starts(triangles))]
     )
 
+    corner_positions = _corner_major(corners)
+    corner_normals = _corner_major(corner_normals)
+    k1, k2, principal_direction = triangle_curvatures(corner_positions, corner_normals)
     low, high = all_vertices.min(axis=0), all_vertices.max(axis=0)
     center = (low + high) / 2
     return World(
@@ -118,9 +128,12 @@ def build_world(scene: SceneData) -> World:
         triangles=all_triangles,
         geometric_normal=np.ascontiguousarray(unit_normal.T),
         area=(double_area / 2).astype(FLOAT),
-        corner_positions=_corner_major(corners),
-        corner_normals=_corner_major(corner_normals),
+        corner_positions=corner_positions,
+        corner_normals=corner_normals,
         corner_uvs=_corner_major(np.concatenate(uvs)),
+        curvature_k1=k1,
+        curvature_k2=k2,
+        principal_direction=principal_direction,
         triangle_object=np.concatenate(objects),
         triangle_material=np.concatenate(materials),
         triangle_light=np.concatenate(lights),

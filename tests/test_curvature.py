@@ -1,0 +1,88 @@
+"""Per-triangle principal curvatures (trace/curvature.py) against exact geometry."""
+
+from __future__ import annotations
+
+from importlib import resources
+
+import numpy as np
+import pytest
+from pxr import Usd, UsdGeom
+
+from pxr_layers.stage import load_stage
+from pxr_layers.trace.curvature import triangle_curvatures
+from pxr_layers.trace.world import build_world
+
+
+def world_of(path):
+    scene, _ = load_stage(str(path))
+    return build_world(scene)
+
+
+def per_object(world, name):
+    index = world.object_names.index(name)
+    mask = world.triangle_object == index
+    return world.curvature_k1[mask], world.curvature_k2[mask], world.principal_direction[:, mask]
+
+
+def test_showcase_flat_objects_are_exactly_flat_and_the_sphere_is_one_over_r():
+    world = world_of(resources.files("pxr_layers.render").joinpath("showcase.usda"))
+    for flat in ("floor", "backdrop", "texturedPanel", "matteBox", "glossyBox", "mirrorPanel"):
+        k1, k2, _ = per_object(world, flat)
+        assert np.all(k1 == 0) and np.all(k2 == 0), flat
+    k1, k2, _ = per_object(world, "curvedSphere")  # radius 0.4 m
+    np.testing.assert_allclose(k1, 2.5, rtol=1e-3)
+    np.testing.assert_allclose(k2, 2.5, rtol=1e-3)
+
+
+def _stage_with(tmp_path, build):
+    stage = Usd.Stage.CreateNew(str(tmp_path / "shape.usda"))
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    UsdGeom.Camera.Define(stage, "/camera")
+    build(stage)
+    stage.Save()
+    return tmp_path / "shape.usda"
+
+
+def test_cylinder_side_has_one_over_r_across_and_zero_along_its_axis(tmp_path):
+    def build(stage):
+        cylinder = UsdGeom.Cylinder.Define(stage, "/tube")
+        cylinder.GetRadiusAttr().Set(0.5)
+        cylinder.GetHeightAttr().Set(2.0)
+        cylinder.GetAxisAttr().Set("Y")
+
+    world = world_of(_stage_with(tmp_path, build))
+    k1, k2, direction = per_object(world, "tube")
+    side = k1 > 1.0  # caps are flat
+    assert side.sum() > 0 and np.all((k1[~side] == 0) & (k2[~side] == 0))
+    np.testing.assert_allclose(k1[side], 2.0, rtol=1e-3)
+    np.testing.assert_allclose(k2[side], 0.0, atol=1e-3)
+    np.testing.assert_allclose(direction[1, side], 0.0, atol=1e-3)  # k1 runs around the axis
+
+
+def test_metres_per_unit_scales_curvature(tmp_path):
+    def build(stage):
+        UsdGeom.SetStageMetersPerUnit(stage, 0.01)  # centimetres
+        UsdGeom.Sphere.Define(stage, "/ball").GetRadiusAttr().Set(50.0)  # 0.5 m
+
+    k1, k2, _ = per_object(world_of(_stage_with(tmp_path, build)), "ball")
+    np.testing.assert_allclose(k1, 2.0, rtol=1e-3)
+    np.testing.assert_allclose(k2, 2.0, rtol=1e-3)
+
+
+@pytest.mark.parametrize("radius, sign", [(0.25, 1.0), (3.0, -1.0)])
+def test_sign_follows_the_normal_side(rng, radius, sign):
+    """Random triangles on a sphere: outward normals give +1/r, inward −1/r."""
+    directions = rng.normal(size=(3, 3, 200))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    corners = radius * directions
+    k1, k2, _ = triangle_curvatures(corners.astype(np.float32), (sign * directions).astype(np.float32))
+    np.testing.assert_allclose(k1, sign / radius, rtol=1e-3)
+    np.testing.assert_allclose(k2, sign / radius, rtol=1e-3)
+
+
+def test_degenerate_triangles_get_zero_curvature():
+    corners = np.zeros((3, 3, 1), np.float32)
+    normals = np.zeros((3, 3, 1), np.float32)
+    normals[:, 2] = 1
+    k1, k2, _ = triangle_curvatures(corners, normals)
+    assert k1[0] == 0 and k2[0] == 0
