@@ -86,3 +86,14 @@ def test_degenerate_triangles_get_zero_curvature():
     normals[:, 2] = 1
     k1, k2, _ = triangle_curvatures(corners, normals)
     assert k1[0] == 0 and k2[0] == 0
+
+
+def test_uv_gradients_map_texture_units_to_metres():
+    """The showcase panel is 1.6 m × 0.8 m with st over [0, 1]²: ∇s = 1/1.6, ∇t = 1/0.8 per m."""
+    world = world_of(resources.files("pxr_layers.render").joinpath("showcase.usda"))
+    mask = world.triangle_object == world.object_names.index("texturedPanel")
+    np.testing.assert_allclose(np.linalg.norm(world.gradient_s[:, mask], axis=0), 0.625, rtol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(world.gradient_t[:, mask], axis=0), 1.25, rtol=1e-5)
+    np.testing.assert_allclose(np.sum(world.gradient_s[:, mask] * world.gradient_t[:, mask], axis=0), 0, atol=1e-6)
+    floor = world.triangle_object == world.object_names.index("floor")  # no st authored
+    assert np.all(world.gradient_s[:, floor] == 0) and np.all(world.gradient_t[:, floor] == 0)

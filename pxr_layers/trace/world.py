@@ -38,6 +38,10 @@ class World:
     curvature_k1, curvature_k2 : (t,) float32 principal curvatures, 1/m, k1 ≥ k2, from
                        the shading normals (see curvature.py; 0 on flat geometry)
     principal_direction : (3, t) float32 unit direction of k1
+    gradient_s, gradient_t : (3, t) float32 world-space gradients of the texture
+                       coordinates over each triangle, 1/m (in the triangle's plane; zero
+                       where the uvs are degenerate): ∂(s, t)/∂(a, b) = [[∇s·a, ∇s·b],
+                       [∇t·a, ∇t·b]] for any tangent axes a, b
 
     Per-triangle vectors are component-major (see vectors.py): gathering lanes with
     np.take(..., axis=-1) yields (3, n) rows directly.
@@ -57,6 +61,8 @@ class World:
     curvature_k1: np.ndarray
     curvature_k2: np.ndarray
     principal_direction: np.ndarray
+    gradient_s: np.ndarray
+    gradient_t: np.ndarray
     triangle_object: np.ndarray
     triangle_material: np.ndarray
     triangle_light: np.ndarray
@@ -121,6 +127,8 @@ def build_world(scene: SceneData) -> World:
     corner_positions = _corner_major(corners)
     corner_normals = _corner_major(corner_normals)
     k1, k2, principal_direction = triangle_curvatures(corner_positions, corner_normals)
+    corner_uvs = _corner_major(np.concatenate(uvs))
+    gradient_s, gradient_t = uv_gradients(corner_positions, corner_uvs)
     low, high = all_vertices.min(axis=0), all_vertices.max(axis=0)
     center = (low + high) / 2
     return World(
@@ -130,10 +138,12 @@ def build_world(scene: SceneData) -> World:
         area=(double_area / 2).astype(FLOAT),
         corner_positions=corner_positions,
         corner_normals=corner_normals,
-        corner_uvs=_corner_major(np.concatenate(uvs)),
+        corner_uvs=corner_uvs,
         curvature_k1=k1,
         curvature_k2=k2,
         principal_direction=principal_direction,
+        gradient_s=gradient_s,
+        gradient_t=gradient_t,
         triangle_object=np.concatenate(objects),
         triangle_material=np.concatenate(materials),
         triangle_light=np.concatenate(lights),
@@ -142,6 +152,31 @@ def build_world(scene: SceneData) -> World:
         center=center.astype(np.float64),
         radius=float(np.linalg.norm(high - low) / 2) or 1.0,
     )
+
+
+def uv_gradients(corner_positions: np.ndarray, corner_uvs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gradients of s and t over each triangle: (3, t) float32 each, in 1/m.
+
+    Each gradient g lies in the triangle's plane with g·(p_k − p_0) = uv_k − uv_0 for the
+    two edges from corner 0; degenerate triangles get zero.
+    """
+    p = corner_positions.astype(np.float64)
+    uv = corner_uvs.astype(np.float64)
+    edge_1, edge_2 = p[1] - p[0], p[2] - p[0]
+    g11 = np.sum(edge_1 * edge_1, axis=0)
+    g12 = np.sum(edge_1 * edge_2, axis=0)
+    g22 = np.sum(edge_2 * edge_2, axis=0)
+    determinant = g11 * g22 - g12 * g12
+    regular = determinant > 1e-12 * np.maximum(g11 * g22, 1e-300)
+    inverse = np.where(regular, 1.0 / np.where(regular, determinant, 1.0), 0.0)
+    gradients = []
+    for component in (0, 1):
+        d1 = uv[1, component] - uv[0, component]
+        d2 = uv[2, component] - uv[0, component]
+        alpha = (g22 * d1 - g12 * d2) * inverse
+        beta = (g11 * d2 - g12 * d1) * inverse
+        gradients.append((alpha * edge_1 + beta * edge_2).astype(FLOAT))
+    return gradients[0], gradients[1]
 
 
 def _corner_major(per_triangle: np.ndarray) -> np.ndarray:
