@@ -42,19 +42,24 @@ def lambert(name: str, r: float, e: float) -> str:
     )
 
 
-def stage_text(body: str, looks: str = "", camera: str = "") -> str:
-    camera = camera or """
+def camera_prim(focal_length: float, aperture: float, translate=(0, 0, 0), rotate=(0, 0, 0)) -> str:
+    """A square-aperture perspective camera /World/Camera looking down its local −Z."""
+    return f"""
     def Camera "Camera"
-    {
-        float focalLength = 50
-        float horizontalAperture = 10
-        float verticalAperture = 10
+    {{
+        float focalLength = {focal_length}
+        float horizontalAperture = {aperture}
+        float verticalAperture = {aperture}
         float2 clippingRange = (0.01, 1000)
-        double3 xformOp:translate = (0, 3, 0)
-        float3 xformOp:rotateXYZ = (-90, 0, 0)
+        double3 xformOp:translate = {tuple(translate)}
+        float3 xformOp:rotateXYZ = {tuple(rotate)}
         uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]
-    }
+    }}
 """
+
+
+def stage_text(body: str, looks: str = "", camera: str = "") -> str:
+    camera = camera or camera_prim(50, 10, translate=(0, 3, 0), rotate=(-90, 0, 0))
     header = '#usda 1.0\n(\n    upAxis = "Y"\n    metersPerUnit = 1\n    defaultPrim = "World"\n)\n'
     return header + f'def Xform "World"\n{{\n    def Scope "Looks"\n    {{\n{looks}\n    }}\n{body}\n{camera}\n}}\n'
 
@@ -95,14 +100,7 @@ def test_furnace_closed_sphere_converges_to_geometric_series(tmp_path, max_depth
         rel material:binding = </World/Looks/glow>
     }
 """
-    camera = """
-    def Camera "Camera"
-    {
-        float focalLength = 20
-        float horizontalAperture = 20
-        float verticalAperture = 20
-    }
-"""
+    camera = camera_prim(20, 20)
     path = write(tmp_path, "furnace.usda", stage_text(body, looks, camera))
     rgb, _ = mean_rgb(path, spp=16, max_depth=max_depth)
     expected = sum(albedo**j for j in range(max_depth + 1))
@@ -192,17 +190,7 @@ EMISSIVE_QUAD = """
 """
 
 
-LOW_CAMERA = """
-    def Camera "Camera"
-    {
-        float focalLength = 10
-        float horizontalAperture = 20
-        float verticalAperture = 20
-        double3 xformOp:translate = (0, 1, 0)
-        float3 xformOp:rotateXYZ = (-90, 0, 0)
-        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]
-    }
-"""
+LOW_CAMERA = camera_prim(10, 20, translate=(0, 1, 0), rotate=(-90, 0, 0))
 
 
 def test_rect_light_and_equivalent_emissive_quad_give_the_same_image(tmp_path):
@@ -287,17 +275,7 @@ def test_white_metal_under_a_uniform_dome_reflects_the_ggx_albedo(tmp_path, roug
         float inputs:intensity = 1
     }
 """
-    camera = """
-    def Camera "Camera"
-    {
-        float focalLength = 500
-        float horizontalAperture = 10
-        float verticalAperture = 10
-        double3 xformOp:translate = (0, 2, 3.4641016)
-        float3 xformOp:rotateXYZ = (-30, 0, 0)
-        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]
-    }
-"""
+    camera = camera_prim(500, 10, translate=(0, 2, 3.4641016), rotate=(-30, 0, 0))
     path = write(tmp_path, "metal.usda", stage_text(body, looks, camera))
     rgb, _ = mean_rgb(path, spp=64, max_depth=1)
     expected = ggx_albedo_by_quadrature(roughness**2, math.cos(math.radians(60)))
@@ -336,17 +314,7 @@ def test_textured_dome_follows_the_openexr_lat_long_orientation(tmp_path):
         asset inputs:texture:file = @./half.exr@
     }}
 """
-        camera = f"""
-    def Camera "Camera"
-    {{
-        float focalLength = 50
-        float horizontalAperture = 10
-        float verticalAperture = 10
-        double3 xformOp:translate = (0, 0, {3 if rotate == 0 else -3})
-        float3 xformOp:rotateXYZ = (0, {rotate}, 0)
-        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]
-    }}
-"""
+        camera = camera_prim(50, 10, translate=(0, 0, 3 if rotate == 0 else -3), rotate=(0, rotate, 0))
         path = write(tmp_path, f"{facing}.usda", stage_text(body, looks, camera))
         results[facing] = mean_rgb(path, spp=32, max_depth=1)[0]
     np.testing.assert_allclose(results["front"], 0.5, rtol=0.02)
@@ -376,16 +344,7 @@ def test_clear_glass_and_cut_out_spheres_vanish_in_a_uniform_dome(tmp_path, thre
         float inputs:intensity = 1
     }
 """
-    camera = """
-    def Camera "Camera"
-    {
-        float focalLength = 50
-        float horizontalAperture = 20
-        float verticalAperture = 20
-        double3 xformOp:translate = (0, 0, 4)
-        uniform token[] xformOpOrder = ["xformOp:translate"]
-    }
-"""
+    camera = camera_prim(50, 20, translate=(0, 0, 4))
     path = write(tmp_path, "glass.usda", stage_text(body, looks, camera))
     rgb, result = mean_rgb(path, spp=16, max_depth=max_depth)
     assert result.rgba[8, 8, 3] == 1.0  # the sphere fills the centre of the frame
