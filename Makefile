@@ -21,6 +21,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_render.py
+	$(BIN)/python benchmarks/bench_covariance.py
 
 clean:
 	rm -rf $(VENV) demo build *.egg-info

@@ -109,3 +109,19 @@ def test_failed_write_leaves_nothing_behind(tmp_path):
     with pytest.raises(RuntimeError):
         write_atomically(target, crash)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_debug_covariance_writes_norm_images(tmp_path):
+    result = run("render", str(RENDER_DIR / "showcase.usda"), "-o", str(tmp_path), "--debug-covariance",
+                 "--spp", "2", "--resolution", "48", "48", "--max-depth", "2", "--quiet")
+    assert result.returncode == 0, result.stderr
+    channels = OpenEXR.File(str(tmp_path / "showcase.covariance.exr")).channels()
+    norms = {name: channels[name].pixels for name in "CTR"}
+    assert all(image.shape == (48, 48) and image.dtype == np.float32 for image in norms.values())
+    assert np.nanmax(norms["C"]) == pytest.approx(2.5, rel=1e-3)  # the r = 0.4 m sphere
+    assert np.nanmax(norms["T"]) > 0 and np.nanmax(norms["R"]) > 0
+    for name in "CTR":
+        image = oiio.ImageBuf(str(tmp_path / f"showcase.covariance.{name}.png"))
+        assert (image.spec().width, image.spec().height, image.spec().nchannels) == (48, 48, 3)
+        pixels = image.get_pixels()
+        assert pixels.std() > 0.01  # not blank

@@ -9,6 +9,7 @@ import math
 from pathlib import Path
 
 from .. import __version__
+from ..layers.debug import write_covariance_debug
 from ..layers.exr import write_rgba
 from ..trace import TraceSettings
 from ..trace import render as trace_render
@@ -21,6 +22,7 @@ DESCRIPTION = (
 )
 DEFAULT_SPP = 64
 DEFAULT_MAX_DEPTH = 8
+DEFAULT_NORM_BOUNCES = 5
 log = logging.getLogger(__name__)
 
 
@@ -48,6 +50,10 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--settings", metavar="PRIM",
                         help="UsdRender RenderSettings prim (default: the stage's renderSettingsPrimPath)")
     parser.add_argument("--threads", type=_positive, metavar="N", help="render threads (default: all cores)")
+    parser.add_argument("--debug-covariance", action="store_true",
+                        help="also write the first bounce's covariance norms beside the beauty: "
+                        "STEM.covariance.exr (channels C 1/m, T cycles/m, R cycles/rad) and "
+                        "STEM.covariance.{C,T,R}.png colour maps")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -62,7 +68,8 @@ def render_stage(stage_path: Path, args: argparse.Namespace) -> Path:
     scene, spec = load_stage(stage_path, frame=args.frame, camera=args.camera, settings=args.settings)
     if args.resolution:
         spec = dataclasses.replace(spec, resolution=tuple(args.resolution))
-    settings = TraceSettings(spp=args.spp, max_depth=args.max_depth, seed=args.seed)
+    settings = TraceSettings(spp=args.spp, max_depth=args.max_depth, seed=args.seed,
+                             norm_bounces=DEFAULT_NORM_BOUNCES if args.debug_covariance else 0)
     output = beauty_path(stage_path, args.output, args.frame)
     result = trace_render(scene, spec, settings, threads=args.threads, show_progress=args.show_progress)
     metadata = {
@@ -76,6 +83,8 @@ def render_stage(stage_path: Path, args: argparse.Namespace) -> Path:
     }
     write_rgba(output, result.rgba, metadata)
     log.info("wrote %s", output)
+    if args.debug_covariance:
+        write_covariance_debug(output, result.first_bounce_norms, metadata)
     return output
 
 

@@ -34,6 +34,19 @@ def write_rgba(path: str | os.PathLike, rgba: np.ndarray, metadata: dict[str, st
     return path
 
 
+def write_channels(path: str | os.PathLike, channels: dict[str, np.ndarray],
+                   metadata: dict[str, str] | None = None) -> Path:
+    """Write named single-channel float32 images (each (h, w)) as one part, ZIP."""
+    path = Path(path)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              "chromaticities": REC709_CHROMATICITIES}
+    for key, value in (metadata or {}).items():
+        header[METADATA_PREFIX + key] = str(value)
+    pixels = {name: np.ascontiguousarray(image, dtype=np.float32) for name, image in channels.items()}
+    write_atomically(path, lambda temporary: OpenEXR.File(header, pixels).write(str(temporary)))
+    return path
+
+
 def write_atomically(path: Path, write) -> None:
     """Call write(temporary_path) in path's folder, then rename over `path`.
 

@@ -15,12 +15,15 @@ surfaces (opacityThreshold) does not count.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
+from ..paths import events
+from ..paths.events import PathClassTrie
 from ..scene import FLOAT
 from . import bsdf, rng
+from .bounce_norms import BounceNorms, lobe_reflectance
 from .camera import PinholeCamera
 from .embree import RayCaster
 from .lights import LightSampler, orthonormal_basis
@@ -35,12 +38,36 @@ MAX_PASS_THROUGH = 16  # cut-out surfaces a path may cross on top of max_depth b
 
 @dataclass(frozen=True)
 class TraceSettings:
-    """How to trace. spp: samples per pixel; seed and frame key every random number."""
+    """How to trace. spp: samples per pixel; seed and frame key every random number.
+
+    norm_bounces : N, how many events after the camera keep their covariance norms C, T, R
+                   (bounce_norms.py); 0 turns covariance off.
+    record_paths : keep every contribution with its path class and norms (the path index).
+    """
 
     spp: int = 16
     max_depth: int = 8
     seed: int = 0
     roulette_depth: int = 3  # Russian roulette from this many bounces on
+    norm_bounces: int = 0
+    record_paths: bool = False
+
+
+@dataclass
+class Contributions:
+    """Every contribution of a batch, in the order the tracer made them.
+
+    pixel  : (r,) int64; sample : (r,) int32; rgb : (r, 3) float32 (what the film adds)
+    node   : (r,) int64 path class, a node of ``classes``
+    norms  : (r, N, 3) float32 C, T, R of events 1..N after the camera (0 past the end)
+    """
+
+    pixel: np.ndarray
+    sample: np.ndarray
+    rgb: np.ndarray
+    node: np.ndarray
+    norms: np.ndarray
+    classes: PathClassTrie
 
 
 @dataclass
@@ -49,25 +76,95 @@ class BatchResult:
 
     rgb   : (k, 3) float64 sum of contributions (not yet divided by spp)
     alpha : (k,) float64 count of camera rays that hit geometry
+    first_bounce_norms : (k, 3) float64 sums of the first bounce's C, T, R over the
+            samples whose first event scatters, and first_bounce_count (k,) of them
+            (None without covariance)
+    records : every contribution (None unless settings.record_paths)
     rays  : rays cast (camera + bounce + shadow), for throughput figures
     """
 
     first_pixel: int
     rgb: np.ndarray
     alpha: np.ndarray
+    first_bounce_norms: np.ndarray | None = None
+    first_bounce_count: np.ndarray | None = None
+    records: Contributions | None = None
     rays: int = 0
 
 
 @dataclass
-class _Contributions:
-    pixels: list[np.ndarray] = field(default_factory=list)
-    rgb: list[np.ndarray] = field(default_factory=list)
+class _Paths:
+    """The live paths of a batch, one lane each (structure of arrays).
 
-    def add(self, pixel: np.ndarray, rgb: np.ndarray) -> None:
-        """pixel (n,) int64, rgb (3, n) float32."""
-        if len(pixel):
-            self.pixels.append(pixel)
-            self.rgb.append(rgb)
+    events : (n,) int32 events so far after the camera; node : (n,) int64 path class
+    norms  : (N, 3, n) float32 C, T, R per event slot; travelled : (n,) float32 metres
+    """
+
+    pixel: np.ndarray
+    sample: np.ndarray
+    keys: np.ndarray
+    depth: np.ndarray
+    previous_pdf: np.ndarray
+    previous_singular: np.ndarray
+    throughput: np.ndarray
+    events: np.ndarray
+    node: np.ndarray
+    norms: np.ndarray
+    travelled: np.ndarray
+
+    def take(self, lanes: np.ndarray) -> _Paths:
+        return _Paths(*(np.take(value, lanes, axis=-1) for value in vars(self).values()))
+
+
+class _Film:
+    """Collects contributions: always the pixel sums, the records when asked."""
+
+    def __init__(self, first_pixel: int, pixel_count: int, record: bool, classes: PathClassTrie | None):
+        self.first_pixel = first_pixel
+        self.rgb = np.zeros((3, pixel_count))
+        self.record = record
+        self.classes = classes
+        self._records: list[tuple[np.ndarray, ...]] = []
+
+    def add(self, paths: _Paths, lanes: np.ndarray, rgb: np.ndarray, event: np.ndarray | None = None,
+            node: np.ndarray | None = None, norms: np.ndarray | None = None) -> None:
+        """Add rgb (3, len(lanes)) for `lanes` of `paths`. The path class is `node`, or the
+        lanes' own node extended by `event` keys; `norms` replaces the lanes' norms."""
+        if not len(lanes):
+            return
+        where = paths.pixel[lanes] - self.first_pixel
+        for channel in range(3):
+            self.rgb[channel] += np.bincount(where, weights=rgb[channel], minlength=self.rgb.shape[1])
+        if self.record:
+            if node is None:
+                node = self.classes.extend(paths.node[lanes], event)
+            if norms is None:
+                norms = paths.norms[:, :, lanes]
+            self._records.append((paths.pixel[lanes], paths.sample[lanes], rgb.T.astype(FLOAT), node,
+                                  np.moveaxis(norms, -1, 0)))
+
+    def records(self) -> Contributions | None:
+        if not self.record:
+            return None
+        if not self._records:
+            return Contributions(np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros((0, 3), FLOAT),
+                                 np.zeros(0, np.int64), np.zeros((0, 0, 3), FLOAT), self.classes)
+        columns = [np.concatenate(column) for column in zip(*self._records)]
+        return Contributions(*columns, classes=self.classes)
+
+
+@dataclass
+class _Vertex:
+    """The surface event being built at this step, for the live lanes.
+
+    in_slots : (n,) bool, the event scatters and is among the first N (its norms are kept)
+    curvature, texture : (n,) float32 C and T (None without covariance)
+    """
+
+    triangle: np.ndarray
+    in_slots: np.ndarray
+    curvature: np.ndarray | None
+    texture: np.ndarray | None
 
 
 def power_heuristic(chosen: np.ndarray, other: np.ndarray) -> np.ndarray:
@@ -84,7 +181,8 @@ class Integrator:
     """Everything a batch needs, shared read-only between threads."""
 
     def __init__(self, world: World, materials: MaterialTable, lights: LightSampler, camera: PinholeCamera,
-                 resolution: tuple[int, int], settings: TraceSettings, frame: float, caster: RayCaster):
+                 resolution: tuple[int, int], settings: TraceSettings, frame: float, caster: RayCaster,
+                 vocabulary: events.EventVocabulary, bounce_norms: BounceNorms | None = None):
         self.world = world
         self.materials = materials
         self.lights = lights
@@ -93,14 +191,20 @@ class Integrator:
         self.settings = settings
         self.key = rng.frame_key(settings.seed, frame)
         self.caster = caster
+        self.vocabulary = vocabulary  # names behind the event keys of recorded paths
+        self.bounce_norms = bounce_norms if settings.norm_bounces > 0 else None
         self.epsilon = np.float32(1e-5 * (world.radius + np.linalg.norm(world.center)) + 1e-7)
         self.has_infinite_lights = bool(lights.domes or any(not d.is_delta for d in lights.distant))
         emissive_material = np.concatenate([materials.emissive, [False]])
         self.triangle_emits = (world.triangle_light >= 0) | emissive_material[world.triangle_material]
+        # ray cone of a camera ray: radians per pixel (the film window's width over its pixels)
+        self.pixel_angle = np.float32(2 * camera.half_width / self.width)
 
     def trace(self, first_path: int, stop_path: int) -> BatchResult:
         """Trace paths [first_path, stop_path) to completion."""
         spp = self.settings.spp
+        slots = self.settings.norm_bounces if self.bounce_norms else 0
+        record = self.settings.record_paths
         path = np.arange(first_path, stop_path, dtype=np.int64)
         pixel = path // spp
         first_pixel = int(pixel[0])
@@ -113,32 +217,38 @@ class Integrator:
         t_max = np.full(len(path), self.camera.t_max, FLOAT)
 
         n = len(path)
-        throughput = np.ones((3, n), FLOAT)
-        previous_pdf = np.zeros(n, FLOAT)
-        previous_singular = np.ones(n, bool)  # the camera: what it sees directly is not MIS'd
-        depth = np.zeros(n, np.int32)
-        out = _Contributions()
+        paths = _Paths(
+            pixel=pixel, sample=(path % spp).astype(np.int32), keys=keys, depth=np.zeros(n, np.int32),
+            previous_pdf=np.zeros(n, FLOAT),
+            previous_singular=np.ones(n, bool),  # the camera: what it sees directly is not MIS'd
+            throughput=np.ones((3, n), FLOAT), events=np.zeros(n, np.int32), node=np.zeros(n, np.int64),
+            norms=np.zeros((slots, 3, n), FLOAT), travelled=np.zeros(n, FLOAT),
+        )
+        film = _Film(first_pixel, pixel_count, record, PathClassTrie() if record else None)
         alpha = np.zeros(pixel_count)
+        first_bounce = np.zeros((3, pixel_count)) if slots else None
+        first_bounce_count = np.zeros(pixel_count) if slots else None
         rays = 0
 
         for step in range(self.settings.max_depth + MAX_PASS_THROUGH + 1):
-            if len(pixel) == 0:
+            if len(paths.pixel) == 0:
                 break
             # -- intersect
             triangle, bary_u, bary_v, t_hit = self.caster.intersect(origins, directions, t_max)
-            rays += len(pixel)
+            rays += len(paths.pixel)
             hit = triangle >= 0
             if step == 0:
-                alpha += np.bincount(pixel[hit] - first_pixel, minlength=pixel_count)
+                alpha += np.bincount(paths.pixel[hit] - first_pixel, minlength=pixel_count)
 
             # -- escaped rays see the dome and distant lights' cones
             if self.has_infinite_lights and not hit.all():
                 missed = np.flatnonzero(~hit)
-                for _, radiance, density in self.lights.escaped(directions[:, missed]):
+                for light, radiance, density in self.lights.escaped(directions[:, missed]):
                     weight = np.where(
-                        previous_singular[missed], 1.0, power_heuristic(previous_pdf[missed], density)
+                        paths.previous_singular[missed], 1.0, power_heuristic(paths.previous_pdf[missed], density)
                     )
-                    out.add(pixel[missed], throughput[:, missed] * radiance * weight)
+                    film.add(paths, missed, paths.throughput[:, missed] * radiance * weight,
+                             event=self._light_event(np.full(len(missed), light)) if record else None)
 
             # -- emission from lights and emissive surfaces hit by the ray
             emitting = np.flatnonzero(hit & np.take(self.triangle_emits, triangle))
@@ -149,9 +259,10 @@ class Integrator:
                 radiance = self.lights.emitted(tri, st, cos_emitter)
                 density = self.lights.triangle_pdf(tri, t_hit[emitting], cos_emitter)
                 weight = np.where(
-                    previous_singular[emitting], 1.0, power_heuristic(previous_pdf[emitting], density)
+                    paths.previous_singular[emitting], 1.0, power_heuristic(paths.previous_pdf[emitting], density)
                 )
-                out.add(pixel[emitting], throughput[:, emitting] * radiance * weight)
+                film.add(paths, emitting, paths.throughput[:, emitting] * radiance * weight,
+                         event=self._emitter_event(tri) if record else None)
 
             # Lights absorb what reaches them. Paths at max depth go on only through cut-outs.
             alive = hit.copy()
@@ -159,9 +270,10 @@ class Integrator:
             keep = np.flatnonzero(alive)
             if not len(keep):
                 break
-            pixel, keys, depth, triangle = pixel[keep], keys[keep], depth[keep], triangle[keep]
-            previous_pdf, previous_singular = previous_pdf[keep], previous_singular[keep]
-            throughput, directions = np.take(throughput, keep, axis=1), np.take(directions, keep, axis=1)
+            paths, triangle = paths.take(keep), triangle[keep]
+            directions = np.take(directions, keep, axis=1)
+            if slots:
+                paths.travelled = paths.travelled + t_hit[keep]
             points = surface_points(self.world, triangle, bary_u[keep], bary_v[keep])
             position, geometric_normal, shading_normal, st = (
                 points.position, points.geometric_normal, points.shading_normal, points.st
@@ -172,7 +284,7 @@ class Integrator:
 
             # -- cut-out (opacityThreshold): pass straight through, not a bounce
             cut = (inputs.opacity_threshold > 0) & (inputs.opacity < inputs.opacity_threshold)
-            scatters = ~cut & (depth < self.settings.max_depth)
+            scatters = ~cut & (paths.depth < self.settings.max_depth)
             facing = np.where(cos_geometric < 0, -geometric_normal, geometric_normal)
             offset = facing * self.epsilon
 
@@ -184,11 +296,16 @@ class Integrator:
             wo_local = to_local(frame, wo)
             lobes = bsdf.prepare(inputs, wo_local[2], cos_geometric > 0)
             lobes.probability[:, ~scatters] = 0.0
-            randoms = rng.uniforms(keys, 2 + step * RANDOMS_PER_STEP, RANDOMS_PER_STEP)
+            randoms = rng.uniforms(paths.keys, 2 + step * RANDOMS_PER_STEP, RANDOMS_PER_STEP)
+            vertex = _Vertex(triangle, (paths.events < slots) & ~cut, None, None)
+            if slots:
+                footprint = paths.travelled * self.pixel_angle / np.maximum(np.abs(wo_local[2]), 0.05)
+                vertex.curvature, vertex.texture = self.bounce_norms.curvature_and_texture(
+                    triangle, st, frame[0], frame[1], footprint)
 
             # -- next-event estimation
             if self.lights.has_lights:
-                rays += self._next_event(out, pixel, throughput, position, offset, facing, wo_local, frame,
+                rays += self._next_event(film, paths, vertex, position, offset, facing, wo_local, frame,
                                          lobes, randoms[3:7], scatters)
 
             # -- BSDF sampling
@@ -197,37 +314,85 @@ class Integrator:
             side = dot(new_direction, facing)
             consistent = np.where(sampled.transmit, side < 0, side > 0)
             scattered = sampled.valid & consistent & scatters
-            throughput = np.where(cut, throughput, throughput * sampled.weight)
+            if record or slots:
+                self._advance_history(film, paths, vertex, cut, scattered, sampled, lobes, step, first_bounce,
+                                      first_bounce_count, first_pixel)
+            paths.throughput = np.where(cut, paths.throughput, paths.throughput * sampled.weight)
             new_direction = np.where(cut, directions, new_direction)
-            previous_pdf = np.where(cut, previous_pdf, sampled.pdf)
-            previous_singular = np.where(cut, previous_singular, sampled.pdf == 0)
-            depth = depth + (~cut)
+            paths.previous_pdf = np.where(cut, paths.previous_pdf, sampled.pdf)
+            paths.previous_singular = np.where(cut, paths.previous_singular, sampled.pdf == 0)
+            paths.depth = paths.depth + (~cut)
             crossing = cut | sampled.transmit
             origins = position + np.where(crossing, -offset, offset)
 
             # -- Russian roulette
             survive = cut | scattered
             if step + 1 >= self.settings.roulette_depth:
-                continue_probability = np.clip(max3(throughput), 0.05, 1.0)
+                continue_probability = np.clip(max3(paths.throughput), 0.05, 1.0)
                 lucky = randoms[7] < continue_probability
                 survive &= lucky | cut
-                throughput = np.where(cut, throughput, throughput / continue_probability)
-            survive &= max3(throughput) > 0
+                paths.throughput = np.where(cut, paths.throughput, paths.throughput / continue_probability)
+            survive &= max3(paths.throughput) > 0
             keep = np.flatnonzero(survive)
-            pixel, keys, depth = pixel[keep], keys[keep], depth[keep]
-            previous_pdf, previous_singular = previous_pdf[keep], previous_singular[keep]
-            throughput, origins, directions = (np.take(a, keep, axis=1) for a in (throughput, origins, new_direction))
-            t_max = np.full(len(pixel), T_INFINITY, FLOAT)
+            paths = paths.take(keep)
+            origins, directions = np.take(origins, keep, axis=1), np.take(new_direction, keep, axis=1)
+            t_max = np.full(len(paths.pixel), T_INFINITY, FLOAT)
 
-        rgb = np.zeros((pixel_count, 3))
-        if out.pixels:
-            where = np.concatenate(out.pixels) - first_pixel
-            values = np.concatenate(out.rgb, axis=1).astype(np.float64)
-            for channel in range(3):
-                rgb[:, channel] = np.bincount(where, weights=values[channel], minlength=pixel_count)
-        return BatchResult(first_pixel, rgb, alpha, rays)
+        first_bounce_norms = None if first_bounce is None else first_bounce.T
+        return BatchResult(first_pixel, film.rgb.T, alpha, first_bounce_norms, first_bounce_count,
+                           film.records(), rays)
 
-    def _next_event(self, out, pixel, throughput, position, offset, facing, wo_local, frame, lobes, u, allowed):
+    # -- path history: events, classes and per-event norms
+
+    def _surface_event(self, triangle: np.ndarray, event_type, scatter, lobe) -> np.ndarray:
+        subject = events.surface_subject(np.take(self.world.triangle_object, triangle),
+                                         np.take(self.world.triangle_material, triangle))
+        return events.event_keys(event_type, scatter, lobe, subject)
+
+    def _light_event(self, light: np.ndarray) -> np.ndarray:
+        return events.event_keys(events.LIGHT, events.NO_SCATTER, events.NO_LOBE, light)
+
+    def _emitter_event(self, triangle: np.ndarray) -> np.ndarray:
+        """L for a light's own geometry, O for an emissive surface."""
+        light = np.take(self.world.triangle_light, triangle)
+        surface = self._surface_event(triangle, events.OBJECT, events.NO_SCATTER, events.NO_LOBE)
+        return np.where(light >= 0, self._light_event(np.maximum(light, 0)), surface)
+
+    def _vertex_norms(self, paths: _Paths, vertex: _Vertex, lanes: np.ndarray, reflectance: np.ndarray) -> np.ndarray:
+        """The lanes' norms (N, 3, k) with this vertex's slot filled (C, T, R)."""
+        norms = paths.norms[:, :, lanes]
+        kept = np.flatnonzero(vertex.in_slots[lanes])
+        if len(kept):
+            slot = paths.events[lanes[kept]]
+            norms[slot, 0, kept] = vertex.curvature[lanes[kept]]
+            norms[slot, 1, kept] = vertex.texture[lanes[kept]]
+            norms[slot, 2, kept] = reflectance[kept]
+        return norms
+
+    def _advance_history(self, film, paths, vertex, cut, scattered, sampled, lobes, step, first_bounce,
+                         first_bounce_count, first_pixel) -> None:
+        """Append this vertex's event to every continuing path (its sampled lobe, or a
+        straight pass for cut-outs)."""
+        lanes = np.flatnonzero(scattered | cut)
+        lobe = np.where(cut[lanes], events.NO_LOBE, sampled.lobe[lanes])
+        if self.bounce_norms:
+            reflectance = np.where(cut[lanes], 0.0, lobe_reflectance(lobes, np.minimum(lobe, bsdf.GLASS), lanes))
+            surface = lanes[~cut[lanes]]
+            paths.norms[:, :, lanes] = self._vertex_norms(paths, vertex, lanes, reflectance)
+            if step == 0 and len(surface):
+                where = paths.pixel[surface] - first_pixel
+                for norm in range(3):
+                    first_bounce[norm] += np.bincount(where, weights=paths.norms[0, norm, surface],
+                                                      minlength=len(first_bounce_count))
+                first_bounce_count += np.bincount(where, minlength=len(first_bounce_count))
+        if self.settings.record_paths:
+            event_type = np.where(cut[lanes] | sampled.transmit[lanes], events.TRANSMIT, events.REFLECT)
+            scatter = np.where(cut[lanes], bsdf.SCATTER_STRAIGHT, sampled.scatter[lanes])
+            keys = self._surface_event(vertex.triangle[lanes], event_type, scatter, lobe)
+            paths.node[lanes] = film.classes.extend(paths.node[lanes], keys)
+        paths.events[lanes] += 1
+
+    def _next_event(self, film, paths, vertex, position, offset, facing, wo_local, frame, lobes, u, allowed):
         """Sample one light per lane, add each non-singular lobe's MIS-weighted share."""
         sample = self.lights.sample(position, u)
         wi_local = to_local(frame, sample.direction)
@@ -248,16 +413,31 @@ class Integrator:
         light_pdf = sample.pdf[lanes]
         delta = np.isinf(light_pdf)
         cos_shading = np.abs(wi_local[2, lanes])
-        base = throughput[:, lanes] * sample.radiance[:, lanes] * (cos_shading / np.where(delta, 1.0, light_pdf))
+        base = paths.throughput[:, lanes] * sample.radiance[:, lanes] * (cos_shading / np.where(delta, 1.0, light_pdf))
         for lobe in bsdf.GLOSSY_LOBES:
             lobe_f = f[lobe][:, lanes]
             active = max3(lobe_f) > 0
             if not active.any():
                 continue
             weight = np.where(delta, 1.0, power_heuristic(light_pdf, lobe_pdf[lobe, lanes]))
-            contribution = base * lobe_f * weight
-            out.add(pixel[lanes[active]], contribution[:, active])
+            contribution = (base * lobe_f * weight)[:, active]
+            contributing = lanes[active]
+            node = norms = None
+            if film.record:
+                scatter = bsdf.SCATTER_DIFFUSE if lobe == bsdf.DIFFUSE else bsdf.SCATTER_GLOSSY
+                surface = self._surface_event(vertex.triangle[contributing], events.REFLECT, scatter, lobe)
+                node = film.classes.extend(paths.node[contributing], surface)
+                node = film.classes.extend(node, self._sampled_light_event(sample, contributing))
+                if self.bounce_norms:
+                    norms = self._vertex_norms(paths, vertex, contributing,
+                                               lobe_reflectance(lobes, lobe, contributing))
+            film.add(paths, contributing, contribution, node=node, norms=norms)
         return len(blocked)
+
+    def _sampled_light_event(self, sample, lanes: np.ndarray) -> np.ndarray:
+        light = sample.light[lanes]
+        emitter = self._emitter_event(np.maximum(sample.triangle[lanes], 0))
+        return np.where(light >= 0, self._light_event(np.maximum(light, 0)), emitter)
 
 
 def to_local(frame: tuple[np.ndarray, np.ndarray, np.ndarray], v: np.ndarray) -> np.ndarray:

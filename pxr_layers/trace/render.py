@@ -6,17 +6,20 @@ import logging
 import os
 import time
 from collections import deque
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import RenderSettingsError
+from ..paths.events import EventVocabulary
 from ..progress import Progress
 from ..scene import FLOAT, RenderSpec, SceneData
+from .bounce_norms import BounceNorms
 from .camera import PinholeCamera
 from .embree import RayCaster
-from .integrator import Integrator, TraceSettings
+from .integrator import BatchResult, Integrator, TraceSettings
 from .lights import LightSampler
 from .shading import MaterialTable
 from .world import build_world
@@ -28,7 +31,11 @@ DEFAULT_BATCH_PATHS = 1 << 16
 
 @dataclass(frozen=True)
 class RenderResult:
-    """rgba : (h, w, 4) float32, linear radiance (RGB) and camera-ray coverage (A)."""
+    """rgba : (h, w, 4) float32, linear radiance (RGB) and camera-ray coverage (A).
+    first_bounce_norms : (h, w, 3) float32 mean C (1/m), T (cycles/m), R (cycles/rad) of
+        the first bounce over the samples whose first event scatters (NaN where none
+        does); None unless settings.norm_bounces > 0.
+    """
 
     rgba: np.ndarray
     settings: TraceSettings
@@ -37,6 +44,8 @@ class RenderResult:
     rays: int
     seconds: float
     triangles: int
+    vocabulary: EventVocabulary
+    first_bounce_norms: np.ndarray | None = None
 
 
 def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Integrator:
@@ -54,7 +63,14 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
     if not lights.has_lights:
         log.warning("%s: no light emits anything: the image will be black", scene.stage_path)
     camera = PinholeCamera.from_spec(spec)
-    return Integrator(world, materials, lights, camera, spec.resolution, settings, scene.frame, RayCaster(world))
+    bounce_norms = BounceNorms(scene, world) if settings.norm_bounces > 0 else None
+    vocabulary = EventVocabulary(
+        object_names=world.object_names, object_paths=world.object_paths,
+        material_names=tuple(m.name for m in scene.materials), material_paths=tuple(m.path for m in scene.materials),
+        light_names=tuple(light.name for light in scene.lights), light_paths=tuple(light.path for light in scene.lights),
+    )
+    return Integrator(world, materials, lights, camera, spec.resolution, settings, scene.frame, RayCaster(world),
+                      vocabulary, bounce_norms)
 
 
 def render(
@@ -65,9 +81,13 @@ def render(
     threads: int | None = None,
     batch_paths: int = DEFAULT_BATCH_PATHS,
     show_progress: bool = True,
+    on_batch: Callable[[BatchResult], None] | None = None,
 ) -> RenderResult:
     """Path-trace `scene` as `spec` asks. The same inputs give the same bytes whatever
-    `threads` and `batch_paths` are (each batch is reduced into the film in path order)."""
+    `threads` and `batch_paths` are (each batch is reduced into the film in path order).
+
+    on_batch, if given, receives every BatchResult in path order (with its records when
+    settings.record_paths): the path index is written from there while rendering."""
     start = time.perf_counter()
     integrator = prepare(scene, spec, settings)
     width, height = spec.resolution
@@ -75,8 +95,7 @@ def render(
     # Batches never straddle a pixel, so each pixel's samples are summed in one order.
     batch_paths = max(settings.spp, batch_paths // settings.spp * settings.spp)
     starts = range(0, total_paths, batch_paths)
-    rgb = np.zeros((width * height, 3))
-    coverage = np.zeros(width * height)
+    film = _Film(width * height, settings.norm_bounces > 0)
     rays = 0
     progress = Progress(total_paths, "render", enabled=show_progress)
     workers = threads or os.cpu_count() or 1
@@ -85,21 +104,41 @@ def render(
         for first in starts:
             pending.append(pool.submit(integrator.trace, first, min(first + batch_paths, total_paths)))
             if len(pending) >= 2 * workers:
-                rays += _accumulate(pending.popleft().result(), rgb, coverage, progress, settings.spp)
+                rays += film.accumulate(pending.popleft().result(), progress, settings.spp, on_batch)
         while pending:
-            rays += _accumulate(pending.popleft().result(), rgb, coverage, progress, settings.spp)
+            rays += film.accumulate(pending.popleft().result(), progress, settings.spp, on_batch)
     rgba = np.empty((height, width, 4), FLOAT)
-    rgba[..., :3] = (rgb / settings.spp).reshape(height, width, 3)
-    rgba[..., 3] = (coverage / settings.spp).reshape(height, width)
+    rgba[..., :3] = (film.rgb / settings.spp).reshape(height, width, 3)
+    rgba[..., 3] = (film.coverage / settings.spp).reshape(height, width)
+    first_bounce_norms = None
+    if film.norm_sums is not None:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            means = film.norm_sums / film.norm_counts[:, None]
+        first_bounce_norms = means.reshape(height, width, 3).astype(FLOAT)
     seconds = time.perf_counter() - start
     log.info("rendered %d×%d at %d spp in %.1fs (%.2f M rays/s)", width, height, settings.spp, seconds,
              rays / seconds / 1e6)
-    return RenderResult(rgba, settings, (width, height), scene.frame, rays, seconds, integrator.world.triangle_count)
+    return RenderResult(rgba, settings, (width, height), scene.frame, rays, seconds, integrator.world.triangle_count,
+                        integrator.vocabulary, first_bounce_norms)
 
 
-def _accumulate(batch, rgb, coverage, progress, spp) -> int:
-    end = batch.first_pixel + len(batch.rgb)
-    rgb[batch.first_pixel:end] += batch.rgb
-    coverage[batch.first_pixel:end] += batch.alpha
-    progress.advance(len(batch.rgb) * spp)
-    return batch.rays
+class _Film:
+    """Whole-image sums, filled batch by batch in path order."""
+
+    def __init__(self, pixels: int, norms: bool):
+        self.rgb = np.zeros((pixels, 3))
+        self.coverage = np.zeros(pixels)
+        self.norm_sums = np.zeros((pixels, 3)) if norms else None
+        self.norm_counts = np.zeros(pixels) if norms else None
+
+    def accumulate(self, batch: BatchResult, progress: Progress, spp: int, on_batch) -> int:
+        span = slice(batch.first_pixel, batch.first_pixel + len(batch.rgb))
+        self.rgb[span] += batch.rgb
+        self.coverage[span] += batch.alpha
+        if self.norm_sums is not None:
+            self.norm_sums[span] += batch.first_bounce_norms
+            self.norm_counts[span] += batch.first_bounce_count
+        if on_batch is not None:
+            on_batch(batch)
+        progress.advance(len(batch.rgb) * spp)
+        return batch.rays

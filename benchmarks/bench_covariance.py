@@ -1,0 +1,52 @@
+"""What covariance tracing costs: the showcase rendered with and without it, in one run.
+
+    python benchmarks/bench_covariance.py [--resolution 256 256] [--spp 32] [--repeats 2]
+
+Renders the embedded showcase (curvature, a two-frequency texture, glossy and near-mirror
+lobes) twice per repeat, alternating: once plain, once with the per-bounce norms C, T, R
+of N = 5 events per path (which includes building the texture spectra). Prints the best
+time of each and the overhead. Target: covariance adds at most 30 % to render time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from importlib import resources
+
+from pxr_layers.stage import load_stage
+from pxr_layers.trace import TraceSettings
+from pxr_layers.trace.render import render
+
+NORM_BOUNCES = 5
+TARGET_OVERHEAD = 0.30
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--resolution", type=int, nargs=2, default=(256, 256), metavar=("W", "H"))
+    parser.add_argument("--spp", type=int, default=32)
+    parser.add_argument("--repeats", type=int, default=2)
+    args = parser.parse_args()
+    scene, spec = load_stage(str(resources.files("pxr_layers.render").joinpath("showcase.usda")))
+    spec = dataclasses.replace(spec, resolution=tuple(args.resolution))
+    times: dict[int, list[float]] = {0: [], NORM_BOUNCES: []}
+    for _ in range(args.repeats):
+        for bounces in times:
+            settings = TraceSettings(spp=args.spp, norm_bounces=bounces)
+            start = time.perf_counter()
+            render(scene, spec, settings, show_progress=False)
+            times[bounces].append(time.perf_counter() - start)
+    plain, traced = min(times[0]), min(times[NORM_BOUNCES])
+    overhead = traced / plain - 1
+    width, height = args.resolution
+    print(f"showcase {width}x{height}, {args.spp} spp, best of {args.repeats}")
+    print(f"  without covariance : {plain:7.2f} s")
+    print(f"  with C, T, R (N={NORM_BOUNCES}): {traced:7.2f} s")
+    print(f"  ratio {traced / plain:.3f}: overhead {overhead:+.1%} "
+          f"(target ≤ {TARGET_OVERHEAD:.0%}: {'met' if overhead <= TARGET_OVERHEAD else 'MISSED'})")
+
+
+if __name__ == "__main__":
+    main()

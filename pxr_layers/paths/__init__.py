@@ -1,0 +1,1 @@
+"""The path index: events of every light path, written while rendering, read to cut layers."""

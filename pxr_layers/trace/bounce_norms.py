@@ -1,0 +1,90 @@
+"""The covariance norms C, T, R of one bounce, from the hit's geometry, texture and lobe.
+
+These are the norms of the covariance operators each bounce applies (COVARIANCE.md,
+"What the index stores per bounce"; conventions in ``pxr_layers.covariance``):
+
+* C = max(|k1|, |k2|), 1/m: the principal curvatures of the hit triangle (``World``);
+  exactly 0 on planar geometry, 1/r on a sphere of radius r.
+* T = √λmax(T), cycles/m: the texture operator of the material's diffuseColor texture
+  (the albedo, which multiplies the reflected light), measured per tile and mip level
+  (``covariance.texture_spectrum``), mapped from texture units to metres by the uv
+  Jacobian of the triangle in the shading frame. Untextured materials give 0. The mip
+  level follows a ray cone: the camera's pixel angle times the distance the path has
+  travelled, divided by the cosine at the hit.
+* R = √λmax(B), cycles/rad: the bandwidth of the lobe the bounce took. Diffuse 0, GGX
+  lobes 1/(2πα) with α = roughness². Singular lobes (perfect mirror, smooth glass) get
+  the value of the sharpest GGX lobe the renderer evaluates, 1/(2π·SINGULAR_ALPHA) ≈
+  1592, so R is finite and grows monotonically as roughness decreases.
+
+Straight pass-through (cut-outs) and light events apply no operator: their norms are 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..covariance import (
+    ggx_bandwidth,
+    reflectance_norm,
+    texture_norm,
+    texture_to_tangent,
+)
+from ..covariance.texture_spectrum import TextureSpectrum
+from ..scene import FLOAT, SceneData, TextureInput
+from . import bsdf
+from .vectors import dot
+from .world import World
+
+NORM_NAMES = ("C", "T", "R")
+SINGULAR_REFLECTANCE = float(reflectance_norm(ggx_bandwidth(bsdf.SINGULAR_ALPHA), ggx_bandwidth(bsdf.SINGULAR_ALPHA)))
+
+
+class BounceNorms:
+    """Per-scene tables for C and T, built once per frame, shared read-only by threads."""
+
+    def __init__(self, scene: SceneData, world: World):
+        self.world = world
+        self.curvature = np.maximum(np.abs(world.curvature_k1), np.abs(world.curvature_k2)).astype(FLOAT)
+        materials = scene.materials
+        textured = [m.diffuse_color.texture if isinstance(m.diffuse_color, TextureInput) else -1 for m in materials]
+        self.material_texture = np.array(textured + [-1], np.int64)  # the last entry: no material
+        used = sorted({index for index in textured if index >= 0})
+        self.spectra = {index: TextureSpectrum.of_image(scene.textures[index].pixels) for index in used}
+
+    def curvature_and_texture(self, triangle: np.ndarray, st: np.ndarray, tangent: np.ndarray,
+                              bitangent: np.ndarray, footprint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """C and T (both (n,) float32) at hits on `triangle` (n,) with texture coordinates
+        st (2, n), shading-frame axes tangent, bitangent (3, n) and footprint (n,) metres."""
+        curvature = np.take(self.curvature, triangle)
+        texture = np.zeros(len(triangle), FLOAT)
+        if not self.spectra:
+            return curvature, texture
+        texture_index = np.take(self.material_texture, np.take(self.world.triangle_material, triangle))
+        for index, spectrum in self.spectra.items():
+            lanes = np.flatnonzero(texture_index == index)
+            if not len(lanes):
+                continue
+            tri = triangle[lanes]
+            grad_s = np.take(self.world.gradient_s, tri, axis=1)
+            grad_t = np.take(self.world.gradient_t, tri, axis=1)
+            tx, ty = tangent[:, lanes], bitangent[:, lanes]
+            # J = ∂(s, t)/∂(t̂x, t̂y), texture units per metre
+            jacobian = np.stack([np.stack([dot(grad_s, tx), dot(grad_s, ty)], -1),
+                                 np.stack([dot(grad_t, tx), dot(grad_t, ty)], -1)], -2).astype(np.float64)
+            texels_per_metre = np.maximum(np.linalg.norm(grad_s, axis=0) * spectrum.width,
+                                          np.linalg.norm(grad_t, axis=0) * spectrum.height)
+            block_uv = spectrum.lookup(st[:, lanes], footprint[lanes] * texels_per_metre)
+            texture[lanes] = texture_norm(texture_to_tangent(block_uv, jacobian))
+        return curvature, texture
+
+
+def lobe_reflectance(lobes: bsdf.Lobes, lobe: np.ndarray | int, lanes: np.ndarray | None = None) -> np.ndarray:
+    """R (n,) float32 of `lobe` (one id, or (n,) ids) at `lanes` of `lobes` (all if None)."""
+    alpha_specular = lobes.alpha if lanes is None else lobes.alpha[lanes]
+    alpha_coat = lobes.coat_alpha if lanes is None else lobes.coat_alpha[lanes]
+    lobe = np.broadcast_to(np.asarray(lobe), alpha_specular.shape)
+    alpha = np.where(lobe == bsdf.SPECULAR, alpha_specular, alpha_coat)
+    glossy = 1.0 / (2.0 * np.pi * np.maximum(alpha, bsdf.SINGULAR_ALPHA))
+    singular = (lobe == bsdf.GLASS) | (alpha < bsdf.SINGULAR_ALPHA)
+    reflectance = np.where(singular, SINGULAR_REFLECTANCE, glossy)
+    return np.where(lobe == bsdf.DIFFUSE, 0.0, reflectance).astype(FLOAT)

@@ -1,0 +1,171 @@
+"""Per-bounce covariance norms C, T, R traced on render/showcase.usda.
+
+The showcase is built so that the answers are known (render/README.md): only the sphere
+(r = 0.4 m) is curved, only the panel is textured (stripes of exactly 5 and 10 cycles/m),
+only glossyBox (roughness 0.2) and mirrorPanel (roughness 0.02) have sharp lobes. Every
+test reads the recorded contributions' first event, so it checks exactly what the path
+index will store.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pxr_layers.covariance.texture_spectrum import TextureSpectrum
+from pxr_layers.paths.events import EventVocabulary
+from pxr_layers.trace import bsdf
+from pxr_layers.trace.bounce_norms import SINGULAR_REFLECTANCE, lobe_reflectance
+from pxr_layers.trace.integrator import TraceSettings
+from pxr_layers.trace.render import render
+
+RESOLUTION = (96, 96)
+SETTINGS = TraceSettings(spp=4, max_depth=4, seed=3, norm_bounces=5, record_paths=True)
+SPHERE_CURVATURE = 1 / 0.4  # 1/m
+STRIPE_AMPLITUDE = 0.3 / 0.5  # relative amplitude a of 0.5 + 0.3 sin(...)
+
+
+@dataclasses.dataclass
+class FirstEvents:
+    """The first event of every recorded contribution."""
+
+    pixel: np.ndarray  # (r,)
+    obj: np.ndarray  # (r,) object name
+    lobe: np.ndarray  # (r,) lobe name, '' for light events
+    norms: np.ndarray  # (r, 3) C, T, R of event 1
+
+
+def first_events(batches, vocabulary: EventVocabulary) -> FirstEvents:
+    pixel, obj, lobe, norms = [], [], [], []
+    for batch in batches:
+        records = batch.records
+        first_key = {}
+        for node in np.unique(records.node).tolist():
+            sequence = records.classes.sequence(node)
+            first_key[node] = vocabulary.event(sequence[1])
+        names = [first_key[node] for node in records.node.tolist()]
+        pixel.append(records.pixel)
+        obj.append([_object_of(event, vocabulary) for event in names])
+        lobe.append([next(iter(event.labels & {"diffuse", "specular", "coat", "glass"}), "") for event in names])
+        norms.append(records.norms[:, 0, :])
+    return FirstEvents(np.concatenate(pixel), np.concatenate(obj), np.concatenate(lobe), np.concatenate(norms))
+
+
+def _object_of(event, vocabulary: EventVocabulary) -> str:
+    names = event.labels & set(vocabulary.object_names + vocabulary.light_names)
+    return next(iter(names), "")
+
+
+@pytest.fixture(scope="module")
+def showcase(showcase_stage):
+    scene, spec = showcase_stage
+    spec = dataclasses.replace(spec, resolution=RESOLUTION)
+    batches = []
+    result = render(scene, spec, SETTINGS, threads=2, batch_paths=8192, show_progress=False, on_batch=batches.append)
+    return result, first_events(batches, result.vocabulary)
+
+
+@pytest.fixture(scope="module")
+def showcase_stage(shipped_scene):
+    from pxr_layers.stage import load_stage
+
+    return load_stage(shipped_scene("showcase.usda"))
+
+
+def test_planar_surfaces_have_zero_curvature_and_the_sphere_one_over_r(showcase):
+    _, first = showcase
+    surface = first.lobe != ""
+    on_sphere = surface & (first.obj == "curvedSphere")
+    assert on_sphere.sum() > 100
+    np.testing.assert_allclose(first.norms[on_sphere, 0], SPHERE_CURVATURE, rtol=0.05)
+    elsewhere = surface & (first.obj != "curvedSphere")
+    assert elsewhere.sum() > 1000
+    assert np.all(first.norms[elsewhere, 0] == 0.0)
+
+
+def test_twice_the_stripe_frequency_gives_twice_the_texture_norm(showcase):
+    result, first = showcase
+    on_panel = (first.lobe != "") & (first.obj == "texturedPanel")
+    columns = first.pixel[on_panel] % RESOLUTION[0]
+    left_edge, right_edge = columns.min(), columns.max()
+    quarter = (right_edge - left_edge) / 4
+    texture = first.norms[on_panel, 1]
+    # the middle of each half, away from the seam and the panel's edges
+    low = texture[np.abs(columns - (left_edge + quarter)) <= quarter / 3]
+    high = texture[np.abs(columns - (right_edge - quarter)) <= quarter / 3]
+    assert len(low) > 20 and len(high) > 20
+    ratio = np.median(high) / np.median(low)
+    assert ratio == pytest.approx(2.0, rel=0.15)
+    # and the absolute value: a cosine 1 + a·cos(2πfx) has T = f·√(a/(1+a)) in cycles/m
+    expected = 5.0 * np.sqrt(STRIPE_AMPLITUDE / (1 + STRIPE_AMPLITUDE))
+    assert np.median(low) == pytest.approx(expected, rel=0.15)
+    untextured = (first.lobe != "") & (first.obj != "texturedPanel")
+    assert np.all(first.norms[untextured, 1] == 0.0)
+
+
+def test_reflectance_norm_is_zero_on_diffuse_and_grows_as_roughness_falls(showcase):
+    _, first = showcase
+    reflectance = first.norms[:, 2]
+    assert np.all(reflectance[first.lobe == "diffuse"] == 0.0)
+    assert np.all(reflectance[(first.lobe != "") & (first.obj == "matteBox")] == 0.0)
+    glossy = reflectance[(first.lobe == "specular") & (first.obj == "glossyBox")]
+    mirror = reflectance[(first.lobe == "specular") & (first.obj == "mirrorPanel")]
+    assert len(glossy) > 10 and len(mirror) > 10
+    # GGX α = roughness²: R = 1/(2πα)
+    np.testing.assert_allclose(glossy, 1 / (2 * np.pi * 0.2**2), rtol=1e-5)
+    np.testing.assert_allclose(mirror, 1 / (2 * np.pi * 0.02**2), rtol=1e-5)
+    assert mirror.min() > glossy.max() > 0
+
+
+def test_reflectance_norm_is_strictly_monotonic_in_roughness():
+    roughness = np.linspace(1.0, 0.0, 41)
+    alpha = (roughness**2).astype(np.float32)
+    lobes = bsdf.Lobes(
+        diffuse=np.zeros((3, len(alpha)), np.float32), specular_weight=np.ones_like(alpha), f0=np.ones((3, len(alpha))),
+        f90=np.ones_like(alpha), alpha=alpha, coat_weight=np.zeros_like(alpha), coat_alpha=alpha,
+        glass_weight=np.zeros_like(alpha), eta=np.ones_like(alpha), probability=np.zeros((4, len(alpha))),
+    )
+    reflectance = lobe_reflectance(lobes, bsdf.SPECULAR)
+    assert np.all(np.diff(reflectance[alpha >= bsdf.SINGULAR_ALPHA]) > 0)
+    assert np.all(reflectance <= SINGULAR_REFLECTANCE)
+    assert reflectance[-1] == pytest.approx(SINGULAR_REFLECTANCE)
+    assert np.all(lobe_reflectance(lobes, bsdf.DIFFUSE) == 0)
+
+
+def test_debug_images_show_the_same_norms(showcase):
+    result, _ = showcase
+    norms = result.first_bounce_norms
+    assert norms.shape == (*RESOLUTION[::-1], 3)
+    assert np.nanmax(norms[..., 0]) == pytest.approx(SPHERE_CURVATURE, rel=1e-4)
+    assert np.nanmin(norms[..., 0]) == 0.0
+
+
+def test_norms_are_deterministic_across_threads_and_batches(showcase_stage, showcase):
+    scene, spec = showcase_stage
+    spec = dataclasses.replace(spec, resolution=RESOLUTION)
+    batches = []
+    again = render(scene, spec, SETTINGS, threads=1, batch_paths=4096, show_progress=False, on_batch=batches.append)
+    first_run, first = showcase
+    np.testing.assert_array_equal(again.first_bounce_norms, first_run.first_bounce_norms)
+    second = first_events(batches, again.vocabulary)
+    order_a = np.lexsort((first.norms[:, 2], first.norms[:, 1], first.norms[:, 0], first.pixel))
+    order_b = np.lexsort((second.norms[:, 2], second.norms[:, 1], second.norms[:, 0], second.pixel))
+    np.testing.assert_array_equal(first.norms[order_a], second.norms[order_b])
+    np.testing.assert_array_equal(first.obj[order_a], second.obj[order_b])
+
+
+def test_texture_spectrum_of_a_cosine_matches_the_amplitude_moment():
+    """1 + a·cos(2π f x) along s only: T_ss = a f²/(1 + a), nothing along t."""
+    width, height, cycles, a = 512, 256, 16, 0.5
+    s = (np.arange(width) + 0.5) / width
+    row = 1 + a * np.cos(2 * np.pi * cycles * s)
+    image = np.broadcast_to(row[None, :, None], (height, width, 3)).astype(np.float32)
+    spectrum = TextureSpectrum.of_image(image)
+    block = spectrum.lookup(np.array([[0.5], [0.5]]), np.array([1.0]))[0]
+    assert block[0, 0] == pytest.approx(a * cycles**2 / (1 + a), rel=0.03)
+    assert abs(block[1, 1]) < 1e-6 * block[0, 0]
+    assert abs(block[0, 1]) < 1e-6 * block[0, 0]
+    flat = TextureSpectrum.of_image(np.full((64, 64, 3), 0.3, np.float32))
+    assert np.abs(flat.lookup(np.array([[0.2], [0.7]]), np.array([3.0]))).max() < 1e-9  # cycles²/uv²
