@@ -28,3 +28,42 @@ class RenderSettingsError(PxrLayersError):
 
 class OutputError(PxrLayersError):
     """An output file cannot be written."""
+
+
+class LpeError(PxrLayersError):
+    """A Light Path Expression cannot be evaluated as asked (e.g. a condition on a bounce
+    whose covariance norms the index did not keep)."""
+
+
+class LpeSyntaxError(LpeError):
+    """A Light Path Expression (or a path in the textual notation) that does not parse.
+
+    ``position`` is the 0-based character offset of the fault in ``query``; str() shows the
+    message, then the query's line, then a caret under the fault.
+    """
+
+    def __init__(self, message: str, query: str, position: int):
+        super().__init__(message)
+        self.message = message
+        self.query = query
+        self.position = max(0, min(position, len(query)))
+
+    def __str__(self) -> str:
+        line_start = self.query.rfind("\n", 0, self.position) + 1
+        line_end = self.query.find("\n", self.position)
+        line = self.query[line_start : line_end if line_end >= 0 else len(self.query)]
+        column = self.position - line_start
+        # Tabs keep their width on the caret line so the caret stays under the fault.
+        padding = "".join("\t" if char == "\t" else " " for char in line[:column])
+        return f"{self.message}\n  {line}\n  {padding}^"
+
+
+class PathIndexError(PxrLayersError):
+    """A path index file is truncated, corrupted, foreign or of an unsupported version.
+
+    The message names the file and what is wrong with it.
+    """
+
+    def __init__(self, message: str, *, file: str | None = None):
+        super().__init__(f"{file}: {message}" if file else message)
+        self.file = file

@@ -41,11 +41,8 @@ def first_events(batches, vocabulary: EventVocabulary) -> FirstEvents:
     pixel, obj, lobe, norms = [], [], [], []
     for batch in batches:
         records = batch.records
-        first_key = {}
-        for node in np.unique(records.node).tolist():
-            sequence = records.classes.sequence(node)
-            first_key[node] = vocabulary.event(sequence[1])
-        names = [first_key[node] for node in records.node.tolist()]
+        first = [vocabulary.event(sequence[0]) for sequence in records.sequences]
+        names = [first[index] for index in records.path_class.tolist()]
         pixel.append(records.pixel)
         obj.append([_object_of(event, vocabulary) for event in names])
         lobe.append([next(iter(event.labels & {"diffuse", "specular", "coat", "glass"}), "") for event in names])

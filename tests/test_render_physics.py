@@ -15,6 +15,7 @@ import pytest
 from pxr_layers.stage import load_stage
 from pxr_layers.trace import TraceSettings, render
 
+
 def preview_surface(name: str, **inputs: str) -> str:
     """A UsdPreviewSurface Material prim under /World/Looks; inputs as 'type = value'."""
     lines = "".join(f"                {kind} inputs:{key} = {value}\n" for key, (kind, value) in inputs.items())
@@ -204,7 +205,7 @@ def test_rect_light_and_equivalent_emissive_quad_give_the_same_image(tmp_path):
     quad_rgb, quad_result = mean_rgb(quad, spp=32, max_depth=2, resolution=(24, 24))
     np.testing.assert_allclose(rect_rgb, quad_rgb, rtol=0.02)
     # Also pixel by pixel on a 4×4-pixel block average (noise per block well under 5 %).
-    blocks = lambda rgba: rgba[..., 0].reshape(6, 4, 6, 4).mean(axis=(1, 3))  # noqa: E731
+    blocks = lambda rgba: rgba[..., 0].reshape(6, 4, 6, 4).mean(axis=(1, 3))
     np.testing.assert_allclose(blocks(rect_result.rgba), blocks(quad_result.rgba), rtol=0.08)
 
 

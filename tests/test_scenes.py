@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 pxr = pytest.importorskip("pxr")
-from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade  # noqa: E402
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade
 
 TIME = Usd.TimeCode(1)
 REPO_RENDER = Path(__file__).resolve().parents[1] / "render"

@@ -9,9 +9,9 @@ import sys
 
 from .. import __version__
 from ..errors import PxrLayersError
-from . import demo, render
+from . import demo, index, render
 
-SUBCOMMANDS = {"render": render, "demo": demo}
+SUBCOMMANDS = {"render": render, "demo": demo, "index": index}
 EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE = 0, 1, 2
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import logging
 import math
 from pathlib import Path
@@ -11,6 +12,8 @@ from pathlib import Path
 from .. import __version__
 from ..layers.debug import write_covariance_debug
 from ..layers.exr import write_rgba
+from ..paths.format import SUFFIX as INDEX_SUFFIX
+from ..paths.writer import PathIndexWriter
 from ..trace import TraceSettings
 from ..trace import render as trace_render
 
@@ -50,6 +53,12 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--settings", metavar="PRIM",
                         help="UsdRender RenderSettings prim (default: the stage's renderSettingsPrimPath)")
     parser.add_argument("--threads", type=_positive, metavar="N", help="render threads (default: all cores)")
+    parser.add_argument("--norm-bounces", type=_non_negative, default=DEFAULT_NORM_BOUNCES, metavar="N",
+                        help="events per path (camera side) whose covariance norms C, T, R the path "
+                        f"index keeps (default {DEFAULT_NORM_BOUNCES}; 0: none)")
+    parser.add_argument("--no-index", action="store_true",
+                        help="do not write the path index STEM.pxlidx beside the beauty (it is what "
+                        "lets `pxr-layers extract` cut layers later without rendering again)")
     parser.add_argument("--debug-covariance", action="store_true",
                         help="also write the first bounce's covariance norms beside the beauty: "
                         "STEM.covariance.exr (channels C 1/m, T cycles/m, R cycles/rad) and "
@@ -63,15 +72,20 @@ def run(args: argparse.Namespace) -> int:
 
 def render_stage(stage_path: Path, args: argparse.Namespace) -> Path:
     """Load, render and write the beauty EXR; returns its path."""
-    from ..stage import load_stage  # the only module that imports pxr; load it when needed
+    from ..stage import (
+        load_stage,  # the only module that imports pxr; load it when needed
+    )
 
     scene, spec = load_stage(stage_path, frame=args.frame, camera=args.camera, settings=args.settings)
     if args.resolution:
         spec = dataclasses.replace(spec, resolution=tuple(args.resolution))
-    settings = TraceSettings(spp=args.spp, max_depth=args.max_depth, seed=args.seed,
-                             norm_bounces=DEFAULT_NORM_BOUNCES if args.debug_covariance else 0)
+    write_index = not args.no_index
+    norm_bounces = args.norm_bounces if (write_index or args.debug_covariance) else 0
+    if args.debug_covariance:
+        norm_bounces = max(norm_bounces, 1)
+    settings = TraceSettings(spp=args.spp, max_depth=args.max_depth, seed=args.seed, norm_bounces=norm_bounces,
+                             record_paths=write_index)
     output = beauty_path(stage_path, args.output, args.frame)
-    result = trace_render(scene, spec, settings, threads=args.threads, show_progress=args.show_progress)
     metadata = {
         "version": __version__,
         "stage": str(stage_path.resolve()),
@@ -81,11 +95,36 @@ def render_stage(stage_path: Path, args: argparse.Namespace) -> Path:
         "maxDepth": str(settings.max_depth),
         "seed": str(settings.seed),
     }
-    write_rgba(output, result.rgba, metadata)
+    index = None
+    if write_index:
+        manifest = {
+            **metadata, "stage_sha256": _file_sha256(stage_path), "resolution": list(spec.resolution),
+            "spp": settings.spp, "seed": settings.seed, "max_depth": settings.max_depth, "beauty": output.name,
+        }
+        index = PathIndexWriter(output.with_suffix(INDEX_SUFFIX), manifest, settings.norm_bounces)
+    try:
+        result = trace_render(scene, spec, settings, threads=args.threads, show_progress=args.show_progress,
+                              on_batch=(lambda batch: index.add(batch.records)) if index else None)
+        write_rgba(output, result.rgba, metadata)
+        if index:
+            index.close(result.vocabulary)
+    except BaseException:
+        if index:
+            index.abort()
+        raise
     log.info("wrote %s", output)
     if args.debug_covariance:
         write_covariance_debug(output, result.first_bounce_norms, metadata)
     return output
+
+
+def _file_sha256(path: Path) -> str:
+    """SHA-256 of the stage's root layer file (not of the layers it composes)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as file:
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def beauty_path(stage_path: Path, output: str | None, frame: float | None) -> Path:

@@ -30,7 +30,7 @@ class PinholeCamera:
     t_max: float
 
     @classmethod
-    def from_spec(cls, spec: RenderSpec) -> "PinholeCamera":
+    def from_spec(cls, spec: RenderSpec) -> PinholeCamera:
         camera = spec.camera
         if camera.projection != "perspective":
             raise RenderSettingsError(f"camera {camera.path}: {camera.projection} projection is not supported yet")

@@ -58,16 +58,17 @@ class Contributions:
     """Every contribution of a batch, in the order the tracer made them.
 
     pixel  : (r,) int64; sample : (r,) int32; rgb : (r, 3) float32 (what the film adds)
-    node   : (r,) int64 path class, a node of ``classes``
+    path_class : (r,) int64 index into ``sequences``
     norms  : (r, N, 3) float32 C, T, R of events 1..N after the camera (0 past the end)
+    sequences : the batch's path classes, each its event ids after the camera (paths/events.py)
     """
 
     pixel: np.ndarray
     sample: np.ndarray
     rgb: np.ndarray
-    node: np.ndarray
+    path_class: np.ndarray
     norms: np.ndarray
-    classes: PathClassTrie
+    sequences: list[tuple[int, ...]]
 
 
 @dataclass
@@ -96,8 +97,9 @@ class BatchResult:
 class _Paths:
     """The live paths of a batch, one lane each (structure of arrays).
 
-    events : (n,) int32 events so far after the camera; node : (n,) int64 path class
-    norms  : (N, 3, n) float32 C, T, R per event slot; travelled : (n,) float32 metres
+    node : (n,) int64 path class so far (a PathClassTrie node; 0 = just the camera)
+    row  : (n,) int64 the path's latest event in the batch's _EventNorms (−1: none yet)
+    travelled : (n,) float32 metres from the camera (the ray cone's length)
     """
 
     pixel: np.ndarray
@@ -107,29 +109,67 @@ class _Paths:
     previous_pdf: np.ndarray
     previous_singular: np.ndarray
     throughput: np.ndarray
-    events: np.ndarray
     node: np.ndarray
-    norms: np.ndarray
+    row: np.ndarray
     travelled: np.ndarray
 
     def take(self, lanes: np.ndarray) -> _Paths:
         return _Paths(*(np.take(value, lanes, axis=-1) for value in vars(self).values()))
 
 
+class _EventNorms:
+    """C, T, R of every event of a batch's paths, as rows linked to the path's previous
+    event: a path keeps one row number instead of N norms, and a record's N slots are
+    gathered once, when the batch ends."""
+
+    def __init__(self) -> None:
+        self._parent: list[np.ndarray] = []
+        self._norms: list[np.ndarray] = []
+        self._rows = 0
+
+    def append(self, parent: np.ndarray, curvature, texture, reflectance) -> np.ndarray:
+        """New rows after `parent` (k,) rows; C, T, R (k,) or scalars. Returns their ids."""
+        count = len(parent)
+        norms = np.empty((count, 3), FLOAT)
+        norms[:, 0], norms[:, 1], norms[:, 2] = curvature, texture, reflectance
+        self._parent.append(parent)
+        self._norms.append(norms)
+        self._rows += count
+        return np.arange(self._rows - count, self._rows)
+
+    def first_events(self, rows: np.ndarray, slots: int) -> np.ndarray:
+        """(r, slots, 3) norms of events 1..slots of the paths ending at `rows` (zeros past
+        a path's last event)."""
+        parent = np.concatenate(self._parent) if self._parent else np.zeros(0, np.int64)
+        norms = np.concatenate(self._norms) if self._norms else np.zeros((0, 3), FLOAT)
+        chain = [rows]  # chain[k] = the row k events before the last one (−1 past the first)
+        while (chain[-1] >= 0).any():
+            chain.append(np.where(chain[-1] >= 0, parent[np.maximum(chain[-1], 0)], -1))
+        chain = np.stack(chain[:-1], axis=1) if len(chain) > 1 else np.full((len(rows), 0), -1)
+        depth = (chain >= 0).sum(axis=1)
+        out = np.zeros((len(rows), slots, 3), FLOAT)
+        lanes = np.arange(len(rows))
+        for slot in range(min(slots, chain.shape[1])):
+            has = depth > slot
+            out[has, slot] = norms[chain[lanes[has], depth[has] - 1 - slot]]
+        return out
+
+
 class _Film:
     """Collects contributions: always the pixel sums, the records when asked."""
 
-    def __init__(self, first_pixel: int, pixel_count: int, record: bool, classes: PathClassTrie | None):
+    def __init__(self, first_pixel: int, pixel_count: int, record: bool):
         self.first_pixel = first_pixel
         self.rgb = np.zeros((3, pixel_count))
         self.record = record
-        self.classes = classes
+        self.classes = PathClassTrie() if record else None
+        self.event_norms = _EventNorms() if record else None
         self._records: list[tuple[np.ndarray, ...]] = []
 
     def add(self, paths: _Paths, lanes: np.ndarray, rgb: np.ndarray, event: np.ndarray | None = None,
-            node: np.ndarray | None = None, norms: np.ndarray | None = None) -> None:
+            node: np.ndarray | None = None, row: np.ndarray | None = None) -> None:
         """Add rgb (3, len(lanes)) for `lanes` of `paths`. The path class is `node`, or the
-        lanes' own node extended by `event` keys; `norms` replaces the lanes' norms."""
+        lanes' own node extended by `event` ids; its last norms row `row`, or the lanes'."""
         if not len(lanes):
             return
         where = paths.pixel[lanes] - self.first_pixel
@@ -138,33 +178,31 @@ class _Film:
         if self.record:
             if node is None:
                 node = self.classes.extend(paths.node[lanes], event)
-            if norms is None:
-                norms = paths.norms[:, :, lanes]
             self._records.append((paths.pixel[lanes], paths.sample[lanes], rgb.T.astype(FLOAT), node,
-                                  np.moveaxis(norms, -1, 0)))
+                                  paths.row[lanes] if row is None else row))
 
-    def records(self) -> Contributions | None:
+    def records(self, slots: int) -> Contributions | None:
         if not self.record:
             return None
         if not self._records:
             return Contributions(np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros((0, 3), FLOAT),
-                                 np.zeros(0, np.int64), np.zeros((0, 0, 3), FLOAT), self.classes)
-        columns = [np.concatenate(column) for column in zip(*self._records)]
-        return Contributions(*columns, classes=self.classes)
+                                 np.zeros(0, np.int64), np.zeros((0, slots, 3), FLOAT), [])
+        pixel, sample, rgb, node, row = (np.concatenate(column) for column in zip(*self._records))
+        nodes, path_class = np.unique(node, return_inverse=True)
+        norms = self.event_norms.first_events(row, slots)
+        return Contributions(pixel, sample, rgb, path_class.reshape(-1), norms, self.classes.sequences(nodes))
 
 
 @dataclass
 class _Vertex:
     """The surface event being built at this step, for the live lanes.
 
-    in_slots : (n,) bool, the event scatters and is among the first N (its norms are kept)
-    curvature, texture : (n,) float32 C and T (None without covariance)
+    curvature, texture : (n,) float32 C and T (0 without covariance)
     """
 
     triangle: np.ndarray
-    in_slots: np.ndarray
-    curvature: np.ndarray | None
-    texture: np.ndarray | None
+    curvature: np.ndarray | float = 0.0
+    texture: np.ndarray | float = 0.0
 
 
 def power_heuristic(chosen: np.ndarray, other: np.ndarray) -> np.ndarray:
@@ -182,7 +220,8 @@ class Integrator:
 
     def __init__(self, world: World, materials: MaterialTable, lights: LightSampler, camera: PinholeCamera,
                  resolution: tuple[int, int], settings: TraceSettings, frame: float, caster: RayCaster,
-                 vocabulary: events.EventVocabulary, bounce_norms: BounceNorms | None = None):
+                 vocabulary: events.EventVocabulary, triangle_subject: np.ndarray,
+                 bounce_norms: BounceNorms | None = None):
         self.world = world
         self.materials = materials
         self.lights = lights
@@ -191,7 +230,8 @@ class Integrator:
         self.settings = settings
         self.key = rng.frame_key(settings.seed, frame)
         self.caster = caster
-        self.vocabulary = vocabulary  # names behind the event keys of recorded paths
+        self.vocabulary = vocabulary  # names behind the event ids of recorded paths
+        self.triangle_subject = triangle_subject  # (t,) the vocabulary's surface subject of each triangle
         self.bounce_norms = bounce_norms if settings.norm_bounces > 0 else None
         self.epsilon = np.float32(1e-5 * (world.radius + np.linalg.norm(world.center)) + 1e-7)
         self.has_infinite_lights = bool(lights.domes or any(not d.is_delta for d in lights.distant))
@@ -221,10 +261,10 @@ class Integrator:
             pixel=pixel, sample=(path % spp).astype(np.int32), keys=keys, depth=np.zeros(n, np.int32),
             previous_pdf=np.zeros(n, FLOAT),
             previous_singular=np.ones(n, bool),  # the camera: what it sees directly is not MIS'd
-            throughput=np.ones((3, n), FLOAT), events=np.zeros(n, np.int32), node=np.zeros(n, np.int64),
-            norms=np.zeros((slots, 3, n), FLOAT), travelled=np.zeros(n, FLOAT),
+            throughput=np.ones((3, n), FLOAT), node=np.zeros(n, np.int64), row=np.full(n, -1, np.int64),
+            travelled=np.zeros(n, FLOAT),
         )
-        film = _Film(first_pixel, pixel_count, record, PathClassTrie() if record else None)
+        film = _Film(first_pixel, pixel_count, record)
         alpha = np.zeros(pixel_count)
         first_bounce = np.zeros((3, pixel_count)) if slots else None
         first_bounce_count = np.zeros(pixel_count) if slots else None
@@ -297,7 +337,7 @@ class Integrator:
             lobes = bsdf.prepare(inputs, wo_local[2], cos_geometric > 0)
             lobes.probability[:, ~scatters] = 0.0
             randoms = rng.uniforms(paths.keys, 2 + step * RANDOMS_PER_STEP, RANDOMS_PER_STEP)
-            vertex = _Vertex(triangle, (paths.events < slots) & ~cut, None, None)
+            vertex = _Vertex(triangle)
             if slots:
                 footprint = paths.travelled * self.pixel_angle / np.maximum(np.abs(wo_local[2]), 0.05)
                 vertex.curvature, vertex.texture = self.bounce_norms.curvature_and_texture(
@@ -314,9 +354,11 @@ class Integrator:
             side = dot(new_direction, facing)
             consistent = np.where(sampled.transmit, side < 0, side > 0)
             scattered = sampled.valid & consistent & scatters
-            if record or slots:
-                self._advance_history(film, paths, vertex, cut, scattered, sampled, lobes, step, first_bounce,
-                                      first_bounce_count, first_pixel)
+            if slots and step == 0:
+                self._first_bounce(paths, vertex, scattered, sampled, lobes, first_bounce, first_bounce_count,
+                                   first_pixel)
+            if record:
+                self._advance_history(film, paths, vertex, cut, scattered, sampled, lobes)
             paths.throughput = np.where(cut, paths.throughput, paths.throughput * sampled.weight)
             new_direction = np.where(cut, directions, new_direction)
             paths.previous_pdf = np.where(cut, paths.previous_pdf, sampled.pdf)
@@ -340,17 +382,16 @@ class Integrator:
 
         first_bounce_norms = None if first_bounce is None else first_bounce.T
         return BatchResult(first_pixel, film.rgb.T, alpha, first_bounce_norms, first_bounce_count,
-                           film.records(), rays)
+                           film.records(slots), rays)
 
     # -- path history: events, classes and per-event norms
 
     def _surface_event(self, triangle: np.ndarray, event_type, scatter, lobe) -> np.ndarray:
-        subject = events.surface_subject(np.take(self.world.triangle_object, triangle),
-                                         np.take(self.world.triangle_material, triangle))
-        return events.event_keys(event_type, scatter, lobe, subject)
+        return self.vocabulary.ids(event_type, scatter, lobe, np.take(self.triangle_subject, triangle))
 
     def _light_event(self, light: np.ndarray) -> np.ndarray:
-        return events.event_keys(events.LIGHT, events.NO_SCATTER, events.NO_LOBE, light)
+        return self.vocabulary.ids(events.LIGHT, events.NO_SCATTER, events.NO_LOBE,
+                                   self.vocabulary.light_subject(light))
 
     def _emitter_event(self, triangle: np.ndarray) -> np.ndarray:
         """L for a light's own geometry, O for an emissive surface."""
@@ -358,39 +399,30 @@ class Integrator:
         surface = self._surface_event(triangle, events.OBJECT, events.NO_SCATTER, events.NO_LOBE)
         return np.where(light >= 0, self._light_event(np.maximum(light, 0)), surface)
 
-    def _vertex_norms(self, paths: _Paths, vertex: _Vertex, lanes: np.ndarray, reflectance: np.ndarray) -> np.ndarray:
-        """The lanes' norms (N, 3, k) with this vertex's slot filled (C, T, R)."""
-        norms = paths.norms[:, :, lanes]
-        kept = np.flatnonzero(vertex.in_slots[lanes])
-        if len(kept):
-            slot = paths.events[lanes[kept]]
-            norms[slot, 0, kept] = vertex.curvature[lanes[kept]]
-            norms[slot, 1, kept] = vertex.texture[lanes[kept]]
-            norms[slot, 2, kept] = reflectance[kept]
-        return norms
-
-    def _advance_history(self, film, paths, vertex, cut, scattered, sampled, lobes, step, first_bounce,
-                         first_bounce_count, first_pixel) -> None:
-        """Append this vertex's event to every continuing path (its sampled lobe, or a
-        straight pass for cut-outs)."""
+    def _advance_history(self, film, paths, vertex, cut, scattered, sampled, lobes) -> None:
+        """Append this vertex's event to every continuing path: its sampled lobe, or a
+        straight pass (no operator, norms 0) for cut-outs."""
         lanes = np.flatnonzero(scattered | cut)
-        lobe = np.where(cut[lanes], events.NO_LOBE, sampled.lobe[lanes])
+        passes = cut[lanes]
+        lobe = np.where(passes, events.NO_LOBE, sampled.lobe[lanes])
+        event_type = np.where(passes | sampled.transmit[lanes], events.TRANSMIT, events.REFLECT)
+        scatter = np.where(passes, bsdf.SCATTER_STRAIGHT, sampled.scatter[lanes])
+        event = self._surface_event(vertex.triangle[lanes], event_type, scatter, lobe)
+        paths.node[lanes] = film.classes.extend(paths.node[lanes], event)
         if self.bounce_norms:
-            reflectance = np.where(cut[lanes], 0.0, lobe_reflectance(lobes, np.minimum(lobe, bsdf.GLASS), lanes))
-            surface = lanes[~cut[lanes]]
-            paths.norms[:, :, lanes] = self._vertex_norms(paths, vertex, lanes, reflectance)
-            if step == 0 and len(surface):
-                where = paths.pixel[surface] - first_pixel
-                for norm in range(3):
-                    first_bounce[norm] += np.bincount(where, weights=paths.norms[0, norm, surface],
-                                                      minlength=len(first_bounce_count))
-                first_bounce_count += np.bincount(where, minlength=len(first_bounce_count))
-        if self.settings.record_paths:
-            event_type = np.where(cut[lanes] | sampled.transmit[lanes], events.TRANSMIT, events.REFLECT)
-            scatter = np.where(cut[lanes], bsdf.SCATTER_STRAIGHT, sampled.scatter[lanes])
-            keys = self._surface_event(vertex.triangle[lanes], event_type, scatter, lobe)
-            paths.node[lanes] = film.classes.extend(paths.node[lanes], keys)
-        paths.events[lanes] += 1
+            reflectance = np.where(passes, 0.0, lobe_reflectance(lobes, np.minimum(lobe, bsdf.GLASS), lanes))
+            paths.row[lanes] = film.event_norms.append(
+                paths.row[lanes], np.where(passes, 0.0, vertex.curvature[lanes]),
+                np.where(passes, 0.0, vertex.texture[lanes]), reflectance)
+
+    def _first_bounce(self, paths, vertex, scattered, sampled, lobes, sums, counts, first_pixel) -> None:
+        """Add the first event's C, T, R to the per-pixel sums (the debug pictures)."""
+        lanes = np.flatnonzero(scattered)
+        where = paths.pixel[lanes] - first_pixel
+        reflectance = lobe_reflectance(lobes, sampled.lobe[lanes], lanes)
+        for norm, values in enumerate((vertex.curvature[lanes], vertex.texture[lanes], reflectance)):
+            sums[norm] += np.bincount(where, weights=values, minlength=len(counts))
+        counts += np.bincount(where, minlength=len(counts))
 
     def _next_event(self, film, paths, vertex, position, offset, facing, wo_local, frame, lobes, u, allowed):
         """Sample one light per lane, add each non-singular lobe's MIS-weighted share."""
@@ -422,16 +454,17 @@ class Integrator:
             weight = np.where(delta, 1.0, power_heuristic(light_pdf, lobe_pdf[lobe, lanes]))
             contribution = (base * lobe_f * weight)[:, active]
             contributing = lanes[active]
-            node = norms = None
+            node = row = None
             if film.record:
                 scatter = bsdf.SCATTER_DIFFUSE if lobe == bsdf.DIFFUSE else bsdf.SCATTER_GLOSSY
                 surface = self._surface_event(vertex.triangle[contributing], events.REFLECT, scatter, lobe)
                 node = film.classes.extend(paths.node[contributing], surface)
                 node = film.classes.extend(node, self._sampled_light_event(sample, contributing))
                 if self.bounce_norms:
-                    norms = self._vertex_norms(paths, vertex, contributing,
-                                               lobe_reflectance(lobes, lobe, contributing))
-            film.add(paths, contributing, contribution, node=node, norms=norms)
+                    row = film.event_norms.append(paths.row[contributing], vertex.curvature[contributing],
+                                                  vertex.texture[contributing],
+                                                  lobe_reflectance(lobes, lobe, contributing))
+            film.add(paths, contributing, contribution, node=node, row=row)
         return len(blocked)
 
     def _sampled_light_event(self, sample, lanes: np.ndarray) -> np.ndarray:

@@ -64,13 +64,17 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
         log.warning("%s: no light emits anything: the image will be black", scene.stage_path)
     camera = PinholeCamera.from_spec(spec)
     bounce_norms = BounceNorms(scene, world) if settings.norm_bounces > 0 else None
+    # every distinct (object, material) pair of the triangles is one event subject
+    pairs, triangle_subject = np.unique(np.stack([world.triangle_object, world.triangle_material], axis=1), axis=0,
+                                        return_inverse=True)
     vocabulary = EventVocabulary(
+        surface_objects=tuple(pairs[:, 0].tolist()), surface_materials=tuple(pairs[:, 1].tolist()),
         object_names=world.object_names, object_paths=world.object_paths,
         material_names=tuple(m.name for m in scene.materials), material_paths=tuple(m.path for m in scene.materials),
         light_names=tuple(light.name for light in scene.lights), light_paths=tuple(light.path for light in scene.lights),
     )
     return Integrator(world, materials, lights, camera, spec.resolution, settings, scene.frame, RayCaster(world),
-                      vocabulary, bounce_norms)
+                      vocabulary, triangle_subject.reshape(-1).astype(np.int64), bounce_norms)
 
 
 def render(

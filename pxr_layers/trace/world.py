@@ -16,7 +16,6 @@ from ..errors import RenderSettingsError
 from ..scene import FLOAT, INDEX, Light, SceneData
 from .curvature import triangle_curvatures
 
-
 NOT_A_LIGHT = -1
 DISK_SEGMENTS = 64
 SPHERE_RINGS, SPHERE_SEGMENTS = 24, 48
@@ -224,7 +223,7 @@ def _uv_sphere(radius: float) -> tuple[np.ndarray, np.ndarray]:
     phi = np.linspace(0, 2 * np.pi, SPHERE_SEGMENTS, endpoint=False)
     t, p = np.meshgrid(theta, phi, indexing="ij")
     points = np.stack([np.sin(t) * np.cos(p), np.cos(t), np.sin(t) * np.sin(p)], axis=-1).reshape(-1, 3) * radius
-    ring = lambda i, j: i * SPHERE_SEGMENTS + (j % SPHERE_SEGMENTS)  # noqa: E731
+    ring = lambda i, j: i * SPHERE_SEGMENTS + (j % SPHERE_SEGMENTS)
     triangles = []
     for i in range(SPHERE_RINGS):
         for j in range(SPHERE_SEGMENTS):

@@ -1,0 +1,63 @@
+"""`pxr-layers index info INDEX`: what a path index holds, and where the light went."""
+
+from __future__ import annotations
+
+import argparse
+
+from ..paths.events import path_text
+from ..paths.reader import PathIndex
+
+HELP = "inspect a path index (.pxlidx)"
+DESCRIPTION = "Inspect a path index written by `pxr-layers render` beside its EXR."
+TOP_CLASSES = 12
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    info = actions.add_parser(
+        "info", help="records, classes, labels, size, and the top path classes by energy",
+        description="Print what INDEX holds: records, path classes, labels, size on disk, bytes per "
+        "record, the render it came from, and the path classes carrying the most energy.",
+    )
+    info.add_argument("index", metavar="INDEX", help="a .pxlidx file")
+    info.add_argument("--top", type=int, default=TOP_CLASSES, metavar="N",
+                      help=f"how many path classes to list (default {TOP_CLASSES})")
+
+
+def run(args: argparse.Namespace) -> int:
+    index = PathIndex(args.index)
+    for line in info_lines(index, args.top):
+        print(line)
+    return 0
+
+
+def info_lines(index: PathIndex, top: int) -> list[str]:
+    """The `index info` report as lines of text."""
+    manifest = index.manifest
+    records = index.record_count
+    lines = [
+        f"path index   {index.path}",
+        f"format       version {manifest['format_version']}",
+        f"stage        {manifest.get('stage', '?')}  (sha256 {manifest.get('stage_sha256', '?')[:12]}…)",
+        f"render       frame {manifest.get('frame', '?')}, camera {manifest.get('camera', '?')}, "
+        f"{manifest.get('resolution', ['?', '?'])[0]}×{manifest.get('resolution', ['?', '?'])[1]}, "
+        f"{manifest.get('spp', '?')} spp, seed {manifest.get('seed', '?')}",
+        f"norms        C, T, R of the first {manifest['norm_slots']} events "
+        f"({', '.join(f'{name} in {unit}' for name, unit in manifest['norms'].items())}; "
+        f"{manifest['norm_storage']})",
+        f"records      {records:,}",
+        f"classes      {len(index.classes):,}",
+        f"labels       {len(index.labels):,}",
+        f"size         {index.size:,} bytes ({index.size / max(records, 1):.2f} bytes per record, "
+        f"{len(index.chunks)} chunks)",
+        "",
+    ]
+    energy = [sum(path_class.rgb) for path_class in index.classes]
+    total = sum(energy) or 1.0
+    ranked = sorted(range(len(energy)), key=lambda i: -energy[i])[:top]
+    lines.append(f"top {len(ranked)} path classes by share of the energy (R + G + B):")
+    lines.append(f"  {'share':>7}  {'records':>10}  path")
+    for rank in ranked:
+        path_class = index.classes[rank]
+        lines.append(f"  {energy[rank] / total:7.2%}  {path_class.records:>10,}  {path_text(path_class.events)}")
+    return lines

@@ -1,0 +1,203 @@
+"""Write a path index incrementally while rendering, and finalise it atomically."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+import zlib
+from pathlib import Path
+
+import numpy as np
+import zstandard
+
+from ..errors import OutputError
+from . import format as fmt
+from .events import EventVocabulary
+
+log = logging.getLogger(__name__)
+
+BUFFER_RECORDS = 1 << 21  # records held in memory before a flush (about 170 MB with N = 5)
+CHUNK_RECORDS = 1 << 16  # records per chunk; small classes share chunks, large ones span several
+
+
+class PathIndexWriter:
+    """Receives the tracer's records batch by batch (in path order) and writes chunks.
+
+    path : the final file; nothing appears under that name until ``close`` succeeds (the
+    data goes to a temporary file beside it, removed by ``abort`` or on error).
+    manifest : what was rendered (stage, frame, camera, resolution, spp, seed, ...), stored
+    as given, plus the counts the writer knows. norm_slots : N.
+
+    Class ids are given in order of first appearance, and each flush sorts its records by
+    class keeping the tracer's order within a class, so the same render (same settings
+    and batch size) gives a byte-identical file whatever the thread count.
+    """
+
+    def __init__(self, path: str | os.PathLike, manifest: dict, norm_slots: int,
+                 *, buffer_records: int = BUFFER_RECORDS, chunk_records: int = CHUNK_RECORDS):
+        self.path = Path(path)
+        self.manifest = dict(manifest)
+        self.norm_slots = norm_slots
+        self.buffer_records = buffer_records
+        self.chunk_records = chunk_records
+        self._class_ids: dict[tuple[int, ...], int] = {}
+        self._class_keys: list[tuple[int, ...]] = []  # per class, its event ids after the camera
+        self._class_records = np.zeros(0, np.int64)  # (classes,) records so far
+        self._class_rgb = np.zeros((0, 3))  # (classes, 3) float64 summed rgb
+        self._buffer: list[tuple[np.ndarray, ...]] = []
+        self._buffered = 0
+        self._chunks: list[dict] = []
+        self._records = 0
+        self._compressor = zstandard.ZstdCompressor(level=fmt.ZSTD_LEVEL)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            handle, temporary = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
+        except OSError as error:
+            raise OutputError(f"{self.path}: cannot create the path index ({error.strerror})") from error
+        self._temporary = Path(temporary)
+        self._file = os.fdopen(handle, "wb")
+        self._file.write(fmt.HEADER.pack(fmt.HEADER_MAGIC, fmt.FORMAT_VERSION, 0))
+
+    # -- writing
+
+    def add(self, records) -> None:
+        """Add one batch's ``Contributions`` (trace.integrator) in path order."""
+        if records is None or not len(records.pixel):
+            return
+        class_id = self._global_classes(records.path_class, records.sequences)
+        norms = np.minimum(records.norms, fmt.FLOAT16_MAX).astype(fmt.NORM_DTYPE)  # norms are ≥ 0
+        if norms.shape[1:] != (self.norm_slots, 3):
+            raise ValueError(f"records carry norms of shape {norms.shape[1:]}, the index expects ({self.norm_slots}, 3)")
+        self._buffer.append((class_id, records.pixel.astype(np.int64), records.sample.astype(np.uint32),
+                             records.rgb.astype(np.float32), norms))
+        self._buffered += len(class_id)
+        if self._buffered >= self.buffer_records:
+            self._flush()
+
+    def _global_classes(self, path_class: np.ndarray, sequences: list[tuple[int, ...]]) -> np.ndarray:
+        """The batch's classes as global class ids (new classes numbered in the order of
+        the batch's list, which the tracer makes deterministic)."""
+        ids = np.empty(len(sequences), np.int64)
+        for index, sequence in enumerate(sequences):
+            class_id = self._class_ids.get(sequence)
+            if class_id is None:
+                class_id = self._class_ids[sequence] = len(self._class_keys)
+                self._class_keys.append(sequence)
+            ids[index] = class_id
+        return ids[path_class]
+
+    def _flush(self) -> None:
+        if not self._buffer:
+            return
+        class_id, pixel, sample, rgb, norms = (np.concatenate(column) for column in zip(*self._buffer))
+        self._buffer.clear()
+        self._buffered = 0
+        order = np.argsort(class_id, kind="stable")
+        class_id, pixel, sample, rgb, norms = class_id[order], pixel[order], sample[order], rgb[order], norms[order]
+        classes = len(self._class_keys)
+        self._class_records = _grown(self._class_records, classes)
+        self._class_rgb = _grown(self._class_rgb, classes)
+        self._class_records += np.bincount(class_id, minlength=classes)
+        for channel in range(3):
+            self._class_rgb[:, channel] += np.bincount(class_id, weights=rgb[:, channel], minlength=classes)
+        for start, stop in self._chunk_bounds(class_id):
+            self._write_chunk(class_id[start:stop], pixel[start:stop], sample[start:stop], rgb[start:stop],
+                              norms[start:stop])
+
+    def _chunk_bounds(self, class_id: np.ndarray) -> list[tuple[int, int]]:
+        """Cut sorted records into chunks: whole small classes together, large ones split."""
+        starts = np.flatnonzero(np.r_[True, class_id[1:] != class_id[:-1]]).tolist() + [len(class_id)]
+        bounds, chunk_start = [], 0
+        for class_start, class_stop in zip(starts[:-1], starts[1:]):
+            if class_stop - chunk_start > self.chunk_records and class_start > chunk_start:
+                bounds.append((chunk_start, class_start))
+                chunk_start = class_start
+            while class_stop - chunk_start > self.chunk_records:
+                bounds.append((chunk_start, chunk_start + self.chunk_records))
+                chunk_start += self.chunk_records
+        if chunk_start < len(class_id):
+            bounds.append((chunk_start, len(class_id)))
+        return bounds
+
+    def _write_chunk(self, class_id, pixel, sample, rgb, norms) -> None:
+        pixel_delta = np.diff(pixel, prepend=0).astype(np.int32)
+        payload = self._compressor.compress(b"".join(
+            fmt.shuffle(column) for column in (class_id.astype(np.uint32), pixel_delta, sample, rgb, norms)
+        ))
+        offset = self._file.tell()
+        crc = zlib.crc32(payload)
+        self._file.write(fmt.CHUNK_HEADER.pack(fmt.CHUNK_MAGIC, len(payload), crc, len(class_id)))
+        self._file.write(payload)
+        self._chunks.append({
+            "offset": offset, "bytes": len(payload), "crc32": crc, "records": len(class_id),
+            "classes": np.unique(class_id).tolist(),
+        })
+        self._records += len(class_id)
+
+    # -- finishing
+
+    def close(self, vocabulary: EventVocabulary) -> Path:
+        """Flush, write the footer (event names from `vocabulary`) and trailer, and rename
+        to the final path."""
+        try:
+            self._flush()
+            footer = self._compressor.compress(json.dumps(self._footer(vocabulary), separators=(",", ":")).encode())
+            offset = self._file.tell()
+            self._file.write(footer)
+            self._file.write(fmt.TRAILER.pack(offset, len(footer), zlib.crc32(footer), fmt.FORMAT_VERSION,
+                                              fmt.TRAILER_MAGIC))
+            self._file.flush()
+            os.fsync(self._file.fileno())
+            self._file.close()
+            os.replace(self._temporary, self.path)
+        except OSError as error:
+            self.abort()
+            raise OutputError(f"{self.path}: cannot write the path index ({error.strerror or error})") from error
+        except BaseException:
+            self.abort()
+            raise
+        log.info("wrote %s: %d records, %d classes, %.1f bytes per record", self.path, self._records,
+                 len(self._class_keys), self.path.stat().st_size / max(self._records, 1))
+        return self.path
+
+    def abort(self) -> None:
+        """Drop everything written so far: no file is left behind."""
+        if not self._file.closed:
+            self._file.close()
+        self._temporary.unlink(missing_ok=True)
+
+    def _footer(self, vocabulary: EventVocabulary) -> dict:
+        labels: dict[str, int] = {}
+        event_ids: dict[int, int] = {}
+        events = [["C", "", []]]  # every class starts with the camera, event 0
+        classes = []
+        for keys in self._class_keys:
+            for key in keys:
+                if key not in event_ids:
+                    event = vocabulary.event(key)
+                    event_ids[key] = len(events)
+                    ids = sorted(labels.setdefault(label, len(labels)) for label in sorted(event.labels))
+                    events.append([event.type, event.scatter, ids, event.name])
+            classes.append([0] + [event_ids[key] for key in keys])
+        manifest = {
+            **self.manifest,
+            "format_version": fmt.FORMAT_VERSION,
+            "norm_slots": self.norm_slots,
+            "norms": {name: fmt.NORM_UNITS[name] for name in fmt.NORM_NAMES},
+            "norm_storage": "float16",
+            "stores_sigma": False,
+            "records": self._records,
+            "classes": len(classes),
+        }
+        return {"manifest": manifest, "labels": list(labels), "events": events, "classes": classes,
+                "class_records": self._class_records.tolist(), "class_rgb": self._class_rgb.tolist(),
+                "chunks": self._chunks}
+
+
+def _grown(array: np.ndarray, length: int) -> np.ndarray:
+    """`array` padded with zeros along its first axis to `length` rows."""
+    if len(array) >= length:
+        return array
+    return np.concatenate([array, np.zeros((length - len(array), *array.shape[1:]), array.dtype)])

@@ -1,0 +1,204 @@
+"""The path index: records reproduce the beauty, round trip, determinism, bad files."""
+
+from __future__ import annotations
+
+import dataclasses
+import struct
+import subprocess
+
+import numpy as np
+import pytest
+
+from pxr_layers.errors import PathIndexError
+from pxr_layers.paths import format as fmt
+from pxr_layers.paths.events import path_text
+from pxr_layers.paths.reader import PathIndex
+from pxr_layers.paths.writer import PathIndexWriter
+from pxr_layers.trace.integrator import TraceSettings
+from pxr_layers.trace.render import render
+
+from test_cli import SCRIPT
+
+RESOLUTION = (40, 32)
+SETTINGS = TraceSettings(spp=4, max_depth=4, seed=11, norm_bounces=5, record_paths=True)
+
+
+def render_with_index(scene_and_spec, path, *, threads=2, chunk_records=512, settings=SETTINGS):
+    scene, spec = scene_and_spec
+    spec = dataclasses.replace(spec, resolution=RESOLUTION)
+    writer = PathIndexWriter(path, {"stage": scene.stage_path, "spp": settings.spp}, settings.norm_bounces,
+                             buffer_records=20000, chunk_records=chunk_records)
+    batches = []
+
+    def keep(batch):
+        batches.append(batch.records)
+        writer.add(batch.records)
+
+    result = render(scene, spec, settings, threads=threads, batch_paths=1024, show_progress=False, on_batch=keep)
+    writer.close(result.vocabulary)
+    return result, batches
+
+
+@pytest.fixture(scope="module", params=["cornell.usda", "showcase.usda"])
+def stage(request, shipped_scene):
+    from pxr_layers.stage import load_stage
+
+    return load_stage(shipped_scene(request.param))
+
+
+@pytest.fixture(scope="module")
+def rendered(stage, tmp_path_factory):
+    path = tmp_path_factory.mktemp("index") / "shot.pxlidx"
+    result, batches = render_with_index(stage, path)
+    return path, result, batches
+
+
+def test_records_sum_to_the_beauty(rendered):
+    path, result, _ = rendered
+    index = PathIndex(path)
+    width, height = RESOLUTION
+    image = np.zeros((width * height, 3))
+    for chunk in index.records():
+        for channel in range(3):
+            image[:, channel] += np.bincount(chunk.pixel, weights=chunk.rgb[:, channel], minlength=width * height)
+    beauty = result.rgba[..., :3].reshape(-1, 3).astype(np.float64)
+    image /= SETTINGS.spp
+    scale = np.maximum(np.abs(beauty), 1e-3 * beauty.max())
+    assert np.max(np.abs(image - beauty) / scale) <= 1e-5
+
+
+def test_everything_stored_round_trips(rendered):
+    path, result, batches = rendered
+    index = PathIndex(path)
+    written = {name: np.concatenate([getattr(b, name) for b in batches]) for name in ("pixel", "sample", "rgb", "norms")}
+    written_text = np.concatenate([
+        np.array([path_text(tuple(result.vocabulary.event(e) for e in seq)) for seq in b.sequences])[b.path_class]
+        for b in batches
+    ])
+    chunks = list(index.records())
+    read = {name: np.concatenate([getattr(c, name) for c in chunks]) for name in ("pixel", "sample", "rgb", "norms")}
+    class_text = np.array([path_text(c.events[1:]) for c in index.classes])
+    read_text = class_text[np.concatenate([c.class_id for c in chunks])]
+    assert index.record_count == len(written["pixel"]) == len(read["pixel"])
+    assert all(c.events[0].type == "C" for c in index.classes)
+
+    def order(columns, text):
+        return np.lexsort((columns["rgb"][:, 0], columns["sample"], columns["pixel"], text))
+
+    a, b = order(written, written_text), order(read, read_text)
+    np.testing.assert_array_equal(written_text[a], read_text[b])
+    for name in ("pixel", "sample", "rgb"):
+        np.testing.assert_array_equal(written[name][a], read[name][b])
+    # norms are stored as float16: 11 significant bits
+    np.testing.assert_allclose(read["norms"][b], written["norms"][a], rtol=2**-11, atol=0)
+    assert index.manifest["spp"] == SETTINGS.spp and index.manifest["norm_slots"] == 5
+    assert index.manifest["norms"] == {"C": "1/m", "T": "cycles/m", "R": "cycles/rad"}
+    counts = np.bincount(np.concatenate([c.class_id for c in chunks]), minlength=len(index.classes))
+    assert counts.tolist() == [c.records for c in index.classes]
+
+
+def test_reading_some_classes_reads_only_their_chunks(rendered):
+    path, _, _ = rendered
+    index = PathIndex(path)
+    assert len(index.chunks) > 3
+    wanted = {max(range(len(index.classes)), key=lambda i: index.classes[i].records)}
+    chunks = list(index.records(wanted))
+    assert 0 < len(chunks) < len(index.chunks)
+    assert all(set(c.class_id.tolist()) <= wanted for c in chunks)
+    assert sum(len(c.class_id) for c in chunks) == index.classes[next(iter(wanted))].records
+
+
+def test_same_render_gives_the_same_bytes(stage, tmp_path):
+    render_with_index(stage, tmp_path / "a.pxlidx", threads=1)
+    render_with_index(stage, tmp_path / "b.pxlidx", threads=2)
+    assert (tmp_path / "a.pxlidx").read_bytes() == (tmp_path / "b.pxlidx").read_bytes()
+
+
+@pytest.fixture
+def index_bytes(rendered) -> bytes:
+    return rendered[0].read_bytes()
+
+
+def test_a_corrupted_chunk_is_named(index_bytes, tmp_path):
+    good = tmp_path / "good.pxlidx"
+    good.write_bytes(index_bytes)
+    chunk = PathIndex(good).chunks[1]
+    data = bytearray(index_bytes)
+    data[chunk["offset"] + fmt.CHUNK_HEADER.size + 5] ^= 0xFF
+    bad = tmp_path / "bad.pxlidx"
+    bad.write_bytes(bytes(data))
+    index = PathIndex(bad)  # the tables are intact
+    with pytest.raises(PathIndexError, match=r"bad\.pxlidx.*chunk 1 .*checksum"):
+        list(index.records())
+
+
+def test_a_corrupted_footer_is_named(index_bytes, tmp_path):
+    offset, *_ = fmt.TRAILER.unpack(index_bytes[-fmt.TRAILER.size:])
+    data = bytearray(index_bytes)
+    data[offset + 3] ^= 0x55
+    bad = tmp_path / "bad.pxlidx"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(PathIndexError, match="footer"):
+        PathIndex(bad)
+
+
+@pytest.mark.parametrize("keep", [0.999, 0.5, 0.01])
+def test_a_truncated_file_is_named(index_bytes, tmp_path, keep):
+    cut = tmp_path / "cut.pxlidx"
+    cut.write_bytes(index_bytes[: int(len(index_bytes) * keep)])
+    with pytest.raises(PathIndexError, match=r"cut\.pxlidx.*truncated"):
+        PathIndex(cut)
+
+
+def test_a_foreign_file_is_named(tmp_path):
+    foreign = tmp_path / "picture.pxlidx"
+    foreign.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(200))
+    with pytest.raises(PathIndexError, match=r"picture\.pxlidx.*not a pxr-layers path index"):
+        PathIndex(foreign)
+
+
+def test_another_format_version_says_so(index_bytes, tmp_path):
+    data = bytearray(index_bytes)
+    data[8:12] = struct.pack("<I", fmt.FORMAT_VERSION + 1)
+    newer = tmp_path / "newer.pxlidx"
+    newer.write_bytes(bytes(data))
+    with pytest.raises(PathIndexError, match=f"version {fmt.FORMAT_VERSION + 1}.*reads version {fmt.FORMAT_VERSION}"):
+        PathIndex(newer)
+
+
+def test_an_interrupted_write_leaves_no_index(stage, tmp_path):
+    scene, spec = stage
+    spec = dataclasses.replace(spec, resolution=RESOLUTION)
+    final = tmp_path / "shot.pxlidx"
+    writer = PathIndexWriter(final, {}, SETTINGS.norm_bounces, buffer_records=1000)
+    seen = []
+
+    def interrupt(batch):
+        writer.add(batch.records)
+        seen.append(1)
+        if len(seen) == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        render(scene, spec, SETTINGS, threads=2, batch_paths=512, show_progress=False, on_batch=interrupt)
+    assert not final.exists()
+    partial = [p for p in tmp_path.iterdir()]
+    assert len(partial) == 1 and partial[0].name.startswith(".shot.pxlidx.")  # the temporary, never the index
+    with pytest.raises(PathIndexError, match="truncated"):
+        PathIndex(partial[0])
+    writer.abort()
+    assert not list(tmp_path.iterdir())
+
+
+def test_cli_render_writes_the_index_and_info_reads_it(tmp_path, shipped_scene):
+    result = subprocess.run([SCRIPT, "render", str(shipped_scene("cornell.usda")), "-o", str(tmp_path), "--spp", "2",
+                             "--resolution", "24", "24", "--quiet"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cornell.exr", "cornell.pxlidx"]
+    info = subprocess.run([SCRIPT, "index", "info", str(tmp_path / "cornell.pxlidx")], capture_output=True, text=True)
+    assert info.returncode == 0, info.stderr
+    assert "records" in info.stdout and "bytes per record" in info.stdout and "C RD'" in info.stdout
+    (tmp_path / "broken.pxlidx").write_bytes((tmp_path / "cornell.pxlidx").read_bytes()[:100])
+    broken = subprocess.run([SCRIPT, "index", "info", str(tmp_path / "broken.pxlidx")], capture_output=True, text=True)
+    assert broken.returncode == 1
+    assert len(broken.stderr.strip().splitlines()) == 1 and "broken.pxlidx" in broken.stderr
