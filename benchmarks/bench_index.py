@@ -27,13 +27,13 @@ from pxr_layers.trace.render import render
 NORM_BOUNCES = 5
 
 
-def timed_pair(scene, spec, spp: int, folder: Path) -> tuple[float, float, PathIndex]:
+def timed_pair(scene, spec, spp: int, folder: Path, aggregate: bool) -> tuple[float, float, PathIndex]:
     start = time.perf_counter()
     render(scene, spec, TraceSettings(spp=spp), show_progress=False)
     plain = time.perf_counter() - start
     settings = TraceSettings(spp=spp, norm_bounces=NORM_BOUNCES, record_paths=True)
     start = time.perf_counter()
-    writer = PathIndexWriter(folder / "bench.pxlidx", {"spp": spp}, NORM_BOUNCES)
+    writer = PathIndexWriter(folder / "bench.pxlidx", {"spp": spp}, NORM_BOUNCES, aggregate=aggregate)
     result = render(scene, spec, settings, show_progress=False, on_batch=lambda batch: writer.add(batch.records))
     writer.close(result.vocabulary)
     indexed = time.perf_counter() - start
@@ -45,9 +45,12 @@ def main() -> None:
     parser.add_argument("--resolution", type=int, nargs=2, default=(256, 256), metavar=("W", "H"))
     parser.add_argument("--spp", type=int, nargs="+", default=[16, 64, 256])
     parser.add_argument("--stages", nargs="+", default=["cornell", "showcase"])
+    parser.add_argument("--aggregate", action="store_true",
+                        help="write aggregated indexes (pxr-layers render --aggregate-index)")
     args = parser.parse_args()
     width, height = args.resolution
-    print(f"{width}x{height}, N = {NORM_BOUNCES}; plain render vs render + path index, same run")
+    mode = "aggregated" if args.aggregate else "full"
+    print(f"{width}x{height}, N = {NORM_BOUNCES}; plain render vs render + {mode} path index, same run")
     print(f"{'stage':10} {'spp':>4} {'records':>11} {'classes':>8} {'size MB':>8} {'B/record':>8} "
           f"{'plain s':>8} {'index s':>8} {'overhead':>8}")
     with tempfile.TemporaryDirectory() as folder:
@@ -55,7 +58,7 @@ def main() -> None:
             scene, spec = load_stage(str(resources.files("pxr_layers.render").joinpath(f"{name}.usda")))
             spec = dataclasses.replace(spec, resolution=(width, height))
             for spp in args.spp:
-                plain, indexed, index = timed_pair(scene, spec, spp, Path(folder))
+                plain, indexed, index = timed_pair(scene, spec, spp, Path(folder), args.aggregate)
                 print(f"{name:10} {spp:>4} {index.record_count:>11,} {len(index.classes):>8,} "
                       f"{index.size / 1e6:>8.1f} {index.size / index.record_count:>8.2f} "
                       f"{plain:>8.2f} {indexed:>8.2f} {indexed / plain - 1:>+8.1%}", flush=True)

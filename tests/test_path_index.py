@@ -202,3 +202,29 @@ def test_cli_render_writes_the_index_and_info_reads_it(tmp_path, shipped_scene):
     broken = subprocess.run([SCRIPT, "index", "info", str(tmp_path / "broken.pxlidx")], capture_output=True, text=True)
     assert broken.returncode == 1
     assert len(broken.stderr.strip().splitlines()) == 1 and "broken.pxlidx" in broken.stderr
+
+
+def test_aggregated_index_keeps_the_beauty_with_fewer_records(stage, rendered, tmp_path):
+    path, result, batches = rendered
+    scene, spec = stage
+    spec = dataclasses.replace(spec, resolution=RESOLUTION)
+    writer = PathIndexWriter(tmp_path / "agg.pxlidx", {}, SETTINGS.norm_bounces, aggregate=True, chunk_records=512)
+    again = render(scene, spec, SETTINGS, threads=2, batch_paths=1024, show_progress=False,
+                   on_batch=lambda batch: writer.add(batch.records))
+    writer.close(again.vocabulary)
+    full, aggregated = PathIndex(path), PathIndex(tmp_path / "agg.pxlidx")
+    assert aggregated.manifest["aggregated"] and aggregated.manifest["contributions"] == full.record_count
+    assert aggregated.record_count < full.record_count
+    width, height = RESOLUTION
+    images = []
+    for index in (full, aggregated):
+        image = np.zeros((width * height, 3))
+        merged = 0
+        for chunk in index.records():
+            merged += chunk.sample.sum()
+            for channel in range(3):
+                image[:, channel] += np.bincount(chunk.pixel, weights=chunk.rgb[:, channel], minlength=width * height)
+        images.append(image)
+    assert merged == full.record_count  # the sample column counts the merged contributions
+    np.testing.assert_allclose(images[1], images[0], rtol=1e-6, atol=1e-7 * images[0].max())
+    assert [c.records for c in aggregated.classes] != [] and len(aggregated.classes) == len(full.classes)

@@ -45,7 +45,8 @@ def info_lines(index: PathIndex, top: int) -> list[str]:
         f"norms        C, T, R of the first {manifest['norm_slots']} events "
         f"({', '.join(f'{name} in {unit}' for name, unit in manifest['norms'].items())}; "
         f"{manifest['norm_storage']})",
-        f"records      {records:,}",
+        f"records      {records:,}" + (f" (aggregated from {manifest['contributions']:,} contributions)"
+                                           if manifest.get("aggregated") else ""),
         f"classes      {len(index.classes):,}",
         f"labels       {len(index.labels):,}",
         f"size         {index.size:,} bytes ({index.size / max(records, 1):.2f} bytes per record, "

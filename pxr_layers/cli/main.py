@@ -9,9 +9,9 @@ import sys
 
 from .. import __version__
 from ..errors import PxrLayersError
-from . import demo, index, render
+from . import demo, index, lpe, render
 
-SUBCOMMANDS = {"render": render, "demo": demo, "index": index}
+SUBCOMMANDS = {"render": render, "demo": demo, "index": index, "lpe": lpe}
 EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE = 0, 1, 2
 
 

@@ -59,6 +59,10 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-index", action="store_true",
                         help="do not write the path index STEM.pxlidx beside the beauty (it is what "
                         "lets `pxr-layers extract` cut layers later without rendering again)")
+    parser.add_argument("--aggregate-index", action="store_true",
+                        help="merge the index records of one pixel that share their path class and "
+                        "norms (as stored, float16) into one: the index grows less than linearly with "
+                        "spp; layers are unchanged, the sample number of each record is lost")
     parser.add_argument("--debug-covariance", action="store_true",
                         help="also write the first bounce's covariance norms beside the beauty: "
                         "STEM.covariance.exr (channels C 1/m, T cycles/m, R cycles/rad) and "
@@ -101,7 +105,8 @@ def render_stage(stage_path: Path, args: argparse.Namespace) -> Path:
             **metadata, "stage_sha256": _file_sha256(stage_path), "resolution": list(spec.resolution),
             "spp": settings.spp, "seed": settings.seed, "max_depth": settings.max_depth, "beauty": output.name,
         }
-        index = PathIndexWriter(output.with_suffix(INDEX_SUFFIX), manifest, settings.norm_bounces)
+        index = PathIndexWriter(output.with_suffix(INDEX_SUFFIX), manifest, settings.norm_bounces,
+                                aggregate=args.aggregate_index)
     try:
         result = trace_render(scene, spec, settings, threads=args.threads, show_progress=args.show_progress,
                               on_batch=(lambda batch: index.add(batch.records)) if index else None)

@@ -18,7 +18,8 @@ pixel deltas are mostly small), each column byte-shuffled
 
     class   u32 (r,)     path class id (index into the footer's classes)
     pixel   i32 (r,)     delta from the previous record's pixel (first: from 0); y·width + x
-    sample  u32 (r,)     sample index within the pixel
+    sample  u32 (r,)     sample index within the pixel; in an aggregated index (manifest
+                         "aggregated": true) the number of contributions merged
     rgb     f32 (r, 3)   the contribution exactly as the film added it (linear, not / spp)
     norms   f16 (r, N, 3) C (1/m), T (cycles/m), R (cycles/rad) of events 1..N after the
                           camera; float16 keeps 11 significant bits (relative step 2⁻¹¹,

@@ -94,10 +94,12 @@ class PathIndex:
     def record_count(self) -> int:
         return self.manifest["records"]
 
-    def records(self, classes: Iterable[int] | None = None) -> Iterator[RecordChunk]:
+    def records(self, classes: Iterable[int] | None = None, *, norms: bool = True) -> Iterator[RecordChunk]:
         """Stream the records of `classes` (ids; all if None), one chunk at a time.
 
-        Only the chunks holding a wanted class are read and decompressed.
+        Only the chunks holding a wanted class are read and decompressed. norms=False
+        skips decoding the norms and samples (RecordChunk.norms is then (r, 0, 3) and
+        RecordChunk.sample empty).
         """
         wanted = None if classes is None else np.unique(np.fromiter(classes, np.int64))
         decompressor = zstandard.ZstdDecompressor()
@@ -114,27 +116,29 @@ class PathIndex:
                     raise self._error(f"corrupted: chunk {number} at byte {chunk['offset']} has a bad header")
                 if zlib.crc32(payload) != crc or crc != chunk["crc32"]:
                     raise self._error(f"corrupted: chunk {number} at byte {chunk['offset']} fails its checksum")
-                decoded = self._decode(decompressor.decompress(payload), records, number)
+                decoded = self._decode(decompressor.decompress(payload), records, number, norms)
                 if wanted is not None:
                     keep = np.isin(decoded.class_id, wanted)
-                    decoded = RecordChunk(*(column[keep] for column in vars(decoded).values()))
+                    decoded = RecordChunk(*(column[keep] if len(column) else column for column in vars(decoded).values()))
                 yield decoded
 
-    def _decode(self, data: bytes, records: int, number: int) -> RecordChunk:
+    def _decode(self, data: bytes, records: int, number: int, all_columns: bool) -> RecordChunk:
         columns = {}
         position = 0
-        for name, dtype, shape in fmt.column_sizes(records, self.norm_slots):
+        layout = fmt.column_sizes(records, self.norm_slots)
+        if position + sum(int(np.prod(shape)) * dtype.itemsize for _, dtype, shape in layout) != len(data):
+            raise self._error(f"corrupted: chunk {number} does not hold its {records} records")
+        for name, dtype, shape in layout:
             size = int(np.prod(shape)) * dtype.itemsize
-            if position + size > len(data):
-                raise self._error(f"corrupted: chunk {number} is shorter than its {records} records")
-            columns[name] = fmt.unshuffle(data[position:position + size], dtype, shape)
+            if all_columns or name in ("class", "pixel", "rgb"):
+                columns[name] = fmt.unshuffle(data[position:position + size], dtype, shape)
             position += size
         return RecordChunk(
             class_id=columns["class"].astype(np.int64),
             pixel=np.cumsum(columns["pixel"], dtype=np.int64),
-            sample=columns["sample"].astype(np.int64),
+            sample=columns["sample"].astype(np.int64) if all_columns else np.zeros(0, np.int64),
             rgb=columns["rgb"],
-            norms=columns["norms"].astype(np.float32),
+            norms=columns["norms"].astype(np.float32) if all_columns else np.zeros((records, 0, 3), np.float32),
         )
 
     def _check_version(self, version: int) -> None:

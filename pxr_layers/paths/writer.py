@@ -33,13 +33,20 @@ class PathIndexWriter:
     Class ids are given in order of first appearance, and each flush sorts its records by
     class keeping the tracer's order within a class, so the same render (same settings
     and batch size) gives a byte-identical file whatever the thread count.
+
+    aggregate : merge, within each flush, the records of one pixel that share their class
+    and their norms as stored (float16): one record with the summed rgb (float64 sum,
+    stored float32) and, in the sample column, how many contributions it merges. Pixel
+    sums stay exact to float32 rounding; what is lost is which sample each came from.
     """
 
-    def __init__(self, path: str | os.PathLike, manifest: dict, norm_slots: int,
-                 *, buffer_records: int = BUFFER_RECORDS, chunk_records: int = CHUNK_RECORDS):
+    def __init__(self, path: str | os.PathLike, manifest: dict, norm_slots: int, *, aggregate: bool = False,
+                 buffer_records: int = BUFFER_RECORDS, chunk_records: int = CHUNK_RECORDS):
         self.path = Path(path)
         self.manifest = dict(manifest)
         self.norm_slots = norm_slots
+        self.aggregate = aggregate
+        self._contributions = 0
         self.buffer_records = buffer_records
         self.chunk_records = chunk_records
         self._class_ids: dict[tuple[int, ...], int] = {}
@@ -94,6 +101,9 @@ class PathIndexWriter:
         class_id, pixel, sample, rgb, norms = (np.concatenate(column) for column in zip(*self._buffer))
         self._buffer.clear()
         self._buffered = 0
+        self._contributions += len(class_id)
+        if self.aggregate:
+            class_id, pixel, sample, rgb, norms = _merged(class_id, pixel, rgb, norms)
         order = np.argsort(class_id, kind="stable")
         class_id, pixel, sample, rgb, norms = class_id[order], pixel[order], sample[order], rgb[order], norms[order]
         classes = len(self._class_keys)
@@ -188,12 +198,37 @@ class PathIndexWriter:
             "norms": {name: fmt.NORM_UNITS[name] for name in fmt.NORM_NAMES},
             "norm_storage": "float16",
             "stores_sigma": False,
+            "aggregated": self.aggregate,
+            "contributions": self._contributions,
             "records": self._records,
             "classes": len(classes),
         }
         return {"manifest": manifest, "labels": list(labels), "events": events, "classes": classes,
                 "class_records": self._class_records.tolist(), "class_rgb": self._class_rgb.tolist(),
                 "chunks": self._chunks}
+
+
+def _merged(class_id, pixel, rgb, norms) -> tuple[np.ndarray, ...]:
+    """Records with equal (class, pixel, float16 norms) merged, in order of first
+    appearance: (class, pixel, count, summed rgb float32, norms)."""
+    columns = np.column_stack([class_id, pixel, norms.view(np.uint16).reshape(len(class_id), -1)]).astype(np.uint64)
+    # a 64-bit hash of each row, then an exact check that every group's rows are equal
+    multipliers = np.random.default_rng(0x5EED).integers(1, 2**63, columns.shape[1], dtype=np.uint64) | np.uint64(1)
+    with np.errstate(over="ignore"):
+        hashed = (columns * multipliers).sum(axis=1)
+    _, first, group = np.unique(hashed, return_index=True, return_inverse=True)
+    group = group.reshape(-1)
+    if not np.array_equal(columns, columns[first[group]]):  # a hash collision: fall back to exact rows
+        _, first, group = np.unique(columns, axis=0, return_index=True, return_inverse=True)
+        group = group.reshape(-1)
+    # number the groups in order of first appearance
+    rank = np.empty(len(first), np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(len(first))
+    group = rank[group]
+    first = np.sort(first)
+    count = np.bincount(group, minlength=len(first)).astype(np.uint32)
+    summed = np.stack([np.bincount(group, weights=rgb[:, c], minlength=len(first)) for c in range(3)], axis=1)
+    return class_id[first], pixel[first], count, summed.astype(np.float32), norms[first]
 
 
 def _grown(array: np.ndarray, length: int) -> np.ndarray:

@@ -1,0 +1,616 @@
+"""Many named expressions → one automaton over whole events.
+
+1. Thompson's construction turns each layer's tree into an NFA fragment whose edges are
+   labelled by event patterns ("guards"); one start state joins all layers, and each
+   layer's end state is marked with its name.
+2. The DFA reads one symbol per event. A symbol is the bit mask of the guards the event
+   satisfies, so the DFA never needs label names: a label that matches no quoted label
+   of the recipe sets no bit (the "any other label" edge), and a guard with a covariance
+   condition is satisfied only under an assumption on that condition (see ``match``).
+3. Subset construction builds DFA states as sets of NFA states. When the event alphabet
+   is small enough to enumerate (every type × scattering × subset of the recipe's labels ×
+   truth of its conditions), the complete DFA is built and minimised (Moore's partition
+   refinement); a state lists the layers it accepts.
+
+Why not always build it complete: an event may carry any subset of the labels the recipe
+names, and the DFA must tell every subset apart when each one feeds different layers. A
+per-light split over n light groups has 2**n such subsets. Past the budget below, states are
+built on demand from the path classes actually met (the technique of RE2's lazy DFA), which
+stays linear in the index's size and gives the same answers.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import LpeError
+from . import conditions as cond
+from . import nodes
+from .events import ALL_SCATTERINGS, EVENT_TYPES, Event, PatternTable, label_matches
+from .labels import closest_labels
+from .outcomes import ALWAYS, NEVER, Conditional, Outcome, reduce_table
+
+log = logging.getLogger(__name__)
+
+DEAD = -1
+"""The state after a mismatch: nothing can match any more."""
+
+MAX_ENUMERATED_EVENTS = 8192
+"""Most events (type × scattering × label subset × truths of the conditions tested on it)
+enumerated to build the complete DFA; past this the DFA is built on demand."""
+
+MAX_COMPLETE_WORK = 20_000
+"""Most (state, symbol) pairs explored while building the complete DFA."""
+
+MAX_ATOMS_PER_CLASS = 16
+"""Most (condition, event) pairs one path class may depend on (its truth table has 2**atoms rows)."""
+
+
+# --- NFA -------------------------------------------------------------------------------
+
+
+@dataclass
+class Nfa:
+    """Thompson NFA over events.
+
+    guards : distinct event patterns labelling the edges
+    edges : per state, (guard index, target state) pairs
+    epsilon : per state, targets reached without reading an event
+    accepting : per state, the layer it ends, or None
+    """
+
+    guards: list[nodes.EventPattern]
+    edges: list[list[tuple[int, int]]]
+    epsilon: list[list[int]]
+    accepting: list[str | None]
+    start: int
+    _closures: list[frozenset[int]] | None = field(default=None, repr=False)
+
+    @property
+    def state_count(self) -> int:
+        return len(self.edges)
+
+    def closure(self, states) -> frozenset[int]:
+        """The states reachable through epsilon edges (including the given ones)."""
+        closures = self._state_closures()
+        return frozenset().union(*(closures[state] for state in states))
+
+    def _state_closures(self) -> list[frozenset[int]]:
+        """Epsilon closure of each single state, computed once (the subset construction
+        asks for the same closures over and over)."""
+        if self._closures is None:
+            self._closures = [self._closure_of(state) for state in range(self.state_count)]
+        return self._closures
+
+    def _closure_of(self, state: int) -> frozenset[int]:
+        seen = {state}
+        stack = [state]
+        while stack:
+            for target in self.epsilon[stack.pop()]:
+                if target not in seen:
+                    seen.add(target)
+                    stack.append(target)
+        return frozenset(seen)
+
+
+class _NfaBuilder:
+    def __init__(self):
+        self.edges: list[list[tuple[int, int]]] = []
+        self.epsilon: list[list[int]] = []
+        self.accepting: list[str | None] = []
+        self.guard_index: dict[nodes.EventPattern, int] = {}
+
+    def state(self) -> int:
+        self.edges.append([])
+        self.epsilon.append([])
+        self.accepting.append(None)
+        return len(self.edges) - 1
+
+    def fragment(self, node: nodes.Node) -> tuple[int, int]:
+        """Thompson fragment of a tree: (entry state, exit state)."""
+        if isinstance(node, nodes.EventPattern):
+            entry, exit_ = self.state(), self.state()
+            guard = self.guard_index.setdefault(node, len(self.guard_index))
+            self.edges[entry].append((guard, exit_))
+            return entry, exit_
+        if isinstance(node, nodes.Concat):
+            entry = current = self.state()
+            for item in node.items:
+                item_entry, item_exit = self.fragment(item)
+                self.epsilon[current].append(item_entry)
+                current = item_exit
+            return entry, current
+        if isinstance(node, nodes.Union):
+            entry, exit_ = self.state(), self.state()
+            for alternative in node.alternatives:
+                alternative_entry, alternative_exit = self.fragment(alternative)
+                self.epsilon[entry].append(alternative_entry)
+                self.epsilon[alternative_exit].append(exit_)
+            return entry, exit_
+        if isinstance(node, nodes.Repeat):
+            return self._repeat(node)
+        raise TypeError(f"not an expression node: {node!r}")
+
+    def _repeat(self, node: nodes.Repeat) -> tuple[int, int]:
+        entry = current = self.state()
+        for _ in range(node.minimum):  # the required copies, in sequence
+            copy_entry, copy_exit = self.fragment(node.body)
+            self.epsilon[current].append(copy_entry)
+            current = copy_exit
+        if node.maximum is None:  # then a Kleene loop
+            loop = self.state()
+            self.epsilon[current].append(loop)
+            body_entry, body_exit = self.fragment(node.body)
+            self.epsilon[loop].append(body_entry)
+            self.epsilon[body_exit].append(loop)
+            return entry, loop
+        exit_ = self.state()  # or up to (maximum - minimum) optional copies
+        for _ in range(node.maximum - node.minimum):
+            self.epsilon[current].append(exit_)
+            copy_entry, copy_exit = self.fragment(node.body)
+            self.epsilon[current].append(copy_entry)
+            current = copy_exit
+        self.epsilon[current].append(exit_)
+        return entry, exit_
+
+
+def build_nfa(layers: dict[str, nodes.Node]) -> Nfa:
+    """One NFA for every layer: a shared start state, one accepting state per layer."""
+    builder = _NfaBuilder()
+    start = builder.state()
+    for name, tree in layers.items():
+        entry, exit_ = builder.fragment(tree)
+        builder.epsilon[start].append(entry)
+        builder.accepting[exit_] = name
+    guards = sorted(builder.guard_index, key=builder.guard_index.get)
+    return Nfa(guards, builder.edges, builder.epsilon, builder.accepting, start)
+
+
+# --- the event alphabet ----------------------------------------------------------------
+
+
+class Alphabet:
+    """Turns events into DFA symbols: the bit mask of the guards an event satisfies.
+
+    Guards with a condition are satisfied only if the condition holds on the event's
+    covariance, which a path class does not know: :meth:`classify` returns the bits that
+    hold outright and, apart, the (bit, condition) pairs that hold if their condition does.
+    The three slots are tested apart (one mask per type, per scattering, per set of carried
+    patterns) and the masks and-ed: that keeps enumerating every symbol cheap.
+    """
+
+    def __init__(self, guards: list[nodes.EventPattern]):
+        self.patterns = PatternTable(
+            pattern for guard in guards for term in guard.labels for pattern in term.patterns
+        )
+        self.conditions: list[cond.Condition] = list(
+            dict.fromkeys(guard.condition for guard in guards if guard.condition is not None)
+        )
+        condition_index = {condition: i for i, condition in enumerate(self.conditions)}
+        self._label_terms = [
+            tuple((self.patterns.mask_of(term.patterns), term.negated) for term in guard.labels) for guard in guards
+        ]
+        self._condition_of_bit = {
+            bit: condition_index[guard.condition] for bit, guard in enumerate(guards) if guard.condition is not None
+        }
+        self._conditioned = sum(1 << bit for bit in self._condition_of_bit)
+        self._type_masks = {
+            event_type: _guard_mask(guards, lambda guard, t=event_type: guard.types is None or t in guard.types)
+            for event_type in EVENT_TYPES
+        }
+        self._scatter_masks = {
+            scatter: _guard_mask(guards, lambda guard, s=scatter: guard.scatters is None or s in guard.scatters)
+            for scatter in ALL_SCATTERINGS
+        }
+        self._label_masks: dict[int, int] = {}
+        self._cache: dict[Event, tuple[int, tuple[tuple[int, int], ...]]] = {}
+
+    def label_mask(self, carried: int) -> int:
+        """Guards whose label terms all hold for an event carrying the patterns ``carried``."""
+        mask = self._label_masks.get(carried)
+        if mask is None:
+            mask = 0
+            for bit, terms in enumerate(self._label_terms):
+                if all(bool(carried & pattern_mask) != negated for pattern_mask, negated in terms):
+                    mask |= 1 << bit
+            self._label_masks[carried] = mask
+        return mask
+
+    def classify(self, event: Event) -> tuple[int, tuple[tuple[int, int], ...]]:
+        """(bits of guards satisfied outright, ((bit, condition index), ...) satisfied if the condition holds)."""
+        found = self._cache.get(event)
+        if found is None:
+            satisfied = (
+                self._type_masks[event.type]
+                & self._scatter_masks[event.scatter]
+                & self.label_mask(self.patterns.carried(event.labels))
+            )
+            found = self._cache[event] = self._split(satisfied)
+        return found
+
+    def _split(self, satisfied: int) -> tuple[int, tuple[tuple[int, int], ...]]:
+        conditioned = satisfied & self._conditioned
+        conditional = tuple(
+            (1 << bit, condition) for bit, condition in self._condition_of_bit.items() if conditioned >> bit & 1
+        )
+        return satisfied & ~self._conditioned, conditional
+
+    @staticmethod
+    def symbol(outright: int, conditional, holding) -> int:
+        """The symbol of an event when exactly the conditions in ``holding`` hold."""
+        symbol = outright
+        for bit, condition in conditional:
+            if condition in holding:
+                symbol |= bit
+        return symbol
+
+    def every_symbol(self, limit: int = MAX_ENUMERATED_EVENTS) -> list[int] | None:
+        """Every symbol any event can produce, or None if that means enumerating more than ``limit``.
+
+        The events enumerated are every type × scattering × subset of the recipe's labels ×
+        truth of the conditions that event is tested on (slot masks deduplicated first).
+        """
+        if 2 ** len(self.patterns) > limit:
+            return None
+        slot_masks = {
+            self._type_masks[event_type] & self._scatter_masks[scatter]
+            for event_type, scatter in itertools.product(EVENT_TYPES, ALL_SCATTERINGS)
+        }
+        label_masks = {self.label_mask(carried) for carried in range(2 ** len(self.patterns))}
+        symbols = set()
+        enumerated = 0
+        for slots, labels in itertools.product(slot_masks, label_masks):
+            outright, conditional = self._split(slots & labels)
+            involved = sorted({condition for _, condition in conditional})
+            enumerated += 2 ** len(involved)
+            if enumerated > limit:
+                return None
+            for holding in _subsets(involved):
+                symbols.add(self.symbol(outright, conditional, holding))
+        return sorted(symbols)
+
+
+def _guard_mask(guards, accepts) -> int:
+    return sum(1 << bit for bit, guard in enumerate(guards) if accepts(guard))
+
+
+def _subsets(items):
+    return itertools.chain.from_iterable(itertools.combinations(items, size) for size in range(len(items) + 1))
+
+
+# --- DFA -------------------------------------------------------------------------------
+
+
+class Dfa:
+    """Deterministic automaton over event symbols; ``accepts[state]`` lists the layers it ends.
+
+    A state only looks at the guards on the NFA edges leaving it (``relevant[state]``, a
+    guard mask): its transitions are keyed by the symbol and-ed with that mask, so the many
+    symbols a state cannot tell apart share one entry.
+
+    Built on demand from the NFA (``complete`` False: a missing transition is computed when
+    first needed), or complete and minimised (``complete`` True: a missing transition leads
+    to DEAD).
+    """
+
+    def __init__(self, nfa: Nfa):
+        self.nfa = nfa
+        self.complete = False
+        self.accepts: list[frozenset[str]] = []
+        self.relevant: list[int] = []
+        self.transitions: list[dict[int, int]] = []
+        self._nfa_sets: list[frozenset[int]] = []
+        self._ids: dict[frozenset[int], int] = {}
+        self.start = self._state(nfa.closure([nfa.start]))
+
+    @classmethod
+    def from_tables(
+        cls, nfa: Nfa, start: int, accepts: list, relevant: list[int], transitions: list[dict[int, int]]
+    ) -> Dfa:
+        """A complete DFA given by its tables (a missing transition leads to DEAD)."""
+        dfa = cls.__new__(cls)
+        dfa.nfa, dfa.complete, dfa.start = nfa, True, start
+        dfa.accepts, dfa.relevant, dfa.transitions = accepts, relevant, transitions
+        dfa._nfa_sets, dfa._ids = [], {}
+        return dfa
+
+    @property
+    def state_count(self) -> int:
+        return len(self.accepts)
+
+    @property
+    def transition_count(self) -> int:
+        """Arrows of the state diagram: distinct (source, target) pairs, DEAD left out.
+
+        Each arrow stands for every symbol that takes that step ("any other symbol" edges
+        are one arrow, not one per symbol).
+        """
+        return sum(len({target for target in row.values() if target != DEAD}) for row in self.transitions)
+
+    def _state(self, nfa_set: frozenset[int]) -> int:
+        if not nfa_set:
+            return DEAD
+        found = self._ids.get(nfa_set)
+        if found is not None:
+            return found
+        self._ids[nfa_set] = len(self._nfa_sets)
+        self._nfa_sets.append(nfa_set)
+        self.transitions.append({})
+        self.accepts.append(frozenset(self.nfa.accepting[s] for s in nfa_set if self.nfa.accepting[s] is not None))
+        self.relevant.append(sum({1 << guard for s in nfa_set for guard, _ in self.nfa.edges[s]}))
+        return len(self._nfa_sets) - 1
+
+    def step(self, state: int, symbol: int) -> int:
+        if state == DEAD:
+            return DEAD
+        key = symbol & self.relevant[state]
+        row = self.transitions[state]
+        target = row.get(key)
+        if target is None:
+            if self.complete:
+                return DEAD
+            target = row[key] = self._successor(state, key)
+        return target
+
+    def _successor(self, state: int, symbol: int) -> int:
+        reached = [
+            target
+            for nfa_state in self._nfa_sets[state]
+            for guard, target in self.nfa.edges[nfa_state]
+            if symbol >> guard & 1
+        ]
+        return self._state(self.nfa.closure(reached))
+
+    def expand(self, symbols: list[int], max_work: int = MAX_COMPLETE_WORK) -> bool:
+        """Build every state reachable on ``symbols``; False if that takes more than ``max_work`` steps."""
+        work = 0
+        frontier = [self.start]
+        visited = {self.start}
+        while frontier:
+            state = frontier.pop()
+            for key in {symbol & self.relevant[state] for symbol in symbols}:
+                work += 1
+                if work > max_work:
+                    return False
+                target = self.step(state, key)
+                if target != DEAD and target not in visited:
+                    visited.add(target)
+                    frontier.append(target)
+        return True
+
+    def minimised(self, symbols: list[int]) -> Dfa:
+        """Moore's partition refinement over a fully expanded DFA; a complete, minimal copy.
+
+        States are first split by the layers they accept, then by the blocks their
+        successors fall in, until no block splits. DEAD takes part as a state of its own,
+        so states from which no layer can be reached merge into it and vanish. Symbols that
+        every state treats alike are refined as one.
+        """
+        count = self.state_count
+        dead = count  # DEAD's row in the tables below
+        representatives = _distinguishable_symbols(symbols, set(self.relevant))
+        columns = {tuple(self._row_target(state, symbol, dead) for state in range(count)) for symbol in representatives}
+        successors = np.array([*zip(*columns), [dead] * len(columns)], dtype=np.int64).reshape(count + 1, len(columns))
+        block = np.array(_renumber([*self.accepts, frozenset()]), dtype=np.int64)
+        while True:
+            signatures = np.column_stack([block, block[successors]])
+            refined = np.array(_renumber(row.tobytes() for row in signatures), dtype=np.int64)
+            if refined.max() == block.max():
+                break
+            block = refined
+        block = block.tolist()
+
+        dead_block = block[dead]
+        live_blocks = list(dict.fromkeys(b for b in block[:count] if b != dead_block))
+        new_id = {b: i for i, b in enumerate(live_blocks)}
+        new_id[dead_block] = DEAD
+        representative = {b: block.index(b) for b in live_blocks}
+        transitions = []
+        for b in live_blocks:
+            # Equivalent states step alike: the representative's row speaks for its block.
+            merged = {key: DEAD if target == DEAD else new_id[block[target]]
+                      for key, target in self.transitions[representative[b]].items()}
+            transitions.append({key: target for key, target in merged.items() if target != DEAD})
+        return Dfa.from_tables(
+            self.nfa,
+            new_id[block[self.start]],
+            [self.accepts[representative[b]] for b in live_blocks],
+            [self.relevant[representative[b]] for b in live_blocks],
+            transitions,
+        )
+
+    def _row_target(self, state: int, symbol: int, dead: int) -> int:
+        target = self.transitions[state][symbol & self.relevant[state]]
+        return dead if target == DEAD else target
+
+
+def _distinguishable_symbols(symbols: list[int], masks: set[int]) -> list[int]:
+    """One symbol per class of symbols that every state sees alike (equal under each state's
+    relevant-guard mask); states sharing a mask are handled once."""
+    classes = [symbols]
+    for mask in masks:
+        refined = []
+        for members in classes:
+            groups: dict[int, list[int]] = {}
+            for symbol in members:
+                groups.setdefault(symbol & mask, []).append(symbol)
+            refined.extend(groups.values())
+        classes = refined
+    return [members[0] for members in classes]
+
+
+def _renumber(keys) -> list[int]:
+    """Number equal keys alike, in order of first appearance."""
+    numbers: dict = {}
+    return [numbers.setdefault(key, len(numbers)) for key in keys]
+
+
+# --- the layer automaton ---------------------------------------------------------------
+
+
+class LayerAutomaton:
+    """One automaton for every layer of a recipe.
+
+    layers : the layer names, in the recipe's order
+    trees, canonical : each layer's expression tree and canonical text
+    state_count, transition_count : size of the DFA (minimal when ``complete``)
+    complete : True when the whole DFA was built and minimised at compile time; False when
+        its states are built on demand as path classes are matched (large label sets)
+    """
+
+    def __init__(self, trees: dict[str, nodes.Node], *, build_complete: bool = True):
+        """trees : layer name → expression tree. ``build_complete=False`` skips building
+        the complete minimal DFA (states are then always built on demand)."""
+        self.layers: tuple[str, ...] = tuple(trees)
+        self.trees = dict(trees)
+        self.canonical = {name: nodes.canonical(tree) for name, tree in trees.items()}
+        self.nfa = build_nfa(self.trees)
+        self.alphabet = Alphabet(self.nfa.guards)
+        self.dfa = self._build_dfa(build_complete)
+
+    def _build_dfa(self, build_complete: bool) -> Dfa:
+        symbols = self.alphabet.every_symbol() if build_complete else None
+        if symbols is not None:
+            complete = Dfa(self.nfa)
+            if complete.expand(symbols):
+                return complete.minimised(symbols)
+        log.debug(
+            "LPE automaton for %d layers is built on demand (%d labels, %d conditions)",
+            len(self.layers), len(self.alphabet.patterns), len(self.alphabet.conditions),
+        )
+        return Dfa(self.nfa)  # a fresh one: its size then tells what matching has needed
+
+    @property
+    def complete(self) -> bool:
+        return self.dfa.complete
+
+    @property
+    def state_count(self) -> int:
+        return self.dfa.state_count
+
+    @property
+    def transition_count(self) -> int:
+        return self.dfa.transition_count
+
+    @property
+    def has_conditions(self) -> bool:
+        return bool(self.alphabet.conditions)
+
+    def accepting_layers(self, events) -> frozenset[str]:
+        """Layers a path matches, for expressions without conditions (else use :meth:`match`)."""
+        if self.has_conditions:
+            raise LpeError("these expressions have covariance conditions: use match() and the outcomes' masks")
+        state = self.dfa.start
+        for event in events:
+            if state == DEAD:
+                break
+            state = self.dfa.step(state, self.alphabet.classify(event)[0])
+        return frozenset() if state == DEAD else self.dfa.accepts[state]
+
+    def match(self, events) -> dict[str, Outcome]:
+        """Match one path class; per layer, its outcome.
+
+        events : the class's event sequence, camera first: :class:`Event`, or any hashable
+            objects with ``type``, ``scatter`` and ``labels`` (such as the path index's events)
+
+        Conditions are unknown here. The automaton runs on every combination of the
+        conditions that decide a step: an "atom" (event index, condition) is added only
+        when, at that event, some current state goes to different states depending on
+        that condition. The frontier maps each state to the rows of a truth table over
+        the atoms (row ``sum(atom_j << j)``) that lead to it; each layer's final rows say
+        never, always, or which records match (:class:`Conditional`, with ``mask``).
+        """
+        events = tuple(events)
+        classified = [self.alphabet.classify(event) for event in events]
+        if not any(conditional for _, conditional in classified):
+            return self._match_unconditionally(classified)
+
+        atoms: list[tuple[int, int]] = []  # (event index, condition index), bit j of a row number
+        frontier = {self.dfa.start: np.ones(1, dtype=bool)}
+        for index, (outright, conditional) in enumerate(classified):
+            involved = sorted({condition for _, condition in conditional})
+            options = [frozenset(holding) for holding in _subsets(involved)]
+            targets = {
+                state: {holding: self.dfa.step(state, self.alphabet.symbol(outright, conditional, holding))
+                        for holding in options}
+                for state in frontier
+            }
+            deciding = [
+                condition for condition in involved
+                if any(row[holding] != row[holding ^ {condition}] for row in targets.values() for holding in options)
+            ]
+            for condition in deciding:
+                if len(atoms) == MAX_ATOMS_PER_CLASS:
+                    raise LpeError(
+                        f"path class {' '.join(map(str, events))} depends on more than {MAX_ATOMS_PER_CLASS} "
+                        "(condition, event) pairs"
+                    )
+                atoms.append((index, condition))
+                # A new atom is the highest bit: every existing row splits into two equal halves.
+                frontier = {state: np.concatenate([rows, rows]) for state, rows in frontier.items()}
+            codes = np.arange(2 ** len(atoms))
+            following: dict[int, np.ndarray] = {}
+            for holding in map(frozenset, _subsets(deciding)):
+                # Conditions that decide nothing at this event are taken as false: same targets.
+                selected = np.ones(codes.size, dtype=bool)
+                for condition in deciding:
+                    holds = (codes >> atoms.index((index, condition))) & 1 == 1
+                    selected &= holds if condition in holding else ~holds
+                for state, rows in frontier.items():
+                    target = targets[state][holding]
+                    reached = rows & selected
+                    if target == DEAD or not reached.any():
+                        continue
+                    following[target] = following[target] | reached if target in following else reached
+            frontier = following
+            if not frontier:
+                break
+
+        outcomes = {}
+        for layer in self.layers:
+            table = np.zeros(2 ** len(atoms), dtype=bool)
+            for state, rows in frontier.items():
+                if layer in self.dfa.accepts[state]:
+                    table |= rows
+            outcomes[layer] = self._outcome(layer, table, atoms, events)
+        return outcomes
+
+    def _match_unconditionally(self, classified) -> dict[str, Outcome]:
+        state = self.dfa.start
+        for outright, _ in classified:
+            state = self.dfa.step(state, outright)
+            if state == DEAD:
+                break
+        accepted = frozenset() if state == DEAD else self.dfa.accepts[state]
+        return {layer: ALWAYS if layer in accepted else NEVER for layer in self.layers}
+
+    def _outcome(self, layer: str, table: np.ndarray, atoms, events) -> Outcome:
+        if not table.any():
+            return NEVER
+        if table.all():
+            return ALWAYS
+        named = [(index, self.alphabet.conditions[condition]) for index, condition in atoms]
+        kept, reduced = reduce_table(named, table)
+        return Conditional(tuple(kept), reduced, layer, events)
+
+    def unknown_labels(self, known_labels) -> list[str]:
+        """Warnings for quoted labels that match none of ``known_labels`` (logged too).
+
+        Each names the layer and the closest known names, as a typo is the likely cause.
+        """
+        known = sorted(set(known_labels))
+        warnings = []
+        for layer, tree in self.trees.items():
+            for pattern in nodes.label_patterns(tree):
+                if pattern == nodes.ANY_LABEL or any(label_matches(pattern, label) for label in known):
+                    continue
+                suggestions = closest_labels(pattern, known)
+                hint = f"; closest: {', '.join(repr(s) for s in suggestions)}" if suggestions else ""
+                message = f"layer {layer!r}: label '{pattern}' matches no known label{hint}"
+                log.warning(message)
+                warnings.append(message)
+        return warnings

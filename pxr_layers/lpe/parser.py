@@ -1,0 +1,295 @@
+"""Recursive-descent parser: query text → expression tree (:mod:`.nodes`).
+
+Grammar (standard regular-expression precedence: repetition, then concatenation, then
+alternation; see docs/lpe.md for the EBNF and every difference from OSL)::
+
+    expression  = alternation END
+    alternation = sequence { "|" sequence }
+    sequence    = postfix { postfix }
+    postfix     = atom { condition } [ repetition ]
+    atom        = event | "(" alternation ")" | "[" postfix { postfix } "]"
+    event       = TYPE | SCATTER | "." | LABEL | "[^" symbol { symbol } "]"
+                | "<" { slot } ">"
+    slot        = TYPE | SCATTER | "." | LABEL | "[" symbol { symbol } "]" | "[^" symbol { symbol } "]"
+"""
+
+from __future__ import annotations
+
+from ..errors import LpeSyntaxError
+from . import nodes
+from .lexer import Kind, Token, tokenize
+from .nodes import ANY_LABEL, EventPattern, LabelTerm, SymbolSet
+
+_EVENT_STARTS = {Kind.TYPE, Kind.SCATTER, Kind.DOT, Kind.LABEL, Kind.OPEN_GROUP, Kind.OPEN_NEGATED_SET}
+_ATOM_STARTS = _EVENT_STARTS | {Kind.OPEN_PAREN, Kind.OPEN_SET}
+_REPETITIONS = {Kind.STAR: (0, None), Kind.PLUS: (1, None), Kind.QUESTION: (0, 1)}
+_SLOT_NAMES = ("event type", "scattering")
+
+
+def parse(query: str) -> nodes.Node:
+    """Parse a Light Path Expression. Raises LpeSyntaxError naming the position."""
+    return _Parser(query).parse()
+
+
+class _Parser:
+    def __init__(self, query: str):
+        self.query = query
+        self.tokens = tokenize(query)
+        self.index = 0
+
+    @property
+    def token(self) -> Token:
+        return self.tokens[self.index]
+
+    def advance(self) -> Token:
+        token = self.tokens[self.index]
+        self.index += 1
+        return token
+
+    def error(self, message: str, position: int | None = None) -> LpeSyntaxError:
+        return LpeSyntaxError(message, self.query, self.token.position if position is None else position)
+
+    def parse(self) -> nodes.Node:
+        if self.token.kind is Kind.END:
+            raise self.error("empty expression")
+        tree = self.alternation()
+        if self.token.kind is Kind.CLOSE_PAREN:
+            raise self.error("')' without a matching '('")
+        if self.token.kind is not Kind.END:
+            raise self.error(self._unexpected_here())
+        return tree
+
+    def alternation(self) -> nodes.Node:
+        alternatives = [self.sequence()]
+        while self.token.kind is Kind.BAR:
+            self.advance()
+            alternatives.append(self.sequence())
+        return nodes.union(alternatives)
+
+    def sequence(self) -> nodes.Node:
+        if self.token.kind not in _ATOM_STARTS:
+            raise self.error(self._unexpected_here())
+        items = []
+        while self.token.kind in _ATOM_STARTS:
+            items.append(self.postfix())
+        return nodes.concat(items)
+
+    def postfix(self) -> nodes.Node:
+        atom = self.atom()
+        while self.token.kind is Kind.CONDITION:
+            if not isinstance(atom, EventPattern):
+                raise self.error(
+                    "a condition follows one event (a letter, '.', a label, <...> or a set of letters); "
+                    "put it inside the group, after the event it is about"
+                )
+            atom = atom.with_condition(self.advance().value)
+        if self.token.kind in _REPETITIONS or self.token.kind is Kind.RANGE:
+            token = self.advance()
+            minimum, maximum = token.value if token.kind is Kind.RANGE else _REPETITIONS[token.kind]
+            atom = nodes.repeat(atom, minimum, maximum)
+            if self.token.kind in _REPETITIONS or self.token.kind is Kind.RANGE:
+                raise self.error("two repetitions in a row: use parentheses, e.g. (R*){2}")
+            if self.token.kind is Kind.CONDITION:
+                raise self.error("a condition follows an event, not a repetition: write D@(...)* rather than D*@(...)")
+        return atom
+
+    def atom(self) -> nodes.Node:
+        token = self.token
+        if token.kind is Kind.OPEN_PAREN:
+            self.advance()
+            if self.token.kind is Kind.CLOSE_PAREN:
+                raise self.error("empty parentheses")
+            inner = self.alternation()
+            if self.token.kind is Kind.END:
+                raise self.error("missing ')' to close this '('", token.position)
+            if self.token.kind is not Kind.CLOSE_PAREN:
+                raise self.error(f"expected ')': {self._unexpected_here()}")
+            self.advance()
+            return inner
+        if token.kind is Kind.OPEN_SET:
+            return self.alternative_set()
+        return self.event()
+
+    def alternative_set(self) -> nodes.Node:
+        """``[...]`` outside ``<...>``: any one of its items (OSL's "or list")."""
+        opening = self.advance()
+        items = []
+        while self.token.kind is not Kind.CLOSE_SET:
+            if self.token.kind is Kind.END:
+                raise self.error("missing ']' to close the '['", opening.position)
+            if self.token.kind not in _ATOM_STARTS:
+                raise self.error(self._unexpected_here())
+            items.append(self.postfix())
+        self.advance()
+        if not items:
+            raise self.error("empty set []", opening.position)
+        return _fold_letter_set(items) or nodes.union(items)
+
+    def event(self) -> EventPattern:
+        token = self.token
+        if token.kind is Kind.OPEN_GROUP:
+            return self.group()
+        if token.kind is Kind.OPEN_NEGATED_SET:
+            kind, symbols = self.symbol_list()
+            return _event_with_slot(kind, SymbolSet(frozenset(symbols), negated=True), symbols)
+        self.advance()
+        if token.kind is Kind.TYPE:
+            return EventPattern(types=SymbolSet(frozenset([token.value])))
+        if token.kind is Kind.SCATTER:
+            return EventPattern(scatters=SymbolSet(frozenset([token.value])))
+        if token.kind is Kind.LABEL:
+            return EventPattern(labels=(LabelTerm((token.value,)),))
+        if token.kind is Kind.DOT:
+            return EventPattern()
+        raise self.error(self._unexpected_here(), token.position)  # unreachable: callers check starts
+
+    def group(self) -> EventPattern:
+        """``<type scattering 'label'...>``: slots by position, missing ones are wildcards."""
+        opening = self.advance()
+        types = scatters = None
+        labels: list[LabelTerm] = []
+        slot = 0
+        while self.token.kind is not Kind.CLOSE_GROUP:
+            token = self.token
+            if token.kind is Kind.END:
+                raise self.error("missing '>' to close the '<'", opening.position)
+            problem = _GROUP_PROBLEMS.get(token.kind)
+            if problem:
+                raise self.error(problem)
+            if token.kind is Kind.DOT:
+                self.advance()
+                if slot >= 2:
+                    labels.append(LabelTerm((ANY_LABEL,)))
+            else:
+                kind, symbols, negated = self.slot_symbols()
+                expected = (Kind.TYPE, Kind.SCATTER, Kind.LABEL)[min(slot, 2)]
+                if kind is not expected:
+                    raise self.error(_slot_mismatch(slot, kind, symbols), token.position)
+                if kind is Kind.LABEL:
+                    labels.append(LabelTerm(tuple(dict.fromkeys(symbols)), negated))
+                elif slot == 0:
+                    types = SymbolSet(frozenset(symbols), negated)
+                else:
+                    scatters = SymbolSet(frozenset(symbols), negated)
+            slot += 1
+        self.advance()
+        return EventPattern(types, scatters, tuple(labels))
+
+    def slot_symbols(self) -> tuple[Kind, list[str], bool]:
+        """One slot of a group: a letter, a label, or a [..] / [^..] list of one kind."""
+        token = self.token
+        if token.kind in (Kind.OPEN_SET, Kind.OPEN_NEGATED_SET):
+            kind, symbols = self.symbol_list()
+            return kind, symbols, token.kind is Kind.OPEN_NEGATED_SET
+        self.advance()
+        return token.kind, [token.value], False
+
+    def symbol_list(self) -> tuple[Kind, list[str]]:
+        """``[...]`` or ``[^...]`` of plain symbols, all of one kind (letters of one slot, or labels)."""
+        opening = self.advance()
+        kind = None
+        symbols = []
+        while self.token.kind is not Kind.CLOSE_SET:
+            token = self.token
+            if token.kind is Kind.END:
+                raise self.error("missing ']' to close the '['", opening.position)
+            if token.kind not in (Kind.TYPE, Kind.SCATTER, Kind.LABEL):
+                raise self.error("only event letters or quoted labels can be listed here")
+            if kind is not None and token.kind is not kind:
+                raise self.error(
+                    f"this list mixes {_KIND_NAMES[kind]} and {_KIND_NAMES[token.kind]}; "
+                    "one list holds symbols of one slot (write <[RT][DG]> for both)"
+                )
+            kind = token.kind
+            symbols.append(self.advance().value)
+        self.advance()
+        if not symbols:
+            raise self.error("empty list", opening.position)
+        return kind, symbols
+
+    def _unexpected_here(self) -> str:
+        token = self.token
+        if token.kind is Kind.END:
+            return "the expression ends early: expected an event"
+        if token.kind is Kind.BAR:
+            return "'|' needs an expression on both sides"
+        if token.kind in _REPETITIONS or token.kind is Kind.RANGE:
+            return "a repetition must follow an event or a group"
+        if token.kind is Kind.CONDITION:
+            return "a condition must follow an event"
+        if token.kind is Kind.CLOSE_GROUP:
+            return "'>' without a matching '<'"
+        if token.kind is Kind.CLOSE_SET:
+            return "']' without a matching '['"
+        if token.kind is Kind.CLOSE_PAREN:
+            return "')' without a matching '('" if self._paren_depth() == 0 else "expected an event before ')'"
+        return "unexpected token"
+
+    def _paren_depth(self) -> int:
+        depth = 0
+        for token in self.tokens[: self.index]:
+            depth += {Kind.OPEN_PAREN: 1, Kind.CLOSE_PAREN: -1}.get(token.kind, 0)
+        return depth
+
+
+_KIND_NAMES = {Kind.TYPE: "event types", Kind.SCATTER: "scatterings", Kind.LABEL: "labels"}
+
+_GROUP_PROBLEMS = {
+    Kind.OPEN_GROUP: "no <...> inside <...>",
+    Kind.OPEN_PAREN: "no (...) inside <...>: list alternatives of one slot with [...]",
+    Kind.BAR: "no '|' inside <...>: list alternatives of one slot with [...]",
+    Kind.STAR: "repetitions are not allowed inside <...>",
+    Kind.PLUS: "repetitions are not allowed inside <...>",
+    Kind.QUESTION: "repetitions are not allowed inside <...>",
+    Kind.RANGE: "repetitions are not allowed inside <...>",
+    Kind.CONDITION: "a condition goes after the closing '>': <RD>@(...)",
+    Kind.CLOSE_SET: "']' without a matching '['",
+    Kind.CLOSE_PAREN: "')' inside <...>",
+}
+
+
+def _slot_mismatch(slot: int, kind: Kind, symbols: list[str]) -> str:
+    shown = symbols[0] if kind is not Kind.LABEL else f"'{symbols[0]}'"
+    if kind is Kind.LABEL:
+        return f"labels come after the type and scattering slots: <..{shown}>, <R.{shown}>"
+    if slot >= 2:
+        return f"{shown} is not a label: after the type and scattering slots come quoted labels only"
+    where = _SLOT_NAMES[slot]
+    if kind is Kind.SCATTER:
+        letter = shown or "x"
+        return f"{letter} is a scattering but this slot is the {where}: write <.{letter}> (slots are positional)"
+    return f"{shown} is an event type but this slot is the {where}: write <{shown}.> (slots are positional)"
+
+
+def _event_with_slot(kind: Kind, symbols: SymbolSet, raw: list[str]) -> EventPattern:
+    if kind is Kind.TYPE:
+        return EventPattern(types=symbols)
+    if kind is Kind.SCATTER:
+        return EventPattern(scatters=symbols)
+    return EventPattern(labels=(LabelTerm(tuple(dict.fromkeys(raw)), symbols.negated),))
+
+
+def _fold_letter_set(items) -> EventPattern | None:
+    """``[RT]``, ``[DG]``, ``['a' 'b']``: a set of single-slot events is one event with a set.
+
+    Folding keeps one event, so a condition can follow the set: ``[RT]@(...)``.
+    """
+    if not all(isinstance(item, EventPattern) and item.condition is None for item in items):
+        return None
+    if all(_constrains_only(item, "types") and not item.types.negated for item in items):
+        return EventPattern(types=SymbolSet(frozenset().union(*(item.types.symbols for item in items))))
+    if all(_constrains_only(item, "scatters") and not item.scatters.negated for item in items):
+        return EventPattern(scatters=SymbolSet(frozenset().union(*(item.scatters.symbols for item in items))))
+    single_positive_label = all(
+        _constrains_only(item, "labels") and len(item.labels) == 1 and not item.labels[0].negated for item in items
+    )
+    if single_positive_label:
+        patterns = tuple(dict.fromkeys(pattern for item in items for pattern in item.labels[0].patterns))
+        return EventPattern(labels=(LabelTerm(patterns),))
+    return None
+
+
+def _constrains_only(event: EventPattern, slot: str) -> bool:
+    """Whether the event's only constraint is on ``slot`` ('types', 'scatters' or 'labels')."""
+    given = {"types": event.types is not None, "scatters": event.scatters is not None, "labels": bool(event.labels)}
+    return given[slot] and sum(given.values()) == 1
