@@ -67,3 +67,22 @@ class PathIndexError(PxrLayersError):
     def __init__(self, message: str, *, file: str | None = None):
         super().__init__(f"{file}: {message}" if file else message)
         self.file = file
+
+
+class RecipeError(PxrLayersError):
+    """A layer recipe (UsdRender settings, products, vars, pxrLayers attributes) that cannot be used.
+
+    The message names the file, then the prim and attribute at fault as a USD property path
+    (``/Render/Vars/diffuse.sourceName``), then what is wrong; a bad Light Path Expression
+    keeps the LPE error's caret lines under it.
+    """
+
+    def __init__(self, message: str, *, file: str | None = None, prim: str | None = None,
+                 attribute: str | None = None):
+        site = f"{prim}.{attribute}" if prim and attribute else prim or (attribute and f"attribute {attribute}")
+        where = ": ".join(part for part in (file, site) if part)
+        super().__init__(f"{where}: {message}" if where else message)
+        self.message = message
+        self.file = file
+        self.prim = prim
+        self.attribute = attribute
