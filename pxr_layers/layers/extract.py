@@ -44,38 +44,122 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     names = list(expressions)
     class_count = len(index.classes)
     always = np.zeros((len(names), class_count), bool)
-    conditional: dict[int, list[tuple[int, lpe.Outcome]]] = {}
-    for path_class in index.classes:
-        for layer, outcome in automaton.match(path_class.events).items():
+    # Conditional classes whose outcomes are the same function of the same atoms share one
+    # group: its mask is evaluated once per chunk over all their records.
+    group_of = np.full((len(names), class_count), -1, np.int64)
+    groups: list[lpe.Outcome] = []
+    signatures: dict[tuple, int] = {}
+    for class_id, outcomes in _class_outcomes(automaton, index):
+        for layer, outcome in outcomes.items():
+            row = names.index(layer)
             if outcome.kind == "always":
-                always[names.index(layer), path_class.id] = True
+                always[row, class_id] = True
             elif outcome.kind == "conditional":
-                conditional.setdefault(path_class.id, []).append((names.index(layer), outcome))
-    wanted = np.flatnonzero(always.any(axis=0)).tolist() + list(conditional)
+                signature = (row, repr(outcome.atoms), outcome.table.tobytes())
+                if signature not in signatures:
+                    signatures[signature] = len(groups)
+                    groups.append(outcome)
+                group_of[row, class_id] = signatures[signature]
+    wanted = np.flatnonzero(always.any(axis=0) | (group_of >= 0).any(axis=0))
     width, height = index.manifest["resolution"]
-    pixels = width * height
-    sums = np.zeros((len(names), 3, pixels))
+    accumulator = _Accumulator(len(names), width * height)
     records_read = 0
-    total = sum(index.classes[c].records for c in wanted)
-    progress = Progress(total, "extract", enabled=show_progress)
-    for chunk in index.records(wanted, norms=bool(conditional)):
+    progress = Progress(sum(index.classes[c].records for c in wanted.tolist()), "extract", enabled=show_progress)
+    for chunk in index.records(wanted.tolist(), norms=bool(groups)):
         records_read += len(chunk.class_id)
         selected = always[:, chunk.class_id]  # (layers, r)
-        for class_id in np.intersect1d(np.unique(chunk.class_id), list(conditional)).tolist():
-            rows = np.flatnonzero(chunk.class_id == class_id)
-            for layer, outcome in conditional[class_id]:
-                selected[layer, rows] = outcome.mask(chunk.norms[rows])
-        for layer in range(len(names)):
-            chosen = selected[layer]
-            if not chosen.any():
-                continue
-            where = chunk.pixel[chosen]
-            for channel in range(3):
-                sums[layer, channel] += np.bincount(where, weights=chunk.rgb[chosen, channel], minlength=pixels)
+        if groups:
+            chunk_groups = group_of[:, chunk.class_id]
+            for group in np.unique(chunk_groups[chunk_groups >= 0]).tolist():
+                layer, rows = np.nonzero(chunk_groups == group)
+                selected[layer, rows] = groups[group].mask(chunk.norms[rows])
+        accumulator.add(selected, chunk.pixel, chunk.rgb)
         progress.advance(len(chunk.class_id))
+    sums = accumulator.sums()
     log.info("extracted %d layers from %d of %d records (%d of %d classes)", len(names), records_read,
              index.record_count, len(wanted), class_count)
     return Extraction(_images(sums, names, index), records_read, len(wanted))
+
+
+def _class_outcomes(automaton: lpe.LayerAutomaton, index: PathIndex):
+    """(class id, {layer: outcome}) for every class of the index, from the automaton.
+
+    Classes share their first events, and an index has few distinct events: a class
+    whose events carry no condition walks the DFA through a memo of (state, event id)
+    transitions; the others go through ``automaton.match``.
+    """
+    from ..lpe.automaton import DEAD
+
+    symbols = [automaton.alphabet.classify(event) for event in index.events]
+    transitions: dict[tuple[int, int], int] = {}
+    dfa = automaton.dfa
+    conditional = {event for event, (_, conditions) in enumerate(symbols) if conditions}
+    for path_class in index.classes:
+        if conditional and not conditional.isdisjoint(path_class.event_ids):
+            yield path_class.id, automaton.match(path_class.events)
+            continue
+        state = dfa.start
+        for event in path_class.event_ids:
+            key = (state, event)
+            if key not in transitions:
+                transitions[key] = dfa.step(state, symbols[event][0])
+            state = transitions[key]
+            if state == DEAD:
+                break
+        accepted = () if state == DEAD else dfa.accepts[state]
+        yield path_class.id, {layer: lpe.ALWAYS for layer in accepted}
+
+
+class _Accumulator:
+    """Per-pixel float64 sums of many layers from records that each feed a set of layers.
+
+    Records are grouped by the set of layers they feed (few distinct sets: the standard
+    passes partition the records), so one bincount per colour channel serves every layer.
+    """
+
+    MAX_SETS = 64  # beyond this many distinct sets in a chunk, one bincount per layer
+
+    def __init__(self, layers: int, pixels: int):
+        self.layers, self.pixels = layers, pixels
+        self._by_set: dict[bytes, np.ndarray] = {}
+        self._per_layer = np.zeros((layers, 3, pixels))
+
+    def add(self, selected: np.ndarray, pixel: np.ndarray, rgb: np.ndarray) -> None:
+        """selected (layers, r) bool; pixel (r,); rgb (r, 3)."""
+        feeding = selected.any(axis=0)
+        if not feeding.any():
+            return
+        selected, pixel, rgb = selected[:, feeding], pixel[feeding], rgb[feeding]
+        if self.layers <= 63:
+            bits = (np.left_shift(1, np.arange(self.layers, dtype=np.int64))[:, None] * selected).sum(axis=0)
+            codes, first, which = np.unique(bits, return_index=True, return_inverse=True)
+            sets = selected[:, first]
+        if self.layers > 63 or sets.shape[1] > self.MAX_SETS:
+            for layer in range(self.layers):
+                chosen = selected[layer]
+                for channel in range(3):
+                    self._per_layer[layer, channel] += np.bincount(pixel[chosen], weights=rgb[chosen, channel],
+                                                                   minlength=self.pixels)
+            return
+        key = which.reshape(-1) * self.pixels + pixel
+        size = sets.shape[1] * self.pixels
+        channels = [np.bincount(key, weights=rgb[:, c], minlength=size).reshape(sets.shape[1], self.pixels)
+                    for c in range(3)]
+        for number in range(sets.shape[1]):
+            members = sets[:, number]
+            image = np.stack([channel[number] for channel in channels])
+            signature = members.tobytes()
+            if signature in self._by_set:
+                self._by_set[signature] += image
+            else:
+                self._by_set[signature] = image
+
+    def sums(self) -> np.ndarray:
+        """(layers, 3, pixels) float64."""
+        total = self._per_layer.copy()
+        for signature, image in self._by_set.items():
+            total[np.frombuffer(signature, bool)] += image
+        return total
 
 
 def extract_reference(index: PathIndex, expressions: dict[str, str]) -> dict[str, np.ndarray]:

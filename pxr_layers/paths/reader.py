@@ -19,12 +19,14 @@ from .events import Event
 
 @dataclass(frozen=True)
 class PathClass:
-    """One distinct event sequence: its events camera first, records and summed rgb."""
+    """One distinct event sequence: its events camera first (and their ids into
+    ``PathIndex.events``), records and summed rgb."""
 
     id: int
     events: tuple[Event, ...]
     records: int
     rgb: tuple[float, float, float]
+    event_ids: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -83,7 +85,7 @@ class PathIndex:
             for kind, scatter, ids, *name in tables["events"]
         )
         self.classes: tuple[PathClass, ...] = tuple(
-            PathClass(index, tuple(self.events[event] for event in events), records, tuple(rgb))
+            PathClass(index, tuple(self.events[event] for event in events), records, tuple(rgb), tuple(events))
             for index, (events, records, rgb) in enumerate(
                 zip(tables["classes"], tables["class_records"], tables["class_rgb"]))
         )
@@ -117,7 +119,7 @@ class PathIndex:
                 if zlib.crc32(payload) != crc or crc != chunk["crc32"]:
                     raise self._error(f"corrupted: chunk {number} at byte {chunk['offset']} fails its checksum")
                 decoded = self._decode(decompressor.decompress(payload), records, number, norms)
-                if wanted is not None:
+                if wanted is not None and not np.isin(chunk["classes"], wanted).all():
                     keep = np.isin(decoded.class_id, wanted)
                     decoded = RecordChunk(*(column[keep] if len(column) else column for column in vars(decoded).values()))
                 yield decoded
