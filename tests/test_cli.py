@@ -135,3 +135,29 @@ def test_lpe_check_and_match_through_the_console_script():
     assert matched.returncode == 0 and matched.stdout.splitlines() == ["match", "no match"]
     bad = run("lpe", "check", "C<RD")
     assert bad.returncode == 1 and "^" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_extract_cuts_passes_that_sum_to_the_beauty(tmp_path):
+    rendered = run("render", str(RENDER_DIR / "showcase.usda"), "-o", str(tmp_path), *SMALL)
+    assert rendered.returncode == 0, rendered.stderr
+    out = tmp_path / "layers.exr"
+    result = run("extract", str(tmp_path / "showcase.pxlidx"), "--passes", "--layer", "flat=C<R.>@(|S_C| = 0).*",
+                 "-o", str(out), "--quiet")
+    assert result.returncode == 0, result.stderr
+    parts = OpenEXR.File(str(out)).parts
+    names = [part.name() for part in parts]
+    assert names[0] == "rgba" and "diffuse_direct" in names and "flat" in names
+    beauty = parts[0].channels["RGBA"].pixels[..., :3].astype(np.float64)
+    passes = [p for p in parts[1:] if p.name() != "flat"]
+    # the OpenEXR binding groups NAME.R/G/B into one (h, w, 3) channel called NAME
+    total = sum(p.channels[p.name()].pixels.astype(np.float64) for p in passes)
+    np.testing.assert_allclose(total, beauty, rtol=1e-5, atol=1e-6)
+    assert parts[names.index("flat")].header["pxrLayers/expression"] == "C<R.>@(|S_C| = 0).*"
+
+
+def test_extract_with_a_bad_expression_points_at_it(tmp_path):
+    assert run("render", str(RENDER_DIR / "cornell.usda"), "-o", str(tmp_path), *SMALL).returncode == 0
+    result = run("extract", str(tmp_path / "cornell.pxlidx"), "--layer", "bad=C<RD", "-o", str(tmp_path / "x.exr"))
+    assert result.returncode == 1 and "^" in result.stderr and not (tmp_path / "x.exr").exists()
+    usage = run("extract", str(tmp_path / "cornell.pxlidx"), "--layer", "no-equals-sign")
+    assert usage.returncode == 2

@@ -9,9 +9,9 @@ import sys
 
 from .. import __version__
 from ..errors import PxrLayersError
-from . import demo, index, lpe, render
+from . import demo, extract, index, lpe, render
 
-SUBCOMMANDS = {"render": render, "demo": demo, "index": index, "lpe": lpe}
+SUBCOMMANDS = {"render": render, "demo": demo, "index": index, "extract": extract, "lpe": lpe}
 EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE = 0, 1, 2
 
 

@@ -15,6 +15,10 @@ Modules, in the order a read uses them:
 * ``diagnostics`` warnings, grouped per kind and naming the prims
 """
 
-from .reader import load_stage
+from pxr_layers.recipe.schema import register as _register_schema
+
+_register_schema()  # before any stage is opened: USD ignores schemas registered later
+
+from .reader import load_stage  # noqa: E402  (after the schema registration above)
 
 __all__ = ["load_stage"]

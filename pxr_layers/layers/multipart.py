@@ -1,0 +1,176 @@
+"""The deliverable: one multipart OpenEXR per recipe product, as compositors read it.
+
+Part 0 is named ``rgba`` and holds the beauty as R, G, B, A. Then one part per layer, in
+recipe order, named after the layer, with channels ``<layer>.R/G/B`` (data layers:
+``depth.Z``, ``normal.X/Y/Z``, ``primId.id``; see :attr:`pxr_layers.recipe.Layer.channels`).
+Every part has the same data window (the image size) and the same Rec.709 chromaticities,
+no ``view`` attribute (mono), its own pixel type and compression from the recipe, and
+string metadata under ``pxrLayers/``:
+
+* every part: ``pxrLayers/version`` and the caller's metadata (spp, seed, frame, stage...);
+  ``pxrLayers/sourceType``, ``pxrLayers/expression`` (lpe layers; ``C.*`` on the beauty)
+  or ``pxrLayers/source`` (raw layers), ``pxrLayers/dataType``, ``pxrLayers/group``;
+* part 0 also: ``pxrLayers/recipe`` (the resolved recipe as JSON) and
+  ``pxrLayers/expressions`` (JSON layer name → expression).
+
+Written with ``OpenEXR.File([OpenEXR.Part(...), ...])`` under a temporary name, then renamed.
+Note: the OpenEXR 3.5 Python binding ignores numpy strides (a non-contiguous view such as
+``rgb[..., 0]`` is written as if it were contiguous, i.e. wrong pixels, silently), so every
+channel handed to it here is a contiguous array.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+
+from .. import __version__
+from ..errors import OutputError
+from ..recipe.model import BEAUTY_EXPRESSION, BEAUTY_PART, Layer, Product, Recipe
+from .exr import METADATA_PREFIX, REC709_CHROMATICITIES, write_atomically
+
+logger = logging.getLogger(__name__)
+
+COMPRESSION = {
+    "none": OpenEXR.NO_COMPRESSION,
+    "rle": OpenEXR.RLE_COMPRESSION,
+    "zips": OpenEXR.ZIPS_COMPRESSION,
+    "zip": OpenEXR.ZIP_COMPRESSION,
+    "piz": OpenEXR.PIZ_COMPRESSION,
+    "pxr24": OpenEXR.PXR24_COMPRESSION,
+    "b44": OpenEXR.B44_COMPRESSION,
+    "b44a": OpenEXR.B44A_COMPRESSION,
+    "dwaa": OpenEXR.DWAA_COMPRESSION,
+    "dwab": OpenEXR.DWAB_COMPRESSION,
+}
+"""Recipe compression token → OpenEXR enum."""
+DTYPE = {"float": np.float32, "half": np.float16}
+HALF_MAX = float(np.finfo(np.float16).max)
+
+
+def write_multipart(
+    path: str | os.PathLike,
+    beauty: np.ndarray,
+    layers: Mapping[str, np.ndarray],
+    product: Product | None = None,
+    *,
+    recipe: Recipe | str | None = None,
+    spp: int | None = None,
+    seed: int | None = None,
+    frame: float | None = None,
+    metadata: Mapping[str, object] | None = None,
+) -> Path:
+    """Write the beauty and the layers of one product as a multipart EXR; returns the path.
+
+    beauty   : (h, w, 4) float32 linear RGBA (part 0 ``rgba``)
+    layers   : layer name → (h, w, c) float32 (c = the layer's channel count, 3 for a
+               colour layer) or (h, w) for one channel; same h, w as the beauty
+    product  : the recipe product: part order, channel names, pixel types, compressions
+               and expressions. With a product, ``layers`` must hold exactly its layers.
+               None: parts in the mapping's order, float32, ZIP, channels R G B (3),
+               R G B A (4) or Y (1).
+    recipe   : the resolved Recipe (or its JSON), stored as ``pxrLayers/recipe`` on part 0
+    spp, seed, frame : written as ``pxrLayers/spp``, ``/seed``, ``/frame`` on every part
+    metadata : extra ``pxrLayers/<key>`` string attributes on every part (stage, camera,
+               maxDepth, ...); values are written with str()
+
+    Half parts hold values clamped to ±65504. Raises ValueError for arrays that do not fit
+    the recipe, OutputError when the file cannot be written.
+    """
+    path = Path(path)
+    beauty = np.asarray(beauty)
+    if beauty.ndim != 3 or beauty.shape[2] != 4:
+        raise ValueError(f"beauty must be (h, w, 4) RGBA, got shape {beauty.shape}")
+    height, width = beauty.shape[:2]
+    specs = _layer_specs(layers, product)
+
+    run = {key: value for key, value in (("spp", spp), ("seed", seed), ("frame", frame)) if value is not None}
+    common = {"version": __version__, **run, **{str(k): v for k, v in (metadata or {}).items()}}
+    beauty_type = product.pixel_type if product else "float"
+    beauty_compression = product.compression if product else "zip"
+    head = _header(beauty_compression, common)
+    head[METADATA_PREFIX + "sourceType"] = "lpe"
+    head[METADATA_PREFIX + "expression"] = BEAUTY_EXPRESSION
+    if recipe is not None:
+        head[METADATA_PREFIX + "recipe"] = recipe if isinstance(recipe, str) else recipe.to_json()
+    head[METADATA_PREFIX + "expressions"] = json.dumps(
+        {spec.name: spec.source_name for spec in specs if spec.source_type == "lpe"}, separators=(",", ":")
+    )
+    parts = [OpenEXR.Part(head, {"RGBA": _pixels(beauty, beauty_type)}, BEAUTY_PART)]
+
+    for spec in specs:
+        image = np.asarray(layers[spec.name])
+        if image.ndim == 2:
+            image = image[..., None]
+        if image.shape != (height, width, len(spec.channels)):
+            raise ValueError(
+                f"layer {spec.name!r}: expected shape {(height, width, len(spec.channels))} "
+                f"(channels {', '.join(spec.channels)}), got {np.asarray(layers[spec.name]).shape}"
+            )
+        header = _header(spec.compression, common)
+        header[METADATA_PREFIX + "sourceType"] = spec.source_type
+        header[METADATA_PREFIX + ("expression" if spec.source_type == "lpe" else "source")] = spec.source_name
+        header[METADATA_PREFIX + "dataType"] = spec.data_type
+        header[METADATA_PREFIX + "group"] = spec.group
+        channels = {
+            f"{spec.name}.{suffix}": _pixels(image[..., index], spec.pixel_type)
+            for index, suffix in enumerate(spec.channels)
+        }
+        parts.append(OpenEXR.Part(header, channels, spec.name))
+
+    def write(temporary: Path) -> None:
+        try:
+            OpenEXR.File(parts).write(str(temporary))
+        except (RuntimeError, ValueError, TypeError) as error:  # the binding's own failures
+            raise OutputError(f"{path}: OpenEXR cannot write the file ({error})") from error
+
+    write_atomically(path, write)
+    logger.info("wrote %s: %d parts, %d x %d", path, len(parts), width, height)
+    return path
+
+
+def _layer_specs(layers: Mapping[str, np.ndarray], product: Product | None) -> list[Layer]:
+    """The recipe Layer of each image, in part order (defaults when there is no product)."""
+    if product is None:
+        # Without a recipe, each image is a raw var named after itself (colour for 3 or 4
+        # channels, a float data layer for 1).
+        specs = []
+        for name, image in layers.items():
+            channels = 1 if np.ndim(image) == 2 else np.shape(image)[-1]
+            data_type = {3: "color3f", 4: "color4f"}.get(channels, "float")
+            specs.append(Layer(name, "raw", name, data_type=data_type))
+        return specs
+    missing = [layer.name for layer in product.layers if layer.name not in layers]
+    extra = [name for name in layers if name not in product.layer_names]
+    if missing or extra:
+        raise ValueError(
+            f"the images do not match product {product.name!r}: "
+            + "; ".join(filter(None, [missing and f"missing {', '.join(missing)}",
+                                      extra and f"not in the recipe {', '.join(extra)}"]))
+        )
+    return list(product.layers)
+
+
+def _header(compression: str, common: Mapping[str, object]) -> dict:
+    header = {
+        "compression": COMPRESSION[compression],
+        "type": OpenEXR.scanlineimage,
+        "chromaticities": REC709_CHROMATICITIES,
+    }
+    for key, value in common.items():
+        header[METADATA_PREFIX + key] = str(value)
+    return header
+
+
+def _pixels(values: np.ndarray, pixel_type: str) -> np.ndarray:
+    """A C-contiguous array of the part's pixel type (the binding ignores strides)."""
+    dtype = DTYPE[pixel_type]
+    if dtype is np.float16:
+        values = np.clip(values, -HALF_MAX, HALF_MAX)
+    return np.ascontiguousarray(values, dtype=dtype)

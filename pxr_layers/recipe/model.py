@@ -1,0 +1,336 @@
+"""The resolved recipe: frozen, validated dataclasses that everything downstream reads.
+
+Nothing here imports pxr. :func:`pxr_layers.recipe.load_recipe` builds these from USD;
+tests and the CLI may also build them directly (construction validates the same rules and
+raises :class:`~pxr_layers.errors.RecipeError`).
+
+The token tuples and fallbacks below repeat those of ``schemas/schema.usda`` (the source of
+truth); ``tests/test_schema.py`` checks that they agree with the registered schema.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import RecipeError
+
+PIXEL_TYPES = ("float", "half")
+COMPRESSIONS = ("none", "rle", "zips", "zip", "piz", "pxr24", "b44", "b44a", "dwaa", "dwab")
+LOSSY_COMPRESSIONS = frozenset({"pxr24", "b44", "b44a", "dwaa", "dwab"})
+"""Compressions that change float32 data: refused on data layers."""
+SOURCE_TYPES = ("lpe", "raw")
+"""The RenderVar sourceTypes pxr-layers renders (UsdRender also has primvar, intrinsic)."""
+COVARIANCE_MODES = ("norms", "sigma")
+PER_LIGHT_MODES = ("none", "lights", "groups")
+
+DEFAULT_PIXEL_TYPE = "float"
+DEFAULT_COMPRESSION = "zip"
+DEFAULT_INDEX_BOUNCES = 5
+DEFAULT_OCIO_CONFIG = "ocio://studio-config-v2.2.0_aces-v1.3_ocio-v2.4"
+"""Pinned built-in config (OCIO >= 2.4). ``ocio://default`` and ``*-latest`` resolve to a
+different config with each OCIO release, and OpenImageIO's wheel bundles another OCIO than
+PyOpenColorIO: with 2.6.0 / OIIO 3.2.2 ``studio-config-latest`` is v5.0.0 in one, v4.0.0 in
+the other."""
+DEFAULT_DISPLAY = "sRGB - Display"
+DEFAULT_VIEW = "ACES 1.0 - SDR Video"
+RENDERING_SPACE = "Linear Rec.709 (sRGB)"
+"""The colour space of the rendered pixels (linear, Rec.709 primaries, D65) in the ACES
+studio and CG configs; its aliases there include ``lin_rec709_srgb`` and ``lin_srgb``."""
+
+BEAUTY_PART = "rgba"
+"""Name of part 0 of every product: the beauty, channels R, G, B, A."""
+BEAUTY_EXPRESSION = "C.*"
+
+COLOUR_DATA_TYPES = frozenset({"color3f", "color3h", "color3d", "color4f", "color4h", "color4d"})
+"""RenderVar dataTypes of colour layers; every other dataType is a data layer."""
+LPE_DATA_TYPES = frozenset({"color3f", "color3h", "color3d"})
+VECTOR_DATA_TYPES = frozenset({"float3", "half3", "double3", "normal3f", "normal3h", "vector3f", "vector3h",
+                               "point3f", "point3h"})
+SCALAR_DATA_TYPES = frozenset({"float", "half", "double", "int", "uint", "int64", "uint64"})
+
+RAW_CHANNELS = {
+    "depth": ("Z",),
+    "normal": ("X", "Y", "Z"),
+    "Neye": ("X", "Y", "Z"),
+    "Peye": ("X", "Y", "Z"),
+    "primId": ("id",),
+    "instanceId": ("id",),
+    "elementId": ("id",),
+}
+"""Channel names of the Hydra AOVs a renderer fills for ``raw`` vars (``depth.Z``, ...)."""
+KNOWN_RAW_SOURCES = frozenset({"color", *RAW_CHANNELS})
+
+_LAYER_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+def channels_for(source_type: str, source_name: str, data_type: str) -> tuple[str, ...]:
+    """EXR channel suffixes of a layer: ``("R", "G", "B")`` for colour, ``("Z",)`` for depth...
+
+    lpe and colour dataTypes: R G B (A for color4*). raw: the Hydra AOV's convention
+    (RAW_CHANNELS), else by dataType: X Y Z for vectors, Y for scalars.
+    """
+    if source_type == "lpe" or data_type in COLOUR_DATA_TYPES:
+        return ("R", "G", "B", "A") if data_type.startswith("color4") else ("R", "G", "B")
+    if source_name in RAW_CHANNELS:
+        return RAW_CHANNELS[source_name]
+    if data_type in VECTOR_DATA_TYPES:
+        return ("X", "Y", "Z")
+    return ("Y",)
+
+
+def layer_problems(layer: Layer) -> list[tuple[str, str]]:
+    """Every rule ``layer`` breaks, as (USD attribute name, message); empty when valid.
+
+    Shared by :class:`Layer` (which raises on the first) and the USD loader (which names the
+    RenderVar prim and attribute).
+    """
+    problems: list[tuple[str, str]] = []
+    if not _LAYER_NAME.match(layer.name):
+        problems.append(("", f"layer name {layer.name!r} is not an identifier (letters, digits, _)"))
+    elif layer.name == BEAUTY_PART:
+        problems.append(("", f"layer name {BEAUTY_PART!r} is reserved for the beauty (part 0)"))
+    if layer.source_type not in SOURCE_TYPES:
+        problems.append(("sourceType", (f"unknown source type {layer.source_type!r} (pxr-layers reads "
+                                       f"{', '.join(SOURCE_TYPES)})")))
+        return problems
+    if not layer.source_name.strip():
+        problems.append(("sourceName", "is empty"))
+    if layer.source_type == "lpe" and layer.data_type not in LPE_DATA_TYPES:
+        problems.append(("dataType", (f"an lpe layer is a colour: dataType must be one of "
+                                     f"{', '.join(sorted(LPE_DATA_TYPES))}, not {layer.data_type!r}")))
+    if layer.pixel_type not in PIXEL_TYPES:
+        problems.append(("pxrLayers:pixelType", (f"unknown pixel type {layer.pixel_type!r} "
+                                                f"(allowed: {', '.join(PIXEL_TYPES)})")))
+    elif layer.is_data and layer.pixel_type == "half":
+        problems.append(("pxrLayers:pixelType", (f"half on a data layer (dataType {layer.data_type}): "
+                                                "data layers stay float")))
+    if layer.compression not in COMPRESSIONS:
+        problems.append(("pxrLayers:compression", (f"unknown compression {layer.compression!r} "
+                                                  f"(allowed: {', '.join(COMPRESSIONS)})")))
+    elif layer.is_data and layer.compression in LOSSY_COMPRESSIONS:
+        problems.append(("pxrLayers:compression", (f"{layer.compression} is lossy: not allowed on a data "
+                                                  f"layer (dataType {layer.data_type}); use zip, zips or piz")))
+    if not math.isfinite(layer.exposure):
+        problems.append(("pxrLayers:preview:exposure", f"must be finite, not {layer.exposure}"))
+    if len(layer.tint) != 3 or not all(math.isfinite(c) and c >= 0 for c in layer.tint):
+        problems.append(("pxrLayers:preview:tint", f"must be three finite values >= 0, not {layer.tint}"))
+    return problems
+
+
+@dataclass(frozen=True)
+class Layer:
+    """One layer of a product: one RenderVar, one EXR part named ``name``.
+
+    name        : the RenderVar's prim name = the EXR part name (channels ``name.R`` ...)
+    source_type : "lpe" (source_name is an extended Light Path Expression) or "raw" (a
+                  renderer AOV such as depth, normal, primId)
+    data_type   : the RenderVar's dataType; colour types make colour layers, the rest data
+    pixel_type  : "float" (32-bit) or "half" (colour layers only)
+    compression : OpenEXR compression of the part (lossy ones refused on data layers)
+    preview     : write a PNG preview; exposure (stops) and tint (linear RGB multiplier)
+                  grade the preview and the contact-sheet tile only
+    group       : free-form group name (part metadata, contact-sheet order)
+    prim_path   : the RenderVar it was read from; "" for generated layers
+    """
+
+    name: str
+    source_type: str = "lpe"
+    source_name: str = BEAUTY_EXPRESSION
+    data_type: str = "color3f"
+    pixel_type: str = DEFAULT_PIXEL_TYPE
+    compression: str = DEFAULT_COMPRESSION
+    preview: bool = True
+    exposure: float = 0.0
+    tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    group: str = ""
+    prim_path: str = ""
+
+    def __post_init__(self):
+        object.__setattr__(self, "tint", tuple(float(c) for c in self.tint))
+        object.__setattr__(self, "exposure", float(self.exposure))
+        problems = layer_problems(self)
+        if problems:
+            attribute, message = problems[0]
+            raise RecipeError(message, prim=self.prim_path or f"layer {self.name!r}", attribute=attribute or None)
+
+    @property
+    def is_data(self) -> bool:
+        """A data layer (raw var of a non-colour dataType): float, lossless, no energy share."""
+        return self.data_type not in COLOUR_DATA_TYPES
+
+    @property
+    def expression(self) -> str | None:
+        """The Light Path Expression of an lpe layer, else None."""
+        return self.source_name if self.source_type == "lpe" else None
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        """EXR channel suffixes: the part holds ``f"{name}.{suffix}"`` for each."""
+        return channels_for(self.source_type, self.source_name, self.data_type)
+
+
+@dataclass(frozen=True)
+class IndexSettings:
+    """What the path index keeps, per path.
+
+    bounces    : N, the events after the camera whose covariance is kept (conditions can
+                 test events 1..N only); 0 keeps none
+    covariance : "norms" (|S_C| 1/m, |S_T| cycles/m, |S_R| cycles/rad per event) or
+                 "sigma" (also the whole 4×4 Σ, for conditions on S11, S22, ...)
+    """
+
+    bounces: int = DEFAULT_INDEX_BOUNCES
+    covariance: str = "norms"
+
+    def __post_init__(self):
+        if not isinstance(self.bounces, int) or self.bounces < 0:
+            raise RecipeError(f"must be an integer >= 0, not {self.bounces!r}", attribute="pxrLayers:index:bounces")
+        if self.covariance not in COVARIANCE_MODES:
+            raise RecipeError(f"unknown covariance {self.covariance!r} (allowed: {', '.join(COVARIANCE_MODES)})",
+                              attribute="pxrLayers:index:covariance")
+
+
+@dataclass(frozen=True)
+class Product:
+    """One RenderProduct: one multipart EXR (part 0 ``rgba`` = beauty, then ``layers``).
+
+    output_name     : the productName, e.g. ``shot.####.exr`` (see :meth:`output_path`)
+    camera          : prim path of the UsdGeom.Camera
+    resolution      : (width, height) in pixels
+    index           : what the path index keeps
+    ocio_config     : OCIO config URI or file of the previews; display, view: its display
+                      and view; rendering_space: the colour space of the EXR pixels in it
+    contact_sheet   : write a contact sheet of all layers
+    pixel_type, compression : of the beauty part (and the default of the vars)
+    per_light       : "none", "lights" or "groups": what per-light layers were added
+    """
+
+    name: str
+    output_name: str
+    camera: str
+    resolution: tuple[int, int]
+    layers: tuple[Layer, ...]
+    index: IndexSettings = field(default_factory=IndexSettings)
+    ocio_config: str = DEFAULT_OCIO_CONFIG
+    display: str = DEFAULT_DISPLAY
+    view: str = DEFAULT_VIEW
+    rendering_space: str = RENDERING_SPACE
+    contact_sheet: bool = True
+    pixel_type: str = DEFAULT_PIXEL_TYPE
+    compression: str = DEFAULT_COMPRESSION
+    per_light: str = "none"
+    prim_path: str = ""
+
+    def __post_init__(self):
+        object.__setattr__(self, "layers", tuple(self.layers))
+        object.__setattr__(self, "resolution", tuple(int(v) for v in self.resolution))
+        where = self.prim_path or f"product {self.name!r}"
+        if not self.layers:
+            raise RecipeError("the product has no layers (orderedVars is empty and perLight is none)",
+                              prim=where, attribute="orderedVars")
+        seen: dict[str, Layer] = {}
+        for layer in self.layers:
+            if layer.name in seen:
+                first = seen[layer.name].prim_path or "a generated layer"
+                second = layer.prim_path or "a generated layer"
+                raise RecipeError(f"duplicate layer name {layer.name!r}: {first} and {second} "
+                                  "would write the same EXR part", prim=where, attribute="orderedVars")
+            seen[layer.name] = layer
+        if len(self.resolution) != 2 or min(self.resolution) <= 0:
+            raise RecipeError(f"resolution must be two positive integers, not {self.resolution}",
+                              prim=where, attribute="resolution")
+        if self.pixel_type not in PIXEL_TYPES:
+            raise RecipeError(f"unknown pixel type {self.pixel_type!r} (allowed: {', '.join(PIXEL_TYPES)})",
+                              prim=where, attribute="pxrLayers:pixelType")
+        if self.compression not in COMPRESSIONS:
+            raise RecipeError(f"unknown compression {self.compression!r} (allowed: {', '.join(COMPRESSIONS)})",
+                              prim=where, attribute="pxrLayers:compression")
+        if self.per_light not in PER_LIGHT_MODES:
+            raise RecipeError(f"unknown perLight {self.per_light!r} (allowed: {', '.join(PER_LIGHT_MODES)})",
+                              prim=where, attribute="pxrLayers:perLight")
+        if not self.output_name.lower().endswith(".exr"):
+            raise RecipeError(f"productName {self.output_name!r} must name an .exr file", prim=where,
+                              attribute="productName")
+
+    @property
+    def layer_names(self) -> tuple[str, ...]:
+        return tuple(layer.name for layer in self.layers)
+
+    def layer(self, name: str) -> Layer:
+        for layer in self.layers:
+            if layer.name == name:
+                return layer
+        raise KeyError(f"product {self.name!r} has no layer {name!r} (layers: {', '.join(self.layer_names)})")
+
+    def expressions(self) -> dict[str, str]:
+        """Layer name → Light Path Expression, for the lpe layers, in recipe order."""
+        return {layer.name: layer.source_name for layer in self.layers if layer.source_type == "lpe"}
+
+    def output_path(self, frame: float | None = None, directory: str | Path | None = None) -> Path:
+        """The EXR path: each run of ``#`` in output_name becomes the frame number padded to
+        the run's length (``####`` → 0012); a relative name is taken relative to ``directory``."""
+        name = self.output_name
+        if frame is not None:
+            number = round(frame)
+            name = re.sub(r"#+", lambda run: f"{number:0{len(run.group())}d}", name)
+        path = Path(name)
+        return path if directory is None or path.is_absolute() else Path(directory) / path
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A resolved recipe: the products of one RenderSettings prim.
+
+    settings_path : the RenderSettings prim read ("" when built in code)
+    file          : the root layer of the stage it was read from ("" when built in code)
+    """
+
+    products: tuple[Product, ...]
+    settings_path: str = ""
+    file: str = ""
+
+    def __post_init__(self):
+        object.__setattr__(self, "products", tuple(self.products))
+        if not self.products:
+            raise RecipeError("the recipe has no products", prim=self.settings_path or None, attribute="products")
+        outputs: dict[str, str] = {}
+        for product in self.products:
+            other = outputs.setdefault(product.output_name, product.prim_path or product.name)
+            if other != (product.prim_path or product.name):
+                raise RecipeError(f"productName {product.output_name!r} is also written by {other}",
+                                  prim=product.prim_path or product.name, attribute="productName")
+
+    def product(self, name: str | None = None) -> Product:
+        """The product called ``name`` (its prim name); None: the first product."""
+        if name is None:
+            return self.products[0]
+        for product in self.products:
+            if product.name == name:
+                return product
+        raise KeyError(f"no product {name!r} (products: {', '.join(p.name for p in self.products)})")
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def to_json(self) -> str:
+        """Compact, key-sorted JSON of the whole recipe (the EXR's ``pxrLayers/recipe``)."""
+        return json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+
+    def with_layers(self, layers, product: str | None = None) -> Recipe:
+        """A copy with ``layers`` appended to a product (None: every product).
+
+        Raises RecipeError on a duplicate layer name.
+        """
+        layers = tuple(layers)
+        products = tuple(
+            dataclasses.replace(p, layers=p.layers + layers) if product in (None, p.name) else p
+            for p in self.products
+        )
+        if product is not None:
+            self.product(product)  # KeyError for an unknown name
+        return dataclasses.replace(self, products=products)
