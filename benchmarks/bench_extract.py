@@ -86,13 +86,13 @@ def main() -> None:
             path = Path(folder) / f"{name}.pxlidx"
             start = time.perf_counter()
             writer = PathIndexWriter(path, {"spp": args.spp, "resolution": [width, height]}, 5)
-            result = render(scene, spec, settings, show_progress=False, on_batch=lambda b: writer.add(b.records))
+            result = render(scene, spec, settings, show_progress=False, on_batch=lambda b, w=writer: w.add(b.records))
             writer.close(result.vocabulary)
             render_seconds = time.perf_counter() - start
             index = PathIndex(path)
 
             start = time.perf_counter()
-            ours = extract(index, lpe.STANDARD_PASSES)
+            extract(index, lpe.STANDARD_PASSES)
             ours_seconds = time.perf_counter() - start
             base_seconds, base_records, _ = baseline(index, width, height)
             base_full = base_seconds * index.record_count / base_records

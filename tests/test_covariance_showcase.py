@@ -83,7 +83,7 @@ def test_planar_surfaces_have_zero_curvature_and_the_sphere_one_over_r(showcase)
 
 
 def test_twice_the_stripe_frequency_gives_twice_the_texture_norm(showcase):
-    result, first = showcase
+    _, first = showcase
     on_panel = (first.lobe != "") & (first.obj == "texturedPanel")
     columns = first.pixel[on_panel] % RESOLUTION[0]
     left_edge, right_edge = columns.min(), columns.max()

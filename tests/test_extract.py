@@ -66,7 +66,7 @@ def test_per_light_layers_partition_the_beauty(indexed):
 
 
 def test_only_the_classes_a_layer_can_match_are_read(indexed):
-    name, scene, _, index = indexed
+    _, scene, _, index = indexed
     light = scene.lights[0].name
     narrow = extract(index, {"direct": f"C<RD>'{light}'"})
     assert narrow.classes_matched < len(index.classes) / 4

@@ -8,6 +8,7 @@ import subprocess
 
 import numpy as np
 import pytest
+from test_cli import SCRIPT
 
 from pxr_layers.errors import PathIndexError
 from pxr_layers.paths import format as fmt
@@ -16,8 +17,6 @@ from pxr_layers.paths.reader import PathIndex
 from pxr_layers.paths.writer import PathIndexWriter
 from pxr_layers.trace.integrator import TraceSettings
 from pxr_layers.trace.render import render
-
-from test_cli import SCRIPT
 
 RESOLUTION = (40, 32)
 SETTINGS = TraceSettings(spp=4, max_depth=4, seed=11, norm_bounces=5, record_paths=True)

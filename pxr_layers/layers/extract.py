@@ -132,7 +132,7 @@ class _Accumulator:
         selected, pixel, rgb = selected[:, feeding], pixel[feeding], rgb[feeding]
         if self.layers <= 63:
             bits = (np.left_shift(1, np.arange(self.layers, dtype=np.int64))[:, None] * selected).sum(axis=0)
-            codes, first, which = np.unique(bits, return_index=True, return_inverse=True)
+            _, first, which = np.unique(bits, return_index=True, return_inverse=True)
             sets = selected[:, first]
         if self.layers > 63 or sets.shape[1] > self.MAX_SETS:
             for layer in range(self.layers):
