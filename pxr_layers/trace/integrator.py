@@ -338,7 +338,7 @@ class Integrator:
             lobes.probability[:, ~scatters] = 0.0
             randoms = rng.uniforms(paths.keys, 2 + step * RANDOMS_PER_STEP, RANDOMS_PER_STEP)
             vertex = _Vertex(triangle)
-            if slots:
+            if slots and (record or step == 0):  # without records only the first bounce is kept
                 footprint = paths.travelled * self.pixel_angle / np.maximum(np.abs(wo_local[2]), 0.05)
                 vertex.curvature, vertex.texture = self.bounce_norms.curvature_and_texture(
                     triangle, st, frame[0], frame[1], footprint)
