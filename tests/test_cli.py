@@ -161,3 +161,9 @@ def test_extract_with_a_bad_expression_points_at_it(tmp_path):
     assert result.returncode == 1 and "^" in result.stderr and not (tmp_path / "x.exr").exists()
     usage = run("extract", str(tmp_path / "cornell.pxlidx"), "--layer", "no-equals-sign")
     assert usage.returncode == 2
+
+
+def test_extract_without_layers_is_a_usage_error(tmp_path):
+    assert run("render", str(RENDER_DIR / "cornell.usda"), "-o", str(tmp_path), *SMALL).returncode == 0
+    result = run("extract", str(tmp_path / "cornell.pxlidx"))
+    assert result.returncode == 2 and "no layers" in result.stderr

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -49,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
         names = sorted({event.name for event in index.events if event.type == "L" and event.name})
         expressions.update(lpe.per_light_passes(names))
     if not expressions:
-        raise SystemExit("pxr-layers extract: error: no layers: give --layer NAME=EXPR, --passes or --lights")
+        print("pxr-layers extract: error: no layers: give --layer NAME=EXPR, --passes or --lights", file=sys.stderr)
+        return 2
     extraction = extract(index, expressions, show_progress=args.show_progress)
     output = Path(args.output) if args.output else index.path.with_name(index.path.stem + ".layers.exr")
     metadata = {key: index.manifest[key] for key in ("stage", "camera", "frame", "spp", "seed") if key in index.manifest}

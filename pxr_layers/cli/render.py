@@ -84,9 +84,9 @@ def render_stage(stage_path: Path, args: argparse.Namespace) -> Path:
     if args.resolution:
         spec = dataclasses.replace(spec, resolution=tuple(args.resolution))
     write_index = not args.no_index
-    norm_bounces = args.norm_bounces if (write_index or args.debug_covariance) else 0
+    norm_bounces = args.norm_bounces if write_index else 0
     if args.debug_covariance:
-        norm_bounces = max(norm_bounces, 1)
+        norm_bounces = max(norm_bounces, 1)  # the pictures need the first bounce
     settings = TraceSettings(spp=args.spp, max_depth=args.max_depth, seed=args.seed, norm_bounces=norm_bounces,
                              record_paths=write_index)
     output = beauty_path(stage_path, args.output, args.frame)

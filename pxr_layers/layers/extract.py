@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import lpe
+from ..lpe.automaton import DEAD
 from ..paths.reader import PathIndex
 from ..progress import Progress
 
@@ -88,8 +89,6 @@ def _class_outcomes(automaton: lpe.LayerAutomaton, index: PathIndex):
     whose events carry no condition walks the DFA through a memo of (state, event id)
     transitions; the others go through ``automaton.match``.
     """
-    from ..lpe.automaton import DEAD
-
     symbols = [automaton.alphabet.classify(event) for event in index.events]
     transitions: dict[tuple[int, int], int] = {}
     dfa = automaton.dfa
