@@ -40,7 +40,7 @@ def main() -> None:
     for record in (False, True):
         times: dict[int, list[float]] = {0: [], NORM_BOUNCES: []}
         for _ in range(args.repeats):
-            for bounces in times:
+            for bounces in list(times):
                 settings = TraceSettings(spp=args.spp, norm_bounces=bounces, record_paths=record)
                 start = time.perf_counter()
                 render(scene, spec, settings, show_progress=False)

@@ -96,6 +96,10 @@ class Mesh:
     uvs               : (t, 3, 2) float32 st per triangle corner (the primvar the bound
                         material reads), or None
     triangle_material : (t,) int32 index into SceneData.materials (GeomSubsets resolved)
+    instance          : for a point-instanced gprim, N, its instance's position in the
+                        innermost UsdGeom.PointInstancer's arrays (the ``instance_<N>`` of
+                        its path); -1 for a gprim that is not point-instanced. Native
+                        (scenegraph) instances are not point instances: -1.
     """
 
     name: str
@@ -105,6 +109,7 @@ class Mesh:
     normals: np.ndarray | None
     uvs: np.ndarray | None
     triangle_material: np.ndarray
+    instance: int = -1
 
 
 LightKind = Literal["rect", "disk", "sphere", "cylinder", "distant", "dome"]

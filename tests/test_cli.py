@@ -71,7 +71,7 @@ def test_render_writes_an_exr_that_openexr_and_oiio_read(tmp_path):
     assert np.all(rgba[2:-2, 2:-2, 3] == 1.0)  # inside the box every camera ray hits something
     spec = oiio.ImageInput.open(str(out)).spec()
     assert (spec.width, spec.height, spec.nchannels) == (24, 24, 4)
-    assert sorted(p.name for p in out.parent.iterdir()) == ["beauty.exr", "beauty.pxlidx"]  # no temporary left
+    assert sorted(p.name for p in out.parent.iterdir()) == ["beauty.exr", "beauty.pxlidx", "beauty.rgba.png"]  # no temporary left
 
 
 def test_output_directory_and_frame_name_the_file(tmp_path):
@@ -83,15 +83,17 @@ def test_output_directory_and_frame_name_the_file(tmp_path):
 
 
 def test_same_command_gives_the_same_bytes(tmp_path):
-    for name in ("a.exr", "b.exr"):
+    for name in ("a", "b"):
         assert run("render", str(RENDER_DIR / "cornell.usda"), "-o", str(tmp_path / name), *SMALL).returncode == 0
-    assert (tmp_path / "a.exr").read_bytes() == (tmp_path / "b.exr").read_bytes()
+    for name in ("cornell.exr", "cornell.pxlidx"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
 
 
 def test_demo_renders_the_embedded_cornell_box(tmp_path):
     result = run("demo", "-o", str(tmp_path), *SMALL)
     assert result.returncode == 0, result.stderr
-    assert (tmp_path / "cornell.exr").exists()
+    assert result.stdout.split() == [str(tmp_path / "light_passes.exr")]
+    assert (tmp_path / "cornell.pxlidx").exists() and (tmp_path / "light_passes.contact.png").exists()
 
 
 def test_unknown_camera_is_a_user_error(tmp_path):

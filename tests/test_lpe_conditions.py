@@ -194,3 +194,49 @@ def test_vectorised_masks_agree_with_the_reference_on_random_expressions():
                 expected = [reference_match(trees[name], path, norms[i], sigma[i]) for i in range(8)]
                 assert outcome.mask(norms, sigma).tolist() == expected, (nodes.canonical(trees[name]), path, outcome)
     assert min(kinds.values()) >= 20, kinds
+
+
+@pytest.mark.parametrize("limit", [0, 2])
+def test_classes_past_the_truth_table_limit_run_per_record_with_the_same_answers(monkeypatch, limit):
+    """Long paths under `.*` with several conditions depend on more (event, condition) atoms
+    than a truth table can hold: their records then walk the DFA one by one."""
+    from pxr_layers.lpe import automaton as automaton_module
+
+    monkeypatch.setattr(automaton_module, "MAX_ATOMS_PER_CLASS", limit)
+    rng = np.random.default_rng(47)
+    camera = nodes.EventPattern(nodes.SymbolSet(frozenset("C")))
+    per_record = 0
+    for _ in range(80):
+        trees = {name: nodes.concat([camera, testing.random_tree(rng, depth, condition_rate=0.4, with_entries=True)])
+                 for name, depth in (("first", 3), ("second", 2))}
+        recipe = LayerAutomaton(trees)
+        for _ in range(4):
+            path = testing.sample_path(rng, trees["first"]) or testing.random_path(rng)
+            if not path or path[0].type != "C":
+                continue
+            norms, sigma = testing.random_values(rng, 8, len(path) - 1)
+            for name, outcome in recipe.match(path).items():
+                per_record += isinstance(outcome, automaton_module.PerRecord)
+                expected = [reference_match(trees[name], path, norms[i], sigma[i]) for i in range(8)]
+                assert outcome.mask(norms, sigma).tolist() == expected, (nodes.canonical(trees[name]), path, outcome)
+    assert per_record >= 40
+
+
+def test_the_papers_selections_on_deep_paths_need_no_truth_table():
+    """Five conditional layers over an 8-event path: far past 2**16 truth-table rows."""
+    layers = lpe.compile_layers({
+        "texture_high": "C .* R T(|S_T| > 4.5) [LOB]",
+        "texture_low": "C .* R T(|S_T| > 0) T(|S_T| <= 4.5) [LOB]",
+        "glossy_last": "C .* <R.> R(|S_R| > 2) [LOB]",
+        "flat": "C <R.> C(|S_C| = 0) .*",
+        "curved": "C <R.> C(|S_C| > 0) .*",
+    })
+    path = events("C RD RG RD RD RG RD RD L")
+    norms = np.zeros((3, 8, 3), np.float32)
+    norms[0, 6, 1] = 9.0  # record 0: high texture on the last bounce
+    norms[1, 6, 2] = 5.0  # record 1: a sharp lobe at the last bounce
+    norms[2, 0, 0] = 2.5  # record 2: curved first bounce
+    masks = {name: outcome.mask(norms).tolist() for name, outcome in layers.match(path).items()}
+    assert masks["texture_high"] == [True, False, False]
+    assert masks["glossy_last"] == [False, True, False]
+    assert masks["flat"] == [True, True, False] and masks["curved"] == [False, False, True]

@@ -193,7 +193,7 @@ def test_cli_render_writes_the_index_and_info_reads_it(tmp_path, shipped_scene):
     result = subprocess.run([SCRIPT, "render", str(shipped_scene("cornell.usda")), "-o", str(tmp_path), "--spp", "2",
                              "--resolution", "24", "24", "--quiet"], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["cornell.exr", "cornell.pxlidx"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cornell.exr", "cornell.pxlidx", "cornell.rgba.png"]
     info = subprocess.run([SCRIPT, "index", "info", str(tmp_path / "cornell.pxlidx")], capture_output=True, text=True)
     assert info.returncode == 0, info.stderr
     assert "records" in info.stdout and "bytes per record" in info.stdout and "C RD'" in info.stdout

@@ -1,4 +1,4 @@
-"""`pxr-layers demo`: render the embedded default shot (the Cornell box)."""
+"""`pxr-layers demo`: render the embedded default shot with the light-pass recipe."""
 
 from __future__ import annotations
 
@@ -9,15 +9,21 @@ from pathlib import Path
 
 from .render import add_render_flags, render_stage
 
-HELP = "render the embedded default shot (Cornell box)"
-DESCRIPTION = "Render the Cornell box that ships with pxr-layers, at its own render settings unless overridden."
+HELP = "render the embedded default shot (Cornell box) into light passes"
+DEMO_RECIPE = "light_passes"
+DESCRIPTION = (
+    "Render the Cornell box that ships with pxr-layers with the light_passes recipe preset (the "
+    "--recipe default): OUT/light_passes.exr (beauty + the standard passes, which add up to it), "
+    "OUT/cornell.pxlidx (the path index, for `pxr-layers extract`) and the PNG previews and contact "
+    "sheet. Every `pxr-layers render` flag applies."
+)
 DEFAULT_SCENE = "cornell.usda"
 log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_render_flags(parser)
-    parser.set_defaults(output="demo")
+    parser.set_defaults(output="demo", recipe=None)
 
 
 def embedded_scene(name: str = DEFAULT_SCENE) -> Path:
@@ -26,6 +32,8 @@ def embedded_scene(name: str = DEFAULT_SCENE) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
-    output = render_stage(embedded_scene(), args)
-    print(output)
+    if args.recipe is None:  # an append action's default of None: no --recipe given
+        args.recipe = [DEMO_RECIPE]
+    for delivered in render_stage(embedded_scene(), args):
+        print(delivered.exr)
     return 0

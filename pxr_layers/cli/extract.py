@@ -3,22 +3,30 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from .. import lpe
+from .. import __version__, lpe
+from ..layers.deliver import check_raw_sources, deliver, plan_outputs
 from ..layers.extract import extract
 from ..paths.reader import PathIndex
+from ..recipe.model import PER_LIGHT_MODES, Layer, Product, Recipe
+from ..recipe.presets import PRESETS
+from .render import file_sha256, preset_or_file
 
 HELP = "cut light layers out of a path index with Light Path Expressions"
 DESCRIPTION = (
     "Extract layers from INDEX (a .pxlidx written by `pxr-layers render`) without rendering again, and "
-    "write them as a multipart EXR: part 0 'rgba' is the beauty (read from the EXR beside the index, "
-    "else rebuilt from the index as C.* with alpha 1), then one part per layer with channels "
-    "NAME.R/G/B. Expressions are OSL Light Path Expressions with covariance conditions (docs/lpe.md), "
+    "write them as multipart EXRs with OCIO previews: part 0 'rgba' is the beauty (read from the render's "
+    "EXR beside the index, else rebuilt from the index as C.* with alpha 1), then one part per layer with "
+    "channels NAME.R/G/B. Layers come from USD recipes (--recipe: every RenderProduct is written, as "
+    "`pxr-layers render` would have written it) and/or from the command line (--layer, --passes, --lights: "
+    "one EXR). Expressions are OSL Light Path Expressions with covariance conditions (docs/lpe.md), "
     "e.g. --layer key_diffuse=\"C<RD>'key'\" --layer flat=\"C<R.>@(|S_C| = 0).*\"."
 )
 log = logging.getLogger(__name__)
@@ -26,6 +34,15 @@ log = logging.getLogger(__name__)
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("index", metavar="INDEX", help="the path index (.pxlidx)")
+    parser.add_argument("--recipe", action="append", default=[], metavar="RECIPE",
+                        help="a USD layer recipe (a file, or a preset name: "
+                        f"{', '.join(PRESETS)}), composed over the index's stage when that file "
+                        "still exists; repeat for more, the first is the strongest")
+    parser.add_argument("--settings", metavar="PRIM",
+                        help="the recipe's RenderSettings prim (default: its renderSettingsPrimPath)")
+    parser.add_argument("--per-light", choices=PER_LIGHT_MODES, metavar="MODE",
+                        help="per-light layers for every recipe product: none, lights or groups "
+                        "(default: each product's pxrLayers:perLight)")
     parser.add_argument("--layer", action="append", default=[], type=_layer, metavar="NAME=EXPR",
                         help="a layer: its name and its expression (repeat for more layers)")
     parser.add_argument("--passes", action="store_true",
@@ -34,45 +51,90 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lights", action="store_true",
                         help="add one layer per light (light_NAME = C.*<L.'NAME'>) and light_other: "
                         "they sum to the beauty")
-    parser.add_argument("-o", "--output", metavar="OUT.exr",
-                        help="the multipart EXR to write (default: INDEX's stem + .layers.exr beside it)")
+    parser.add_argument("-o", "--output", metavar="OUT",
+                        help="a directory for the EXRs (recipe products by their productName, the "
+                        "command-line layers as INDEX-stem.layers.exr), or the .exr path when one EXR "
+                        "is written (default: the index's directory)")
+    parser.add_argument("--no-previews", action="store_true", help="do not write the PNG previews and contact sheets")
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..layers.multipart import write_multipart
-    from ..recipe.model import Layer, Product
-
     index = PathIndex(args.index)
+    loaded = _recipe(index, args) if args.recipe else None
+    products = list(loaded.products) if loaded else []
     expressions = dict(args.layer)
     if args.passes:
         expressions.update(lpe.STANDARD_PASSES)
     if args.lights:
         names = sorted({event.name for event in index.events if event.type == "L" and event.name})
         expressions.update(lpe.per_light_passes(names))
-    if not expressions:
-        print("pxr-layers extract: error: no layers: give --layer NAME=EXPR, --passes or --lights", file=sys.stderr)
+    if expressions:
+        stem = index.path.stem + ".layers"
+        products.append(Product(name=stem, output_name=stem + ".exr", camera=index.manifest.get("camera", ""),
+                                resolution=tuple(index.manifest["resolution"]),
+                                layers=tuple(Layer(name, "lpe", text) for name, text in expressions.items())))
+    if not products:
+        print("pxr-layers extract: error: no layers: give --recipe, --layer NAME=EXPR, --passes or --lights",
+              file=sys.stderr)
         return 2
-    extraction = extract(index, expressions, show_progress=args.show_progress)
-    output = Path(args.output) if args.output else index.path.with_name(index.path.stem + ".layers.exr")
-    metadata = {key: index.manifest[key] for key in ("stage", "camera", "frame", "spp", "seed") if key in index.manifest}
-    metadata["index"] = str(index.path)
-    resolution = tuple(index.manifest["resolution"])
-    product = Product(name=output.stem, output_name=output.name, camera=index.manifest.get("camera", ""),
-                      resolution=resolution, layers=tuple(Layer(name, "lpe", text) for name, text in expressions.items()))
-    write_multipart(output, _beauty(index, extraction.layers), extraction.layers, product, metadata=metadata)
-    log.info("wrote %s (%d layers)", output, len(expressions))
-    print(output)
+    recipe = Recipe(products=tuple(_at_index_view(product, index) for product in products),
+                    settings_path=loaded.settings_path if loaded else "", file=loaded.file if loaded else "")
+    check_raw_sources(recipe, (), "the path index does not hold (it keeps light paths; data AOVs need a render)")
+    frame = _manifest_frame(index)
+    output = args.output
+    directory = Path(output).parent if output and output.lower().endswith(".exr") else Path(output or index.path.parent)
+    exr = Path(output) if output and output.lower().endswith(".exr") else None
+    outputs = plan_outputs(recipe, frame, directory, exr)
+    metadata = {key: index.manifest[key] for key in ("version", "stage", "camera", "frame", "spp", "maxDepth", "seed")
+                if key in index.manifest}
+    metadata["version"] = __version__
+    metadata["index"] = os.path.relpath(index.path, directory)
+    beauty = _beauty(index)
+    for delivered in deliver(index, recipe, beauty, outputs, metadata=metadata, previews=not args.no_previews,
+                             show_progress=args.show_progress):
+        print(delivered.exr)
     return 0
 
 
-def _beauty(index: PathIndex, layers: dict[str, np.ndarray]) -> np.ndarray:
+def _recipe(index: PathIndex, args: argparse.Namespace) -> Recipe:
+    """The --recipe layers, composed over the index's stage when it is still there."""
+    from ..recipe import load_recipe
+
+    layers = [preset_or_file(text) for text in args.recipe]
+    stage = Path(index.manifest.get("stage", ""))
+    if stage.is_file():
+        if index.manifest.get("stage_sha256") not in (None, file_sha256(stage)):
+            log.warning("%s has changed since %s was rendered: the recipe is read against today's stage",
+                        stage, index.path)
+        return load_recipe(stage, args.settings, recipe_layers=layers, per_light=args.per_light)
+    log.warning("the stage %s of %s is not there: reading the recipe on its own", stage, index.path)
+    return load_recipe(layers[0], args.settings, recipe_layers=layers[1:], per_light=args.per_light)
+
+
+def _at_index_view(product: Product, index: PathIndex) -> Product:
+    """The product at the camera and resolution of the render (what the index holds)."""
+    resolution = tuple(index.manifest["resolution"])
+    camera = index.manifest.get("camera", product.camera)
+    if product.resolution != resolution or product.camera != camera:
+        log.info("%s asks for %s at %dx%d; the index holds %s at %dx%d, which is what it gets",
+                    product.prim_path or product.name, product.camera, *product.resolution, camera, *resolution)
+    return dataclasses.replace(product, resolution=resolution, camera=camera)
+
+
+def _manifest_frame(index: PathIndex) -> float | None:
+    frame = index.manifest.get("frame", "default")
+    return None if frame == "default" else float(frame)
+
+
+def _beauty(index: PathIndex) -> np.ndarray:
     """The render's beauty EXR beside the index, else C.* from the index with alpha 1."""
     import OpenEXR
 
-    beside = index.path.with_name(index.manifest.get("beauty", index.path.stem + ".exr"))
+    height_width = tuple(reversed(index.manifest["resolution"]))
+    beside = index.path.parent / index.manifest.get("beauty", index.path.stem + ".exr")
     if beside.exists():
         rgba = OpenEXR.File(str(beside)).channels().get("RGBA")
-        if rgba is not None and rgba.pixels.shape[:2] == next(iter(layers.values())).shape[:2]:
+        if rgba is not None and rgba.pixels.shape[:2] == height_width:
             return np.ascontiguousarray(rgba.pixels, dtype=np.float32)
     rgb = extract(index, {"beauty": lpe.BEAUTY}).layers["beauty"]
     return np.concatenate([rgb, np.ones((*rgb.shape[:2], 1), np.float32)], axis=2)

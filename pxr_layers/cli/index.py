@@ -39,18 +39,18 @@ def info_lines(index: PathIndex, top: int) -> list[str]:
         f"path index   {index.path}",
         f"format       version {manifest['format_version']}",
         f"stage        {manifest.get('stage', '?')}  (sha256 {manifest.get('stage_sha256', '?')[:12]}…)",
-        f"render       frame {manifest.get('frame', '?')}, camera {manifest.get('camera', '?')}, "
+        (f"render       frame {manifest.get('frame', '?')}, camera {manifest.get('camera', '?')}, "
         f"{manifest.get('resolution', ['?', '?'])[0]}×{manifest.get('resolution', ['?', '?'])[1]}, "
-        f"{manifest.get('spp', '?')} spp, seed {manifest.get('seed', '?')}",
-        f"norms        C, T, R of the first {manifest['norm_slots']} events "
+        f"{manifest.get('spp', '?')} spp, seed {manifest.get('seed', '?')}"),
+        (f"norms        C, T, R of the first {manifest['norm_slots']} events "
         f"({', '.join(f'{name} in {unit}' for name, unit in manifest['norms'].items())}; "
-        f"{manifest['norm_storage']})",
+        f"{manifest['norm_storage']})"),
         f"records      {records:,}" + (f" (aggregated from {manifest['contributions']:,} contributions)"
                                            if manifest.get("aggregated") else ""),
         f"classes      {len(index.classes):,}",
         f"labels       {len(index.labels):,}",
-        f"size         {index.size:,} bytes ({index.size / max(records, 1):.2f} bytes per record, "
-        f"{len(index.chunks)} chunks)",
+        (f"size         {index.size:,} bytes ({index.size / max(records, 1):.2f} bytes per record, "
+        f"{len(index.chunks)} chunks)"),
         "",
     ]
     energy = [sum(path_class.rgb) for path_class in index.classes]

@@ -56,7 +56,8 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
             if outcome.kind == "always":
                 always[row, class_id] = True
             elif outcome.kind == "conditional":
-                signature = (row, repr(outcome.atoms), outcome.table.tobytes())
+                signature = (row, repr(outcome.atoms), outcome.table.tobytes()) \
+                    if isinstance(outcome, lpe.Conditional) else (row, id(outcome))  # PerRecord: its own
                 if signature not in signatures:
                     signatures[signature] = len(groups)
                     groups.append(outcome)

@@ -72,7 +72,8 @@ def write_multipart(
     layers   : layer name → (h, w, c) float32 (c = the layer's channel count, 3 for a
                colour layer) or (h, w) for one channel; same h, w as the beauty
     product  : the recipe product: part order, channel names, pixel types, compressions
-               and expressions. With a product, ``layers`` must hold exactly its layers.
+               and expressions. With a product, ``layers`` must hold exactly its layers
+               but the beauty's raw ``color`` var, which is part 0 (not written twice).
                None: parts in the mapping's order, float32, ZIP, channels R G B (3),
                R G B A (4) or Y (1).
     recipe   : the resolved Recipe (or its JSON), stored as ``pxrLayers/recipe`` on part 0
@@ -146,15 +147,16 @@ def _layer_specs(layers: Mapping[str, np.ndarray], product: Product | None) -> l
             data_type = {3: "color3f", 4: "color4f"}.get(channels, "float")
             specs.append(Layer(name, "raw", name, data_type=data_type))
         return specs
-    missing = [layer.name for layer in product.layers if layer.name not in layers]
-    extra = [name for name in layers if name not in product.layer_names]
+    parts = [layer for layer in product.layers if not layer.is_beauty]
+    missing = [layer.name for layer in parts if layer.name not in layers]
+    extra = [name for name in layers if name not in {layer.name for layer in parts}]
     if missing or extra:
         raise ValueError(
             f"the images do not match product {product.name!r}: "
             + "; ".join(filter(None, [missing and f"missing {', '.join(missing)}",
                                       extra and f"not in the recipe {', '.join(extra)}"]))
         )
-    return list(product.layers)
+    return parts
 
 
 def _header(compression: str, common: Mapping[str, object]) -> dict:

@@ -190,7 +190,8 @@ def _display_image(image: np.ndarray, layer: Layer | None, processor) -> np.ndar
 def write_previews(directory: str | os.PathLike, stem: str, beauty: np.ndarray, images: Mapping[str, np.ndarray],
                    product: Product | None = None) -> dict[str, Path]:
     """The PNG previews of a product: ``{stem}.rgba.png`` (the beauty), ``{stem}.{layer}.png``
-    for every layer with ``preview`` on, and ``{stem}.contact.png`` if the product asks.
+    for every layer with ``preview`` on, and ``{stem}.contact.png`` if the product asks (and
+    has layers).
 
     beauty : (h, w, 4|3) float32 linear; images : layer name → its pixels (as for
     :func:`pxr_layers.layers.multipart.write_multipart`); product : colour settings and
@@ -206,7 +207,7 @@ def write_previews(directory: str | os.PathLike, stem: str, beauty: np.ndarray, 
         layer = layers[name]
         if layer.preview:
             written[name] = write_png(directory / f"{stem}.{name}.png", _display_image(image, layer, processor))
-    if product is None or product.contact_sheet:
+    if images and (product is None or product.contact_sheet):
         written["contact"] = write_contact_sheet(directory / f"{stem}.contact.png", beauty, images, product)
     logger.info("wrote %d previews in %s", len(written), directory)
     return written

@@ -32,7 +32,7 @@ from . import conditions as cond
 from . import nodes
 from .events import ALL_SCATTERINGS, EVENT_TYPES, Event, PatternTable, label_matches
 from .labels import closest_labels
-from .outcomes import ALWAYS, NEVER, Conditional, Outcome, reduce_table
+from .outcomes import ALWAYS, NEVER, Conditional, Outcome, check_available, reduce_table
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +47,9 @@ MAX_COMPLETE_WORK = 20_000
 """Most (state, symbol) pairs explored while building the complete DFA."""
 
 MAX_ATOMS_PER_CLASS = 16
-"""Most (condition, event) pairs one path class may depend on (its truth table has 2**atoms rows)."""
+"""Most (condition, event) pairs a path class's truth table may depend on (it has 2**atoms
+rows); past this the class's records run through the DFA one event at a time instead
+(:class:`PerRecord`)."""
 
 
 # --- NFA -------------------------------------------------------------------------------
@@ -543,12 +545,10 @@ class LayerAutomaton:
                 condition for condition in involved
                 if any(row[holding] != row[holding ^ {condition}] for row in targets.values() for holding in options)
             ]
+            if len(atoms) + len(deciding) > MAX_ATOMS_PER_CLASS:
+                # Long paths under `.*` with conditions: a table per class would be too big.
+                return {layer: PerRecord(self, layer, events, tuple(classified)) for layer in self.layers}
             for condition in deciding:
-                if len(atoms) == MAX_ATOMS_PER_CLASS:
-                    raise LpeError(
-                        f"path class {' '.join(map(str, events))} depends on more than {MAX_ATOMS_PER_CLASS} "
-                        "(condition, event) pairs"
-                    )
                 atoms.append((index, condition))
                 # A new atom is the highest bit: every existing row splits into two equal halves.
                 frontier = {state: np.concatenate([rows, rows]) for state, rows in frontier.items()}
@@ -614,3 +614,59 @@ class LayerAutomaton:
                 log.warning(message)
                 warnings.append(message)
         return warnings
+
+
+@dataclass(frozen=True, eq=False)
+class PerRecord(Outcome):
+    """The outcome of a path class with too many atoms for a truth table: its records run
+    through the DFA together, one event at a time, each taking the transition its own
+    covariance selects. Linear in records × events; same answers as :class:`Conditional`.
+    """
+
+    automaton: LayerAutomaton
+    layer: str
+    events: tuple
+    classified: tuple  # per event: Alphabet.classify's (outright bits, conditional bits)
+
+    kind = "conditional"
+
+    @property
+    def bounces(self) -> tuple[int, ...]:
+        return tuple(index for index, (_, conditional) in enumerate(self.classified) if conditional)
+
+    def __repr__(self) -> str:
+        return f"<conditional per record on events {', '.join(map(str, self.bounces))}>"
+
+    def mask(self, norms: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
+        norms = np.asarray(norms)
+        if norms.ndim != 3 or norms.shape[2] != 3:
+            raise LpeError(f"norms must be (records, events, 3) (C, T, R per event), got shape {norms.shape}")
+        dfa, alphabet = self.automaton.dfa, self.automaton.alphabet
+        state = np.full(len(norms), dfa.start, np.int64)
+        for index, (outright, conditional) in enumerate(self.classified):
+            involved = sorted({condition for _, condition in conditional})
+            live = np.unique(state[state != DEAD]).tolist()
+            if not live:
+                break
+            options = [frozenset(holding) for holding in _subsets(involved)]
+            code = np.zeros(len(norms), np.int64)
+            if involved and any(len({dfa.step(s, alphabet.symbol(outright, conditional, h)) for h in options}) > 1
+                                for s in live):
+                for bit, condition in enumerate(involved):
+                    check_available(self.layer, self.events, index, alphabet.conditions[condition],
+                                    norms.shape[1], sigma is not None)
+                    row = index - 1
+                    values = cond.evaluate(alphabet.conditions[condition], norms[:, row],
+                                           None if sigma is None else np.asarray(sigma)[:, row])
+                    code |= values.astype(np.int64) << bit
+            holding_of = {sum(1 << involved.index(c) for c in holding): holding for holding in options}
+            pair = (state + 1) * (1 << len(involved)) + code
+            unique, inverse = np.unique(pair, return_inverse=True)
+            targets = np.array([
+                dfa.step(int(p >> len(involved)) - 1, alphabet.symbol(outright, conditional, holding_of[int(p) & ((1 << len(involved)) - 1)]))
+                for p in unique.tolist()
+            ], np.int64)
+            state = targets[inverse.reshape(-1)]
+        final, inverse = np.unique(state, return_inverse=True)
+        accepting = np.array([s != DEAD and self.layer in dfa.accepts[s] for s in final.tolist()], bool)
+        return accepting[inverse.reshape(-1)]

@@ -93,27 +93,30 @@ class Conditional(Outcome):
         kept = norms.shape[1]
         code = np.zeros(len(norms), dtype=np.int64)
         for bit, (index, condition) in enumerate(self.atoms):
-            self._check_available(index, condition, kept, sigma is not None)
+            check_available(self.layer, self.events, index, condition, kept, sigma is not None)
             row = index - 1
             values = cond.evaluate(condition, norms[:, row], None if sigma is None else sigma[:, row])
             code |= values.astype(np.int64) << bit
         return self.table[code]
 
-    def _check_available(self, index: int, condition: cond.Condition, kept: int, has_sigma: bool) -> None:
-        where = f"layer {self.layer!r}: " if self.layer else ""
-        event = f" ({self.events[index]})" if index < len(self.events) else ""
-        if index == 0:
-            raise LpeError(f"{where}{cond.canonical(condition)} is on the camera event, which has no covariance")
-        if index > kept:
-            raise LpeError(
-                f"{where}{cond.canonical(condition)} tests event {index}{event} of the path, but the index "
-                f"keeps covariance norms for events 1..{kept} only"
-            )
-        if cond.reads_sigma(condition) and not has_sigma:
-            raise LpeError(
-                f"{where}{cond.canonical(condition)} at event {index}{event} reads entries of Σ, but the index "
-                "keeps only the norms (no sigma array)"
-            )
+
+def check_available(layer: str, events: tuple, index: int, condition: cond.Condition, kept: int,
+                    has_sigma: bool) -> None:
+    """LpeError unless the per-record arrays hold what ``condition`` at event ``index`` reads."""
+    where = f"layer {layer!r}: " if layer else ""
+    event = f" ({events[index]})" if index < len(events) else ""
+    if index == 0:
+        raise LpeError(f"{where}{cond.canonical(condition)} is on the camera event, which has no covariance")
+    if index > kept:
+        raise LpeError(
+            f"{where}{cond.canonical(condition)} tests event {index}{event} of the path, but the index "
+            f"keeps covariance norms for events 1..{kept} only"
+        )
+    if cond.reads_sigma(condition) and not has_sigma:
+        raise LpeError(
+            f"{where}{cond.canonical(condition)} at event {index}{event} reads entries of Σ, but the index "
+            "keeps only the norms (no sigma array)"
+        )
 
 
 def reduce_table(atoms: list, table: np.ndarray) -> tuple[list, np.ndarray]:

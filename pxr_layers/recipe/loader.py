@@ -194,7 +194,12 @@ class _Reader:
                for name in schema.property_names(schema.PRODUCT_API)}
         pixel_type = self.token(prim, schema.PRODUCT_API, "pixelType", api)
         compression = self.token(prim, schema.PRODUCT_API, "compression", api)
-        per_light = self.per_light_override or self.token(prim, schema.PRODUCT_API, "perLight", api)
+        per_light = self.token(prim, schema.PRODUCT_API, "perLight", api)
+        vars_ = self.var_targets(product)
+        # The override applies to products of light layers, not to products of data AOVs only.
+        if self.per_light_override is not None and (api["perLight"][1] or any(
+                str(UsdRender.Var(var).GetSourceTypeAttr().Get()) == "lpe" for var in vars_)):
+            per_light = self.per_light_override
         self.token(prim, schema.PRODUCT_API, "index:covariance", api)
         bounces = int(api["index:bounces"][0])
         if bounces < 0:
@@ -202,7 +207,7 @@ class _Reader:
         index = IndexSettings(bounces=bounces, covariance=str(api["index:covariance"][0]))
 
         layers = [self.layer(target, prim, pixel_type, compression, index)
-                  for target in self.var_targets(product)]
+                  for target in vars_]
         if per_light != "none":
             layers.extend(self.light_layers(per_light, pixel_type, compression))
         self.check_duplicates(prim, layers)

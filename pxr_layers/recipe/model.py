@@ -45,6 +45,8 @@ studio and CG configs; its aliases there include ``lin_rec709_srgb`` and ``lin_s
 BEAUTY_PART = "rgba"
 """Name of part 0 of every product: the beauty, channels R, G, B, A."""
 BEAUTY_EXPRESSION = "C.*"
+BEAUTY_RAW_SOURCE = "color"
+"""A raw var of this source is the beauty (Hydra's ``color`` AOV): written once, as part 0."""
 
 COLOUR_DATA_TYPES = frozenset({"color3f", "color3h", "color3d", "color4f", "color4h", "color4d"})
 """RenderVar dataTypes of colour layers; every other dataType is a data layer."""
@@ -63,7 +65,7 @@ RAW_CHANNELS = {
     "elementId": ("id",),
 }
 """Channel names of the Hydra AOVs a renderer fills for ``raw`` vars (``depth.Z``, ...)."""
-KNOWN_RAW_SOURCES = frozenset({"color", *RAW_CHANNELS})
+KNOWN_RAW_SOURCES = frozenset({BEAUTY_RAW_SOURCE, *RAW_CHANNELS})
 
 _LAYER_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
@@ -162,6 +164,11 @@ class Layer:
     def is_data(self) -> bool:
         """A data layer (raw var of a non-colour dataType): float, lossless, no energy share."""
         return self.data_type not in COLOUR_DATA_TYPES
+
+    @property
+    def is_beauty(self) -> bool:
+        """The Hydra ``color`` AOV as a raw var: it is the beauty, which part 0 already holds."""
+        return self.source_type == "raw" and self.source_name == BEAUTY_RAW_SOURCE
 
     @property
     def expression(self) -> str | None:

@@ -34,11 +34,13 @@ def place_surface(
     name: str,
     path: str,
     diagnostics: Diagnostics,
+    instance: int = -1,
 ) -> Mesh | None:
     """Transform ``surface`` to world metres; None when no triangle survives.
 
     world_from_local  : (4, 4) float64, column convention, stage units
     triangle_material : (t,) integer material index per triangle of ``surface``
+    instance          : Mesh.instance (GprimPlacement.instance), -1 if not point-instanced
     """
     linear = world_from_local[:3, :3]
     points = (surface.points @ linear.T + world_from_local[:3, 3]) * meters_per_unit
@@ -95,6 +97,7 @@ def place_surface(
         normals=None if normals is None else np.ascontiguousarray(normals, dtype=FLOAT),
         uvs=None if uvs is None else np.ascontiguousarray(uvs, dtype=FLOAT),
         triangle_material=np.ascontiguousarray(triangle_material, dtype=INDEX),
+        instance=int(instance),
     )
 
 

@@ -159,6 +159,7 @@ class _MeshBuilder:
             placement.name,
             placement.path,
             context.diagnostics,
+            instance=placement.instance,
         )
 
     def _subset_materials(

@@ -47,12 +47,16 @@ class GprimPlacement:
     path             : Mesh.path: the prim path, or for a point-instanced gprim
                        ``<instancer path>/instance_<N>/<prototype name>/<path below it>``
                        where N is the instance's position in the instancer's arrays
+    instance         : that N as data (Mesh.instance), of the innermost instancer when
+                       instancers nest; -1 for a gprim that is not point-instanced
+                       (native instances included)
     """
 
     prim: Usd.Prim
     world_from_local: np.ndarray
     path: str
     name: str
+    instance: int = -1
 
 
 @dataclass
@@ -197,7 +201,9 @@ def _expand_instancer(
             if item.is_instancer:
                 _expand_instancer(context, item.prim, world, path, depth + 1, contents)
             else:
-                contents.gprims.append(GprimPlacement(item.prim, world, path, item.prim.GetName()))
+                contents.gprims.append(
+                    GprimPlacement(item.prim, world, path, item.prim.GetName(), instance)
+                )
 
 
 def _prototype_items(

@@ -6,9 +6,9 @@ import logging
 import os
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -16,6 +16,7 @@ from ..errors import RenderSettingsError
 from ..paths.events import EventVocabulary
 from ..progress import Progress
 from ..scene import FLOAT, RenderSpec, SceneData
+from .aovs import render_data_aovs
 from .bounce_norms import BounceNorms
 from .camera import PinholeCamera
 from .embree import RayCaster
@@ -35,6 +36,8 @@ class RenderResult:
     first_bounce_norms : (h, w, 3) float32 mean C (1/m), T (cycles/m), R (cycles/rad) of
         the first bounce over the samples whose first event scatters (NaN where none
         does); None unless settings.norm_bounces > 0.
+    data : the data AOVs asked for (name → (h, w) or (h, w, 3) float32, see aovs.py)
+    object_paths : the prim path of each object, indexed by the primId AOV
     """
 
     rgba: np.ndarray
@@ -46,6 +49,8 @@ class RenderResult:
     triangles: int
     vocabulary: EventVocabulary
     first_bounce_norms: np.ndarray | None = None
+    data: dict[str, np.ndarray] = field(default_factory=dict)
+    object_paths: tuple[str, ...] = ()
 
 
 def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Integrator:
@@ -86,12 +91,14 @@ def render(
     batch_paths: int = DEFAULT_BATCH_PATHS,
     show_progress: bool = True,
     on_batch: Callable[[BatchResult], None] | None = None,
+    data_aovs: Iterable[str] = (),
 ) -> RenderResult:
     """Path-trace `scene` as `spec` asks. The same inputs give the same bytes whatever
     `threads` and `batch_paths` are (each batch is reduced into the film in path order).
 
     on_batch, if given, receives every BatchResult in path order (with its records when
-    settings.record_paths): the path index is written from there while rendering."""
+    settings.record_paths): the path index is written from there while rendering.
+    data_aovs: names of data AOVs (aovs.DATA_AOVS) to render beside the beauty."""
     start = time.perf_counter()
     integrator = prepare(scene, spec, settings)
     width, height = spec.resolution
@@ -119,11 +126,12 @@ def render(
         with np.errstate(invalid="ignore", divide="ignore"):
             means = film.norm_sums / film.norm_counts[:, None]
         first_bounce_norms = means.reshape(height, width, 3).astype(FLOAT)
+    data = render_data_aovs(integrator, data_aovs, threads=threads)
     seconds = time.perf_counter() - start
     log.info("rendered %d×%d at %d spp in %.1fs (%.2f M rays/s)", width, height, settings.spp, seconds,
              rays / seconds / 1e6)
     return RenderResult(rgba, settings, (width, height), scene.frame, rays, seconds, integrator.world.triangle_count,
-                        integrator.vocabulary, first_bounce_norms)
+                        integrator.vocabulary, first_bounce_norms, data, integrator.world.object_paths)
 
 
 class _Film:

@@ -47,6 +47,9 @@ class World:
     triangle_object  : (t,) int32 index into object_names / object_paths
     triangle_material: (t,) int32 index into SceneData.materials, -1 on light shapes
     triangle_light   : (t,) int32 index into SceneData.lights, -1 on surfaces
+    object_instance  : (objects,) int32 per object (object_names order): the instance
+                       number N of a point-instanced mesh (scene.Mesh.instance), -1 for
+                       other meshes and for lights
     center, radius   : bounding sphere of all vertices (metres)
     """
 
@@ -67,6 +70,7 @@ class World:
     triangle_light: np.ndarray
     object_names: tuple[str, ...]
     object_paths: tuple[str, ...]
+    object_instance: np.ndarray
     center: np.ndarray
     radius: float
 
@@ -80,12 +84,14 @@ def build_world(scene: SceneData) -> World:
     pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray, int]] = []
     names: list[str] = []
     paths: list[str] = []
+    instances: list[int] = []
     for mesh in scene.meshes:
         if len(mesh.triangles) == 0:
             continue
         pieces.append((mesh.points, mesh.triangles, mesh.normals, mesh.uvs, mesh.triangle_material, NOT_A_LIGHT))
         names.append(mesh.name)
         paths.append(mesh.path)
+        instances.append(mesh.instance)
     for light_index, light in enumerate(scene.lights):
         shape = light_shape(light)
         if shape is None:
@@ -95,6 +101,7 @@ def build_world(scene: SceneData) -> World:
         pieces.append((points, triangles, None, None, materials, light_index))
         names.append(light.name)
         paths.append(light.path)
+        instances.append(-1)
     if not pieces:
         raise RenderSettingsError(f"{scene.stage_path}: nothing to render (no geometry and no area lights)")
 
@@ -148,6 +155,7 @@ def build_world(scene: SceneData) -> World:
         triangle_light=np.concatenate(lights),
         object_names=tuple(names),
         object_paths=tuple(paths),
+        object_instance=np.asarray(instances, dtype=INDEX),
         center=center.astype(np.float64),
         radius=float(np.linalg.norm(high - low) / 2) or 1.0,
     )

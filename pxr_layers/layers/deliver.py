@@ -1,0 +1,141 @@
+"""Deliver a recipe: cut every product's layers from a path index in one pass, then write
+each product's multipart EXR and its OCIO previews.
+
+This is the last step of ``pxr-layers render``, all of ``pxr-layers extract --recipe``
+and of every frame of a job: the same code writes the same files whichever runs it.
+
+Where things go (:func:`plan_outputs`): each product's ``productName`` relative to the
+output directory, with ``####`` replaced by the frame number (a name without ``#``
+rendered at an explicit frame gets ``.FFFF`` before ``.exr``, so frames never overwrite
+each other). An explicit ``.exr`` output path replaces the name of a recipe's only
+product. Previews go beside each EXR as ``<exr stem>.<layer>.png`` plus
+``<exr stem>.contact.png``.
+
+A product's layers come from three places: ``lpe`` layers from the index (one automaton,
+one read of the index for all products), the raw ``color`` var is the beauty (part 0,
+not written twice), and the other raw vars (depth, normal, ids) from ``data``, the
+images the tracer rendered beside the beauty.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import RecipeError
+from ..paths.reader import PathIndex
+from ..recipe.model import Layer, Product, Recipe
+from .extract import extract
+from .multipart import write_multipart
+from .previews import energy_shares, write_previews
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Delivered:
+    """One product as written: its EXR, its previews (layer name → PNG, ``"contact"`` for
+    the contact sheet) and each colour layer's share of the beauty's energy."""
+
+    product: Product
+    exr: Path
+    previews: dict[str, Path]
+    shares: dict[str, float | None]
+
+
+def frame_suffix(frame: float | None) -> str:
+    """``.0012`` for frame 12, ``.12.5`` for a fractional time, ``""`` for the default time."""
+    if frame is None or (isinstance(frame, float) and math.isnan(frame)):
+        return ""
+    return f".{frame:04.0f}" if float(frame).is_integer() else f".{frame:g}"
+
+
+def product_path(product: Product, frame: float | None, directory: Path) -> Path:
+    """Where ``product`` goes at ``frame``: its productName with ``#`` runs numbered, or
+    ``.FFFF`` added before ``.exr`` when the name has no ``#`` and the frame is explicit."""
+    if "#" in product.output_name or not frame_suffix(frame):
+        return product.output_path(None if frame_suffix(frame) == "" else frame, directory)
+    path = product.output_path(None, directory)
+    return path.with_name(path.stem + frame_suffix(frame) + path.suffix)
+
+
+def plan_outputs(recipe: Recipe, frame: float | None, directory: Path, exr: Path | None = None) -> dict[str, Path]:
+    """Product name → its EXR path. ``exr``: an explicit file for a one-product recipe."""
+    if exr is not None:
+        if len(recipe.products) != 1:
+            names = ", ".join(product.name for product in recipe.products)
+            raise RecipeError(f"-o names one file ({exr}) but the recipe writes {len(recipe.products)} products "
+                              f"({names}): give a directory instead", prim=recipe.settings_path or None)
+        return {recipe.products[0].name: exr}
+    paths = {product.name: product_path(product, frame, directory) for product in recipe.products}
+    return paths
+
+
+def raw_sources(recipe: Recipe) -> dict[str, Layer]:
+    """The data AOVs the recipe needs from the tracer: source name → first layer asking."""
+    needed: dict[str, Layer] = {}
+    for product in recipe.products:
+        for layer in product.layers:
+            if layer.source_type == "raw" and not layer.is_beauty:
+                needed.setdefault(layer.source_name, layer)
+    return needed
+
+
+def check_raw_sources(recipe: Recipe, available: tuple[str, ...], why: str) -> None:
+    """RecipeError naming the first raw var whose source is not in ``available``."""
+    for source, layer in raw_sources(recipe).items():
+        if source not in available:
+            known = ", ".join(("color", *available)) if available else "color only"
+            raise RecipeError(f"raw var asks for {source!r}, which {why} (available: {known})",
+                              file=recipe.file or None, prim=layer.prim_path or layer.name, attribute="sourceName")
+
+
+def deliver(
+    index: PathIndex | None,
+    recipe: Recipe,
+    beauty: np.ndarray,
+    outputs: Mapping[str, Path],
+    *,
+    data: Mapping[str, np.ndarray] | None = None,
+    metadata: Mapping[str, object] | None = None,
+    previews: bool = True,
+    show_progress: bool = False,
+) -> list[Delivered]:
+    """Extract, write and preview every product of ``recipe``.
+
+    index   : the path index of the render (its resolution is the images'); None when
+              the recipe has no lpe layer
+    beauty  : (h, w, 4) float32 linear RGBA, part 0 of every product
+    outputs : product name → EXR path (see :func:`plan_outputs`)
+    data    : raw source name → (h, w) or (h, w, c) float32 image (depth, normal, ...)
+    metadata: ``pxrLayers/<key>`` attributes on every part (stage, camera, spp, seed...)
+    """
+    data = dict(data or {})
+    check_raw_sources(recipe, tuple(data), "this render did not produce")
+    expressions = {
+        _key(product, layer): layer.source_name
+        for product in recipe.products for layer in product.layers if layer.source_type == "lpe"
+    }
+    extracted = extract(index, expressions, show_progress=show_progress).layers if expressions else {}
+    delivered = []
+    for product in recipe.products:
+        images = {}
+        for layer in product.layers:
+            if layer.source_type == "lpe":
+                images[layer.name] = extracted[_key(product, layer)]
+            elif not layer.is_beauty:
+                images[layer.name] = data[layer.source_name]
+        path = write_multipart(outputs[product.name], beauty, images, product, recipe=recipe, metadata=metadata)
+        written = write_previews(path.parent, path.stem, beauty, images, product) if previews else {}
+        layers = {layer.name: layer for layer in product.layers}
+        delivered.append(Delivered(product, path, written, energy_shares(beauty, images, layers)))
+    return delivered
+
+
+def _key(product: Product, layer: Layer) -> str:
+    return f"{product.name}/{layer.name}"

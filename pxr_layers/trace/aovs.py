@@ -1,0 +1,190 @@
+"""The Hydra data AOVs a recipe asks for as ``raw`` RenderVars: depth, normal, Neye, Peye,
+primId, instanceId.
+
+One unjittered primary ray goes through each pixel centre, film position
+((x + 0.5) / w, (y + 0.5) / h); there is no anti-aliasing and no sample averaging. That is
+what Hydra Storm and most production renderers do for id and depth AOVs: an id must stay an
+exact integer (the average of ids 3 and 7 is not object 5) and a depth at a silhouette
+must be the foreground's or the background's, never a blend of both. Surfaces cut out by
+their material (opacity below opacityThreshold) are passed through, as the integrator
+does, so the AOVs show what the beauty shows.
+
+Every array is float32 with row 0 the top row of the image, like RenderResult.rgba:
+
+    depth      : (h, w)    metres along the camera's view axis (camera-space −Z, not the
+                           ray length); +inf where the ray hits nothing
+    normal     : (h, w, 3) world-space unit shading normal, on the side facing the camera;
+                           0 where the ray hits nothing
+    Neye       : (h, w, 3) the same normal in camera space (the camera looks along −Z,
+                           +Y up, +X right); 0 where the ray hits nothing
+    Peye       : (h, w, 3) hit position in camera space, metres (Peye.z = −depth);
+                           0 where the ray hits nothing
+    primId     : (h, w)    index of the hit object in World.object_paths (meshes, then
+                           area-light shapes); −1 where the ray hits nothing
+    instanceId : (h, w)    the hit object's instance number N within its innermost
+                           PointInstancer (World.object_instance); −1 for an object that is
+                           not point-instanced (native instances included) and where the
+                           ray hits nothing
+
+Ids are exact in float32 up to 2**24 objects / instances.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from ..errors import RenderSettingsError
+from ..scene import FLOAT
+from .integrator import MAX_PASS_THROUGH, T_INFINITY, Integrator
+from .shading import surface_points
+from .vectors import dot, normalize
+
+log = logging.getLogger(__name__)
+
+DATA_AOVS = ("depth", "normal", "Neye", "Peye", "primId", "instanceId")
+_VECTOR_AOVS = frozenset({"normal", "Neye", "Peye"})
+_BACKGROUND = {"depth": np.inf, "normal": 0.0, "Neye": 0.0, "Peye": 0.0, "primId": -1.0, "instanceId": -1.0}
+BATCH_PIXELS = 1 << 16  # rays per batch: whole rows, memory bounded whatever the resolution
+
+
+def render_data_aovs(
+    integrator: Integrator, names: Iterable[str], *, threads: int | None = None
+) -> dict[str, np.ndarray]:
+    """The data AOVs `names` (a subset of DATA_AOVS) of the frame `integrator` was prepared
+    for (trace.render.prepare), as {name: (h, w) or (h, w, 3) float32} (see the module
+    docstring for units and background values).
+
+    Rows are traced in batches of about BATCH_PIXELS rays on `threads` threads (default:
+    one per CPU); the result does not depend on either.
+    Raises RenderSettingsError for a name that is not a data AOV.
+    """
+    wanted = tuple(dict.fromkeys(names))
+    unknown = [name for name in wanted if name not in DATA_AOVS]
+    if unknown:
+        raise RenderSettingsError(
+            f"unknown data AOV {', '.join(map(repr, unknown))}: known ones are {', '.join(DATA_AOVS)}"
+        )
+    width, height = integrator.width, integrator.height
+    out = {
+        name: np.full((height, width, 3) if name in _VECTOR_AOVS else (height, width), _BACKGROUND[name], FLOAT)
+        for name in wanted
+    }
+    if not wanted:
+        return out
+    tracer = _DataTracer(integrator)
+    rows = max(1, BATCH_PIXELS // width)
+    starts = range(0, height, rows)
+
+    def run(first_row: int) -> None:
+        tracer.trace_rows(first_row, min(first_row + rows, height), out)
+
+    workers = min(threads or os.cpu_count() or 1, len(starts))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        list(pool.map(run, starts))  # each batch writes its own rows: nothing to reduce
+    log.debug("data AOVs %s: %d×%d", ", ".join(wanted), width, height)
+    return out
+
+
+class _DataTracer:
+    """What every batch shares (read-only): camera frame, cut-out materials."""
+
+    def __init__(self, integrator: Integrator):
+        self.integrator = integrator
+        world = integrator.world
+        camera = integrator.camera
+        self.camera_from_world = np.asarray(camera.world_from_camera, np.float64).T  # a rotation
+        # Which materials can cut a surface out (opacityThreshold > 0): constant per material.
+        material_count = int(world.triangle_material.max(initial=-1)) + 1
+        if material_count:
+            thresholds = integrator.materials.evaluate(
+                np.arange(material_count, dtype=np.int32), np.zeros((2, material_count), FLOAT)
+            ).opacity_threshold
+            self.cutout_material = np.append(thresholds > 0, False)  # index −1: light shapes
+        else:
+            self.cutout_material = np.zeros(1, bool)
+
+    def trace_rows(self, first_row: int, stop_row: int, out: dict[str, np.ndarray]) -> None:
+        """Fill rows [first_row, stop_row) of every array in `out`."""
+        integrator = self.integrator
+        world = integrator.world
+        width = integrator.width
+        pixel = np.arange(first_row * width, stop_row * width, dtype=np.int64)
+        film_x = ((pixel % width) + 0.5) / width
+        film_y = ((pixel // width) + 0.5) / integrator.height
+        origins, directions = integrator.camera.rays(film_x, film_y)
+        n = len(pixel)
+
+        # Closest hit that is not cut out: lanes crossing a cut-out go on from behind it.
+        triangle = np.full(n, -1, np.int32)
+        bary_u, bary_v = np.zeros(n, FLOAT), np.zeros(n, FLOAT)
+        distance = np.zeros(n, np.float64)  # metres along the ray from the camera
+        lanes = np.arange(n)
+        t_max = np.full(n, integrator.camera.t_max, FLOAT)
+        for _ in range(MAX_PASS_THROUGH + 1):
+            tri, u, v, t = integrator.caster.intersect(origins, directions[:, lanes], t_max)
+            hit = tri >= 0
+            lanes, tri, u, v, t, origins = lanes[hit], tri[hit], u[hit], v[hit], t[hit], origins[:, hit]
+            triangle[lanes], bary_u[lanes], bary_v[lanes] = tri, u, v
+            distance[lanes] += t
+            cut = self._cut_out(tri, u, v)
+            if not cut.any():
+                break
+            lanes, tri, u, v = lanes[cut], tri[cut], u[cut], v[cut]
+            triangle[lanes] = -1
+            points = surface_points(world, tri, u, v)
+            geometric = points.geometric_normal
+            facing = np.where(dot(geometric, directions[:, lanes]) > 0, geometric, -geometric)
+            origins = points.position + facing * integrator.epsilon  # just behind the surface
+            t_max = np.full(len(lanes), T_INFINITY, FLOAT)
+        else:
+            triangle[lanes] = -1  # still cut out after MAX_PASS_THROUGH crossings: nothing seen
+
+        hits = np.flatnonzero(triangle >= 0)
+        rows = slice(first_row, stop_row)
+        flat = {name: array[rows].reshape(n, -1) for name, array in out.items()}  # views
+        if not len(hits):
+            return
+        tri = triangle[hits]
+        if "primId" in flat or "instanceId" in flat:
+            obj = np.take(world.triangle_object, tri)
+            if "primId" in flat:
+                flat["primId"][hits, 0] = obj
+            if "instanceId" in flat:
+                flat["instanceId"][hits, 0] = np.take(world.object_instance, obj)
+        if {"depth", "Peye"} & flat.keys():
+            # Camera-space position from the ray itself (no world-space subtraction).
+            ray_eye = self.camera_from_world @ directions[:, hits].astype(np.float64)
+            position_eye = ray_eye * distance[hits]
+            if "depth" in flat:
+                flat["depth"][hits, 0] = -position_eye[2]
+            if "Peye" in flat:
+                flat["Peye"][hits] = position_eye.T
+        if {"normal", "Neye"} & flat.keys():
+            points = surface_points(world, tri, bary_u[hits], bary_v[hits])
+            towards_camera = -directions[:, hits]
+            geometric = points.geometric_normal
+            facing = np.where(dot(geometric, towards_camera) < 0, -geometric, geometric)
+            shading = points.shading_normal
+            shading = np.where(dot(shading, facing) < 0, -shading, shading)  # the facing side
+            normal = normalize(np.where(dot(shading, shading) > 0.5, shading, facing))
+            if "normal" in flat:
+                flat["normal"][hits] = normal.T
+            if "Neye" in flat:
+                flat["Neye"][hits] = (self.camera_from_world @ normal.astype(np.float64)).T
+
+    def _cut_out(self, triangle: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(n,) bool: hits on a surface its material cuts out (opacity < opacityThreshold)."""
+        world = self.integrator.world
+        material = np.take(world.triangle_material, triangle)
+        cut = np.take(self.cutout_material, material)  # −1 (light shapes) → the appended False
+        candidates = np.flatnonzero(cut)
+        if len(candidates):
+            st = surface_points(world, triangle[candidates], u[candidates], v[candidates]).st
+            inputs = self.integrator.materials.evaluate(material[candidates], st)
+            cut[candidates] = inputs.opacity < inputs.opacity_threshold
+        return cut
