@@ -86,3 +86,21 @@ class RecipeError(PxrLayersError):
         self.file = file
         self.prim = prim
         self.attribute = attribute
+
+
+class JobError(PxrLayersError):
+    """A shot job definition (a TOML job file, or one it extends) that cannot be used.
+
+    The message names the file that sets the value at fault, then its key as a dotted TOML
+    path (``render.spp``), then what is wrong. ``position`` is the 0-based character offset
+    of the fault in a frame range text, when there is one.
+    """
+
+    def __init__(self, message: str, *, file: str | None = None, key: str | None = None,
+                 position: int | None = None):
+        where = ": ".join(part for part in (file, key) if part)
+        super().__init__(f"{where}: {message}" if where else message)
+        self.message = message
+        self.file = file
+        self.key = key
+        self.position = position

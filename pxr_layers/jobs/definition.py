@@ -1,0 +1,684 @@
+"""Shot job definitions: a TOML job file (and the files it extends) → a frozen :class:`Job`.
+
+A job says what to render for one shot: the stage, the frames, the layer recipe, the
+render quality, where the files go and how to spread the work over Dask. A show-level file
+holds the defaults and each shot file extends it::
+
+    # pipelines/shows/demo/shot010.toml
+    extends = "show.toml"                     # relative to this file
+    stage = "../../../render/showcase_animated.usda"
+    frames = "1-24"                           # "1-24x4", "1-10,20,30-40x2", [1, 5, 9]
+
+    [recipe]
+    add_layers = ["showcase", "shot010_recipe.usda"]   # after the show's layers
+    per_light = "lights"
+
+    [output]
+    stem = "shot010.$F4"                      # shot010.0001.exr, shot010.0001.pxlidx
+
+Rules (pipelines/README.md has the full table of keys and defaults):
+
+* ``extends`` names one parent file, relative to the file that says it. Tables merge key by
+  key, the child wins; a list replaces the parent's list, except ``recipe.add_layers``,
+  which appends to the layers the parent resolved to. A cycle is an error.
+* Every relative path is relative to the file that sets it (a show file's recipe layers are
+  found next to the show file even when a shot in another folder extends it).
+* Output templates: ``$F`` is the frame number, ``$F4`` (``${F4}``) the frame zero-padded to
+  4 digits (any 1..9), a run of ``#`` the frame padded to the run's length (as USD
+  productName), ``$JOB`` the job file's stem.
+
+Every mistake is a :class:`~pxr_layers.errors.JobError` naming the file that sets the value
+and its dotted key (``shot010.toml: render.spp: must be at least 1, not 0``).
+
+This module reads TOML only: it does not import pxr, so a status command can load a job
+without USD or Embree.
+"""
+
+from __future__ import annotations
+
+import difflib
+import os
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: the same parser, as a package
+    import tomli as tomllib
+
+from ..errors import JobError
+from ..recipe.model import PER_LIGHT_MODES
+from ..recipe.presets import PRESETS, preset
+
+# The same defaults as `pxr-layers render` (pxr_layers/cli/render.py; a test keeps them equal).
+DEFAULT_SPP = 64
+DEFAULT_SEED = 0
+DEFAULT_MAX_DEPTH = 8
+DEFAULT_NORM_BOUNCES = 5
+DEFAULT_BATCH_PIXELS = 16384
+DEFAULT_RETRIES = 2
+DEFAULT_DIRECTORY = "out/$JOB"
+DEFAULT_STEM = "$JOB.$F4"
+
+INDEX_SUFFIX = ".pxlidx"  # pxr_layers.paths.format.SUFFIX, without importing numpy here
+BEAUTY_SUFFIX = ".exr"
+USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+RECIPE_PER_LIGHT = "recipe"  # per_light: leave every product's pxrLayers:perLight as authored
+LOCAL_SCHEDULER = "local"    # scheduler: a LocalCluster (the default)
+OVERRIDES = "(overrides)"    # the "file" of load_job's overrides in error messages
+
+
+def default_workers() -> int:
+    """The CPU count this process may use (the LocalCluster default)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+@dataclass(frozen=True)
+class Job:
+    """A resolved shot job: every path absolute, every value checked.
+
+    file           : the job file given to load_job
+    name           : its stem (``shot010``), ``$JOB`` in templates
+    sources        : the job file, then each file it extends, in order (leaf first)
+    stage          : the USD stage to render
+    frames         : the frames (USD time codes) to render, whole numbers, in the order given
+    settings       : RenderSettings prim path, None = the recipe's / stage's default
+    recipe_layers  : recipe USD layers composed over the stage, as load_recipe takes them
+                     (the first strongest; the last one naming a renderSettingsPrimPath
+                     picks the settings when ``settings`` is None)
+    per_light      : "none" | "lights" | "groups" overriding every product's perLight;
+                     None = as each product says
+    spp, seed, max_depth, norm_bounces : as ``pxr-layers render``
+    resolution     : (width, height) pixels overriding the settings', or None
+    output_directory : where every file of the job goes
+    output_template  : the stem template of the beauty and the index (``shot010.$F4``)
+    batch_pixels   : pixels per task (a frame is split into batches of this many pixels)
+    retries        : how many times Dask retries a failed task
+    scheduler      : a Dask scheduler address (``tcp://host:8786``), None = a LocalCluster
+    workers        : LocalCluster worker processes
+    """
+
+    file: Path
+    name: str
+    stage: Path
+    frames: tuple[float, ...]
+    recipe_layers: tuple[Path, ...] = ()
+    settings: str | None = None
+    per_light: str | None = None
+    spp: int = DEFAULT_SPP
+    seed: int = DEFAULT_SEED
+    max_depth: int = DEFAULT_MAX_DEPTH
+    norm_bounces: int = DEFAULT_NORM_BOUNCES
+    resolution: tuple[int, int] | None = None
+    output_directory: Path = Path(".")
+    output_template: str = DEFAULT_STEM
+    batch_pixels: int = DEFAULT_BATCH_PIXELS
+    retries: int = DEFAULT_RETRIES
+    scheduler: str | None = None
+    workers: int = field(default_factory=default_workers)
+    sources: tuple[Path, ...] = ()
+
+    def output_stem(self, frame: float) -> str:
+        """The frame's file stem: the template expanded (``shot010.0001``)."""
+        return expand_template(self.output_template, frame, self.name)
+
+    def beauty_path(self, frame: float) -> Path:
+        """``<output_directory>/<stem>.exr``: the beauty EXR of a frame."""
+        return self.output_directory / (self.output_stem(frame) + BEAUTY_SUFFIX)
+
+    def index_path(self, frame: float) -> Path:
+        """``<output_directory>/<stem>.pxlidx``: the path index of a frame."""
+        return self.output_directory / (self.output_stem(frame) + INDEX_SUFFIX)
+
+    def frame_directory(self, frame: float) -> Path:
+        """``<output_directory>/<stem>/``: a directory of the frame's own, for what is not a
+        deliverable (per-batch partial results, logs). Not created here."""
+        return self.output_directory / self.output_stem(frame)
+
+    def product_path(self, product_name: str, frame: float) -> Path:
+        """Where a recipe product (its productName, e.g. ``light_passes.exr``) of a frame goes.
+
+        A name with a frame token (``####``, ``$F4``) is expanded in the output directory
+        (``shot010_extra.####.exr`` → ``shot010_extra.0001.exr``); any other name gets the
+        frame's stem in front so frames do not overwrite each other
+        (``shot010.0001.light_passes.exr``). An absolute name is kept (expanded).
+        """
+        if has_frame_token(product_name):
+            path = Path(expand_template(product_name, frame, self.name))
+        else:
+            path = Path(f"{self.output_stem(frame)}.{expand_template(product_name, frame, self.name)}")
+        return path if path.is_absolute() else self.output_directory / path
+
+    def as_dict(self) -> dict[str, Any]:
+        """The job as JSON-friendly values (paths as strings), e.g. for a manifest."""
+        return {
+            "file": str(self.file), "name": self.name, "sources": [str(p) for p in self.sources],
+            "stage": str(self.stage), "frames": list(self.frames), "settings": self.settings,
+            "recipe_layers": [str(p) for p in self.recipe_layers], "per_light": self.per_light,
+            "spp": self.spp, "seed": self.seed, "max_depth": self.max_depth,
+            "norm_bounces": self.norm_bounces,
+            "resolution": list(self.resolution) if self.resolution else None,
+            "output_directory": str(self.output_directory), "output_template": self.output_template,
+            "batch_pixels": self.batch_pixels, "retries": self.retries,
+            "scheduler": self.scheduler, "workers": self.workers,
+        }
+
+
+# -- the keys ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Key:
+    """One TOML key: its dotted name, how to check one file's value, and its default text."""
+
+    name: str
+    check: Callable[[Any, Path, str, str], Any]  # (value, base directory, file, key) → parsed
+    default: str
+    doc: str
+
+
+def _error(message: str, file: str, key: str | None, position: int | None = None) -> JobError:
+    return JobError(message, file=file, key=key, position=position)
+
+
+def _type_name(value: Any) -> str:
+    return {bool: "a boolean", int: "an integer", float: "a number", str: "a string",
+            list: "a list", dict: "a table"}.get(type(value), type(value).__name__)
+
+
+def _integer(minimum: int) -> Callable[[Any, Path, str, str], int]:
+    def check(value: Any, base: Path, file: str, key: str) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise _error(f"must be an integer, not {_type_name(value)} ({value!r})", file, key)
+        if value < minimum:
+            raise _error(f"must be at least {minimum}, not {value}", file, key)
+        return value
+    return check
+
+
+def _string(value: Any, file: str, key: str) -> str:
+    if not isinstance(value, str):
+        raise _error(f"must be a string, not {_type_name(value)} ({value!r})", file, key)
+    return value
+
+
+def _path(value: Any, base: Path, file: str, key: str) -> Path:
+    text = _string(value, file, key)
+    if not text.strip():
+        raise _error("must be a path, not an empty string", file, key)
+    return (base / Path(text).expanduser()).resolve()
+
+
+def _frames_value(value: Any, base: Path, file: str, key: str) -> tuple[float, ...]:
+    return parse_frames(value, file=file, key=key)
+
+
+_PRIM_PATH = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
+
+
+def _prim_path(value: Any, base: Path, file: str, key: str) -> str:
+    text = _string(value, file, key)
+    if not _PRIM_PATH.fullmatch(text):
+        raise _error(f"not an absolute prim path: {text!r} (e.g. \"/Render/Settings\")", file, key)
+    return text
+
+
+@dataclass(frozen=True)
+class _RecipeLayer:
+    """One entry of recipe.layers: a preset name or a file, and where it was written."""
+
+    text: str
+    path: Path
+    preset: bool
+    file: str
+    key: str
+
+
+def _recipe_layers(value: Any, base: Path, file: str, key: str) -> tuple[_RecipeLayer, ...]:
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list):
+        raise _error(f"must be a list of presets or USD files, not {_type_name(value)}", file, key)
+    layers = []
+    for number, entry in enumerate(value):
+        entry_key = f"{key}[{number}]"
+        text = _string(entry, file, entry_key)
+        if is_preset_name(text):
+            if text not in PRESETS:
+                close = difflib.get_close_matches(text, list(PRESETS), n=1)
+                hint = f"did you mean {close[0]!r}? " if close else ""
+                raise _error(f"unknown recipe preset {text!r} ({hint}presets: {', '.join(PRESETS)}; "
+                             "a file needs a USD suffix such as .usda)", file, entry_key)
+            layers.append(_RecipeLayer(text, preset(text), True, file, entry_key))
+        else:
+            layers.append(_RecipeLayer(text, _path(text, base, file, entry_key), False, file, entry_key))
+    return tuple(layers)
+
+
+def _choice(allowed: Sequence[str]) -> Callable[[Any, Path, str, str], str]:
+    def check(value: Any, base: Path, file: str, key: str) -> str:
+        text = _string(value, file, key)
+        if text not in allowed:
+            raise _error(f"unknown value {text!r} (allowed: {', '.join(allowed)})", file, key)
+        return text
+    return check
+
+
+def _resolution(value: Any, base: Path, file: str, key: str) -> tuple[int, int]:
+    if (not isinstance(value, list) or len(value) != 2
+            or any(isinstance(v, bool) or not isinstance(v, int) for v in value)):
+        raise _error(f"must be [width, height] in pixels, not {value!r}", file, key)
+    if value[0] <= 0 or value[1] <= 0:
+        raise _error(f"must be positive, not {value!r}", file, key)
+    return int(value[0]), int(value[1])
+
+
+def _directory(value: Any, base: Path, file: str, key: str) -> str:
+    text = _string(value, file, key)
+    if not text.strip():
+        raise _error("must be a directory, not an empty string", file, key)
+    check_template(text, file=file, key=key, frame_tokens=False)
+    # $JOB may stay in the text: it is expanded once the leaf job file is known.
+    return str(base / Path(text).expanduser())
+
+
+def _stem(value: Any, base: Path, file: str, key: str) -> str:
+    text = _string(value, file, key)
+    if not text.strip():
+        raise _error("must be a file stem, not an empty string", file, key)
+    if text.lower().endswith((BEAUTY_SUFFIX, INDEX_SUFFIX)):
+        raise _error(f"a stem, without a suffix: {text!r} names both the .exr and the .pxlidx", file, key)
+    if Path(text).is_absolute():
+        raise _error(f"must be relative to output.directory, not absolute: {text!r}", file, key)
+    check_template(text, file=file, key=key)
+    return text
+
+
+def _scheduler(value: Any, base: Path, file: str, key: str) -> str | None:
+    text = _string(value, file, key).strip()
+    if text == LOCAL_SCHEDULER:
+        return None
+    match = re.fullmatch(r"(?:(?P<scheme>[a-z]+)://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)"
+                         r":(?P<port>\d{1,5})/?", text)
+    example = f"e.g. \"tcp://host:8786\", or \"{LOCAL_SCHEDULER}\" for a LocalCluster"
+    if not match:
+        raise _error(f"bad scheduler address {text!r} ({example})", file, key)
+    scheme = match["scheme"] or "tcp"
+    if scheme not in SCHEDULER_SCHEMES:
+        raise _error(f"bad scheduler address {text!r}: unknown protocol {scheme!r} "
+                     f"(allowed: {', '.join(SCHEDULER_SCHEMES)})", file, key)
+    port = int(match["port"])
+    if not 0 < port < 65536:
+        raise _error(f"bad scheduler address {text!r}: port {port} is not 1..65535", file, key)
+    return f"{scheme}://{match['host']}:{port}"
+
+
+def _per_light(value: Any, base: Path, file: str, key: str) -> str | None:
+    text = _choice((*PER_LIGHT_MODES, RECIPE_PER_LIGHT))(value, base, file, key)
+    return None if text == RECIPE_PER_LIGHT else text
+
+
+KEYS: tuple[_Key, ...] = (
+    _Key("extends", _path, "none", "a parent job file, relative to this one; this file wins"),
+    _Key("stage", _path, "required", "the USD stage, relative to the file that sets it"),
+    _Key("frames", _frames_value, "required", '"1-24", "1-24x4" (every 4th), "1-10,20", or [1, 5, 9]'),
+    _Key("settings", _prim_path, "the recipe's", "RenderSettings prim path (load_recipe's settings_prim)"),
+    _Key("recipe.layers", _recipe_layers, "[]",
+         "recipe layers: preset names (pxr_layers.recipe.PRESETS) or USD files; replaces the parent's"),
+    _Key("recipe.add_layers", _recipe_layers, "[]", "appended to the layers the parent resolved to"),
+    _Key("recipe.per_light", _per_light, '"recipe"',
+         'per-light layers for every product: "none", "lights", "groups"; "recipe" = as authored'),
+    _Key("render.spp", _integer(1), str(DEFAULT_SPP), "samples per pixel"),
+    _Key("render.seed", _integer(0), str(DEFAULT_SEED), "random seed (with the frame, keys every stream)"),
+    _Key("render.max_depth", _integer(0), str(DEFAULT_MAX_DEPTH), "most scattering events per path"),
+    _Key("render.norm_bounces", _integer(0), str(DEFAULT_NORM_BOUNCES),
+         "events per path whose covariance norms the index keeps"),
+    _Key("render.resolution", _resolution, "the settings'", "[width, height] in pixels"),
+    _Key("output.directory", _directory, f'"{DEFAULT_DIRECTORY}"',
+         "where the files go, relative to the file that sets it ($JOB allowed)"),
+    _Key("output.stem", _stem, f'"{DEFAULT_STEM}"', "beauty and index stem: $F, $F4, ####, $JOB"),
+    _Key("dask.scheduler", _scheduler, f'"{LOCAL_SCHEDULER}"',
+         'a scheduler address "tcp://host:8786"; "local" = a LocalCluster'),
+    _Key("dask.workers", _integer(1), "CPU count", "LocalCluster worker processes"),
+    _Key("dask.batch_pixels", _integer(1), str(DEFAULT_BATCH_PIXELS), "pixels per task"),
+    _Key("dask.retries", _integer(0), str(DEFAULT_RETRIES), "retries of a failed task"),
+)
+_BY_NAME = {key.name: key for key in KEYS}
+TABLES = tuple(dict.fromkeys(key.name.split(".")[0] for key in KEYS if "." in key.name))
+
+
+# -- frames and templates ---------------------------------------------------------------------
+
+
+def parse_frames(value: Any, *, file: str | None = None, key: str | None = "frames") -> tuple[float, ...]:
+    """Frames from a job file's value: ``"1-24"``, ``"1-24x4"`` (start-end, every 4th),
+    ``"1-10, 20, 30-40x2"``, a list ``[1, 5, 9]`` or one integer. Negative frames are
+    written with a sign (``"-5--1"``). Every frame must be a whole number and listed once.
+
+    Raises JobError naming ``file`` and ``key``; for text, with the 0-based ``position`` of
+    the fault.
+    """
+    if isinstance(value, bool):
+        raise _error(f"must be a frame range text or a list of frames, not {value!r}", file, key)
+    if isinstance(value, (int, float)):
+        value = [value]
+    if isinstance(value, list):
+        frames: list[float] = []
+        for number, entry in enumerate(value):
+            entry_key = f"{key}[{number}]" if key else None
+            if isinstance(entry, bool) or not isinstance(entry, (int, float)):
+                raise _error(f"must be a frame number, not {_type_name(entry)} ({entry!r})", file, entry_key)
+            if not float(entry).is_integer():
+                raise _error(f"frame {entry!r} is not a whole number", file, entry_key)
+            if float(entry) in frames:
+                raise _error(f"frame {int(entry)} is listed twice", file, entry_key)
+            frames.append(float(entry))
+        if not frames:
+            raise _error("no frames: the list is empty", file, key)
+        return tuple(frames)
+    if not isinstance(value, str):
+        raise _error(f"must be a frame range text or a list of frames, not {_type_name(value)}", file, key)
+    return _FrameText(value, file, key).parse()
+
+
+class _FrameText:
+    """``item ("," item)*`` with ``item = N | N "-" N ["x" STEP]``; spaces allowed."""
+
+    def __init__(self, text: str, file: str | None, key: str | None):
+        self.text = text
+        self.file = file
+        self.key = key
+        self.position = 0
+
+    def fail(self, message: str, position: int | None = None, *, found: bool = True) -> JobError:
+        """The error at ``position`` (default: here); ``found`` names what is there."""
+        position = self.position if position is None else position
+        if found:
+            message += ", found " + (repr(self.text[position]) if position < len(self.text) else "the end")
+        return _error(f"bad frame range {self.text!r}: {message} at character {position + 1}",
+                      self.file, self.key, position)
+
+    def skip_spaces(self) -> None:
+        while self.position < len(self.text) and self.text[self.position].isspace():
+            self.position += 1
+
+    def peek(self) -> str:
+        return self.text[self.position] if self.position < len(self.text) else ""
+
+    def number(self, what: str, signed: bool = True) -> int:
+        self.skip_spaces()
+        match = re.compile(r"[+-]?\d+" if signed else r"\d+").match(self.text, self.position)
+        if not match:
+            raise self.fail(f"expected {what}")
+        self.position = match.end()
+        return int(match.group())
+
+    def parse(self) -> tuple[float, ...]:
+        frames: list[float] = []
+        seen: set[int] = set()
+        while True:
+            self.skip_spaces()
+            item_start = self.position
+            start = self.number("a frame number")
+            end, step = start, 1
+            expected = "',', '-' or the end"
+            self.skip_spaces()
+            if self.peek() == "-":
+                expected = "',', 'x' or the end"
+                self.position += 1
+                end = self.number("the last frame of the range")
+                self.skip_spaces()
+                if self.peek() in ("x", "X"):
+                    self.position += 1
+                    step_position = self.position
+                    step = self.number("a step", signed=False)
+                    if step <= 0:
+                        raise self.fail("the step must be at least 1", step_position)
+                    expected = "',' or the end"
+                    self.skip_spaces()
+                if end < start:
+                    raise self.fail(f"the range ends before it starts (write {end}-{start})", item_start,
+                                    found=False)
+            for frame in range(start, end + 1, step):
+                if frame in seen:
+                    raise self.fail(f"frame {frame} is listed twice", item_start, found=False)
+                seen.add(frame)
+                frames.append(float(frame))
+            if self.position == len(self.text):
+                return tuple(frames)
+            if self.peek() != ",":
+                raise self.fail(f"expected {expected}")
+            self.position += 1
+
+
+_TEMPLATE_TOKEN = re.compile(r"\$\{(?P<braced>[A-Za-z_]+)(?P<braced_pad>\d*)\}|\$(?P<name>[A-Za-z_]+)(?P<pad>\d*)|#+")
+
+
+def _frame_number(frame: float) -> int:
+    if not float(frame).is_integer():
+        raise JobError(f"frame {frame!r} is not a whole number: the output templates need one")
+    return int(frame)
+
+
+def expand_template(template: str, frame: float | None, job_name: str = "") -> str:
+    """``template`` with ``$F`` / ``$F4`` / ``${F4}`` / ``####`` replaced by the frame number
+    (padded to 4 / to the run's length) and ``$JOB`` by ``job_name``.
+
+    ``frame`` None leaves the frame tokens as they are. Raises JobError for an unknown
+    variable (check_template says which key at load time).
+    """
+
+    def replace(match: re.Match) -> str:
+        token = match.group()
+        if token.startswith("#"):
+            return token if frame is None else f"{_frame_number(frame):0{len(token)}d}"
+        name = match["braced"] or match["name"]
+        pad = match["braced_pad"] if match["braced"] else match["pad"]
+        if name == "F":
+            if frame is None:
+                return token
+            return f"{_frame_number(frame):0{int(pad)}d}" if pad else str(_frame_number(frame))
+        if name == "JOB":
+            return job_name + pad
+        raise JobError(f"unknown variable ${name} in {template!r} (known: $F, $F4 / ${{F4}}, ####, $JOB)")
+
+    return _TEMPLATE_TOKEN.sub(replace, template)
+
+
+def has_frame_token(template: str) -> bool:
+    """Whether ``template`` changes with the frame ($F, $F4, ####)."""
+    for match in _TEMPLATE_TOKEN.finditer(template):
+        if match.group().startswith("#") or (match["braced"] or match["name"]) == "F":
+            return True
+    return False
+
+
+def check_template(template: str, *, file: str | None, key: str | None, frame_tokens: bool = True) -> None:
+    """Raise JobError (naming file and key) for an unknown variable, a ``$F0`` pad, or a frame
+    token where the value cannot depend on the frame."""
+    for match in _TEMPLATE_TOKEN.finditer(template):
+        token = match.group()
+        if token.startswith("#"):
+            name, pad = "F", str(len(token))
+        else:
+            name = match["braced"] or match["name"]
+            pad = match["braced_pad"] if match["braced"] else match["pad"]
+        if name not in ("F", "JOB"):
+            raise _error(f"unknown variable ${name} in {template!r} (known: $F, $F4 / ${{F4}}, ####, $JOB)",
+                         file, key, match.start())
+        if name == "F" and not frame_tokens:
+            raise _error(f"{template!r} cannot depend on the frame ({token}): put the frame in output.stem",
+                         file, key, match.start())
+        if name == "F" and pad and not 1 <= int(pad) <= 9 and not token.startswith("#"):
+            raise _error(f"{token}: the padding must be 1..9 digits", file, key, match.start())
+
+
+def is_preset_name(text: str) -> bool:
+    """A recipe.layers entry is a preset name when it has no directory and no USD suffix."""
+    return "/" not in text and "\\" not in text and not text.lower().endswith(USD_SUFFIXES)
+
+
+# -- reading and merging ----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Setting:
+    value: Any
+    file: str  # the file that set it (for errors about the value)
+    key: str
+
+
+def _read_toml(path: Path, child: str | None) -> dict[str, Any]:
+    if not path.is_file():
+        where = child or str(path)
+        message = "is a directory, not a job file" if path.is_dir() else "file not found"
+        raise _error(f"{path}: {message}" if child else message, where, "extends" if child else None)
+    try:
+        with open(path, "rb") as stream:
+            return tomllib.load(stream)
+    except tomllib.TOMLDecodeError as error:
+        raise _error(f"not valid TOML: {error}", str(path), None) from None
+    except OSError as error:
+        raise _error(f"cannot read: {error.strerror}", str(path), None) from None
+
+
+def _flatten(data: Mapping[str, Any], file: str) -> dict[str, Any]:
+    """One file's TOML → {dotted key: value}, refusing unknown keys and tables."""
+    flat: dict[str, Any] = {}
+    for name, value in data.items():
+        if name in TABLES:
+            if not isinstance(value, dict):
+                raise _error(f"must be a table ([{name}]), not {_type_name(value)}", file, name)
+            for sub, sub_value in value.items():
+                dotted = f"{name}.{sub}"
+                if dotted not in _BY_NAME:
+                    raise _error(f"unknown key{_did_you_mean(dotted)}", file, dotted)
+                flat[dotted] = sub_value
+        elif name in _BY_NAME:
+            flat[name] = value
+        else:
+            raise _error(f"unknown key{_did_you_mean(name)}", file, name)
+    return flat
+
+
+def _did_you_mean(dotted: str) -> str:
+    table, _, leaf = dotted.rpartition(".")
+    same_leaf = [key.name for key in KEYS if key.name.rpartition(".")[2] == leaf and key.name != dotted]
+    if same_leaf:
+        return f" (did you mean {same_leaf[0]}?)"
+    siblings = [key.name for key in KEYS if key.name.rpartition(".")[0] == table]
+    close = difflib.get_close_matches(dotted, siblings, n=1, cutoff=0.6)
+    if not close:
+        leaves = {key.name.rpartition(".")[2]: key.name for key in KEYS}
+        close = [leaves[m] for m in difflib.get_close_matches(leaf, list(leaves), n=1, cutoff=0.75)]
+    if not close and not table:
+        close = difflib.get_close_matches(dotted, list(TABLES), n=1, cutoff=0.6)
+        if close:
+            return f" (did you mean the table [{close[0]}]?)"
+    return f" (did you mean {close[0]}?)" if close else ""
+
+
+def _parse_file(flat: Mapping[str, Any], base: Path, file: str) -> dict[str, _Setting]:
+    return {name: _Setting(_BY_NAME[name].check(value, base, file, name), file, name)
+            for name, value in flat.items()}
+
+
+def _merge(parent: dict[str, _Setting], child: dict[str, _Setting]) -> dict[str, _Setting]:
+    merged = {**parent, **{k: v for k, v in child.items() if k != "recipe.add_layers"}}
+    added = child.get("recipe.add_layers")
+    if added is not None:
+        base = merged.get("recipe.layers")
+        layers = (base.value if base else ()) + added.value
+        merged["recipe.layers"] = _Setting(layers, added.file, added.key)
+    merged.pop("extends", None)
+    return merged
+
+
+def load_job(path: str | os.PathLike[str], overrides: Mapping[str, Any] | None = None) -> Job:
+    """Read a job file and every file it extends into a checked :class:`Job`.
+
+    overrides : {dotted key: value} applied over the files (e.g. from command-line flags:
+                ``{"frames": "1-4", "render.spp": 4}``), in TOML types; their relative paths
+                are relative to the current directory. They cannot set ``extends``.
+
+    Raises JobError naming the file and key: unknown key (with a close match), bad value,
+    bad frame range (with its position), missing stage or recipe file, unknown preset, a
+    cycle or missing file in ``extends``, bad scheduler address.
+    """
+    leaf = Path(path).expanduser().resolve()
+    chain: list[tuple[Path, dict[str, _Setting]]] = []
+    current: Path | None = leaf
+    child: str | None = None
+    while current is not None:
+        visited = [p for p, _ in chain]
+        if current in visited:
+            cycle = " -> ".join(p.name for p in [*visited[visited.index(current):], current])
+            raise _error(f"extends cycle: {cycle}", child, "extends")
+        settings = _parse_file(_flatten(_read_toml(current, child), str(current)), current.parent, str(current))
+        chain.append((current, settings))
+        extends = settings.get("extends")
+        child, current = str(current), (extends.value if extends else None)
+
+    merged: dict[str, _Setting] = {}
+    for _, settings in reversed(chain):
+        merged = _merge(merged, settings)
+    if overrides:
+        for name in overrides:
+            if name == "extends":
+                raise _error("cannot be overridden", OVERRIDES, name)
+            if name not in _BY_NAME:
+                raise _error(f"unknown key{_did_you_mean(name)}", OVERRIDES, name)
+        merged = _merge(merged, _parse_file(overrides, Path.cwd(), OVERRIDES))
+    return _resolve(leaf, [p for p, _ in chain], merged)
+
+
+def _resolve(leaf: Path, sources: list[Path], merged: dict[str, _Setting]) -> Job:
+    name = leaf.stem
+
+    def value(key: str, default: Any = None) -> Any:
+        setting = merged.get(key)
+        return setting.value if setting else default
+
+    def required(key: str, example: str) -> _Setting:
+        if key not in merged:
+            raise _error(f"not set in {' or '.join(p.name for p in sources)} (e.g. {key} = {example})",
+                         str(leaf), key)
+        return merged[key]
+
+    stage = required("stage", '"shot.usda"')
+    if not stage.value.is_file():
+        what = "is a directory, not a USD file" if stage.value.is_dir() else "file not found"
+        raise _error(f"{stage.value}: {what}", stage.file, "stage")
+    frames = required("frames", '"1-24"')
+
+    layers: tuple[_RecipeLayer, ...] = value("recipe.layers", ())
+    for layer in layers:
+        if not layer.path.is_file():
+            what = "shipped preset is missing from the install" if layer.preset else "file not found"
+            raise _error(f"recipe layer {layer.path}: {what}", layer.file, layer.key)
+
+    directory_text = value("output.directory", str(leaf.parent / DEFAULT_DIRECTORY))
+    directory = Path(expand_template(directory_text, None, name)).resolve()
+    stem = merged.get("output.stem")
+    template = stem.value if stem else DEFAULT_STEM
+    if len(frames.value) > 1 and not has_frame_token(template):
+        raise _error(f"{template!r} has no frame number ($F4 or ####): all {len(frames.value)} frames "
+                     "would write the same files", stem.file if stem else str(leaf), "output.stem")
+
+    return Job(
+        file=leaf, name=name, sources=tuple(sources), stage=stage.value, frames=frames.value,
+        recipe_layers=tuple(layer.path for layer in layers), settings=value("settings"),
+        per_light=value("recipe.per_light"), spp=value("render.spp", DEFAULT_SPP),
+        seed=value("render.seed", DEFAULT_SEED), max_depth=value("render.max_depth", DEFAULT_MAX_DEPTH),
+        norm_bounces=value("render.norm_bounces", DEFAULT_NORM_BOUNCES),
+        resolution=value("render.resolution"), output_directory=directory, output_template=template,
+        batch_pixels=value("dask.batch_pixels", DEFAULT_BATCH_PIXELS),
+        retries=value("dask.retries", DEFAULT_RETRIES), scheduler=value("dask.scheduler"),
+        workers=value("dask.workers") or default_workers(),
+    )
