@@ -12,12 +12,13 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__, lpe
+from ..jobs.frame import file_sha256
 from ..layers.deliver import check_raw_sources, deliver, plan_outputs
 from ..layers.extract import extract
 from ..paths.reader import PathIndex
 from ..recipe.model import PER_LIGHT_MODES, Layer, Product, Recipe
 from ..recipe.presets import PRESETS
-from .render import file_sha256, preset_or_file
+from .render import preset_or_file
 
 HELP = "cut light layers out of a path index with Light Path Expressions"
 DESCRIPTION = (

@@ -1,34 +1,21 @@
-"""`pxr-layers render`: path-trace a USD stage into a beauty EXR."""
+"""`pxr-layers render`: path-trace a USD stage, index its paths, deliver its recipe's layers."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import hashlib
-import json
 import logging
-import math
-import os
+import time
 from pathlib import Path
 
-from .. import __version__, lpe
 from ..errors import RecipeError
+from ..jobs.frame import FrameAssembler, plan_frame, prepare_frame
 from ..layers.debug import write_covariance_debug
-from ..layers.deliver import (
-    Delivered,
-    check_raw_sources,
-    deliver,
-    frame_suffix,
-    plan_outputs,
-    raw_sources,
-)
-from ..paths.format import SUFFIX as INDEX_SUFFIX
-from ..paths.reader import PathIndex
-from ..paths.writer import PathIndexWriter
-from ..recipe.model import BEAUTY_RAW_SOURCE, PER_LIGHT_MODES, Layer, Product, Recipe
+from ..layers.deliver import Delivered
+from ..progress import Progress
+from ..recipe.model import PER_LIGHT_MODES
 from ..recipe.presets import PRESETS, preset
-from ..trace import DATA_AOVS, TraceSettings
-from ..trace import render as trace_render
+from ..trace import render_data_aovs, trace_pixels
 
 HELP = "render a USD stage: beauty, path index, and the layers of its recipe"
 DESCRIPTION = (
@@ -101,91 +88,34 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def render_stage(stage_path: Path, args: argparse.Namespace, recipes: list[Path] | None = None) -> list[Delivered]:
-    """Load, render, index and deliver every product of the recipe; returns what was written.
-
-    recipes: recipe layers to compose over the stage (default: args.recipe).
-    """
-    from ..recipe import load_recipe  # these import pxr: only when needed
-    from ..stage import load_stage
-
-    recipe_layers = [preset_or_file(text) for text in args.recipe] if recipes is None else recipes
-    shot_settings = None if recipe_layers else args.settings
-    scene, spec = load_stage(stage_path, frame=args.frame, camera=args.camera, settings=shot_settings)
-    if recipe_layers or args.settings or spec.settings_path:
-        recipe = load_recipe(stage_path, args.settings, recipe_layers=recipe_layers, camera=args.camera,
-                             per_light=args.per_light)
-        camera, resolution = _view(recipe)
-        if camera != spec.camera.path:
-            scene, spec = load_stage(stage_path, frame=args.frame, camera=camera, settings=shot_settings)
-        spec = dataclasses.replace(spec, resolution=resolution)
-    else:  # a stage without a recipe: its beauty alone, STEM.exr
-        product = Product(name=stage_path.stem, output_name=f"{stage_path.stem}.exr", camera=spec.camera.path,
-                          resolution=spec.resolution, layers=(Layer("color", "raw", BEAUTY_RAW_SOURCE),))
-        recipe = Recipe(products=(product,))
-    if args.resolution:
-        spec = dataclasses.replace(spec, resolution=tuple(args.resolution))
-    check_raw_sources(recipe, DATA_AOVS, "the renderer does not produce")
-
-    frame = args.frame
+def render_stage(stage_path: Path, args: argparse.Namespace) -> list[Delivered]:
+    """Plan, render, index and deliver every product of the recipe; returns what was written."""
     directory, exr = _output(args.output)
-    outputs = plan_outputs(recipe, frame, directory, exr)
-    first = outputs[recipe.products[0].name]
-    index_path = first.with_suffix(INDEX_SUFFIX) if exr else directory / f"{stage_path.stem}{frame_suffix(frame)}{INDEX_SUFFIX}"
-    norm_bounces = args.norm_bounces
-    if norm_bounces is None:
-        norm_bounces = max(product.index.bounces for product in recipe.products)
-        if _has_conditions(recipe) and norm_bounces < args.max_depth:
-            # A condition under `.*` (the paper's "last bounce on ...") may test any event up
-            # to the path's last: keep the norms of every event a path can have.
-            log.info("the recipe has covariance conditions: the index keeps the norms of all %d bounces",
-                     args.max_depth)
-            norm_bounces = args.max_depth
+    plan = plan_frame(
+        stage_path, args.frame, recipe_layers=[preset_or_file(text) for text in args.recipe], settings=args.settings,
+        camera=args.camera, per_light=args.per_light, resolution=tuple(args.resolution) if args.resolution else None,
+        spp=args.spp, max_depth=args.max_depth, seed=args.seed, norm_bounces=args.norm_bounces,
+        directory=directory, exr=exr, keep_index=not args.no_index, aggregate_index=args.aggregate_index,
+        previews=not args.no_previews, default_norm_bounces=DEFAULT_NORM_BOUNCES,
+    )
+    if args.debug_covariance and plan.trace.norm_bounces == 0:
+        plan = dataclasses.replace(plan, trace=dataclasses.replace(plan.trace, norm_bounces=1))
+    integrator = prepare_frame(plan)
+    progress = Progress(plan.pixels * plan.trace.spp, "render", enabled=args.show_progress)
+    start = time.perf_counter()
+    with FrameAssembler(plan) as frame:
+        def add(batch) -> None:
+            frame.add(batch)
+            progress.advance(len(batch.rgb) * plan.trace.spp)
+
+        trace_pixels(integrator, 0, plan.pixels, add, threads=args.threads)
+        log.info("rendered %d×%d at %d spp in %.1fs", *plan.resolution, plan.trace.spp, time.perf_counter() - start)
+        data = render_data_aovs(integrator, plan.data_aovs, threads=args.threads)
+        delivered = frame.deliver(integrator.vocabulary, data, integrator.world.object_paths,
+                                  show_progress=args.show_progress)
     if args.debug_covariance:
-        norm_bounces = max(norm_bounces, 1)  # the pictures need the first bounce
-    settings = TraceSettings(spp=args.spp, max_depth=args.max_depth, seed=args.seed, norm_bounces=norm_bounces)
-    metadata = {
-        "version": __version__,
-        "stage": str(stage_path.resolve()),
-        "camera": spec.camera.path,
-        "frame": "default" if math.isnan(scene.frame) else repr(scene.frame),
-        "spp": str(settings.spp),
-        "maxDepth": str(settings.max_depth),
-        "seed": str(settings.seed),
-    }
-    manifest = {
-        **metadata, "stage_sha256": file_sha256(stage_path), "resolution": list(spec.resolution),
-        "spp": settings.spp, "seed": settings.seed, "max_depth": settings.max_depth,
-        "beauty": os.path.relpath(first, index_path.parent),
-    }
-    # The layers are cut from the index, so a recipe with lpe layers needs one even with --no-index.
-    needs_index = not args.no_index or any(product.expressions() for product in recipe.products)
-    settings = dataclasses.replace(settings, record_paths=needs_index)
-    writer = PathIndexWriter(index_path, manifest, settings.norm_bounces, aggregate=args.aggregate_index) \
-        if needs_index else None
-    try:
-        result = trace_render(scene, spec, settings, threads=args.threads, show_progress=args.show_progress,
-                              on_batch=writer and (lambda batch: writer.add(batch.records)),
-                              data_aovs=tuple(raw_sources(recipe)))
-        if writer:
-            writer.close(result.vocabulary)
-    except BaseException:
-        if writer:
-            writer.abort()
-        raise
-    if "primId" in result.data:
-        metadata["primPaths"] = json.dumps(result.object_paths, separators=(",", ":"))
-    if not args.no_index:
-        metadata["index"] = os.path.relpath(index_path, first.parent)
-    try:
-        delivered = deliver(PathIndex(index_path) if writer else None, recipe, result.rgba, outputs,
-                            data=result.data, metadata=metadata, previews=not args.no_previews,
-                            show_progress=args.show_progress)
-    finally:
-        if args.no_index:
-            index_path.unlink(missing_ok=True)
-    if args.debug_covariance:
-        write_covariance_debug(index_path.with_suffix(".exr"), result.first_bounce_norms, metadata)
+        _, norms = frame.images()
+        write_covariance_debug(plan.index_path.with_suffix(".exr"), norms, plan.metadata)
     return delivered
 
 
@@ -199,39 +129,11 @@ def preset_or_file(text: str) -> Path:
     return preset(text)
 
 
-def _has_conditions(recipe: Recipe) -> bool:
-    from ..recipe.expressions import covariance_needs
-
-    return any(covariance_needs(lpe.compile(text))[0]
-               for product in recipe.products for text in product.expressions().values())
-
-
-def _view(recipe: Recipe) -> tuple[str, tuple[int, int]]:
-    """The camera and resolution every product renders (one render feeds all products)."""
-    views = {(product.camera, product.resolution) for product in recipe.products}
-    if len(views) > 1:
-        described = "; ".join(f"{p.prim_path or p.name}: {p.camera} at {p.resolution[0]}x{p.resolution[1]}"
-                              for p in recipe.products)
-        raise RecipeError("the products ask for different cameras or resolutions, and one render feeds them "
-                          f"all ({described}): render them with separate --settings", file=recipe.file or None,
-                          prim=recipe.settings_path or None)
-    return views.pop()
-
-
 def _output(output: str | None) -> tuple[Path, Path | None]:
     """(directory, explicit .exr path or None) from -o."""
     if output and output.lower().endswith(".exr"):
         return Path(output).parent, Path(output)
     return Path(output or "."), None
-
-
-def file_sha256(path: Path) -> str:
-    """SHA-256 of the stage's root layer file (not of the layers it composes)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as file:
-        for block in iter(lambda: file.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def _positive(text: str) -> int:

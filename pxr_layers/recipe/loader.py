@@ -85,6 +85,13 @@ def load_recipe(
     return reader.recipe(settings)
 
 
+def has_recipe(path: str | os.PathLike) -> bool:
+    """Whether the stage names render settings (``renderSettingsPrimPath``), as load_stage
+    reads them; a stage without is rendered to its beauty alone."""
+    stage = _open(Path(path), [])
+    return bool(stage.GetMetadata("renderSettingsPrimPath"))
+
+
 def _open(path: Path, recipe_layers: list[Path]) -> Usd.Stage:
     for layer in (path, *recipe_layers):
         if not layer.is_file():

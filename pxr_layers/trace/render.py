@@ -102,55 +102,84 @@ def render(
     start = time.perf_counter()
     integrator = prepare(scene, spec, settings)
     width, height = spec.resolution
-    total_paths = width * height * settings.spp
-    # Batches never straddle a pixel, so each pixel's samples are summed in one order.
-    batch_paths = max(settings.spp, batch_paths // settings.spp * settings.spp)
-    starts = range(0, total_paths, batch_paths)
-    film = _Film(width * height, settings.norm_bounces > 0)
-    rays = 0
-    progress = Progress(total_paths, "render", enabled=show_progress)
-    workers = threads or os.cpu_count() or 1
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        pending: deque = deque()
-        for first in starts:
-            pending.append(pool.submit(integrator.trace, first, min(first + batch_paths, total_paths)))
-            if len(pending) >= 2 * workers:
-                rays += film.accumulate(pending.popleft().result(), progress, settings.spp, on_batch)
-        while pending:
-            rays += film.accumulate(pending.popleft().result(), progress, settings.spp, on_batch)
-    rgba = np.empty((height, width, 4), FLOAT)
-    rgba[..., :3] = (film.rgb / settings.spp).reshape(height, width, 3)
-    rgba[..., 3] = (film.coverage / settings.spp).reshape(height, width)
-    first_bounce_norms = None
-    if film.norm_sums is not None:
-        with np.errstate(invalid="ignore", divide="ignore"):
-            means = film.norm_sums / film.norm_counts[:, None]
-        first_bounce_norms = means.reshape(height, width, 3).astype(FLOAT)
+    film = Film(width * height, settings.spp, settings.norm_bounces > 0)
+    progress = Progress(width * height * settings.spp, "render", enabled=show_progress)
+
+    def accumulate(batch: BatchResult) -> None:
+        film.add(batch)
+        progress.advance(len(batch.rgb) * settings.spp)
+        if on_batch is not None:
+            on_batch(batch)
+
+    trace_pixels(integrator, 0, width * height, accumulate, threads=threads, batch_paths=batch_paths)
+    rgba, first_bounce_norms = film.images(width, height)
     data = render_data_aovs(integrator, data_aovs, threads=threads)
     seconds = time.perf_counter() - start
     log.info("rendered %d×%d at %d spp in %.1fs (%.2f M rays/s)", width, height, settings.spp, seconds,
-             rays / seconds / 1e6)
-    return RenderResult(rgba, settings, (width, height), scene.frame, rays, seconds, integrator.world.triangle_count,
-                        integrator.vocabulary, first_bounce_norms, data, integrator.world.object_paths)
+             film.rays / seconds / 1e6)
+    return RenderResult(rgba, settings, (width, height), scene.frame, film.rays, seconds,
+                        integrator.world.triangle_count, integrator.vocabulary, first_bounce_norms, data,
+                        integrator.world.object_paths)
 
 
-class _Film:
-    """Whole-image sums, filled batch by batch in path order."""
+def batch_pixels(spp: int, batch_paths: int = DEFAULT_BATCH_PATHS) -> int:
+    """Pixels per batch: whole pixels (a batch never straddles one, so each pixel's samples
+    are summed in one order), about ``batch_paths`` paths."""
+    return max(1, batch_paths // spp)
 
-    def __init__(self, pixels: int, norms: bool):
+
+def trace_pixels(integrator: Integrator, first_pixel: int, stop_pixel: int, on_batch: Callable[[BatchResult], None],
+                 *, threads: int | None = None, batch_paths: int = DEFAULT_BATCH_PATHS) -> None:
+    """Trace every sample of pixels [first_pixel, stop_pixel) on a thread pool; on_batch
+    receives the BatchResults in path order.
+
+    Batches start at multiples of :func:`batch_pixels` from pixel 0, so a range that starts
+    on such a multiple is cut into the same batches as the whole image: tracing an image
+    in such ranges (a job's tiles) gives the same batches, hence the same bytes."""
+    spp = integrator.settings.spp
+    step = batch_pixels(spp, batch_paths)
+    workers = threads or os.cpu_count() or 1
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        pending: deque = deque()
+        first = first_pixel
+        while first < stop_pixel:
+            stop = min((first // step + 1) * step, stop_pixel)
+            pending.append(pool.submit(integrator.trace, first * spp, stop * spp))
+            first = stop
+            if len(pending) >= 2 * workers:
+                on_batch(pending.popleft().result())
+        while pending:
+            on_batch(pending.popleft().result())
+
+
+class Film:
+    """Whole-image sums, filled batch by batch. Batches cover disjoint pixels, so the sums
+    do not depend on the order batches arrive in."""
+
+    def __init__(self, pixels: int, spp: int, norms: bool):
+        self.spp = spp
         self.rgb = np.zeros((pixels, 3))
         self.coverage = np.zeros(pixels)
         self.norm_sums = np.zeros((pixels, 3)) if norms else None
         self.norm_counts = np.zeros(pixels) if norms else None
+        self.rays = 0
 
-    def accumulate(self, batch: BatchResult, progress: Progress, spp: int, on_batch) -> int:
+    def add(self, batch: BatchResult) -> None:
         span = slice(batch.first_pixel, batch.first_pixel + len(batch.rgb))
         self.rgb[span] += batch.rgb
         self.coverage[span] += batch.alpha
         if self.norm_sums is not None:
             self.norm_sums[span] += batch.first_bounce_norms
             self.norm_counts[span] += batch.first_bounce_count
-        if on_batch is not None:
-            on_batch(batch)
-        progress.advance(len(batch.rgb) * spp)
-        return batch.rays
+        self.rays += batch.rays
+
+    def images(self, width: int, height: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """rgba (h, w, 4) float32 and the mean first-bounce norms (h, w, 3) or None."""
+        rgba = np.empty((height, width, 4), FLOAT)
+        rgba[..., :3] = (self.rgb / self.spp).reshape(height, width, 3)
+        rgba[..., 3] = (self.coverage / self.spp).reshape(height, width)
+        if self.norm_sums is None:
+            return rgba, None
+        with np.errstate(invalid="ignore", divide="ignore"):
+            means = self.norm_sums / self.norm_counts[:, None]
+        return rgba, means.reshape(height, width, 3).astype(FLOAT)
