@@ -9,9 +9,9 @@ import sys
 
 from .. import __version__
 from ..errors import PxrLayersError
-from . import demo, extract, index, lpe, render
+from . import demo, extract, index, job, lpe, render
 
-SUBCOMMANDS = {"render": render, "demo": demo, "index": index, "extract": extract, "lpe": lpe}
+SUBCOMMANDS = {"render": render, "demo": demo, "index": index, "extract": extract, "lpe": lpe, "job": job}
 EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE = 0, 1, 2
 
 
@@ -26,6 +26,8 @@ def build_parser() -> argparse.ArgumentParser:
     for name, module in SUBCOMMANDS.items():
         sub = commands.add_parser(name, help=module.HELP, description=module.DESCRIPTION)
         module.add_arguments(sub)
+        if name == "job":  # its actions take -q/-v themselves
+            continue
         sub.add_argument("-q", "--quiet", action="store_true", help="no progress bar, warnings and errors only")
         sub.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return parser
@@ -39,6 +41,9 @@ def main(argv: list[str] | None = None) -> int:
         return int(exit_.code or 0)
     level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
     logging.basicConfig(level=level, format="pxr-layers: %(levelname)s: %(message)s", stream=sys.stderr)
+    if not args.verbose:  # Dask's scheduler and workers chat at INFO
+        for chatty in ("distributed", "tornado", "bokeh"):
+            logging.getLogger(chatty).setLevel(logging.WARNING)
     args.show_progress = not args.quiet and not os.environ.get("CI")
     try:
         return SUBCOMMANDS[args.command].run(args)

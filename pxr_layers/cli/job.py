@@ -1,0 +1,69 @@
+"""`pxr-layers job run|status JOB`: render a shot's frames on Dask; show where a job is."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+HELP = "run a shot job (frames × tiles on Dask), or show its progress"
+DESCRIPTION = (
+    "A job file (TOML, pipelines/README.md) names a stage, frames, recipe layers, render settings, "
+    "output templates and a Dask scheduler. `job run` renders every frame not done yet on a "
+    "LocalCluster (or the job's scheduler) and resumes where an interrupted run stopped; "
+    "`job status` lists each frame as done, under way (tiles committed) or pending."
+)
+log = logging.getLogger(__name__)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    run = actions.add_parser("run", help="render the frames not done yet",
+                             description="Render every frame of JOB that has no commit record yet.")
+    run.add_argument("job", metavar="JOB", help="the job file (.toml)")
+    run.add_argument("--frames", metavar="RANGE", help="only these frames, e.g. 1-4 or 1-24x4 (default: the job's)")
+    run.add_argument("--spp", type=int, metavar="N", help="samples per pixel (default: the job's)")
+    run.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"), help="image size (default: the job's)")
+    run.add_argument("--scheduler", metavar="ADDRESS",
+                     help="a Dask scheduler, tcp://host:8786 (default: the job's, else a LocalCluster)")
+    run.add_argument("--workers", type=int, metavar="N", help="LocalCluster worker processes (default: the job's)")
+    run.add_argument("--batch-pixels", type=int, metavar="N", help="pixels per task (default: the job's)")
+    status = actions.add_parser("status", help="show each frame's progress",
+                                description="Each frame of JOB: done, k/n tiles committed, or pending.")
+    status.add_argument("job", metavar="JOB", help="the job file (.toml)")
+    for sub in (run, status):
+        sub.add_argument("-o", "--output", metavar="DIR", help="output directory (default: the job's)")
+        sub.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
+        sub.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..jobs import load_job
+
+    overrides = {"output.directory": args.output} if args.output else {}
+    if args.action == "run":
+        for flag, key in (("frames", "frames"), ("spp", "render.spp"), ("scheduler", "dask.scheduler"),
+                          ("workers", "dask.workers"), ("batch_pixels", "dask.batch_pixels")):
+            if getattr(args, flag) is not None:
+                overrides[key] = getattr(args, flag)
+        if args.resolution:
+            overrides["render.resolution"] = list(args.resolution)
+    job = load_job(args.job, overrides)
+    if args.action == "status":
+        return _status(job)
+    from ..jobs.executor import run_job
+
+    report = run_job(job, on_frame=lambda frame, status: log.info("frame %g: %s", frame, status))
+    print(f"{job.name}: {len(report.rendered)} frames rendered, {len(report.skipped)} already done "
+          f"({report.tiles_rendered} tiles rendered, {report.tiles_reused} reused) in {report.seconds:.1f}s")
+    return 0
+
+
+def _status(job) -> int:
+    from ..jobs.executor import frame_status
+
+    statuses = [(frame, frame_status(job, frame)) for frame in job.frames]
+    for frame, status in statuses:
+        print(f"{job.output_stem(frame)}  {status}")
+    done = sum(status == "done" for _, status in statuses)
+    print(f"{job.name}: {done}/{len(statuses)} frames done")
+    return 0

@@ -1,0 +1,332 @@
+"""Run a shot job on Dask: frames × pixel tiles as tasks, each frame assembled in order.
+
+The work of a frame is cut into **tiles**: ranges of whole pixels with every one of their
+samples, starting on the tracer's batch boundaries (:func:`pxr_layers.trace.render.batch_pixels`).
+A tile therefore holds exactly the batches `pxr-layers render` would trace for those
+pixels, with the same seeds (every random stream derives from seed, frame, pixel, sample),
+and the frame is assembled from its tiles in pixel order: the EXRs and the index are
+byte-identical whatever the tile size, the worker count or the order tasks finish in.
+(Splitting a pixel's samples across tasks would change the order its samples are summed
+in, and with it the last bits of the beauty.)
+
+Tasks (run on workers):
+
+* ``render_tile``: trace pixels [first, stop) of a frame and commit the batches to
+  ``<frame scratch>/tile.<first>-<stop>.pkl`` (temporary name, then rename). The Embree
+  scene of a frame is built once per worker process (a small cache of prepared frames).
+* ``render_frame_data``: the frame's data AOVs and its event vocabulary, likewise.
+
+The client assembles each frame as soon as its tasks are done: film + path index from
+the tiles in order, then the recipe's products (:class:`~pxr_layers.jobs.frame.FrameAssembler`),
+then ``<stem>.done.json``, the frame's commit record, written last; then the scratch
+folder is removed. A frame with a commit record whose files exist is complete and is
+skipped on the next run; an interrupted frame keeps its committed tiles, and the next run
+renders only the missing ones. A killed worker loses at most its running tile (its
+temporary file is never renamed), which Dask runs again elsewhere; a task that raises is
+retried ``job.retries`` times.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import pickle
+import shutil
+import tempfile
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import JobError
+from .definition import Job
+from .frame import FrameAssembler, FramePlan, plan_frame, prepare_frame, resolve_recipe
+
+log = logging.getLogger(__name__)
+
+DONE_SUFFIX = ".done.json"
+PLAN_FILE = "plan.json"
+DATA_FILE = "data.pkl"
+
+
+@dataclass
+class JobReport:
+    """What a run did: frames rendered and skipped, tiles rendered and reused, seconds."""
+
+    rendered: list[float] = field(default_factory=list)
+    skipped: list[float] = field(default_factory=list)
+    tiles_rendered: int = 0
+    tiles_reused: int = 0
+    seconds: float = 0.0
+
+
+# -- the frames and their tiles ---------------------------------------------------------------
+
+
+def frame_plan(job: Job, frame: float, recipe=None) -> FramePlan:
+    return plan_frame(
+        job.stage, frame, recipe_layers=job.recipe_layers, settings=job.settings, per_light=job.per_light,
+        resolution=job.resolution, spp=job.spp, max_depth=job.max_depth, seed=job.seed,
+        norm_bounces=job.norm_bounces, directory=job.output_directory, index_path=job.index_path(frame),
+        product_path=lambda product: job.product_path(product.output_name, frame), recipe=recipe,
+    )
+
+
+def tiles(plan: FramePlan, batch_pixels_wanted: int) -> list[tuple[int, int]]:
+    """(first, stop) pixel ranges of about ``batch_pixels_wanted`` pixels, on batch boundaries."""
+    from ..trace.render import batch_pixels
+
+    step = batch_pixels(plan.trace.spp)
+    size = max(1, round(batch_pixels_wanted / step)) * step
+    return [(first, min(first + size, plan.pixels)) for first in range(0, plan.pixels, size)]
+
+
+def done_record(job: Job, frame: float) -> Path:
+    return job.output_directory / f"{job.output_stem(frame)}{DONE_SUFFIX}"
+
+
+def is_done(job: Job, frame: float) -> bool:
+    """A frame is done when its commit record exists and every file it lists is there."""
+    record = done_record(job, frame)
+    if not record.exists():
+        return False
+    try:
+        files = json.loads(record.read_text())["files"]
+    except (OSError, ValueError, KeyError):
+        return False
+    return all((record.parent / name).exists() for name in files)
+
+
+def _fingerprint(plan: FramePlan) -> str:
+    """What a tile's content depends on: a scratch folder of another plan is discarded."""
+    trace = plan.trace
+    return json.dumps({
+        "stage": str(plan.stage), "sha256": plan.manifest.get("stage_sha256"), "frame": plan.frame,
+        "camera": plan.camera, "resolution": list(plan.resolution), "settings": plan.shot_settings,
+        "spp": trace.spp, "max_depth": trace.max_depth, "seed": trace.seed, "norm_bounces": trace.norm_bounces,
+        "record": trace.record_paths,
+    }, sort_keys=True)
+
+
+def _scratch(job: Job, plan: FramePlan, tile_list: list[tuple[int, int]]) -> Path:
+    """The frame's scratch folder, emptied if it holds tiles of another plan."""
+    folder = job.frame_directory(plan.frame)
+    stamp = folder / PLAN_FILE
+    fingerprint = _fingerprint(plan)
+    if folder.exists():
+        try:
+            same = json.loads(stamp.read_text())["fingerprint"] == fingerprint
+        except (OSError, ValueError, KeyError):
+            same = False
+        if not same:
+            shutil.rmtree(folder)
+    if not folder.exists():
+        folder.mkdir(parents=True)
+        _write_atomically(stamp, json.dumps({"fingerprint": fingerprint, "tiles": len(tile_list)}).encode())
+    return folder
+
+
+def tile_file(folder: Path, first: int, stop: int) -> Path:
+    return folder / f"tile.{first:09d}-{stop:09d}.pkl"
+
+
+# -- tasks (run on workers) -------------------------------------------------------------------
+
+
+_PREPARED: OrderedDict = OrderedDict()
+PREPARED_FRAMES = 2
+"""Frames a worker process keeps prepared (a frame's tiles usually reach it together)."""
+
+
+def _prepared(plan: FramePlan):
+    """The frame's Integrator (Embree scene built), once per worker process and frame."""
+    key = _fingerprint(plan)
+    if key not in _PREPARED:
+        _PREPARED[key] = prepare_frame(plan)
+        while len(_PREPARED) > PREPARED_FRAMES:
+            _PREPARED.popitem(last=False)
+    _PREPARED.move_to_end(key)
+    return _PREPARED[key]
+
+
+def _worker_threads() -> int:
+    try:
+        from distributed import get_worker
+
+        return max(1, int(get_worker().state.nthreads))
+    except (ImportError, ValueError, AttributeError):
+        return 1
+
+
+def render_tile(plan: FramePlan, first: int, stop: int, path: str) -> dict:
+    """Trace pixels [first, stop) of the frame; commit their batches to ``path``."""
+    start = time.perf_counter()
+    integrator = _prepared(plan)
+    from ..trace import trace_pixels
+
+    batches: list = []
+    trace_pixels(integrator, first, stop, batches.append, threads=_worker_threads())
+    _write_atomically(Path(path), pickle.dumps(batches, protocol=pickle.HIGHEST_PROTOCOL))
+    return {"rays": sum(batch.rays for batch in batches), "seconds": time.perf_counter() - start}
+
+
+def render_frame_data(plan: FramePlan, path: str) -> None:
+    """The frame's data AOVs, event vocabulary and object paths, committed to ``path``."""
+    from ..trace import render_data_aovs
+
+    integrator = _prepared(plan)
+    data = render_data_aovs(integrator, plan.data_aovs, threads=_worker_threads())
+    payload = (data, integrator.vocabulary, tuple(integrator.world.object_paths))
+    _write_atomically(Path(path), pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def _write_atomically(path: Path, content: bytes) -> None:
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(handle, "wb") as file:
+            file.write(content)
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+
+
+# -- the client -------------------------------------------------------------------------------
+
+
+def run_job(job: Job, *, client=None, on_frame: Callable[[float, str], None] | None = None) -> JobReport:
+    """Render every frame of ``job`` not done yet; returns what was done.
+
+    client : a ``distributed.Client``; None starts one as the job says (its scheduler, or
+             a LocalCluster of ``job.workers`` single-threaded worker processes) and stops
+             it at the end.
+    on_frame(frame, status) : called as frames are skipped, started and finished.
+    """
+    started = time.perf_counter()
+    report = JobReport()
+    recipe = resolve_recipe(job.stage, recipe_layers=job.recipe_layers, settings=job.settings,
+                            per_light=job.per_light)
+    todo = []
+    for frame in job.frames:
+        if is_done(job, frame):
+            report.skipped.append(frame)
+            if on_frame:
+                on_frame(frame, "skipped (done)")
+        else:
+            todo.append(frame_plan(job, frame, recipe))
+    if not todo:
+        report.seconds = time.perf_counter() - started
+        return report
+    with _client(job, client) as dask:
+        _run_frames(job, dask, todo, report, on_frame)
+    report.seconds = time.perf_counter() - started
+    return report
+
+
+class _client:
+    """The given client, or a cluster started (and stopped) for the job."""
+
+    def __init__(self, job: Job, client):
+        self.job, self.given, self.started = job, client, []
+
+    def __enter__(self):
+        if self.given is not None:
+            return self.given
+        from distributed import Client, LocalCluster
+
+        if self.job.scheduler:
+            try:
+                client = Client(self.job.scheduler, timeout="30s")
+            except OSError as error:
+                raise JobError(f"cannot reach the Dask scheduler ({error})", file=str(self.job.file),
+                               key="dask.scheduler") from None
+            self.started = [client]
+            return client
+        cluster = LocalCluster(n_workers=self.job.workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        client = Client(cluster)
+        self.started = [client, cluster]
+        log.info("started a local Dask cluster of %d workers", self.job.workers)
+        return client
+
+    def __exit__(self, *exc) -> None:
+        for thing in self.started:
+            thing.close()
+
+
+def _run_frames(job: Job, client, plans: list[FramePlan], report: JobReport, on_frame) -> None:
+    from distributed import as_completed
+
+    pending: dict[float, set] = {}
+    by_future = {}
+    for plan in plans:
+        tile_list = tiles(plan, job.batch_pixels)
+        folder = _scratch(job, plan, tile_list)
+        futures = set()
+        for first, stop in tile_list:
+            path = tile_file(folder, first, stop)
+            if path.exists():
+                report.tiles_reused += 1
+                continue
+            future = client.submit(render_tile, plan, first, stop, str(path), retries=job.retries, pure=False)
+            futures.add(future)
+            report.tiles_rendered += 1
+        if not (folder / DATA_FILE).exists():
+            futures.add(client.submit(render_frame_data, plan, str(folder / DATA_FILE), retries=job.retries,
+                                      pure=False))
+        pending[plan.frame] = futures
+        for future in futures:
+            by_future[future] = plan
+        if on_frame:
+            on_frame(plan.frame, f"submitted {len(futures)} tasks ({len(tile_list)} tiles)")
+    plans_by_frame = {plan.frame: plan for plan in plans}
+    for plan in plans:  # frames whose every tile was already there
+        if not pending[plan.frame]:
+            _assemble(job, plan, report, on_frame)
+    for future in as_completed(list(by_future)):
+        plan = by_future[future]
+        future.result()  # raises the task's error once its retries are spent
+        pending[plan.frame].discard(future)
+        if not pending[plan.frame]:
+            _assemble(job, plans_by_frame[plan.frame], report, on_frame)
+
+
+def _assemble(job: Job, plan: FramePlan, report: JobReport, on_frame) -> None:
+    """Film + index from the tiles in pixel order, then the products; commit the frame."""
+    folder = job.frame_directory(plan.frame)
+    with open(folder / DATA_FILE, "rb") as file:
+        data, vocabulary, object_paths = pickle.load(file)
+    with FrameAssembler(plan) as frame:
+        for first, stop in tiles(plan, job.batch_pixels):
+            with open(tile_file(folder, first, stop), "rb") as file:
+                for batch in pickle.load(file):
+                    frame.add(batch)
+        delivered = frame.deliver(vocabulary, data, object_paths)
+    files = [os.path.relpath(path, job.output_directory) for path in plan.files]
+    files += [os.path.relpath(path, job.output_directory) for item in delivered for path in item.previews.values()]
+    record = {"frame": plan.frame, "files": sorted(files), "recipe": plan.recipe.settings_path}
+    _write_atomically(done_record(job, plan.frame), json.dumps(record, indent=1).encode())
+    shutil.rmtree(folder, ignore_errors=True)
+    report.rendered.append(plan.frame)
+    if on_frame:
+        on_frame(plan.frame, "done")
+
+
+# -- status -----------------------------------------------------------------------------------
+
+
+def frame_status(job: Job, frame: float) -> str:
+    """'done', 'k/n tiles' for a frame under way (or interrupted), or 'pending'."""
+    if is_done(job, frame):
+        return "done"
+    folder = job.frame_directory(frame)
+    try:
+        total = json.loads((folder / PLAN_FILE).read_text())["tiles"]
+    except (OSError, ValueError, KeyError):
+        return "pending"
+    committed = len(list(folder.glob("tile.*.pkl")))
+    return f"{committed}/{total} tiles"
