@@ -40,8 +40,9 @@ class Extraction:
 
 def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: bool = False) -> Extraction:
     """Every layer of `expressions` (name → extended LPE) from `index`, in one pass."""
-    automaton = lpe.compile_layers(expressions)
-    warn_unknown_labels(automaton, index)
+    automata = _automata(expressions)
+    for automaton in automata:
+        warn_unknown_labels(automaton, index)
     names = list(expressions)
     class_count = len(index.classes)
     always = np.zeros((len(names), class_count), bool)
@@ -50,7 +51,8 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     group_of = np.full((len(names), class_count), -1, np.int64)
     groups: list[lpe.Outcome] = []
     signatures: dict[tuple, int] = {}
-    for class_id, outcomes in _class_outcomes(automaton, index):
+    every_class_outcomes = (item for automaton in automata for item in _class_outcomes(automaton, index))
+    for class_id, outcomes in every_class_outcomes:
         for layer, outcome in outcomes.items():
             row = names.index(layer)
             if outcome.kind == "always":
@@ -81,6 +83,19 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     log.info("extracted %d layers from %d of %d records (%d of %d classes)", len(names), records_read,
              index.record_count, len(wanted), class_count)
     return Extraction(_images(sums, names, index), records_read, len(wanted))
+
+
+def _automata(expressions: dict[str, str]) -> list[lpe.LayerAutomaton]:
+    """One automaton for the layers without covariance conditions, one per layer with.
+
+    A class is matched against every combination of the conditions its events carry, and
+    in a shared automaton those are the conditions of all its layers (2**k combinations
+    per event): matching each conditional layer on its own keeps k small.
+    """
+    conditional = {name for name, text in expressions.items() if lpe.compile_layers({name: text}).has_conditions}
+    plain = {name: text for name, text in expressions.items() if name not in conditional}
+    automata = [lpe.compile_layers(plain)] if plain else []
+    return automata + [lpe.compile_layers({name: expressions[name]}) for name in conditional]
 
 
 def _class_outcomes(automaton: lpe.LayerAutomaton, index: PathIndex):

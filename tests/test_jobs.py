@@ -1,0 +1,152 @@
+"""Shot jobs on a real Dask LocalCluster: the example shot end to end, the same bytes
+whatever the split and the worker count, resume, and a worker killed mid-job."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+import pytest
+from distributed import Client, LocalCluster
+from test_cli import SCRIPT
+
+from pxr_layers.jobs import load_job
+from pxr_layers.jobs.executor import done_record, frame_plan, run_job, tile_file, tiles
+from pxr_layers.jobs.executor import _scratch as scratch_folder
+from pxr_layers.jobs.executor import render_tile
+
+REPO = Path(__file__).resolve().parents[1]
+SHOT = REPO / "pipelines" / "shows" / "demo" / "shot010.toml"
+PASSES = ("emission", "background", "diffuse_direct", "diffuse_indirect", "glossy_direct", "glossy_indirect",
+          "transmission", "volume")
+# 64 spp: the tracer's batches hold 1024 pixels, so a 64x48 frame is 3 batches (3 tiles at most)
+SMALL = {"render.spp": 64, "render.resolution": [64, 48], "render.max_depth": 4}
+
+
+def job_at(directory: Path, **overrides):
+    return load_job(SHOT, {**SMALL, "frames": "1-2", "output.directory": str(directory), **overrides})
+
+
+def deliverables(directory: Path) -> dict[str, bytes]:
+    return {path.name: path.read_bytes() for path in sorted(directory.iterdir())
+            if path.suffix in (".exr", ".pxlidx")}
+
+
+@pytest.fixture(scope="module")
+def client():
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            Client(cluster) as dask:
+        yield dask
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory, client):
+    """Frames 1-2 of the example shot, one tile per frame, on two workers."""
+    directory = tmp_path_factory.mktemp("reference")
+    job = job_at(directory, **{"dask.batch_pixels": 1_000_000})
+    report = run_job(job, client=client)
+    return job, report, deliverables(directory)
+
+
+def rgb(part: OpenEXR.Part, name: str) -> np.ndarray:
+    channels = part.channels
+    if name in channels:
+        return np.asarray(channels[name].pixels, np.float64)
+    return np.stack([channels[f"{name}.{c}"].pixels for c in "RGB"], axis=-1).astype(np.float64)
+
+
+def test_the_example_shot_runs_end_to_end(reference):
+    job, report, files = reference
+    assert report.rendered == [1.0, 2.0] and report.skipped == []
+    assert {"shot010.0001.pxlidx", "shot010.0002.pxlidx", "shot010.0001.light_passes.exr",
+            "shot010.0002.showcase_selections.exr", "shot010.0002.sphere.exr"} <= set(files)
+    beauties, layer_sets = [], []
+    for frame in (1, 2):
+        parts = {part.name(): part for part in OpenEXR.File(str(job.output_directory /
+                                                                f"shot010.000{frame}.light_passes.exr")).parts}
+        beauty = np.asarray(parts["rgba"].channels["RGBA"].pixels, np.float64)[..., :3]
+        np.testing.assert_allclose(sum(rgb(parts[name], name) for name in PASSES), beauty, rtol=1e-5, atol=1e-6)
+        beauties.append(beauty)
+        layer_sets.append(list(parts))
+        assert done_record(job, frame).exists() and not job.frame_directory(frame).exists()
+    assert layer_sets[0] == layer_sets[1]  # the same recipe gives the same layers on every frame
+    assert np.abs(beauties[0] - beauties[1]).max() > 0.01  # the shot is animated
+
+
+def test_same_bytes_whatever_the_split_and_the_worker_count(tmp_path, reference):
+    _, _, expected = reference
+    split = job_at(tmp_path / "split", **{"dask.batch_pixels": 1})
+    assert len(tiles(frame_plan(split, 1.0), split.batch_pixels)) == 3
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            Client(cluster) as one_worker:
+        report = run_job(split, client=one_worker)
+    assert report.tiles_rendered == 6
+    assert deliverables(tmp_path / "split") == expected
+
+
+def test_a_frame_is_the_same_as_pxr_layers_render(tmp_path, reference):
+    job, _, _ = reference
+    command = [SCRIPT, "render", str(job.stage), "--frame", "1", "--spp", "64", "--resolution", "64", "48",
+               "--max-depth", "4", "--norm-bounces", str(job.norm_bounces), "--per-light", "lights", "--seed",
+               str(job.seed), "-o", str(tmp_path), "--quiet", "--no-previews"]
+    for layer in job.recipe_layers:
+        command += ["--recipe", str(layer)]
+    result = subprocess.run(command, capture_output=True, text=True, check=False)
+    assert result.returncode == 0, result.stderr
+    rendered = OpenEXR.File(str(tmp_path / "light_passes.0001.exr"))
+    from_job = OpenEXR.File(str(job.output_directory / "shot010.0001.light_passes.exr"))
+    for ours, theirs in zip(from_job.parts, rendered.parts, strict=True):
+        assert ours.name() == theirs.name()
+        for name, channel in ours.channels.items():
+            assert np.array_equal(channel.pixels, theirs.channels[name].pixels), (ours.name(), name)
+
+
+def test_resume_skips_done_frames_and_reuses_committed_tiles(tmp_path, client, reference):
+    _, _, expected = reference
+    job = job_at(tmp_path, **{"dask.batch_pixels": 1})
+    # An interrupted run: frame 2 has one tile committed, frame 1 nothing.
+    plan = frame_plan(job, 2.0)
+    tile_list = tiles(plan, job.batch_pixels)
+    folder = scratch_folder(job, plan, tile_list)
+    first, stop = tile_list[0]
+    render_tile(plan, first, stop, str(tile_file(folder, first, stop)))
+    report = run_job(job, client=client)
+    assert report.rendered == [1.0, 2.0] and report.tiles_reused == 1 and report.tiles_rendered == 5
+    assert deliverables(tmp_path) == expected
+    # Done frames are skipped; a frame whose commit record is gone is rendered again.
+    stamp = (tmp_path / "shot010.0001.light_passes.exr").stat().st_mtime_ns
+    done_record(job, 2.0).unlink()
+    report = run_job(job, client=client)
+    assert report.skipped == [1.0] and report.rendered == [2.0]
+    assert (tmp_path / "shot010.0001.light_passes.exr").stat().st_mtime_ns == stamp
+    assert deliverables(tmp_path) == expected
+    status = subprocess.run([SCRIPT, "job", "status", str(SHOT), "-o", str(tmp_path)], capture_output=True,
+                            text=True, check=False)
+    assert status.returncode == 0 and "shot010.0001  done" in status.stdout and "shot010.0003  pending" in status.stdout
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_job_corrupts_nothing(tmp_path, reference):
+    _, _, expected = reference
+    job = job_at(tmp_path, **{"dask.batch_pixels": 1})
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            Client(cluster) as dask:
+        outcome: dict = {}
+        runner = threading.Thread(target=lambda: outcome.update(report=run_job(job, client=dask)))
+        runner.start()
+        deadline = time.monotonic() + 120
+        while not list(tmp_path.glob("*/tile.*.pkl")) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert not done_record(job, 2.0).exists(), "the job ended before a worker could be killed"
+        victim = next(iter(dask.run(os.getpid).values()))
+        os.kill(victim, signal.SIGKILL)
+        runner.join(timeout=300)
+    assert sorted(outcome["report"].rendered) == [1.0, 2.0]
+    assert deliverables(tmp_path) == expected
+    assert not [path for path in tmp_path.rglob("*") if ".tmp" in path.name]
