@@ -16,10 +16,13 @@ Tasks (run on workers):
   scene of a frame is built once per worker process (a small cache of prepared frames).
 * ``render_frame_data``: the frame's data AOVs and its event vocabulary, likewise.
 
-The client assembles each frame as soon as its tasks are done: film + path index from
-the tiles in order, then the recipe's products (:class:`~pxr_layers.jobs.frame.FrameAssembler`),
-then ``<stem>.done.json``, the frame's commit record, written last; then the scratch
-folder is removed. A frame with a commit record whose files exist is complete and is
+* ``assemble_frame`` (after the frame's tiles): film + path index from the tiles in order,
+  then the recipe's products (:class:`~pxr_layers.jobs.frame.FrameAssembler`), then
+  ``<stem>.done.json``, the frame's commit record, written last; then the scratch folder
+  is removed.
+
+The client only plans the frames, submits the tasks and waits. Workers share the output
+directory (a local disk for a LocalCluster, the studio's shared storage on a farm). A frame with a commit record whose files exist is complete and is
 skipped on the next run; an interrupted frame keeps its committed tiles, and the next run
 renders only the missing ones. A killed worker loses at most its running tile (its
 temporary file is never renamed), which Dask runs again elsewhere; a task that raises is
@@ -259,44 +262,43 @@ class _client:
 
 
 def _run_frames(job: Job, client, plans: list[FramePlan], report: JobReport, on_frame) -> None:
+    """Submit every frame's tiles and its assembly (which waits for them); wait for all."""
     from distributed import as_completed
 
-    pending: dict[float, set] = {}
-    by_future = {}
+    assemblies = {}
     for plan in plans:
         tile_list = tiles(plan, job.batch_pixels)
         folder = _scratch(job, plan, tile_list)
-        futures = set()
+        inputs = []
         for first, stop in tile_list:
             path = tile_file(folder, first, stop)
             if path.exists():
                 report.tiles_reused += 1
                 continue
-            future = client.submit(render_tile, plan, first, stop, str(path), retries=job.retries, pure=False)
-            futures.add(future)
+            inputs.append(client.submit(render_tile, plan, first, stop, str(path), retries=job.retries, pure=False))
             report.tiles_rendered += 1
         if not (folder / DATA_FILE).exists():
-            futures.add(client.submit(render_frame_data, plan, str(folder / DATA_FILE), retries=job.retries,
-                                      pure=False))
-        pending[plan.frame] = futures
-        for future in futures:
-            by_future[future] = plan
+            inputs.append(client.submit(render_frame_data, plan, str(folder / DATA_FILE), retries=job.retries,
+                                        pure=False))
+        # Assembling runs on a worker too: frames are assembled in parallel, next to the
+        # tiles of later frames, and the client only waits.
+        future = client.submit(assemble_frame, job, plan, inputs, retries=job.retries, pure=False)
+        assemblies[future] = plan.frame
         if on_frame:
-            on_frame(plan.frame, f"submitted {len(futures)} tasks ({len(tile_list)} tiles)")
-    plans_by_frame = {plan.frame: plan for plan in plans}
-    for plan in plans:  # frames whose every tile was already there
-        if not pending[plan.frame]:
-            _assemble(job, plan, report, on_frame)
-    for future in as_completed(list(by_future)):
-        plan = by_future[future]
+            on_frame(plan.frame, f"submitted {len(inputs)} tasks ({len(tile_list)} tiles) and the assembly")
+    for future in as_completed(list(assemblies)):
         future.result()  # raises the task's error once its retries are spent
-        pending[plan.frame].discard(future)
-        if not pending[plan.frame]:
-            _assemble(job, plans_by_frame[plan.frame], report, on_frame)
+        report.rendered.append(assemblies[future])
+        if on_frame:
+            on_frame(assemblies[future], "done")
+    report.rendered.sort()
 
 
-def _assemble(job: Job, plan: FramePlan, report: JobReport, on_frame) -> None:
-    """Film + index from the tiles in pixel order, then the products; commit the frame."""
+def assemble_frame(job: Job, plan: FramePlan, inputs=()) -> None:
+    """Film + index from the tiles in pixel order, then the products; commit the frame.
+
+    inputs: the frame's tile and data tasks (Dask passes their results once they are done).
+    """
     folder = job.frame_directory(plan.frame)
     with open(folder / DATA_FILE, "rb") as file:
         data, vocabulary, object_paths = pickle.load(file)
@@ -311,9 +313,6 @@ def _assemble(job: Job, plan: FramePlan, report: JobReport, on_frame) -> None:
     record = {"frame": plan.frame, "files": sorted(files), "recipe": plan.recipe.settings_path}
     _write_atomically(done_record(job, plan.frame), json.dumps(record, indent=1).encode())
     shutil.rmtree(folder, ignore_errors=True)
-    report.rendered.append(plan.frame)
-    if on_frame:
-        on_frame(plan.frame, "done")
 
 
 # -- status -----------------------------------------------------------------------------------
