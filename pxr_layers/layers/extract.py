@@ -109,9 +109,10 @@ def _class_outcomes(automaton: lpe.LayerAutomaton, index: PathIndex):
     transitions: dict[tuple[int, int], int] = {}
     dfa = automaton.dfa
     conditional = {event for event, (_, conditions) in enumerate(symbols) if conditions}
+    deferred = []
     for path_class in index.classes:
         if conditional and not conditional.isdisjoint(path_class.event_ids):
-            yield path_class.id, automaton.match(path_class.events)
+            deferred.append(path_class)
             continue
         state = dfa.start
         for event in path_class.event_ids:
@@ -123,6 +124,22 @@ def _class_outcomes(automaton: lpe.LayerAutomaton, index: PathIndex):
                 break
         accepted = () if state == DEAD else dfa.accepts[state]
         yield path_class.id, {layer: lpe.ALWAYS for layer in accepted}
+    # Conditional classes in event order: each shares the walk along its common prefix
+    # with the one before (classes are the leaves and nodes of one prefix tree).
+    deferred.sort(key=lambda path_class: tuple(path_class.event_ids))
+    walks = [automaton.start_walk()]  # walks[k]: after the first k events of `previous`
+    previous: tuple = ()
+    for path_class in deferred:
+        ids = tuple(path_class.event_ids)
+        shared = 0
+        while shared < min(len(ids), len(previous)) and ids[shared] == previous[shared]:
+            shared += 1
+        del walks[shared + 1:]
+        for position in range(shared, len(ids)):
+            walks.append(automaton.advance(walks[-1], position, symbols[ids[position]]))
+        previous = ids
+        classified = [symbols[event] for event in ids]
+        yield path_class.id, automaton.outcomes(walks[len(ids)], path_class.events, classified)
 
 
 class _Accumulator:

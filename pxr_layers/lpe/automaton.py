@@ -530,53 +530,70 @@ class LayerAutomaton:
         classified = [self.alphabet.classify(event) for event in events]
         if not any(conditional for _, conditional in classified):
             return self._match_unconditionally(classified)
+        walk = self.start_walk()
+        for index, symbol in enumerate(classified):
+            walk = self.advance(walk, index, symbol)
+        return self.outcomes(walk, events, classified)
 
-        atoms: list[tuple[int, int]] = []  # (event index, condition index), bit j of a row number
-        frontier = {self.dfa.start: np.ones(1, dtype=bool)}
-        for index, (outright, conditional) in enumerate(classified):
-            involved = sorted({condition for _, condition in conditional})
-            options = [frozenset(holding) for holding in _subsets(involved)]
-            targets = {
-                state: {holding: self.dfa.step(state, self.alphabet.symbol(outright, conditional, holding))
-                        for holding in options}
-                for state in frontier
-            }
-            deciding = [
-                condition for condition in involved
-                if any(row[holding] != row[holding ^ {condition}] for row in targets.values() for holding in options)
-            ]
-            if len(atoms) + len(deciding) > MAX_ATOMS_PER_CLASS:
-                # Long paths under `.*` with conditions: a table per class would be too big.
-                return {layer: PerRecord(self, layer, events, tuple(classified)) for layer in self.layers}
+    def start_walk(self) -> tuple | None:
+        """The state of a conditional walk before any event: (atoms, frontier)."""
+        return (), {self.dfa.start: np.ones(1, dtype=bool)}
+
+    def advance(self, walk: tuple | None, index: int, symbol) -> tuple | None:
+        """The walk after event ``index`` (its ``Alphabet.classify`` result); None once the
+        class depends on more than MAX_ATOMS_PER_CLASS atoms. Walks are not modified, so
+        classes that share a prefix can share the walk up to it (see layers/extract.py)."""
+        if walk is None:
+            return None
+        atoms, frontier = walk
+        if not frontier:
+            return walk
+        outright, conditional = symbol
+        involved = sorted({condition for _, condition in conditional})
+        options = [frozenset(holding) for holding in _subsets(involved)]
+        targets = {
+            state: {holding: self.dfa.step(state, self.alphabet.symbol(outright, conditional, holding))
+                    for holding in options}
+            for state in frontier
+        }
+        deciding = [
+            condition for condition in involved
+            if any(row[holding] != row[holding ^ {condition}] for row in targets.values() for holding in options)
+        ]
+        if len(atoms) + len(deciding) > MAX_ATOMS_PER_CLASS:
+            return None  # long paths under `.*` with conditions: a table per class would be too big
+        for condition in deciding:
+            atoms = (*atoms, (index, condition))
+            # A new atom is the highest bit: every existing row splits into two equal halves.
+            frontier = {state: np.concatenate([rows, rows]) for state, rows in frontier.items()}
+        codes = np.arange(2 ** len(atoms))
+        following: dict[int, np.ndarray] = {}
+        for holding in map(frozenset, _subsets(deciding)):
+            # Conditions that decide nothing at this event are taken as false: same targets.
+            selected = np.ones(codes.size, dtype=bool)
             for condition in deciding:
-                atoms.append((index, condition))
-                # A new atom is the highest bit: every existing row splits into two equal halves.
-                frontier = {state: np.concatenate([rows, rows]) for state, rows in frontier.items()}
-            codes = np.arange(2 ** len(atoms))
-            following: dict[int, np.ndarray] = {}
-            for holding in map(frozenset, _subsets(deciding)):
-                # Conditions that decide nothing at this event are taken as false: same targets.
-                selected = np.ones(codes.size, dtype=bool)
-                for condition in deciding:
-                    holds = (codes >> atoms.index((index, condition))) & 1 == 1
-                    selected &= holds if condition in holding else ~holds
-                for state, rows in frontier.items():
-                    target = targets[state][holding]
-                    reached = rows & selected
-                    if target == DEAD or not reached.any():
-                        continue
-                    following[target] = following[target] | reached if target in following else reached
-            frontier = following
-            if not frontier:
-                break
+                holds = (codes >> atoms.index((index, condition))) & 1 == 1
+                selected &= holds if condition in holding else ~holds
+            for state, rows in frontier.items():
+                target = targets[state][holding]
+                reached = rows & selected
+                if target == DEAD or not reached.any():
+                    continue
+                following[target] = following[target] | reached if target in following else reached
+        return atoms, following
 
+    def outcomes(self, walk: tuple | None, events: tuple, classified) -> dict[str, Outcome]:
+        """Each layer's outcome at the end of a walk over ``events``."""
+        if walk is None:
+            return {layer: PerRecord(self, layer, events, tuple(classified)) for layer in self.layers}
+        atoms, frontier = walk
         outcomes = {}
         for layer in self.layers:
             table = np.zeros(2 ** len(atoms), dtype=bool)
             for state, rows in frontier.items():
                 if layer in self.dfa.accepts[state]:
                     table |= rows
-            outcomes[layer] = self._outcome(layer, table, atoms, events)
+            outcomes[layer] = self._outcome(layer, table, list(atoms), events)
         return outcomes
 
     def _match_unconditionally(self, classified) -> dict[str, Outcome]:
