@@ -18,7 +18,7 @@ from ..layers.extract import extract
 from ..paths.reader import PathIndex
 from ..recipe.model import PER_LIGHT_MODES, Layer, Product, Recipe
 from ..recipe.presets import PRESETS
-from .render import preset_or_file
+from .render import output_target, preset_or_file
 
 HELP = "cut light layers out of a path index with Light Path Expressions"
 DESCRIPTION = (
@@ -82,13 +82,10 @@ def run(args: argparse.Namespace) -> int:
                     settings_path=loaded.settings_path if loaded else "", file=loaded.file if loaded else "")
     check_raw_sources(recipe, (), "the path index does not hold (it keeps light paths; data AOVs need a render)")
     frame = _manifest_frame(index)
-    output = args.output
-    directory = Path(output).parent if output and output.lower().endswith(".exr") else Path(output or index.path.parent)
-    exr = Path(output) if output and output.lower().endswith(".exr") else None
+    directory, exr = output_target(args.output, index.path.parent)
     outputs = plan_outputs(recipe, frame, directory, exr)
-    metadata = {key: index.manifest[key] for key in ("version", "stage", "camera", "frame", "spp", "maxDepth", "seed")
-                if key in index.manifest}
-    metadata["version"] = __version__
+    metadata = {"version": __version__, **{key: index.manifest[key] for key in
+                                           ("stage", "camera", "frame", "spp", "maxDepth", "seed") if key in index.manifest}}
     metadata["index"] = os.path.relpath(index.path, directory)
     beauty = _beauty(index)
     for delivered in deliver(index, recipe, beauty, outputs, metadata=metadata, previews=not args.no_previews,
@@ -118,7 +115,7 @@ def _at_index_view(product: Product, index: PathIndex) -> Product:
     camera = index.manifest.get("camera", product.camera)
     if product.resolution != resolution or product.camera != camera:
         log.info("%s asks for %s at %dx%d; the index holds %s at %dx%d, which is what it gets",
-                    product.prim_path or product.name, product.camera, *product.resolution, camera, *resolution)
+                 product.prim_path or product.name, product.camera, *product.resolution, camera, *resolution)
     return dataclasses.replace(product, resolution=resolution, camera=camera)
 
 

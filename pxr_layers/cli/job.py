@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import logging
 
+from . import logging_flags
+
 HELP = "run a shot job (frames × tiles on Dask), or show its progress"
 DESCRIPTION = (
     "A job file (TOML, pipelines/README.md) names a stage, frames, recipe layers, render settings, "
@@ -17,7 +19,7 @@ log = logging.getLogger(__name__)
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
-    run = actions.add_parser("run", help="render the frames not done yet",
+    run = actions.add_parser("run", help="render the frames not done yet", parents=[logging_flags(nested=True)],
                              description="Render every frame of JOB that has no commit record yet.")
     run.add_argument("job", metavar="JOB", help="the job file (.toml)")
     run.add_argument("--frames", metavar="RANGE", help="only these frames, e.g. 1-4 or 1-24x4 (default: the job's)")
@@ -27,13 +29,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="a Dask scheduler, tcp://host:8786 (default: the job's, else a LocalCluster)")
     run.add_argument("--workers", type=int, metavar="N", help="LocalCluster worker processes (default: the job's)")
     run.add_argument("--batch-pixels", type=int, metavar="N", help="pixels per task (default: the job's)")
-    status = actions.add_parser("status", help="show each frame's progress",
+    status = actions.add_parser("status", help="show each frame's progress", parents=[logging_flags(nested=True)],
                                 description="Each frame of JOB: done, k/n tiles committed, or pending.")
     status.add_argument("job", metavar="JOB", help="the job file (.toml)")
     for sub in (run, status):
         sub.add_argument("-o", "--output", metavar="DIR", help="output directory (default: the job's)")
-        sub.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
-        sub.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -9,7 +9,7 @@ import sys
 
 from .. import __version__
 from ..errors import PxrLayersError
-from . import demo, extract, index, job, lpe, render
+from . import demo, extract, index, job, logging_flags, lpe, render
 
 SUBCOMMANDS = {"render": render, "demo": demo, "index": index, "extract": extract, "lpe": lpe, "job": job}
 EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE = 0, 1, 2
@@ -24,12 +24,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"pxr-layers {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, module in SUBCOMMANDS.items():
-        sub = commands.add_parser(name, help=module.HELP, description=module.DESCRIPTION)
+        sub = commands.add_parser(name, help=module.HELP, description=module.DESCRIPTION, parents=[logging_flags()])
         module.add_arguments(sub)
-        if name == "job":  # its actions take -q/-v themselves
-            continue
-        sub.add_argument("-q", "--quiet", action="store_true", help="no progress bar, warnings and errors only")
-        sub.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return parser
 
 

@@ -90,13 +90,13 @@ def run(args: argparse.Namespace) -> int:
 
 def render_stage(stage_path: Path, args: argparse.Namespace) -> list[Delivered]:
     """Plan, render, index and deliver every product of the recipe; returns what was written."""
-    directory, exr = _output(args.output)
+    directory, exr = output_target(args.output, Path("."))
     plan = plan_frame(
         stage_path, args.frame, recipe_layers=[preset_or_file(text) for text in args.recipe], settings=args.settings,
         camera=args.camera, per_light=args.per_light, resolution=tuple(args.resolution) if args.resolution else None,
         spp=args.spp, max_depth=args.max_depth, seed=args.seed, norm_bounces=args.norm_bounces,
         directory=directory, exr=exr, keep_index=not args.no_index, aggregate_index=args.aggregate_index,
-        previews=not args.no_previews, default_norm_bounces=DEFAULT_NORM_BOUNCES,
+        previews=not args.no_previews,
     )
     if args.debug_covariance and plan.trace.norm_bounces == 0:
         plan = dataclasses.replace(plan, trace=dataclasses.replace(plan.trace, norm_bounces=1))
@@ -129,11 +129,11 @@ def preset_or_file(text: str) -> Path:
     return preset(text)
 
 
-def _output(output: str | None) -> tuple[Path, Path | None]:
-    """(directory, explicit .exr path or None) from -o."""
+def output_target(output: str | None, default: Path) -> tuple[Path, Path | None]:
+    """(directory, explicit .exr path or None) from -o; ``default`` when -o is not given."""
     if output and output.lower().endswith(".exr"):
         return Path(output).parent, Path(output)
-    return Path(output or "."), None
+    return Path(output) if output else default, None
 
 
 def _positive(text: str) -> int:

@@ -37,7 +37,6 @@ import logging
 import os
 import pickle
 import shutil
-import tempfile
 import time
 from collections import OrderedDict
 from collections.abc import Callable
@@ -47,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import JobError
+from ..layers.exr import write_atomically
 from ..paths.format import FLOAT16_MAX, NORM_DTYPE
 from .definition import Job
 from .frame import FrameAssembler, FramePlan, plan_frame, prepare_frame, resolve_recipe
@@ -197,16 +197,7 @@ def render_frame_data(plan: FramePlan, path: str) -> None:
 
 
 def _write_atomically(path: Path, content: bytes) -> None:
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(handle, "wb") as file:
-            file.write(content)
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
+    write_atomically(path, lambda temporary: temporary.write_bytes(content))
 
 
 # -- the client -------------------------------------------------------------------------------

@@ -105,7 +105,6 @@ def plan_frame(
     keep_index: bool = True,
     aggregate_index: bool = False,
     previews: bool = True,
-    default_norm_bounces: int = 5,
     recipe: Recipe | None = None,
 ) -> FramePlan:
     """Resolve one frame. The recipe is ``settings`` of the stage with ``recipe_layers``

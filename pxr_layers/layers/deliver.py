@@ -58,10 +58,11 @@ def frame_suffix(frame: float | None) -> str:
 def product_path(product: Product, frame: float | None, directory: Path) -> Path:
     """Where ``product`` goes at ``frame``: its productName with ``#`` runs numbered, or
     ``.FFFF`` added before ``.exr`` when the name has no ``#`` and the frame is explicit."""
-    if "#" in product.output_name or not frame_suffix(frame):
-        return product.output_path(None if frame_suffix(frame) == "" else frame, directory)
+    suffix = frame_suffix(frame)
+    if "#" in product.output_name or not suffix:
+        return product.output_path(frame if suffix else None, directory)
     path = product.output_path(None, directory)
-    return path.with_name(path.stem + frame_suffix(frame) + path.suffix)
+    return path.with_name(path.stem + suffix + path.suffix)
 
 
 def plan_outputs(recipe: Recipe, frame: float | None, directory: Path, exr: Path | None = None) -> dict[str, Path]:
@@ -72,8 +73,7 @@ def plan_outputs(recipe: Recipe, frame: float | None, directory: Path, exr: Path
             raise RecipeError(f"-o names one file ({exr}) but the recipe writes {len(recipe.products)} products "
                               f"({names}): give a directory instead", prim=recipe.settings_path or None)
         return {recipe.products[0].name: exr}
-    paths = {product.name: product_path(product, frame, directory) for product in recipe.products}
-    return paths
+    return {product.name: product_path(product, frame, directory) for product in recipe.products}
 
 
 def raw_sources(recipe: Recipe) -> dict[str, Layer]:

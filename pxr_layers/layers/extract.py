@@ -92,10 +92,10 @@ def _automata(expressions: dict[str, str]) -> list[lpe.LayerAutomaton]:
     in a shared automaton those are the conditions of all its layers (2**k combinations
     per event): matching each conditional layer on its own keeps k small.
     """
-    conditional = {name for name, text in expressions.items() if lpe.compile_layers({name: text}).has_conditions}
-    plain = {name: text for name, text in expressions.items() if name not in conditional}
-    automata = [lpe.compile_layers(plain)] if plain else []
-    return automata + [lpe.compile_layers({name: expressions[name]}) for name in conditional]
+    alone = {name: lpe.compile_layers({name: text}) for name, text in expressions.items()}
+    conditional = [automaton for automaton in alone.values() if automaton.has_conditions]
+    plain = {name: text for name, text in expressions.items() if not alone[name].has_conditions}
+    return ([lpe.compile_layers(plain)] if plain else []) + conditional
 
 
 def _class_outcomes(automaton: lpe.LayerAutomaton, index: PathIndex):

@@ -32,7 +32,15 @@ from . import conditions as cond
 from . import nodes
 from .events import ALL_SCATTERINGS, EVENT_TYPES, Event, PatternTable, label_matches
 from .labels import closest_labels
-from .outcomes import ALWAYS, NEVER, Conditional, Outcome, check_available, reduce_table
+from .outcomes import (
+    ALWAYS,
+    NEVER,
+    Conditional,
+    Outcome,
+    check_available,
+    checked_arrays,
+    reduce_table,
+)
 
 log = logging.getLogger(__name__)
 
@@ -655,9 +663,7 @@ class PerRecord(Outcome):
         return f"<conditional per record on events {', '.join(map(str, self.bounces))}>"
 
     def mask(self, norms: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
-        norms = np.asarray(norms)
-        if norms.ndim != 3 or norms.shape[2] != 3:
-            raise LpeError(f"norms must be (records, events, 3) (C, T, R per event), got shape {norms.shape}")
+        norms, sigma = checked_arrays(norms, sigma)
         dfa, alphabet = self.automaton.dfa, self.automaton.alphabet
         state = np.full(len(norms), dfa.start, np.int64)
         for index, (outright, conditional) in enumerate(self.classified):
@@ -674,14 +680,15 @@ class PerRecord(Outcome):
                                     norms.shape[1], sigma is not None)
                     row = index - 1
                     values = cond.evaluate(alphabet.conditions[condition], norms[:, row],
-                                           None if sigma is None else np.asarray(sigma)[:, row])
+                                           None if sigma is None else sigma[:, row])
                     code |= values.astype(np.int64) << bit
+            # One transition per distinct (state, conditions holding) pair of the records.
+            width = len(involved)
             holding_of = {sum(1 << involved.index(c) for c in holding): holding for holding in options}
-            pair = (state + 1) * (1 << len(involved)) + code
-            unique, inverse = np.unique(pair, return_inverse=True)
+            unique, inverse = np.unique((state + 1) << width | code, return_inverse=True)
             targets = np.array([
-                dfa.step(int(p >> len(involved)) - 1, alphabet.symbol(outright, conditional, holding_of[int(p) & ((1 << len(involved)) - 1)]))
-                for p in unique.tolist()
+                dfa.step((pair >> width) - 1, alphabet.symbol(outright, conditional, holding_of[pair & ((1 << width) - 1)]))
+                for pair in unique.tolist()
             ], np.int64)
             state = targets[inverse.reshape(-1)]
         final, inverse = np.unique(state, return_inverse=True)

@@ -83,13 +83,7 @@ class Conditional(Outcome):
         return f"<conditional on {atoms}>"
 
     def mask(self, norms: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
-        norms = np.asarray(norms)
-        if norms.ndim != 3 or norms.shape[2] != 3:
-            raise LpeError(f"norms must be (records, events, 3) (C, T, R per event), got shape {norms.shape}")
-        if sigma is not None:
-            sigma = np.asarray(sigma)
-            if sigma.shape != (*norms.shape[:2], cond.SIGMA_ENTRY_COUNT):
-                raise LpeError(f"sigma must be (records, events, 10) like norms {norms.shape[:2]}, got {sigma.shape}")
+        norms, sigma = checked_arrays(norms, sigma)
         kept = norms.shape[1]
         code = np.zeros(len(norms), dtype=np.int64)
         for bit, (index, condition) in enumerate(self.atoms):
@@ -98,6 +92,18 @@ class Conditional(Outcome):
             values = cond.evaluate(condition, norms[:, row], None if sigma is None else sigma[:, row])
             code |= values.astype(np.int64) << bit
         return self.table[code]
+
+
+def checked_arrays(norms: np.ndarray, sigma: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """``norms`` and ``sigma`` as arrays, LpeError unless they have the shapes mask() takes."""
+    norms = np.asarray(norms)
+    if norms.ndim != 3 or norms.shape[2] != 3:
+        raise LpeError(f"norms must be (records, events, 3) (C, T, R per event), got shape {norms.shape}")
+    if sigma is not None:
+        sigma = np.asarray(sigma)
+        if sigma.shape != (*norms.shape[:2], cond.SIGMA_ENTRY_COUNT):
+            raise LpeError(f"sigma must be (records, events, 10) like norms {norms.shape[:2]}, got {sigma.shape}")
+    return norms, sigma
 
 
 def check_available(layer: str, events: tuple, index: int, condition: cond.Condition, kept: int,
