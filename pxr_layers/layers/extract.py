@@ -51,19 +51,24 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     group_of = np.full((len(names), class_count), -1, np.int64)
     groups: list[lpe.Outcome] = []
     signatures: dict[tuple, int] = {}
+    group_of_outcome: dict[tuple[int, int], int] = {}  # (row, id): classes share outcome objects
+    rows = {name: row for row, name in enumerate(names)}
     every_class_outcomes = (item for automaton in automata for item in _class_outcomes(automaton, index))
     for class_id, outcomes in every_class_outcomes:
         for layer, outcome in outcomes.items():
-            row = names.index(layer)
+            row = rows[layer]
             if outcome.kind == "always":
                 always[row, class_id] = True
             elif outcome.kind == "conditional":
-                signature = (row, repr(outcome.atoms), outcome.table.tobytes()) \
-                    if isinstance(outcome, lpe.Conditional) else (row, id(outcome))  # PerRecord: its own
-                if signature not in signatures:
-                    signatures[signature] = len(groups)
-                    groups.append(outcome)
-                group_of[row, class_id] = signatures[signature]
+                group = group_of_outcome.get((row, id(outcome)))
+                if group is None:
+                    signature = (row, outcome.atoms, outcome.table.tobytes()) \
+                        if isinstance(outcome, lpe.Conditional) else (row, id(outcome))  # PerRecord: its own
+                    group = group_of_outcome[row, id(outcome)] = signatures.setdefault(signature, len(groups))
+                    if group == len(groups):
+                        groups.append(outcome)
+                group_of[row, class_id] = group
+    conditional_rows = np.flatnonzero((group_of >= 0).any(axis=1)).tolist()
     wanted = np.flatnonzero(always.any(axis=0) | (group_of >= 0).any(axis=0))
     width, height = index.manifest["resolution"]
     accumulator = _Accumulator(len(names), width * height)
@@ -72,11 +77,16 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     for chunk in index.records(wanted.tolist(), norms=bool(groups)):
         records_read += len(chunk.class_id)
         selected = always[:, chunk.class_id]  # (layers, r)
-        if groups:
-            chunk_groups = group_of[:, chunk.class_id]
-            for group in np.unique(chunk_groups[chunk_groups >= 0]).tolist():
-                layer, rows = np.nonzero(chunk_groups == group)
-                selected[layer, rows] = groups[group].mask(chunk.norms[rows])
+        for row in conditional_rows:
+            # The chunk's records of each group of the layer, from one sort by group.
+            chunk_groups = group_of[row, chunk.class_id]
+            records = np.flatnonzero(chunk_groups >= 0)
+            records = records[np.argsort(chunk_groups[records], kind="stable")]
+            sorted_groups = chunk_groups[records]
+            starts = np.flatnonzero(np.diff(sorted_groups, prepend=-1))
+            for start, stop in zip(starts.tolist(), [*starts[1:].tolist(), len(records)]):
+                members = records[start:stop]
+                selected[row, members] = groups[sorted_groups[start]].mask(chunk.norms[members])
         accumulator.add(selected, chunk.pixel, chunk.rgb)
         progress.advance(len(chunk.class_id))
     sums = accumulator.sums()

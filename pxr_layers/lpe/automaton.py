@@ -481,6 +481,11 @@ class LayerAutomaton:
         self.nfa = build_nfa(self.trees)
         self.alphabet = Alphabet(self.nfa.guards)
         self.dfa = self._build_dfa(build_complete)
+        # Conditional walks are interned: path classes end in few distinct walks, so each
+        # step and each end is worked out once (keys hold the ids of interned walks).
+        self._walks: dict[tuple, tuple] = {}
+        self._steps: dict[tuple, tuple | None] = {}
+        self._ends: dict[int, dict[str, Outcome]] = {}
 
     def _build_dfa(self, build_complete: bool) -> Dfa:
         symbols = self.alphabet.every_symbol() if build_complete else None
@@ -545,7 +550,14 @@ class LayerAutomaton:
 
     def start_walk(self) -> tuple | None:
         """The state of a conditional walk before any event: (atoms, frontier)."""
-        return (), {self.dfa.start: np.ones(1, dtype=bool)}
+        return self._interned((), {self.dfa.start: np.ones(1, dtype=bool)})
+
+    def _interned(self, atoms: tuple, frontier: dict[int, np.ndarray]) -> tuple:
+        key = (atoms, tuple(sorted((state, rows.tobytes()) for state, rows in frontier.items())))
+        walk = self._walks.get(key)
+        if walk is None:
+            walk = self._walks[key] = (atoms, frontier)
+        return walk
 
     def advance(self, walk: tuple | None, index: int, symbol) -> tuple | None:
         """The walk after event ``index`` (its ``Alphabet.classify`` result); None once the
@@ -553,6 +565,12 @@ class LayerAutomaton:
         classes that share a prefix can share the walk up to it (see layers/extract.py)."""
         if walk is None:
             return None
+        key = (id(walk), index, symbol)
+        if key not in self._steps:
+            self._steps[key] = self._advance(walk, index, symbol)
+        return self._steps[key]
+
+    def _advance(self, walk: tuple, index: int, symbol) -> tuple | None:
         atoms, frontier = walk
         if not frontier:
             return walk
@@ -588,12 +606,22 @@ class LayerAutomaton:
                 if target == DEAD or not reached.any():
                     continue
                 following[target] = following[target] | reached if target in following else reached
-        return atoms, following
+        return self._interned(atoms, following)
 
     def outcomes(self, walk: tuple | None, events: tuple, classified) -> dict[str, Outcome]:
-        """Each layer's outcome at the end of a walk over ``events``."""
+        """Each layer's outcome at the end of a walk over ``events``.
+
+        Classes that end in the same walk get the same outcome objects; their ``events``
+        (for error messages) are those of the first such class.
+        """
         if walk is None:
             return {layer: PerRecord(self, layer, events, tuple(classified)) for layer in self.layers}
+        found = self._ends.get(id(walk))
+        if found is None:
+            found = self._ends[id(walk)] = self._outcomes(walk, events)
+        return dict(found)
+
+    def _outcomes(self, walk: tuple, events: tuple) -> dict[str, Outcome]:
         atoms, frontier = walk
         outcomes = {}
         for layer in self.layers:
