@@ -17,7 +17,7 @@ Conventions (hold for every field below):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Union
+from typing import Literal
 
 import numpy as np
 
@@ -58,8 +58,8 @@ class TextureInput:
     wrap_t: WrapMode = "repeat"
 
 
-Color = Union[tuple[float, float, float], TextureInput]
-Scalar = Union[float, TextureInput]
+Color = tuple[float, float, float] | TextureInput
+Scalar = float | TextureInput
 
 
 @dataclass(frozen=True)

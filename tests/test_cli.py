@@ -23,7 +23,7 @@ SMALL = ["--spp", "2", "--resolution", "24", "24", "--max-depth", "3", "--quiet"
 
 def run(*args: str, cwd=None) -> subprocess.CompletedProcess:
     env = {**os.environ, "CI": "1"}
-    return subprocess.run([SCRIPT, *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=300)
+    return subprocess.run([SCRIPT, *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=300, check=False)
 
 
 def test_help_lists_every_subcommand_and_flag():

@@ -88,8 +88,8 @@ def test_fast_extraction_matches_the_reference_on_random_expressions(stages, tmp
     expressions.update(lpe.STANDARD_PASSES)
     fast = extract(index, expressions).layers
     slow = extract_reference(index, expressions)
-    for name in expressions:
-        np.testing.assert_allclose(fast[name], slow[name], rtol=1e-6, atol=1e-9, err_msg=f"{name}: {expressions[name]}")
+    for name, expression in expressions.items():
+        np.testing.assert_allclose(fast[name], slow[name], rtol=1e-6, atol=1e-9, err_msg=f"{name}: {expression}")
 
 
 @pytest.fixture(scope="module")

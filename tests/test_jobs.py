@@ -3,6 +3,7 @@ whatever the split and the worker count, resume, and a worker killed mid-job."""
 
 from __future__ import annotations
 
+import itertools
 import os
 import signal
 import subprocess
@@ -17,9 +18,15 @@ from distributed import Client, LocalCluster
 from test_cli import SCRIPT
 
 from pxr_layers.jobs import load_job
-from pxr_layers.jobs.executor import done_record, frame_plan, run_job, tile_file, tiles
 from pxr_layers.jobs.executor import _scratch as scratch_folder
-from pxr_layers.jobs.executor import render_tile
+from pxr_layers.jobs.executor import (
+    done_record,
+    frame_plan,
+    render_tile,
+    run_job,
+    tile_file,
+    tiles,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 SHOT = REPO / "pipelines" / "shows" / "demo" / "shot010.toml"
@@ -40,7 +47,7 @@ def deliverables(directory: Path) -> dict[str, bytes]:
 
 @pytest.fixture(scope="module")
 def client():
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
             Client(cluster) as dask:
         yield dask
 
@@ -79,11 +86,22 @@ def test_the_example_shot_runs_end_to_end(reference):
     assert np.abs(beauties[0] - beauties[1]).max() > 0.01  # the shot is animated
 
 
+@pytest.mark.parametrize(("wanted", "expected"), [(1, [1024] * 3), (1500, [1024] * 3), (2048, [2048, 1024]),
+                                                  (2500, [2048, 1024]), (3072, [3072]), (10**6, [3072])])
+def test_tiles_are_the_fewest_equal_runs_of_whole_batches(tmp_path, wanted, expected):
+    plan = frame_plan(job_at(tmp_path), 1.0)  # 64x48 pixels, 1024 per batch
+    ranges = tiles(plan, wanted)
+    assert [stop - first for first, stop in ranges] == expected
+    assert ranges[0][0] == 0 and ranges[-1][1] == plan.pixels
+    assert all(stop == following for (_, stop), (following, _) in itertools.pairwise(ranges))
+    assert all(first % 1024 == 0 for first, _ in ranges)
+
+
 def test_same_bytes_whatever_the_split_and_the_worker_count(tmp_path, reference):
     _, _, expected = reference
     split = job_at(tmp_path / "split", **{"dask.batch_pixels": 1})
     assert len(tiles(frame_plan(split, 1.0), split.batch_pixels)) == 3
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
             Client(cluster) as one_worker:
         report = run_job(split, client=one_worker)
     assert report.tiles_rendered == 6
@@ -135,7 +153,7 @@ def test_resume_skips_done_frames_and_reuses_committed_tiles(tmp_path, client, r
 def test_a_worker_killed_mid_job_corrupts_nothing(tmp_path, reference):
     _, _, expected = reference
     job = job_at(tmp_path, **{"dask.batch_pixels": 1})
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
             Client(cluster) as dask:
         outcome: dict = {}
         runner = threading.Thread(target=lambda: outcome.update(report=run_job(job, client=dask)))

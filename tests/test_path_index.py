@@ -191,20 +191,20 @@ def test_an_interrupted_write_leaves_no_index(stage, tmp_path):
 
 def test_cli_render_writes_the_index_and_info_reads_it(tmp_path, shipped_scene):
     result = subprocess.run([SCRIPT, "render", str(shipped_scene("cornell.usda")), "-o", str(tmp_path), "--spp", "2",
-                             "--resolution", "24", "24", "--quiet"], capture_output=True, text=True)
+                             "--resolution", "24", "24", "--quiet"], capture_output=True, text=True, check=False)
     assert result.returncode == 0, result.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cornell.exr", "cornell.pxlidx", "cornell.rgba.png"]
-    info = subprocess.run([SCRIPT, "index", "info", str(tmp_path / "cornell.pxlidx")], capture_output=True, text=True)
+    info = subprocess.run([SCRIPT, "index", "info", str(tmp_path / "cornell.pxlidx")], capture_output=True, text=True, check=False)
     assert info.returncode == 0, info.stderr
     assert "records" in info.stdout and "bytes per record" in info.stdout and "C RD'" in info.stdout
     (tmp_path / "broken.pxlidx").write_bytes((tmp_path / "cornell.pxlidx").read_bytes()[:100])
-    broken = subprocess.run([SCRIPT, "index", "info", str(tmp_path / "broken.pxlidx")], capture_output=True, text=True)
+    broken = subprocess.run([SCRIPT, "index", "info", str(tmp_path / "broken.pxlidx")], capture_output=True, text=True, check=False)
     assert broken.returncode == 1
     assert len(broken.stderr.strip().splitlines()) == 1 and "broken.pxlidx" in broken.stderr
 
 
 def test_aggregated_index_keeps_the_beauty_with_fewer_records(stage, rendered, tmp_path):
-    path, result, batches = rendered
+    path, _result, _batches = rendered
     scene, spec = stage
     spec = dataclasses.replace(spec, resolution=RESOLUTION)
     writer = PathIndexWriter(tmp_path / "agg.pxlidx", {}, SETTINGS.norm_bounces, aggregate=True, chunk_records=512)

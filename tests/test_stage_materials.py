@@ -135,9 +135,8 @@ def test_constant_inputs_are_read(tmp_path):
     assert got.emissive_color == pytest.approx((1.0, 2.0, 3.0))
     assert got.specular_color == pytest.approx((0.5, 0.5, 0.5))
     assert got.use_specular_workflow is True
-    for field, value in dict(roughness=0.25, metallic=1.0, ior=1.33, opacity=0.5,
-                             opacity_threshold=0.1, clearcoat=0.75,
-                             clearcoat_roughness=0.2).items():
+    for field, value in {"roughness": 0.25, "metallic": 1.0, "ior": 1.33, "opacity": 0.5, "opacity_threshold": 0.1,
+                         "clearcoat": 0.75, "clearcoat_roughness": 0.2}.items():
         assert getattr(got, field) == pytest.approx(value), field
 
 

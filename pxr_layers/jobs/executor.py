@@ -34,6 +34,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import os
 import pickle
 import shutil
@@ -82,11 +83,14 @@ def frame_plan(job: Job, frame: float, recipe=None) -> FramePlan:
 
 
 def tiles(plan: FramePlan, batch_pixels_wanted: int) -> list[tuple[int, int]]:
-    """(first, stop) pixel ranges of about ``batch_pixels_wanted`` pixels, on batch boundaries."""
+    """(first, stop) pixel ranges: the fewest tiles of at most about ``batch_pixels_wanted``
+    pixels, as equal as the tracer's batch boundaries allow (equal tasks keep workers busy
+    alike to the end)."""
     from ..trace.render import batch_pixels
 
     step = batch_pixels(plan.trace.spp)
-    size = max(1, round(batch_pixels_wanted / step)) * step
+    count = math.ceil(plan.pixels / max(step, batch_pixels_wanted))
+    size = math.ceil(plan.pixels / count / step) * step
     return [(first, min(first + size, plan.pixels)) for first in range(0, plan.pixels, size)]
 
 
@@ -267,8 +271,15 @@ def _run_frames(job: Job, client, plans: list[FramePlan], report: JobReport, on_
     """Submit every frame's tiles and its assembly (which waits for them); wait for all."""
     from distributed import as_completed
 
+    from .workers import ThroughputAllocator
+
+    client.register_plugin(ThroughputAllocator())
     assemblies = {}
-    for plan in plans:
+    for position, plan in enumerate(plans):
+        # Frame k's tiles come before the assembly of frame k - 1: workers run ahead on
+        # tiles, and the last two assemblies run side by side instead of one alone at the end
+        # (the scratch of about two frames is on disk at a time). Higher priority runs first.
+        tile_priority, assembly_priority = -2 * position, -(2 * position + 3)
         tile_list = tiles(plan, job.batch_pixels)
         folder = _scratch(job, plan, tile_list)
         inputs = []
@@ -277,14 +288,16 @@ def _run_frames(job: Job, client, plans: list[FramePlan], report: JobReport, on_
             if path.exists():
                 report.tiles_reused += 1
                 continue
-            inputs.append(client.submit(render_tile, plan, first, stop, str(path), retries=job.retries, pure=False))
+            inputs.append(client.submit(render_tile, plan, first, stop, str(path), retries=job.retries, pure=False,
+                                        priority=tile_priority))
             report.tiles_rendered += 1
         if not (folder / DATA_FILE).exists():
             inputs.append(client.submit(render_frame_data, plan, str(folder / DATA_FILE), retries=job.retries,
-                                        pure=False))
+                                        pure=False, priority=tile_priority))
         # Assembling runs on a worker too: frames are assembled in parallel, next to the
         # tiles of later frames, and the client only waits.
-        future = client.submit(assemble_frame, job, plan, inputs, retries=job.retries, pure=False)
+        future = client.submit(assemble_frame, job, plan, inputs, retries=job.retries, pure=False,
+                               priority=assembly_priority)
         assemblies[future] = plan.frame
         if on_frame:
             on_frame(plan.frame, f"submitted {len(inputs)} tasks ({len(tile_list)} tiles) and the assembly")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import os
@@ -120,7 +121,7 @@ class PathIndexWriter:
         """Cut sorted records into chunks: whole small classes together, large ones split."""
         starts = np.flatnonzero(np.r_[True, class_id[1:] != class_id[:-1]]).tolist() + [len(class_id)]
         bounds, chunk_start = [], 0
-        for class_start, class_stop in zip(starts[:-1], starts[1:]):
+        for class_start, class_stop in itertools.pairwise(starts):
             if class_stop - chunk_start > self.chunk_records and class_start > chunk_start:
                 bounds.append((chunk_start, class_start))
                 chunk_start = class_start

@@ -19,6 +19,6 @@ from pxr_layers.recipe.schema import register as _register_schema
 
 _register_schema()  # before any stage is opened: USD ignores schemas registered later
 
-from .reader import load_stage  # noqa: E402  (after the schema registration above)
+from .reader import load_stage  # after the schema registration above
 
 __all__ = ["load_stage"]

@@ -9,6 +9,7 @@ do not share the side's smooth ones.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -154,7 +155,7 @@ def _capsule(bottom_radius: float, top_radius: float, height: float) -> list[lis
         # with v re-spread by arc length over the whole strip.
         rings = bottom + top
         steps = [math.hypot(b.radius - a.radius, b.height - a.height)
-                 for a, b in zip(rings, rings[1:])]
+                 for a, b in itertools.pairwise(rings)]
         arc = np.concatenate([[0.0], np.cumsum(steps)]) / (sum(steps) or 1.0)
         return [[_Ring(r.radius, r.height, r.normal_radial, r.normal_axial, float(v))
                  for r, v in zip(rings, arc)]]
