@@ -17,7 +17,7 @@ import pytest
 from pxr_layers.covariance.texture_spectrum import TextureSpectrum
 from pxr_layers.paths.events import EventVocabulary
 from pxr_layers.trace import bsdf
-from pxr_layers.trace.bounce_norms import SINGULAR_REFLECTANCE, lobe_reflectance
+from pxr_layers.trace.bounce_norms import SINGULAR_REFLECTANCE, lobe_reflectance, texture_spectrum
 from pxr_layers.trace.integrator import TraceSettings
 from pxr_layers.trace.render import render
 
@@ -166,3 +166,16 @@ def test_texture_spectrum_of_a_cosine_matches_the_amplitude_moment():
     assert abs(block[0, 1]) < 1e-6 * block[0, 0]
     flat = TextureSpectrum.of_image(np.full((64, 64, 3), 0.3, np.float32))
     assert np.abs(flat.lookup(np.array([[0.2], [0.7]]), np.array([3.0]))).max() < 1e-9  # cycles²/uv²
+
+
+def test_texture_spectra_are_remembered_by_content_across_frames():
+    """A shot's frames reload the same texture: its spectrum is measured once per process."""
+    rng = np.random.default_rng(7)
+    image = rng.random((64, 128, 3), dtype=np.float32)
+    first = texture_spectrum(image)
+    assert texture_spectrum(image.copy()) is first  # same pixels, another array (the next frame's load)
+    np.testing.assert_array_equal(first.blocks, TextureSpectrum.of_image(image).blocks)
+    changed = image.copy()
+    changed[3, 5, 0] += 0.5
+    assert texture_spectrum(changed) is not first
+    assert texture_spectrum(image.reshape(128, 64, 3)) is not first  # same bytes, another shape

@@ -128,14 +128,16 @@ def test_a_frame_is_the_same_as_pxr_layers_render(tmp_path, reference):
 def test_resume_skips_done_frames_and_reuses_committed_tiles(tmp_path, client, reference):
     _, _, expected = reference
     job = job_at(tmp_path, **{"dask.batch_pixels": 1})
-    # An interrupted run: frame 2 has one tile committed, frame 1 nothing.
-    plan = frame_plan(job, 2.0)
-    tile_list = tiles(plan, job.batch_pixels)
-    folder = scratch_folder(job, plan, tile_list)
-    first, stop = tile_list[0]
-    render_tile(plan, first, stop, str(tile_file(folder, first, stop)))
+    # An interrupted run: frame 1 has its first tile committed, frame 2 every tile but not
+    # its data (the data then comes from a task of its own).
+    for frame, committed in ((1.0, slice(0, 1)), (2.0, slice(None))):
+        plan = frame_plan(job, frame)
+        tile_list = tiles(plan, job.batch_pixels)
+        folder = scratch_folder(job, plan, tile_list)
+        for first, stop in tile_list[committed]:
+            render_tile(plan, first, stop, str(tile_file(folder, first, stop)))
     report = run_job(job, client=client)
-    assert report.rendered == [1.0, 2.0] and report.tiles_reused == 1 and report.tiles_rendered == 5
+    assert report.rendered == [1.0, 2.0] and report.tiles_reused == 4 and report.tiles_rendered == 2
     assert deliverables(tmp_path) == expected
     # Done frames are skipped; a frame whose commit record is gone is rendered again.
     stamp = (tmp_path / "shot010.0001.light_passes.exr").stat().st_mtime_ns
@@ -168,3 +170,9 @@ def test_a_worker_killed_mid_job_corrupts_nothing(tmp_path, reference):
     assert sorted(outcome["report"].rendered) == [1.0, 2.0]
     assert deliverables(tmp_path) == expected
     assert not [path for path in tmp_path.rglob("*") if ".tmp" in path.name]
+
+
+def test_jobs_tune_their_workers(client, reference):
+    """After a job, its workers run without Dask's statistical profiler (see jobs/workers.py)."""
+    profiling = client.run(lambda dask_worker: sorted(set(dask_worker.periodic_callbacks) & {"profile", "profile-cycle"}))
+    assert len(profiling) == 2 and all(names == [] for names in profiling.values())

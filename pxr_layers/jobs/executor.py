@@ -14,7 +14,8 @@ Tasks (run on workers):
 * ``render_tile``: trace pixels [first, stop) of a frame and commit the batches to
   ``<frame scratch>/tile.<first>-<stop>.pkl`` (temporary name, then rename). The Embree
   scene of a frame is built once per worker process (a small cache of prepared frames).
-* ``render_frame_data``: the frame's data AOVs and its event vocabulary, likewise.
+* ``render_frame_data``: the frame's data AOVs and its event vocabulary, likewise (done
+  by the frame's first tile task, or on its own when every tile is already committed).
 
 * ``assemble_frame`` (after the frame's tiles): film + path index from the tiles in order,
   then the recipe's products (:class:`~pxr_layers.jobs.frame.FrameAssembler`), then
@@ -162,18 +163,18 @@ def _prepared(plan: FramePlan):
     return _PREPARED[key]
 
 
-def _worker_threads() -> int:
-    try:
-        from distributed import get_worker
-
-        return max(1, int(get_worker().state.nthreads))
-    except (ImportError, ValueError, AttributeError):
-        return 1
+TASK_THREADS = 1
+"""Threads a task traces with. A Dask worker runs as many tasks at once as it has threads,
+so each task is one core's worth of work (workers: one process per core, --nthreads 1)."""
 
 
-def render_tile(plan: FramePlan, first: int, stop: int, path: str) -> dict:
-    """Trace pixels [first, stop) of the frame; commit their batches to ``path``."""
+def render_tile(plan: FramePlan, first: int, stop: int, path: str, data_path: str | None = None) -> dict:
+    """Trace pixels [first, stop) of the frame; commit their batches to ``path``. With
+    ``data_path``, the frame's data (:func:`render_frame_data`) is committed first, saving
+    a task (and maybe a worker preparing the frame for it alone)."""
     start = time.perf_counter()
+    if data_path is not None:
+        render_frame_data(plan, data_path)
     integrator = _prepared(plan)
     from ..trace import trace_pixels
 
@@ -185,8 +186,8 @@ def render_tile(plan: FramePlan, first: int, stop: int, path: str) -> dict:
             batch = dataclasses.replace(batch, records=dataclasses.replace(batch.records, norms=norms))
         batches.append(batch)
 
-    trace_pixels(integrator, first, stop, keep, threads=_worker_threads())
-    _write_atomically(Path(path), pickle.dumps(batches, protocol=pickle.HIGHEST_PROTOCOL))
+    trace_pixels(integrator, first, stop, keep, threads=TASK_THREADS)
+    _pickle_atomically(Path(path), batches)
     return {"rays": sum(batch.rays for batch in batches), "seconds": time.perf_counter() - start}
 
 
@@ -195,13 +196,23 @@ def render_frame_data(plan: FramePlan, path: str) -> None:
     from ..trace import render_data_aovs
 
     integrator = _prepared(plan)
-    data = render_data_aovs(integrator, plan.data_aovs, threads=_worker_threads())
+    data = render_data_aovs(integrator, plan.data_aovs, threads=TASK_THREADS)
     payload = (data, integrator.vocabulary, tuple(integrator.world.object_paths))
-    _write_atomically(Path(path), pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL))
+    _pickle_atomically(Path(path), payload)
 
 
 def _write_atomically(path: Path, content: bytes) -> None:
     write_atomically(path, lambda temporary: temporary.write_bytes(content))
+
+
+def _pickle_atomically(path: Path, content) -> None:
+    """Pickled straight to the file (tiles are tens of MB: no copy of them in memory first)."""
+
+    def dump(temporary: Path) -> None:
+        with open(temporary, "wb") as file:
+            pickle.dump(content, file, protocol=pickle.HIGHEST_PROTOCOL)
+
+    write_atomically(path, dump)
 
 
 # -- the client -------------------------------------------------------------------------------
@@ -271,9 +282,9 @@ def _run_frames(job: Job, client, plans: list[FramePlan], report: JobReport, on_
     """Submit every frame's tiles and its assembly (which waits for them); wait for all."""
     from distributed import as_completed
 
-    from .workers import ThroughputAllocator
+    from .workers import WorkerTuning
 
-    client.register_plugin(ThroughputAllocator())
+    client.register_plugin(WorkerTuning())
     assemblies = {}
     for position, plan in enumerate(plans):
         # Frame k's tiles come before the assembly of frame k - 1: workers run ahead on
@@ -283,17 +294,19 @@ def _run_frames(job: Job, client, plans: list[FramePlan], report: JobReport, on_
         tile_list = tiles(plan, job.batch_pixels)
         folder = _scratch(job, plan, tile_list)
         inputs = []
+        data_path = None if (folder / DATA_FILE).exists() else str(folder / DATA_FILE)
         for first, stop in tile_list:
             path = tile_file(folder, first, stop)
             if path.exists():
                 report.tiles_reused += 1
                 continue
-            inputs.append(client.submit(render_tile, plan, first, stop, str(path), retries=job.retries, pure=False,
-                                        priority=tile_priority))
-            report.tiles_rendered += 1
-        if not (folder / DATA_FILE).exists():
-            inputs.append(client.submit(render_frame_data, plan, str(folder / DATA_FILE), retries=job.retries,
+            inputs.append(client.submit(render_tile, plan, first, stop, str(path), data_path, retries=job.retries,
                                         pure=False, priority=tile_priority))
+            data_path = None  # the frame's first tile to render brings the data
+            report.tiles_rendered += 1
+        if data_path is not None:  # every tile was committed by an earlier run, not the data
+            inputs.append(client.submit(render_frame_data, plan, data_path, retries=job.retries, pure=False,
+                                        priority=tile_priority))
         # Assembling runs on a worker too: frames are assembled in parallel, next to the
         # tiles of later frames, and the client only waits.
         future = client.submit(assemble_frame, job, plan, inputs, retries=job.retries, pure=False,

@@ -1,4 +1,4 @@
-"""What job tasks need of the worker processes they run in (a Dask worker plugin)."""
+"""What job tasks need of the worker processes they run in: a Dask worker plugin."""
 
 from __future__ import annotations
 
@@ -11,29 +11,44 @@ from distributed.diagnostics.plugin import WorkerPlugin
 log = logging.getLogger(__name__)
 
 
-class ThroughputAllocator(WorkerPlugin):
-    """A Dask worker plugin: glibc's malloc tuned for tasks that free and allocate large arrays.
+class WorkerTuning(WorkerPlugin):
+    """Two Dask worker defaults that cost render tasks much of their time, undone.
 
-    Dask starts worker processes with ``MALLOC_TRIM_THRESHOLD_=65536`` (to hand memory back
-    to the OS quickly). Setting it pins glibc's mmap threshold at 128 KiB, so every array
-    of a tile or of an extraction chunk is mapped afresh and page-faulted in, then unmapped:
-    tiles and assemblies ran about 1.5x slower in workers than in a plain process. Arrays
-    under ``MMAP_THRESHOLD`` are kept in the heap instead, and up to ``TRIM_THRESHOLD`` of
-    free heap is kept for the next task. Linux/glibc only; elsewhere it does nothing.
+    * **The allocator.** Dask starts worker processes with ``MALLOC_TRIM_THRESHOLD_=65536``
+      (to hand memory back to the OS quickly). Setting it pins glibc's mmap threshold at
+      128 KiB, so every array of a tile or of an extraction chunk is mapped afresh,
+      page-faulted in, then unmapped: tiles and assemblies ran about 1.5x slower in workers
+      than in a plain process. Arrays under ``MMAP_THRESHOLD`` are now kept in the heap,
+      and up to ``TRIM_THRESHOLD`` of free heap is kept for the next task (Linux/glibc
+      only; elsewhere the allocator is left alone).
+    * **The statistical profiler.** Every 10 ms a worker walks the stack of its running
+      task, under the GIL: with one worker per core, that is taken from the tasks (about
+      10 % here). Its callbacks are stopped; the dashboard's profile page stays empty.
+
+    Registered by every job on its client, so it reaches a farm's workers too.
     """
 
-    name = "pxr-layers-allocator"
+    name = "pxr-layers-worker-tuning"
     MMAP_THRESHOLD = 32 << 20  # glibc's upper limit for this setting on 64-bit
     TRIM_THRESHOLD = 128 << 20
+    PROFILER_CALLBACKS = ("profile", "profile-cycle")
 
-    def setup(self, worker=None) -> None:
-        if not sys.platform.startswith("linux"):
-            return
-        try:
-            libc = ctypes.CDLL("libc.so.6")
-        except OSError:  # not glibc (musl, ...): leave its allocator alone
-            return
-        m_trim_threshold, m_mmap_threshold = -1, -3  # from <malloc.h>
-        if not (libc.mallopt(m_mmap_threshold, self.MMAP_THRESHOLD) and libc.mallopt(m_trim_threshold,
-                                                                                      self.TRIM_THRESHOLD)):
-            log.debug("mallopt refused the worker's allocator settings")
+    def setup(self, worker) -> None:
+        tune_allocator(self.MMAP_THRESHOLD, self.TRIM_THRESHOLD)
+        for name in self.PROFILER_CALLBACKS:
+            callback = getattr(worker, "periodic_callbacks", {}).pop(name, None)
+            if callback is not None:
+                callback.stop()
+
+
+def tune_allocator(mmap_threshold: int, trim_threshold: int) -> None:
+    """Set glibc's M_MMAP_THRESHOLD and M_TRIM_THRESHOLD for this process (bytes)."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+    except OSError:  # not glibc (musl, ...): leave its allocator alone
+        return
+    m_trim_threshold, m_mmap_threshold = -1, -3  # from <malloc.h>
+    if not (libc.mallopt(m_mmap_threshold, mmap_threshold) and libc.mallopt(m_trim_threshold, trim_threshold)):
+        log.debug("mallopt refused the allocator settings")

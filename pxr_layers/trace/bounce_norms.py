@@ -21,6 +21,9 @@ Straight pass-through (cut-outs) and light events apply no operator: their norms
 
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
+
 import numpy as np
 
 from ..covariance import (
@@ -39,6 +42,27 @@ NORM_NAMES = ("C", "T", "R")
 SINGULAR_REFLECTANCE = float(reflectance_norm(ggx_bandwidth(bsdf.SINGULAR_ALPHA), ggx_bandwidth(bsdf.SINGULAR_ALPHA)))
 
 
+_SPECTRA: OrderedDict[bytes, TextureSpectrum] = OrderedDict()
+SPECTRA_KEPT = 32
+"""Texture spectra a process keeps, by image content (see :func:`texture_spectrum`)."""
+
+
+def texture_spectrum(pixels: np.ndarray) -> TextureSpectrum:
+    """``TextureSpectrum.of_image(pixels)``, remembered by content: the frames of a shot
+    are prepared one after another in one process, and textures rarely change between
+    them, so the FFTs of a 4K texture are not redone per frame (hashing is far cheaper)."""
+    pixels = np.ascontiguousarray(pixels)
+    key = hashlib.blake2b(pixels.view(np.uint8), digest_size=16)
+    key.update(repr((pixels.shape, pixels.dtype.str)).encode())
+    digest = key.digest()
+    if digest not in _SPECTRA:
+        _SPECTRA[digest] = TextureSpectrum.of_image(pixels)
+        while len(_SPECTRA) > SPECTRA_KEPT:
+            _SPECTRA.popitem(last=False)
+    _SPECTRA.move_to_end(digest)
+    return _SPECTRA[digest]
+
+
 class BounceNorms:
     """Per-scene tables for C and T, built once per frame, shared read-only by threads."""
 
@@ -49,7 +73,7 @@ class BounceNorms:
         textured = [m.diffuse_color.texture if isinstance(m.diffuse_color, TextureInput) else -1 for m in materials]
         self.material_texture = np.array(textured + [-1], np.int64)  # the last entry: no material
         used = sorted({index for index in textured if index >= 0})
-        self.spectra = {index: TextureSpectrum.of_image(scene.textures[index].pixels) for index in used}
+        self.spectra = {index: texture_spectrum(scene.textures[index].pixels) for index in used}
 
     def curvature_and_texture(self, triangle: np.ndarray, st: np.ndarray, tangent: np.ndarray,
                               bitangent: np.ndarray, footprint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
