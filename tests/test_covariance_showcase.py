@@ -17,7 +17,11 @@ import pytest
 from pxr_layers.covariance.texture_spectrum import TextureSpectrum
 from pxr_layers.paths.events import EventVocabulary
 from pxr_layers.trace import bsdf
-from pxr_layers.trace.bounce_norms import SINGULAR_REFLECTANCE, lobe_reflectance, texture_spectrum
+from pxr_layers.trace.bounce_norms import (
+    SINGULAR_REFLECTANCE,
+    lobe_reflectance,
+    texture_spectrum,
+)
 from pxr_layers.trace.integrator import TraceSettings
 from pxr_layers.trace.render import render
 

@@ -176,3 +176,23 @@ def test_jobs_tune_their_workers(client, reference):
     """After a job, its workers run without Dask's statistical profiler (see jobs/workers.py)."""
     profiling = client.run(lambda dask_worker: sorted(set(dask_worker.periodic_callbacks) & {"profile", "profile-cycle"}))
     assert len(profiling) == 2 and all(names == [] for names in profiling.values())
+
+
+def test_job_run_from_the_command_line(tmp_path):
+    """`pxr-layers job run` on its own LocalCluster: a summary on stdout, frame progress on
+    stderr without Dask's chatter, then a second run that skips the done frame; a bad
+    frame range is a user error (1) naming the key, a bad flag a usage error (2)."""
+    command = [SCRIPT, "job", "run", str(SHOT), "--frames", "3", "--spp", "4", "--resolution", "32", "24",
+               "--workers", "1", "-o", str(tmp_path)]
+    first = subprocess.run(command, capture_output=True, text=True, check=False, timeout=300)
+    assert first.returncode == 0, first.stderr
+    assert "shot010: 1 frames rendered, 0 already done" in first.stdout
+    assert "frame 3: done (1 of 1 frames)" in first.stderr
+    assert "Nanny" not in first.stderr and "Scheduler" not in first.stderr  # Dask's INFO lines
+    assert (tmp_path / "shot010.0003.light_passes.exr").exists() and done_record(job_at(tmp_path), 3.0).exists()
+    again = subprocess.run(command, capture_output=True, text=True, check=False, timeout=300)
+    assert again.returncode == 0 and "0 frames rendered, 1 already done" in again.stdout
+    bad = subprocess.run([*command[:4], "--frames", "1-x"], capture_output=True, text=True, check=False)
+    assert bad.returncode == 1 and "frames" in bad.stderr and bad.stderr.count("\n") == 1
+    usage = subprocess.run([*command[:4], "--spp", "many"], capture_output=True, text=True, check=False)
+    assert usage.returncode == 2

@@ -29,6 +29,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+CHATTY_LIBRARIES = ("distributed", "tornado", "bokeh")
+
+
+def _quiet_libraries(record: logging.LogRecord) -> bool:
+    """Dask's scheduler and workers chat at INFO: only their warnings are shown without -v.
+    (A filter on the handler: Dask sets its loggers' levels itself when it is imported.)"""
+    return record.levelno >= logging.WARNING or not record.name.startswith(CHATTY_LIBRARIES)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
@@ -37,9 +46,9 @@ def main(argv: list[str] | None = None) -> int:
         return int(exit_.code or 0)
     level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
     logging.basicConfig(level=level, format="pxr-layers: %(levelname)s: %(message)s", stream=sys.stderr)
-    if not args.verbose:  # Dask's scheduler and workers chat at INFO
-        for chatty in ("distributed", "tornado", "bokeh"):
-            logging.getLogger(chatty).setLevel(logging.WARNING)
+    if not args.verbose:
+        for handler in logging.getLogger().handlers:
+            handler.addFilter(_quiet_libraries)
     args.show_progress = not args.quiet and not os.environ.get("CI")
     try:
         return SUBCOMMANDS[args.command].run(args)

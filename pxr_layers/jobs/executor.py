@@ -318,7 +318,7 @@ def _run_frames(job: Job, client, plans: list[FramePlan], report: JobReport, on_
         future.result()  # raises the task's error once its retries are spent
         report.rendered.append(assemblies[future])
         if on_frame:
-            on_frame(assemblies[future], "done")
+            on_frame(assemblies[future], f"done ({len(report.rendered)} of {len(plans)} frames)")
     report.rendered.sort()
 
 
