@@ -9,9 +9,9 @@ and settings, into fresh directories:
 * the job on a LocalCluster of 1 single-threaded worker;
 * the job on a LocalCluster of 2 single-threaded workers (target: >= 1.7x the throughput
   of 1 on this 2-core machine);
-* the machine's ceiling for that ratio: the frames rendered by ``pxr-layers render
-  --threads 1`` in 1 process, then split between 2 independent processes (no Dask, no
-  shared work: what 2 cores give this render when nothing is coordinated);
+* the baseline for that ratio: the frames rendered by ``pxr-layers render --threads 1``
+  in 1 process, then split between 2 independent processes (no Dask, no shared work: what
+  2 cores give this render when nothing is coordinated, at the time of the run);
 * each frame with ``pxr-layers render`` in this process with 2 render threads, the direct
   way a user would take.
 
@@ -164,8 +164,7 @@ def main() -> None:
     print(line("pxr-layers render, 1 process", "processes 1"))
     print(line("pxr-layers render, 2 processes", "processes 2"))
     ceiling = best["processes 1"] / best["processes 2"]
-    print(f"  the machine's ceiling, 2 independent processes / 1: {ceiling:.2f}x "
-          f"(the job reaches {speedup / ceiling:.0%} of it)")
+    print(f"  baseline, 2 independent processes / 1: {ceiling:.2f}x (the job's ratio is {speedup / ceiling:.0%} of it)")
     for workers in (1, 2):
         overhead = best[f"job {workers}"] / best[f"processes {workers}"]
         print(f"  job overhead on {workers} core{'s' * (workers > 1)} (job / independent processes): {overhead:.2f}x "
