@@ -14,12 +14,14 @@ the tree-walking reference matcher) that the fast one is tested against.
 
 from __future__ import annotations
 
+import itertools
 import logging
 from dataclasses import dataclass
 
 import numpy as np
 
 from .. import lpe
+from ..errors import LpeError
 from ..lpe.automaton import DEAD
 from ..paths.reader import PathIndex
 from ..progress import Progress
@@ -53,8 +55,14 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     signatures: dict[tuple, int] = {}
     group_of_outcome: dict[tuple[int, int], int] = {}  # (row, id): classes share outcome objects
     rows = {name: row for row, name in enumerate(names)}
-    every_class_outcomes = (item for automaton in automata for item in _class_outcomes(automaton, index))
-    for class_id, outcomes in every_class_outcomes:
+    conditional_outcomes = []
+    for automaton in automata:
+        accepting, conditional_classes = _class_outcomes(automaton, index)
+        for layers, class_ids in accepting.items():
+            for layer in layers:
+                always[rows[layer], class_ids] = True
+        conditional_outcomes.append(conditional_classes)
+    for class_id, outcomes in (item for classes in conditional_outcomes for item in classes):
         for layer, outcome in outcomes.items():
             row = rows[layer]
             if outcome.kind == "always":
@@ -70,14 +78,18 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
                 group_of[row, class_id] = group
     conditional_rows = np.flatnonzero((group_of >= 0).any(axis=1)).tolist()
     wanted = np.flatnonzero(always.any(axis=0) | (group_of >= 0).any(axis=0))
+    # A record's layers: its class's "always" layers (one of a few distinct sets) plus, per
+    # conditional layer, one bit from its covariance. Both go into one int64 key per record.
+    plain_sets, class_set = _distinct_rows(always.T)
+    class_set = class_set << len(conditional_rows)
     width, height = index.manifest["resolution"]
-    accumulator = _Accumulator(len(names), width * height)
+    accumulator = _Accumulator(plain_sets, conditional_rows, width * height)
     records_read = 0
     progress = Progress(sum(index.classes[c].records for c in wanted.tolist()), "extract", enabled=show_progress)
     for chunk in index.records(wanted.tolist(), norms=bool(groups)):
         records_read += len(chunk.class_id)
-        selected = always[:, chunk.class_id]  # (layers, r)
-        for row in conditional_rows:
+        key = class_set[chunk.class_id]
+        for bit, row in enumerate(conditional_rows):
             # The chunk's records of each group of the layer, from one sort by group.
             chunk_groups = group_of[row, chunk.class_id]
             records = np.flatnonzero(chunk_groups >= 0)
@@ -86,8 +98,8 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
             starts = np.flatnonzero(np.diff(sorted_groups, prepend=-1))
             for start, stop in zip(starts.tolist(), [*starts[1:].tolist(), len(records)]):
                 members = records[start:stop]
-                selected[row, members] = groups[sorted_groups[start]].mask(chunk.norms[members])
-        accumulator.add(selected, chunk.pixel, chunk.rgb)
+                key[members[groups[sorted_groups[start]].mask(chunk.norms[members])]] |= 1 << bit
+        accumulator.add(key, chunk.pixel, chunk.rgb)
         progress.advance(len(chunk.class_id))
     sums = accumulator.sums()
     log.info("extracted %d layers from %d of %d records (%d of %d classes)", len(names), records_read,
@@ -109,31 +121,53 @@ def _automata(expressions: dict[str, str]) -> list[lpe.LayerAutomaton]:
 
 
 def _class_outcomes(automaton: lpe.LayerAutomaton, index: PathIndex):
-    """(class id, {layer: outcome}) for every class of the index, from the automaton.
+    """What the automaton says of every class of the index.
 
-    Classes share their first events, and an index has few distinct events: a class
-    whose events carry no condition walks the DFA through a memo of (state, event id)
-    transitions; the others go through ``automaton.match``.
+    Returns ({accepted layers: (k,) ids of the classes whose events carry no condition and
+    that those layers match}, an iterator of (class id, {layer: outcome}) for the classes
+    whose events carry conditions).
     """
     symbols = [automaton.alphabet.classify(event) for event in index.events]
-    transitions: dict[tuple[int, int], int] = {}
-    dfa = automaton.dfa
     conditional = {event for event, (_, conditions) in enumerate(symbols) if conditions}
-    deferred = []
-    for path_class in index.classes:
-        if conditional and not conditional.isdisjoint(path_class.event_ids):
-            deferred.append(path_class)
-            continue
-        state = dfa.start
-        for event in path_class.event_ids:
-            key = (state, event)
-            if key not in transitions:
-                transitions[key] = dfa.step(state, symbols[event][0])
-            state = transitions[key]
-            if state == DEAD:
-                break
-        accepted = () if state == DEAD else dfa.accepts[state]
-        yield path_class.id, {layer: lpe.ALWAYS for layer in accepted}
+    carries = [bool(conditional) and not conditional.isdisjoint(path_class.event_ids) for path_class in index.classes]
+    deferred = [path_class for path_class, carried in zip(index.classes, carries, strict=True) if carried]
+    plain = [path_class for path_class, carried in zip(index.classes, carries, strict=True) if not carried]
+    return _plain_walk(automaton.dfa, [outright for outright, _ in symbols], plain), \
+        _conditional_walks(automaton, symbols, deferred)
+
+
+def _plain_walk(dfa, symbols: list[int], classes) -> dict[frozenset, np.ndarray]:
+    """{accepted layers: class ids} for classes without conditions: all walk the DFA
+    together, one event position at a time; each distinct (state, event) pair is stepped
+    once (an index has few distinct events and the DFA few states)."""
+    if not classes:
+        return {}
+    lengths = np.fromiter((len(path_class.event_ids) for path_class in classes), np.int64, len(classes))
+    events = np.full((len(classes), max(1, int(lengths.max()))), -1, np.int64)
+    flat = np.fromiter(itertools.chain.from_iterable(path_class.event_ids for path_class in classes), np.int64,
+                       int(lengths.sum()))
+    rows = np.repeat(np.arange(len(classes)), lengths)
+    events[rows, np.arange(len(flat)) - np.repeat(np.cumsum(lengths) - lengths, lengths)] = flat
+    state = np.full(len(classes), dfa.start, np.int64)
+    event_count = len(symbols)
+    for position in range(events.shape[1]):
+        moving = (events[:, position] >= 0) & (state != DEAD)
+        if not moving.any():
+            break
+        pairs, which = _distinct(state[moving] * event_count + events[moving, position])
+        targets = np.array([dfa.step(pair // event_count, symbols[pair % event_count]) for pair in pairs.tolist()],
+                           np.int64)
+        state[moving] = targets[which]
+    ids = np.fromiter((path_class.id for path_class in classes), np.int64, len(classes))
+    accepting: dict[frozenset, list] = {}
+    for final in np.unique(state).tolist():
+        if final != DEAD and dfa.accepts[final]:
+            accepting.setdefault(dfa.accepts[final], []).append(ids[state == final])
+    return {layers: np.concatenate(parts) for layers, parts in accepting.items()}
+
+
+def _conditional_walks(automaton: lpe.LayerAutomaton, symbols: list, deferred: list):
+    """(class id, {layer: outcome}) for classes whose events carry conditions."""
     # Conditional classes in event order: each shares the walk along its common prefix
     # with the one before (classes are the leaves and nodes of one prefix tree).
     deferred.sort(key=lambda path_class: tuple(path_class.event_ids))
@@ -153,55 +187,82 @@ def _class_outcomes(automaton: lpe.LayerAutomaton, index: PathIndex):
 
 
 class _Accumulator:
-    """Per-pixel float64 sums of many layers from records that each feed a set of layers.
+    """Per-pixel float64 sums of many layers from records keyed by the set of layers they feed.
 
-    Records are grouped by the set of layers they feed (few distinct sets: the standard
-    passes partition the records), so one bincount per colour channel serves every layer.
+    key (per record) = plain set id << C | conditional bits: ``plain_sets[id]`` are the
+    layers its class always feeds, bit j says it feeds ``conditional_rows[j]``. Records are
+    few distinct keys (the standard passes partition them), so per chunk one bincount per
+    colour channel over (key, pixel) serves every layer.
     """
 
-    MAX_SETS = 64  # beyond this many distinct sets in a chunk, one bincount per layer
+    MAX_SETS = 64  # beyond this many distinct keys in a chunk, one bincount per layer
 
-    def __init__(self, layers: int, pixels: int):
-        self.layers, self.pixels = layers, pixels
-        self._by_set: dict[bytes, np.ndarray] = {}
-        self._per_layer = np.zeros((layers, 3, pixels))
+    def __init__(self, plain_sets: np.ndarray, conditional_rows: list[int], pixels: int):
+        """plain_sets (S, layers) bool; conditional_rows: the layers of the key's low bits."""
+        self.plain_sets, self.conditional_rows, self.pixels = plain_sets, conditional_rows, pixels
+        if len(conditional_rows) + max(1, len(plain_sets)).bit_length() > 62:
+            raise LpeError(f"too many layers with covariance conditions in one extraction ({len(conditional_rows)})")
+        self._by_key: dict[int, np.ndarray] = {}
+        self._per_layer = np.zeros((plain_sets.shape[1], 3, pixels))
 
-    def add(self, selected: np.ndarray, pixel: np.ndarray, rgb: np.ndarray) -> None:
-        """selected (layers, r) bool; pixel (r,); rgb (r, 3)."""
-        feeding = selected.any(axis=0)
-        if not feeding.any():
+    def members(self, key: int) -> np.ndarray:
+        """(layers,) bool: the layers records of ``key`` feed."""
+        members = self.plain_sets[key >> len(self.conditional_rows)].copy()
+        for bit, row in enumerate(self.conditional_rows):
+            members[row] |= bool(key >> bit & 1)
+        return members
+
+    def add(self, key: np.ndarray, pixel: np.ndarray, rgb: np.ndarray) -> None:
+        """key (r,) int64; pixel (r,); rgb (r, 3)."""
+        keys, which = _distinct(key)
+        if len(keys) > self.MAX_SETS:
+            selected = np.stack([self.members(value) for value in keys.tolist()], axis=1)[:, which]  # (layers, r)
+            for layer, chosen in enumerate(selected):
+                if chosen.any():
+                    for channel in range(3):
+                        self._per_layer[layer, channel] += np.bincount(
+                            pixel[chosen], weights=rgb[chosen, channel], minlength=self.pixels)
             return
-        selected, pixel, rgb = selected[:, feeding], pixel[feeding], rgb[feeding]
-        if self.layers <= 63:
-            bits = (np.left_shift(1, np.arange(self.layers, dtype=np.int64))[:, None] * selected).sum(axis=0)
-            _, first, which = np.unique(bits, return_index=True, return_inverse=True)
-            sets = selected[:, first]
-        if self.layers > 63 or sets.shape[1] > self.MAX_SETS:
-            for layer in range(self.layers):
-                chosen = selected[layer]
-                for channel in range(3):
-                    self._per_layer[layer, channel] += np.bincount(pixel[chosen], weights=rgb[chosen, channel],
-                                                                   minlength=self.pixels)
-            return
-        key = which.reshape(-1) * self.pixels + pixel
-        size = sets.shape[1] * self.pixels
-        channels = [np.bincount(key, weights=rgb[:, c], minlength=size).reshape(sets.shape[1], self.pixels)
+        flat = which * self.pixels + pixel
+        size = len(keys) * self.pixels
+        channels = [np.bincount(flat, weights=rgb[:, c], minlength=size).reshape(len(keys), self.pixels)
                     for c in range(3)]
-        for number in range(sets.shape[1]):
-            members = sets[:, number]
+        for number, value in enumerate(keys.tolist()):
             image = np.stack([channel[number] for channel in channels])
-            signature = members.tobytes()
-            if signature in self._by_set:
-                self._by_set[signature] += image
+            if value in self._by_key:
+                self._by_key[value] += image
             else:
-                self._by_set[signature] = image
+                self._by_key[value] = image
 
     def sums(self) -> np.ndarray:
         """(layers, 3, pixels) float64."""
         total = self._per_layer.copy()
-        for signature, image in self._by_set.items():
-            total[np.frombuffer(signature, bool)] += image
+        for value, image in self._by_key.items():
+            total[self.members(value)] += image
         return total
+
+
+def _distinct(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(sorted distinct values, index of each value among them), as ``np.unique`` with
+    ``return_inverse``; by counting instead of sorting when the values are small."""
+    top = int(key.max(initial=0))
+    if top >= 1 << 20 or key.min(initial=0) < 0:
+        keys, which = np.unique(key, return_inverse=True)
+        return keys, which.reshape(-1)
+    present = np.bincount(key, minlength=top + 1) > 0
+    number = np.cumsum(present) - 1
+    return np.flatnonzero(present), number[key]
+
+
+def _distinct_rows(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(matrix, axis=0, return_inverse=True)`` for a (n, k) bool matrix, on its
+    rows packed into bytes (sorting packed rows is far faster than sorting by columns)."""
+    if matrix.shape[1] == 0:  # no columns: every row is the one empty row
+        return matrix[:1], np.zeros(len(matrix), np.int64)
+    packed = np.ascontiguousarray(np.packbits(matrix, axis=1))
+    rows = packed.view(np.dtype((np.void, packed.shape[1]))).reshape(-1)
+    _, first, which = np.unique(rows, return_index=True, return_inverse=True)
+    return matrix[first], which.reshape(-1).astype(np.int64)
 
 
 def extract_reference(index: PathIndex, expressions: dict[str, str]) -> dict[str, np.ndarray]:
