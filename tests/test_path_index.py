@@ -227,3 +227,17 @@ def test_aggregated_index_keeps_the_beauty_with_fewer_records(stage, rendered, t
     assert merged == full.record_count  # the sample column counts the merged contributions
     np.testing.assert_allclose(images[1], images[0], rtol=1e-6, atol=1e-7 * images[0].max())
     assert [c.records for c in aggregated.classes] != [] and len(aggregated.classes) == len(full.classes)
+
+
+@pytest.mark.parametrize("dtype", ["u1", "<i2", "<f2", "<u4", "<i4", "<f4", "<f8", "<i8"])
+def test_byte_planes_round_trip_bit_for_bit(dtype):
+    """shuffle writes byte plane k as the k-th byte of every little-endian value; unshuffle
+    rebuilds the very same bits (negative integers, NaN payloads, infinities included)."""
+    rng = np.random.default_rng(3)
+    itemsize = np.dtype(dtype).itemsize
+    values = np.frombuffer(rng.integers(0, 256, size=3000 * itemsize, dtype=np.uint8).tobytes(), dtype).reshape(1000, 3)
+    data = fmt.shuffle(values)
+    planes = np.frombuffer(data, np.uint8).reshape(itemsize, -1)
+    assert np.array_equal(planes[0], values.reshape(-1).view(np.uint8)[::itemsize])  # the low bytes first
+    again = fmt.unshuffle(data, dtype, values.shape)
+    assert again.dtype == np.dtype(dtype) and again.tobytes() == values.tobytes()
