@@ -86,7 +86,8 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     accumulator = _Accumulator(plain_sets, conditional_rows, width * height)
     records_read = 0
     progress = Progress(sum(index.classes[c].records for c in wanted.tolist()), "extract", enabled=show_progress)
-    for chunk in index.records(wanted.tolist(), norms=bool(groups)):
+    every_class = len(wanted) == class_count  # then no chunk needs filtering by class
+    for chunk in index.records(None if every_class else wanted.tolist(), norms=bool(groups)):
         records_read += len(chunk.class_id)
         key = class_set[chunk.class_id]
         for bit, row in enumerate(conditional_rows):
