@@ -103,11 +103,15 @@ class PathIndex:
         skips decoding the norms and samples (RecordChunk.norms is then (r, 0, 3) and
         RecordChunk.sample empty).
         """
-        wanted = None if classes is None else np.unique(np.fromiter(classes, np.int64))
+        wanted = None
+        if classes is not None:  # a lookup table: wanted[class id]
+            wanted = np.zeros(len(self.classes), bool)
+            wanted[np.fromiter(classes, np.int64)] = True
         decompressor = zstandard.ZstdDecompressor()
         with open(self.path, "rb") as file:
             for number, chunk in enumerate(self.chunks):
-                if wanted is not None and not np.isin(chunk["classes"], wanted).any():
+                chunk_wanted = None if wanted is None else wanted[np.asarray(chunk["classes"], np.int64)]
+                if chunk_wanted is not None and not chunk_wanted.any():
                     continue
                 file.seek(chunk["offset"])
                 head = file.read(fmt.CHUNK_HEADER.size)
@@ -119,8 +123,8 @@ class PathIndex:
                 if zlib.crc32(payload) != crc or crc != chunk["crc32"]:
                     raise self._error(f"corrupted: chunk {number} at byte {chunk['offset']} fails its checksum")
                 decoded = self._decode(decompressor.decompress(payload), records, number, norms)
-                if wanted is not None and not np.isin(chunk["classes"], wanted).all():
-                    keep = np.isin(decoded.class_id, wanted)
+                if chunk_wanted is not None and not chunk_wanted.all():
+                    keep = wanted[decoded.class_id]
                     decoded = RecordChunk(*(column[keep] if len(column) else column for column in vars(decoded).values()))
                 yield decoded
 
