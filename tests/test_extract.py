@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from pxr_layers import lpe
+from pxr_layers.layers import extract as extract_module
 from pxr_layers.layers.extract import extract, extract_reference
 from pxr_layers.lpe import testing as lpe_testing
 from pxr_layers.paths.reader import PathIndex
@@ -88,6 +89,23 @@ def test_fast_extraction_matches_the_reference_on_random_expressions(stages, tmp
     expressions.update(lpe.STANDARD_PASSES)
     fast = extract(index, expressions).layers
     slow = extract_reference(index, expressions)
+    for name, expression in expressions.items():
+        np.testing.assert_allclose(fast[name], slow[name], rtol=1e-6, atol=1e-9, err_msg=f"{name}: {expression}")
+
+
+@pytest.mark.parametrize("max_sets", [64, 2])
+def test_many_conditional_layers_match_the_reference(stages, tmp_path, monkeypatch, max_sets):
+    """More conditional layers than a record's int64 key has bits for, and (max_sets=2)
+    more distinct layer sets per chunk than one bincount per set: both fall back, same sums."""
+    monkeypatch.setattr(extract_module._Accumulator, "MAX_SETS", max_sets)
+    _, index = indexed_render(stages["showcase"], tmp_path / "many.pxlidx", resolution=(16, 12),
+                              settings=dataclasses.replace(SETTINGS, spp=2))
+    expressions = {f"texture{number}": f"C<R.>@(|S_T| > {number / 10:g}).*" for number in range(70)}
+    expressions.update({f"reflectance{number}": f"C.*<R.>@(|S_R| > {2 ** number:g}) L" for number in range(12)})
+    expressions.update(lpe.STANDARD_PASSES)
+    fast = extract(index, expressions).layers
+    slow = extract_reference(index, expressions)
+    assert sum(fast[name].sum() > 0 for name in expressions) > 20
     for name, expression in expressions.items():
         np.testing.assert_allclose(fast[name], slow[name], rtol=1e-6, atol=1e-9, err_msg=f"{name}: {expression}")
 

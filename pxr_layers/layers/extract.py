@@ -21,7 +21,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import lpe
-from ..errors import LpeError
 from ..lpe.automaton import DEAD
 from ..paths.reader import PathIndex
 from ..progress import Progress
@@ -79,11 +78,13 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     conditional_rows = np.flatnonzero((group_of >= 0).any(axis=1)).tolist()
     wanted = np.flatnonzero(always.any(axis=0) | (group_of >= 0).any(axis=0))
     # A record's layers: its class's "always" layers (one of a few distinct sets) plus, per
-    # conditional layer, one bit from its covariance. Both go into one int64 key per record.
+    # conditional layer, one bit from its covariance. Both go into one int64 key per record;
+    # conditional layers past the key's 63 bits are accumulated on their own.
     plain_sets, class_set = _distinct_rows(always.T)
-    class_set = class_set << len(conditional_rows)
+    keyed = conditional_rows[:63 - max(1, len(plain_sets)).bit_length()]
+    class_set = class_set << len(keyed)
     width, height = index.manifest["resolution"]
-    accumulator = _Accumulator(plain_sets, conditional_rows, width * height)
+    accumulator = _Accumulator(plain_sets, keyed, width * height)
     records_read = 0
     progress = Progress(sum(index.classes[c].records for c in wanted.tolist()), "extract", enabled=show_progress)
     every_class = len(wanted) == class_count  # then no chunk needs filtering by class
@@ -97,9 +98,13 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
             records = records[np.argsort(chunk_groups[records], kind="stable")]
             sorted_groups = chunk_groups[records]
             starts = np.flatnonzero(np.diff(sorted_groups, prepend=-1))
-            for start, stop in zip(starts.tolist(), [*starts[1:].tolist(), len(records)]):
-                members = records[start:stop]
-                key[members[groups[sorted_groups[start]].mask(chunk.norms[members])]] |= 1 << bit
+            matching = np.concatenate([np.zeros(0, np.int64)] + [
+                records[start:stop][groups[sorted_groups[start]].mask(chunk.norms[records[start:stop]])]
+                for start, stop in zip(starts.tolist(), [*starts[1:].tolist(), len(records)])])
+            if bit < len(keyed):
+                key[matching] |= 1 << bit
+            else:
+                accumulator.add_to_layer(row, chunk.pixel[matching], chunk.rgb[matching])
         accumulator.add(key, chunk.pixel, chunk.rgb)
         progress.advance(len(chunk.class_id))
     sums = accumulator.sums()
@@ -201,8 +206,6 @@ class _Accumulator:
     def __init__(self, plain_sets: np.ndarray, conditional_rows: list[int], pixels: int):
         """plain_sets (S, layers) bool; conditional_rows: the layers of the key's low bits."""
         self.plain_sets, self.conditional_rows, self.pixels = plain_sets, conditional_rows, pixels
-        if len(conditional_rows) + max(1, len(plain_sets)).bit_length() > 62:
-            raise LpeError(f"too many layers with covariance conditions in one extraction ({len(conditional_rows)})")
         self._by_key: dict[int, np.ndarray] = {}
         self._per_layer = np.zeros((plain_sets.shape[1], 3, pixels))
 
@@ -220,9 +223,7 @@ class _Accumulator:
             selected = np.stack([self.members(value) for value in keys.tolist()], axis=1)[:, which]  # (layers, r)
             for layer, chosen in enumerate(selected):
                 if chosen.any():
-                    for channel in range(3):
-                        self._per_layer[layer, channel] += np.bincount(
-                            pixel[chosen], weights=rgb[chosen, channel], minlength=self.pixels)
+                    self.add_to_layer(layer, pixel[chosen], rgb[chosen])
             return
         flat = which * self.pixels + pixel
         size = len(keys) * self.pixels
@@ -234,6 +235,11 @@ class _Accumulator:
                 self._by_key[value] += image
             else:
                 self._by_key[value] = image
+
+    def add_to_layer(self, layer: int, pixel: np.ndarray, rgb: np.ndarray) -> None:
+        """Records (pixel (r,), rgb (r, 3)) that feed ``layer``, whatever their key says."""
+        for channel in range(3):
+            self._per_layer[layer, channel] += np.bincount(pixel, weights=rgb[:, channel], minlength=self.pixels)
 
     def sums(self) -> np.ndarray:
         """(layers, 3, pixels) float64."""
