@@ -152,6 +152,8 @@ def _plain_walk(dfa, symbols: list[int], classes) -> dict[frozenset, np.ndarray]
     events = np.full((len(classes), max(1, int(lengths.max()))), -1, np.int64)
     flat = np.fromiter(itertools.chain.from_iterable(path_class.event_ids for path_class in classes), np.int64,
                        int(lengths.sum()))
+    # (classes, longest) event ids padded with -1: each flat event goes to its class's row,
+    # at its position within the class (its flat index minus where the class starts).
     rows = np.repeat(np.arange(len(classes)), lengths)
     events[rows, np.arange(len(flat)) - np.repeat(np.cumsum(lengths) - lengths, lengths)] = flat
     state = np.full(len(classes), dfa.start, np.int64)
