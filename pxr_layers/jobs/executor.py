@@ -39,6 +39,7 @@ import math
 import os
 import pickle
 import shutil
+import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable
@@ -148,6 +149,7 @@ def tile_file(folder: Path, first: int, stop: int) -> Path:
 
 
 _PREPARED: OrderedDict = OrderedDict()
+_PREPARED_LOCK = threading.Lock()
 PREPARED_FRAMES = 2
 """Frames a worker process keeps prepared (a frame's tiles usually reach it together)."""
 
@@ -155,12 +157,13 @@ PREPARED_FRAMES = 2
 def _prepared(plan: FramePlan):
     """The frame's Integrator (Embree scene built), once per worker process and frame."""
     key = _fingerprint(plan)
-    if key not in _PREPARED:
-        _PREPARED[key] = prepare_frame(plan)
-        while len(_PREPARED) > PREPARED_FRAMES:
-            _PREPARED.popitem(last=False)
-    _PREPARED.move_to_end(key)
-    return _PREPARED[key]
+    with _PREPARED_LOCK:  # a worker started with several threads runs tasks side by side
+        if key not in _PREPARED:
+            _PREPARED[key] = prepare_frame(plan)
+            while len(_PREPARED) > PREPARED_FRAMES:
+                _PREPARED.popitem(last=False)
+        _PREPARED.move_to_end(key)
+        return _PREPARED[key]
 
 
 TASK_THREADS = 1

@@ -22,6 +22,7 @@ Straight pass-through (cut-outs) and light events apply no operator: their norms
 from __future__ import annotations
 
 import hashlib
+import threading
 from collections import OrderedDict
 
 import numpy as np
@@ -43,6 +44,7 @@ SINGULAR_REFLECTANCE = float(reflectance_norm(ggx_bandwidth(bsdf.SINGULAR_ALPHA)
 
 
 _SPECTRA: OrderedDict[bytes, TextureSpectrum] = OrderedDict()
+_SPECTRA_LOCK = threading.Lock()  # frames may be prepared on several threads of a process
 SPECTRA_KEPT = 32
 """Texture spectra a process keeps, by image content (see :func:`texture_spectrum`)."""
 
@@ -55,12 +57,13 @@ def texture_spectrum(pixels: np.ndarray) -> TextureSpectrum:
     key = hashlib.blake2b(pixels.view(np.uint8), digest_size=16)
     key.update(repr((pixels.shape, pixels.dtype.str)).encode())
     digest = key.digest()
-    if digest not in _SPECTRA:
-        _SPECTRA[digest] = TextureSpectrum.of_image(pixels)
-        while len(_SPECTRA) > SPECTRA_KEPT:
-            _SPECTRA.popitem(last=False)
-    _SPECTRA.move_to_end(digest)
-    return _SPECTRA[digest]
+    with _SPECTRA_LOCK:
+        if digest not in _SPECTRA:
+            _SPECTRA[digest] = TextureSpectrum.of_image(pixels)
+            while len(_SPECTRA) > SPECTRA_KEPT:
+                _SPECTRA.popitem(last=False)
+        _SPECTRA.move_to_end(digest)
+        return _SPECTRA[digest]
 
 
 class BounceNorms:
