@@ -9,6 +9,12 @@ class PxrLayersError(Exception):
     """Base class of every error caused by the user's input or environment."""
 
 
+def _located(message: str, places, separator: str = ": ") -> str:
+    """``message`` after the places that are given (file, prim, key...), or alone."""
+    where = separator.join(place for place in places if place)
+    return f"{where}: {message}" if where else message
+
+
 class StageError(PxrLayersError):
     """A USD stage cannot be opened, composed or understood.
 
@@ -16,8 +22,7 @@ class StageError(PxrLayersError):
     """
 
     def __init__(self, message: str, *, file: str | None = None, prim: str | None = None):
-        where = ", ".join(part for part in (file, prim and f"prim {prim}") if part)
-        super().__init__(f"{where}: {message}" if where else message)
+        super().__init__(_located(message, (file, prim and f"prim {prim}"), ", "))
         self.file = file
         self.prim = prim
 
@@ -65,7 +70,7 @@ class PathIndexError(PxrLayersError):
     """
 
     def __init__(self, message: str, *, file: str | None = None):
-        super().__init__(f"{file}: {message}" if file else message)
+        super().__init__(_located(message, (file,)))
         self.file = file
 
 
@@ -80,8 +85,7 @@ class RecipeError(PxrLayersError):
     def __init__(self, message: str, *, file: str | None = None, prim: str | None = None,
                  attribute: str | None = None):
         site = f"{prim}.{attribute}" if prim and attribute else prim or (attribute and f"attribute {attribute}")
-        where = ": ".join(part for part in (file, site) if part)
-        super().__init__(f"{where}: {message}" if where else message)
+        super().__init__(_located(message, (file, site)))
         self.message = message
         self.file = file
         self.prim = prim
@@ -98,8 +102,7 @@ class JobError(PxrLayersError):
 
     def __init__(self, message: str, *, file: str | None = None, key: str | None = None,
                  position: int | None = None):
-        where = ": ".join(part for part in (file, key) if part)
-        super().__init__(f"{where}: {message}" if where else message)
+        super().__init__(_located(message, (file, key)))
         self.message = message
         self.file = file
         self.key = key

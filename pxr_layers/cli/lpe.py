@@ -15,6 +15,7 @@ import sys
 from ..errors import PxrLayersError
 from ..lpe import compile as compile_expression
 from ..lpe import hints, parse_path
+from . import logging_flags
 
 HELP = "check a Light Path Expression or match it against paths"
 DESCRIPTION = (
@@ -34,21 +35,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The `check` and `match` actions, under an `lpe` parser made by the caller."""
     actions = parser.add_subparsers(dest="lpe_action", metavar="ACTION", required=True)
     check = actions.add_parser(
-        "check", help="print the canonical form and the automaton size",
+        "check", help="print the canonical form and the automaton size", parents=[logging_flags(nested=True)],
         description="Parse EXPR; print its canonical form and the size of its minimal automaton.",
     )
     check.add_argument("expression", metavar="EXPR", help="the expression, quoted: \"C<RD>.*L\"")
     match = actions.add_parser(
-        "match", help="match paths against an expression",
+        "match", help="match paths against an expression", parents=[logging_flags(nested=True)],
         description="Print one line per PATH, in order: 'match' or 'no match'.",
     )
     match.add_argument("expression", metavar="EXPR", help="the expression, quoted")
     match.add_argument("paths", metavar="PATH", nargs="+", help=PATH_HELP)
-    for action in (check, match):
-        # Also accepted after the action; SUPPRESS keeps a flag given before it.
-        action.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
-                            help="warnings and errors only")
-        action.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help="debug logging")
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

@@ -19,10 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-EVENT_TYPES = "CRTVLOB"
+from ..lpe.events import EVENT_TYPES, SCATTERINGS
+
 CAMERA, REFLECT, TRANSMIT, VOLUME, LIGHT, OBJECT, BACKGROUND = range(7)
-SCATTER_NAMES = "DGSs"  # + NO_SCATTER for events that do not scatter (C, L, O, B)
-NO_SCATTER = 4
+NO_SCATTER = 4  # the scatter code of events that do not scatter (C, L, O, B); others index SCATTERINGS
 LOBE_NAMES = ("diffuse", "specular", "coat", "glass")  # the renderer's lobes (trace/bsdf.py ids)
 NO_LOBE = 4
 _EVENT_BITS = 32
@@ -33,7 +33,7 @@ class Event:
     """One event, unpacked: LPE letters and the labels it carries."""
 
     type: str  # one of EVENT_TYPES
-    scatter: str  # one of SCATTER_NAMES, or '' for C, L, O, B
+    scatter: str  # one of SCATTERINGS, or '' for C, L, O, B
     labels: frozenset[str]
     name: str = ""  # the object's or light's prim name, for display (also among the labels)
 
@@ -88,7 +88,7 @@ class EventVocabulary:
                 labels.update((self.material_names[material], self.material_paths[material]))
         if lobe != NO_LOBE:
             labels.add(LOBE_NAMES[lobe])
-        return Event(EVENT_TYPES[event_type], "" if scatter == NO_SCATTER else SCATTER_NAMES[scatter],
+        return Event(EVENT_TYPES[event_type], "" if scatter == NO_SCATTER else SCATTERINGS[scatter],
                      frozenset(labels), name)
 
 

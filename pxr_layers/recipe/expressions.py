@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..errors import LpeError, LpeSyntaxError, RecipeError
+from ..errors import LpeError, RecipeError
 
 LPE_PREFIX = "lpe:"
 """Some tools write ``sourceName = "lpe:C<RD>.*"``; the prefix is accepted and dropped."""
@@ -27,9 +27,7 @@ def check_expression(expression: str, prim: str | None = None, attribute: str | 
 
     try:
         return lpe.compile(expression)
-    except LpeSyntaxError as error:
-        raise RecipeError(f"bad Light Path Expression: {error}", file=file, prim=prim, attribute=attribute) from error
-    except LpeError as error:
+    except LpeError as error:  # syntax errors included
         raise RecipeError(f"bad Light Path Expression: {error}", file=file, prim=prim, attribute=attribute) from error
 
 

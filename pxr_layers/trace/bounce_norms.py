@@ -28,6 +28,7 @@ from collections import OrderedDict
 import numpy as np
 
 from ..covariance import (
+    curvature_norm,
     ggx_bandwidth,
     reflectance_norm,
     texture_norm,
@@ -39,7 +40,6 @@ from . import bsdf
 from .vectors import dot
 from .world import World
 
-NORM_NAMES = ("C", "T", "R")
 SINGULAR_REFLECTANCE = float(reflectance_norm(ggx_bandwidth(bsdf.SINGULAR_ALPHA), ggx_bandwidth(bsdf.SINGULAR_ALPHA)))
 
 
@@ -71,7 +71,7 @@ class BounceNorms:
 
     def __init__(self, scene: SceneData, world: World):
         self.world = world
-        self.curvature = np.maximum(np.abs(world.curvature_k1), np.abs(world.curvature_k2)).astype(FLOAT)
+        self.curvature = curvature_norm(world.curvature_k1, world.curvature_k2).astype(FLOAT)
         materials = scene.materials
         textured = [m.diffuse_color.texture if isinstance(m.diffuse_color, TextureInput) else -1 for m in materials]
         self.material_texture = np.array(textured + [-1], np.int64)  # the last entry: no material

@@ -40,8 +40,7 @@ SINGULAR_ALPHA = 1e-4
 COAT_F0 = np.float32(0.04)
 INV_PI = np.float32(1 / np.pi)
 
-# LPE scattering of an event, as int8 codes into SCATTER_NAMES.
-SCATTER_NAMES = "DGSs"
+# LPE scattering of an event, as int8 codes into lpe.events.SCATTERINGS.
 SCATTER_DIFFUSE, SCATTER_GLOSSY, SCATTER_SINGULAR, SCATTER_STRAIGHT = range(4)
 
 
@@ -183,7 +182,7 @@ class BsdfSample:
     weight    : (3, n) f·|cos|/pdf_effective (already divided by the lobe probability)
     pdf       : (n,) effective solid-angle density (0 for singular events: no MIS)
     lobe      : (n,) int8 DIFFUSE / SPECULAR / COAT / GLASS
-    scatter   : (n,) int8 code into SCATTER_NAMES (D, G, S)
+    scatter   : (n,) int8 code into lpe.events.SCATTERINGS (D, G, S)
     transmit  : (n,) bool, the direction crosses the surface
     valid     : (n,) bool, False where the path ends (no lobe, below the horizon)
     """
