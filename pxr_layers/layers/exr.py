@@ -16,34 +16,29 @@ REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
 METADATA_PREFIX = "pxrLayers/"
 
 
+def header(compression=OpenEXR.ZIP_COMPRESSION, metadata: dict | None = None) -> dict:
+    """A scanline part's header in the rendering colour space, with namespaced metadata."""
+    fields = {"compression": compression, "type": OpenEXR.scanlineimage, "chromaticities": REC709_CHROMATICITIES}
+    for key, value in (metadata or {}).items():
+        fields[METADATA_PREFIX + key] = str(value)
+    return fields
+
+
 def write_rgba(path: str | os.PathLike, rgba: np.ndarray, metadata: dict[str, str] | None = None) -> Path:
     """Write one RGBA float32 part (ZIP, lossless) with namespaced string metadata.
 
     rgba : (h, w, 4) float32 linear. Returns the final path.
     """
-    path = Path(path)
-    header = {
-        "compression": OpenEXR.ZIP_COMPRESSION,
-        "type": OpenEXR.scanlineimage,
-        "chromaticities": REC709_CHROMATICITIES,
-    }
-    for key, value in (metadata or {}).items():
-        header[METADATA_PREFIX + key] = str(value)
-    pixels = np.ascontiguousarray(rgba, dtype=np.float32)
-    write_atomically(path, lambda temporary: OpenEXR.File(header, {"RGBA": pixels}).write(str(temporary)))
-    return path
+    return write_channels(path, {"RGBA": rgba}, metadata)
 
 
 def write_channels(path: str | os.PathLike, channels: dict[str, np.ndarray],
                    metadata: dict[str, str] | None = None) -> Path:
-    """Write named single-channel float32 images (each (h, w)) as one part, ZIP."""
+    """Write named float32 images (each (h, w), or (h, w, 4) for "RGBA") as one part, ZIP."""
     path = Path(path)
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
-              "chromaticities": REC709_CHROMATICITIES}
-    for key, value in (metadata or {}).items():
-        header[METADATA_PREFIX + key] = str(value)
+    fields = header(metadata=metadata)
     pixels = {name: np.ascontiguousarray(image, dtype=np.float32) for name, image in channels.items()}
-    write_atomically(path, lambda temporary: OpenEXR.File(header, pixels).write(str(temporary)))
+    write_atomically(path, lambda temporary: OpenEXR.File(fields, pixels).write(str(temporary)))
     return path
 
 

@@ -33,7 +33,7 @@ import OpenEXR
 from .. import __version__
 from ..errors import OutputError
 from ..recipe.model import BEAUTY_EXPRESSION, BEAUTY_PART, Layer, Product, Recipe
-from .exr import METADATA_PREFIX, REC709_CHROMATICITIES, write_atomically
+from .exr import METADATA_PREFIX, header, write_atomically
 
 logger = logging.getLogger(__name__)
 
@@ -95,7 +95,7 @@ def write_multipart(
     common = {"version": __version__, **run, **{str(k): v for k, v in (metadata or {}).items()}}
     beauty_type = product.pixel_type if product else "float"
     beauty_compression = product.compression if product else "zip"
-    head = _header(beauty_compression, common)
+    head = header(COMPRESSION[beauty_compression], common)
     head[METADATA_PREFIX + "sourceType"] = "lpe"
     head[METADATA_PREFIX + "expression"] = BEAUTY_EXPRESSION
     if recipe is not None:
@@ -114,16 +114,16 @@ def write_multipart(
                 f"layer {spec.name!r}: expected shape {(height, width, len(spec.channels))} "
                 f"(channels {', '.join(spec.channels)}), got {np.asarray(layers[spec.name]).shape}"
             )
-        header = _header(spec.compression, common)
-        header[METADATA_PREFIX + "sourceType"] = spec.source_type
-        header[METADATA_PREFIX + ("expression" if spec.source_type == "lpe" else "source")] = spec.source_name
-        header[METADATA_PREFIX + "dataType"] = spec.data_type
-        header[METADATA_PREFIX + "group"] = spec.group
+        part_header = header(COMPRESSION[spec.compression], common)
+        part_header[METADATA_PREFIX + "sourceType"] = spec.source_type
+        part_header[METADATA_PREFIX + ("expression" if spec.source_type == "lpe" else "source")] = spec.source_name
+        part_header[METADATA_PREFIX + "dataType"] = spec.data_type
+        part_header[METADATA_PREFIX + "group"] = spec.group
         channels = {
             f"{spec.name}.{suffix}": _pixels(image[..., index], spec.pixel_type)
             for index, suffix in enumerate(spec.channels)
         }
-        parts.append(OpenEXR.Part(header, channels, spec.name))
+        parts.append(OpenEXR.Part(part_header, channels, spec.name))
 
     def write(temporary: Path) -> None:
         try:
@@ -157,17 +157,6 @@ def _layer_specs(layers: Mapping[str, np.ndarray], product: Product | None) -> l
                                       extra and f"not in the recipe {', '.join(extra)}"]))
         )
     return parts
-
-
-def _header(compression: str, common: Mapping[str, object]) -> dict:
-    header = {
-        "compression": COMPRESSION[compression],
-        "type": OpenEXR.scanlineimage,
-        "chromaticities": REC709_CHROMATICITIES,
-    }
-    for key, value in common.items():
-        header[METADATA_PREFIX + key] = str(value)
-    return header
 
 
 def _pixels(values: np.ndarray, pixel_type: str) -> np.ndarray:
