@@ -52,7 +52,14 @@ from ..errors import JobError
 from ..layers.exr import write_atomically
 from ..paths.format import FLOAT16_MAX, NORM_DTYPE
 from .definition import Job
-from .frame import FrameAssembler, FramePlan, plan_frame, prepare_frame, resolve_recipe
+from .frame import (
+    FrameAssembler,
+    FramePlan,
+    file_sha256,
+    plan_frame,
+    prepare_frame,
+    resolve_recipe,
+)
 
 log = logging.getLogger(__name__)
 
@@ -75,12 +82,13 @@ class JobReport:
 # -- the frames and their tiles ---------------------------------------------------------------
 
 
-def frame_plan(job: Job, frame: float, recipe=None) -> FramePlan:
+def frame_plan(job: Job, frame: float, recipe=None, stage_sha256: str | None = None) -> FramePlan:
     return plan_frame(
         job.stage, frame, recipe_layers=job.recipe_layers, settings=job.settings, per_light=job.per_light,
         resolution=job.resolution, spp=job.spp, max_depth=job.max_depth, seed=job.seed,
         norm_bounces=job.norm_bounces, directory=job.output_directory, index_path=job.index_path(frame),
         product_path=lambda product: job.product_path(product.output_name, frame), recipe=recipe,
+        stage_sha256=stage_sha256,
     )
 
 
@@ -231,8 +239,11 @@ def run_job(job: Job, *, client=None, on_frame: Callable[[float, str], None] | N
     """
     started = time.perf_counter()
     report = JobReport()
+    # Worked out once for every frame: the recipe (a stage's own is not animated) and the
+    # stage file's hash (the fingerprint of each frame's tiles).
     recipe = resolve_recipe(job.stage, recipe_layers=job.recipe_layers, settings=job.settings,
-                            per_light=job.per_light)
+                            per_light=job.per_light, frame=job.frames[0])
+    stage_sha256 = file_sha256(job.stage)
     todo = []
     for frame in job.frames:
         if is_done(job, frame):
@@ -240,7 +251,7 @@ def run_job(job: Job, *, client=None, on_frame: Callable[[float, str], None] | N
             if on_frame:
                 on_frame(frame, "skipped (done)")
         else:
-            todo.append(frame_plan(job, frame, recipe))
+            todo.append(frame_plan(job, frame, recipe, stage_sha256))
     if not todo:
         report.seconds = time.perf_counter() - started
         return report

@@ -106,10 +106,12 @@ def plan_frame(
     aggregate_index: bool = False,
     previews: bool = True,
     recipe: Recipe | None = None,
+    stage_sha256: str | None = None,
 ) -> FramePlan:
     """Resolve one frame. The recipe is ``settings`` of the stage with ``recipe_layers``
     over it; a stage without one gives its beauty alone (STEM.exr). ``recipe``: an already
-    resolved recipe (a job resolves it once for all its frames).
+    resolved recipe, ``stage_sha256``: the stage file's hash (a job works both out once for
+    all its frames).
 
     Outputs: ``product_path(product)`` if given, else :func:`plan_outputs` (``exr``: one
     product's explicit file). The index: ``index_path``, else beside ``exr``, else
@@ -121,14 +123,7 @@ def plan_frame(
     shot_settings = None if recipe_layers else settings
     if recipe is None:
         recipe = resolve_recipe(stage, recipe_layers=recipe_layers, settings=settings, camera=camera,
-                                per_light=per_light)
-    if recipe is None:  # no recipe: the beauty alone, at the stage's camera and resolution
-        from ..stage import load_stage
-
-        _, spec = load_stage(stage, frame=frame, camera=camera, settings=shot_settings)
-        product = Product(name=stage.stem, output_name=f"{stage.stem}.exr", camera=spec.camera.path,
-                          resolution=spec.resolution, layers=(Layer("color", "raw", BEAUTY_RAW_SOURCE),))
-        recipe = Recipe(products=(product,))
+                                per_light=per_light, frame=frame)
     view_camera, view_resolution = recipe_view(recipe)
     resolution = tuple(resolution or view_resolution)
     check_raw_sources(recipe, DATA_AOVS, "the renderer does not produce")
@@ -161,7 +156,7 @@ def plan_frame(
     if keep_index:
         metadata["index"] = os.path.relpath(index_path, first.parent)
     manifest = {
-        **metadata, "stage_sha256": file_sha256(stage), "resolution": list(resolution), "spp": spp, "seed": seed,
+        **metadata, "stage_sha256": stage_sha256 or file_sha256(stage), "resolution": list(resolution), "spp": spp, "seed": seed,
         "max_depth": max_depth, "beauty": os.path.relpath(first, index_path.parent),
     }
     manifest.pop("index", None)
@@ -170,14 +165,20 @@ def plan_frame(
 
 
 def resolve_recipe(stage: Path, *, recipe_layers: Sequence[Path] = (), settings: str | None = None,
-                   camera: str | None = None, per_light: str | None = None) -> Recipe | None:
-    """The stage's recipe with ``recipe_layers`` over it; None when there is none at all."""
+                   camera: str | None = None, per_light: str | None = None, frame: float | None = None) -> Recipe:
+    """The stage's recipe with ``recipe_layers`` over it. A stage without any gives its
+    beauty alone (STEM.exr), at the stage's camera and resolution (read at ``frame``)."""
     from ..recipe import load_recipe
     from ..recipe.loader import has_recipe
 
-    if not recipe_layers and not settings and not has_recipe(stage):
-        return None
-    return load_recipe(stage, settings, recipe_layers=list(recipe_layers), camera=camera, per_light=per_light)
+    if recipe_layers or settings or has_recipe(stage):
+        return load_recipe(stage, settings, recipe_layers=list(recipe_layers), camera=camera, per_light=per_light)
+    from ..stage import load_stage
+
+    _, spec = load_stage(stage, frame=frame, camera=camera)
+    product = Product(name=stage.stem, output_name=f"{stage.stem}.exr", camera=spec.camera.path,
+                      resolution=spec.resolution, layers=(Layer("color", "raw", BEAUTY_RAW_SOURCE),))
+    return Recipe(products=(product,))
 
 
 def recipe_view(recipe: Recipe) -> tuple[str, tuple[int, int]]:
