@@ -135,3 +135,9 @@ def test_accepting_layers_refuses_expressions_with_conditions():
     recipe = compile_layers({"flat": "C D@(|S_C| = 0) L"})
     with pytest.raises(LpeError, match="match()"):
         recipe.accepting_layers(parse_path("C RD L").events)
+
+
+def test_per_light_groups_of_several_labels_take_them_as_one_set():
+    layers = lpe.per_light_passes({"keys": ("key", "key2"), "rim": ("rim",), "none": ()})
+    assert layers == {"light_keys": "C.*<L.['key''key2']>", "light_rim": "C.*<L.'rim'>",
+                      "light_other": "C.*<L.[^'key''key2''rim']>|C.*[OB]"}

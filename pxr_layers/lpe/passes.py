@@ -8,6 +8,8 @@ indirect (more). See docs/lpe.md for the differences from the table of LPE.md.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 BEAUTY = "C.*"
 
 STANDARD_PASSES = {
@@ -30,12 +32,22 @@ OTHER_EMITTERS_LAYER = "light_other"
 def per_light_passes(groups) -> dict[str, str]:
     """One layer per light group (``light_<group>`` = ``C.*<L.'group'>``) plus ``light_other``.
 
+    groups : labels, one layer each named after it; or a mapping name → labels, one layer
+             ``light_<name>`` per group with its labels in one label set (``C.*<L.['a''b']>``)
+
     ``light_other`` takes paths that end at a light of no listed group, at an emissive
     object or in the background, so the split is complete too (as long as a light carries
     at most one of the listed group labels).
     """
-    groups = list(dict.fromkeys(groups))
-    layers = {f"light_{group}": f"C.*<L.'{group}'>" for group in groups}
-    listed = "".join(f"'{group}'" for group in groups)
-    layers[OTHER_EMITTERS_LAYER] = f"C.*<L.[^{listed}]>|C.*[OB]" if groups else "C.*[LOB]"
+    if isinstance(groups, Mapping):
+        sets = {name: tuple(labels) for name, labels in groups.items() if labels}
+    else:
+        sets = {group: (group,) for group in dict.fromkeys(groups)}
+    layers = {f"light_{name}": f"C.*<L.{_label_set(labels)}>" for name, labels in sets.items()}
+    listed = "".join(f"'{label}'" for label in dict.fromkeys(label for labels in sets.values() for label in labels))
+    layers[OTHER_EMITTERS_LAYER] = f"C.*<L.[^{listed}]>|C.*[OB]" if listed else "C.*[LOB]"
     return layers
+
+
+def _label_set(labels: tuple[str, ...]) -> str:
+    return f"'{labels[0]}'" if len(labels) == 1 else "[" + "".join(f"'{label}'" for label in labels) + "]"

@@ -16,7 +16,7 @@ from ..errors import RecipeError
 from .model import Layer
 
 LIGHT_LAYER_PREFIX = "light_"
-OTHER_LIGHTS_LAYER = "light_other"
+OTHER_LIGHTS_LAYER = "light_other"  # lpe.passes.OTHER_EMITTERS_LAYER
 LIGHTS_GROUP = "lights"
 """The ``group`` of generated per-light layers."""
 
@@ -39,9 +39,11 @@ def per_light_layers(lights: Iterable[str] | Mapping[str, Iterable[str]], *, gro
         groups = {str(name): tuple(str(label) for label in labels) for name, labels in lights.items()}
     else:
         groups = {str(label): (str(label),) for label in lights}
-    layers: list[Layer] = []
-    names: dict[str, str] = {}
-    every_label: list[str] = []
+    # Imported here: the recipe model does not load the LPE compiler.
+    from ..lpe.passes import per_light_passes
+
+    names: dict[str, str] = {}  # layer name → the group (or label) it was made from
+    sets: dict[str, tuple[str, ...]] = {}
     for group_name, labels in groups.items():
         if not labels:
             continue
@@ -53,18 +55,9 @@ def per_light_layers(lights: Iterable[str] | Mapping[str, Iterable[str]], *, gro
             raise RecipeError(f"lights {names.get(layer_name, layer_name)!r} and {group_name!r} would both "
                               f"make layer {layer_name!r}: list them by prim path in a mapping of groups")
         names[layer_name] = group_name
-        every_label.extend(labels)
-        layers.append(Layer(layer_name, "lpe", f"C.*<L.{_label_set(labels)}>", group=group, **layer_fields))
-    listed = "".join(f"'{label}'" for label in dict.fromkeys(every_label))
-    other = f"C.*<L.[^{listed}]>|C.*[OB]" if listed else "C.*[LOB]"
-    layers.append(Layer(OTHER_LIGHTS_LAYER, "lpe", other, group=group, **layer_fields))
-    return tuple(layers)
-
-
-def _label_set(labels: tuple[str, ...]) -> str:
-    if len(labels) == 1:
-        return f"'{labels[0]}'"
-    return "[" + "".join(f"'{label}'" for label in labels) + "]"
+        sets[layer_name.removeprefix(LIGHT_LAYER_PREFIX)] = labels
+    return tuple(Layer(name, "lpe", expression, group=group, **layer_fields)
+                 for name, expression in per_light_passes(sets).items())
 
 
 def _identifier(text: str) -> str:
