@@ -19,6 +19,7 @@ from pxr_layers.layers.previews import (
     energy_shares,
     to_display,
     write_contact_sheet,
+    write_png,
     write_previews,
 )
 from pxr_layers.recipe import DEFAULT_OCIO_CONFIG, Layer, Product, Recipe
@@ -228,3 +229,16 @@ def test_colour_settings_are_checked():
     with pytest.raises(RecipeError, match="colour space 'lin_nope'"):
         check_colour_settings(rendering_space="lin_nope")
     check_colour_settings(rendering_space="lin_rec709_srgb")  # an alias of the default
+
+
+def test_a_png_keeps_its_description(tmp_path):
+    """Debug images say what they show (quantity, units, ramp) in the PNG's ImageDescription."""
+    import OpenImageIO as oiio
+
+    path = write_png(tmp_path / "c.png", np.full((4, 5, 3), 7, np.uint8), "C in 1/m; ramp 0..2")
+    image = oiio.ImageInput.open(str(path))
+    try:
+        assert image.spec().getattribute("ImageDescription") == "C in 1/m; ramp 0..2"
+        assert (image.spec().width, image.spec().height, image.spec().nchannels) == (5, 4, 3)
+    finally:
+        image.close()

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import OutputError
-from .exr import write_atomically, write_channels
+from .exr import write_channels
+from .previews import write_png
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +49,7 @@ def write_covariance_debug(beauty: Path, norms: np.ndarray, metadata: dict[str, 
         scale = "log(1 + value)" if logarithmic else "linear"
         description = f"first-bounce {name} in {unit}, {scale} from 0 (dark) to {top:.4g} (yellow); grey: no data"
         path = stem.with_name(f"{stem.name}.covariance.{name}.png")
-        _write_png(path, rgb, description)
+        write_png(path, np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8), description)
         written.append(path)
     log.info("wrote covariance debug images %s", ", ".join(str(p) for p in written))
     return written
@@ -63,17 +63,3 @@ def colour_ramp(values: np.ndarray) -> np.ndarray:
     return _RAMP[low] * (1 - fraction) + _RAMP[low + 1] * fraction
 
 
-def _write_png(path: Path, rgb: np.ndarray, description: str) -> None:
-    import OpenImageIO as oiio
-
-    pixels = np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8)
-    spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], 3, oiio.UINT8)
-    spec.attribute("ImageDescription", description)
-
-    def write(temporary: Path) -> None:
-        out = oiio.ImageOutput.create(str(path))
-        if out is None or not out.open(str(temporary), spec) or not out.write_image(pixels):
-            raise OutputError(f"{path}: cannot write PNG ({oiio.geterror()})")
-        out.close()
-
-    write_atomically(path, write)

@@ -131,9 +131,9 @@ def deliver(
             elif not layer.is_beauty:
                 images[layer.name] = data[layer.source_name]
         path = write_multipart(outputs[product.name], beauty, images, product, recipe=recipe, metadata=metadata)
-        written = write_previews(path.parent, path.stem, beauty, images, product) if previews else {}
-        layers = {layer.name: layer for layer in product.layers}
-        delivered.append(Delivered(product, path, written, energy_shares(beauty, images, layers)))
+        shares = energy_shares(beauty, images, {layer.name: layer for layer in product.layers})
+        written = write_previews(path.parent, path.stem, beauty, images, product, shares) if previews else {}
+        delivered.append(Delivered(product, path, written, shares))
     return delivered
 
 

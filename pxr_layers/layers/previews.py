@@ -153,12 +153,14 @@ def _quantise(pixels: np.ndarray) -> np.ndarray:
 # --- files -----------------------------------------------------------------------------
 
 
-def write_png(path: str | os.PathLike, pixels: np.ndarray) -> Path:
-    """Write (h, w, 3) uint8 pixels as an 8-bit PNG, atomically."""
+def write_png(path: str | os.PathLike, pixels: np.ndarray, description: str | None = None) -> Path:
+    """Write (h, w, 3) uint8 pixels as an 8-bit PNG, atomically (with an ImageDescription)."""
     import OpenImageIO as oiio
 
     path = Path(path)
     buffer = oiio.ImageBuf(np.ascontiguousarray(pixels, dtype=np.uint8))
+    if description is not None:
+        buffer.specmod().attribute("ImageDescription", description)
 
     def write(temporary: Path) -> None:
         if not buffer.write(str(temporary)):
@@ -188,15 +190,16 @@ def _display_image(image: np.ndarray, layer: Layer | None, processor) -> np.ndar
 
 
 def write_previews(directory: str | os.PathLike, stem: str, beauty: np.ndarray, images: Mapping[str, np.ndarray],
-                   product: Product | None = None) -> dict[str, Path]:
+                   product: Product | None = None, shares: Mapping[str, float | None] | None = None) -> dict[str, Path]:
     """The PNG previews of a product: ``{stem}.rgba.png`` (the beauty), ``{stem}.{layer}.png``
     for every layer with ``preview`` on, and ``{stem}.contact.png`` if the product asks (and
     has layers).
 
     beauty : (h, w, 4|3) float32 linear; images : layer name → its pixels (as for
     :func:`pxr_layers.layers.multipart.write_multipart`); product : colour settings and
-    per-layer grades (None: defaults, every layer previewed, a contact sheet).
-    Returns name → path (the contact sheet under ``"contact"``).
+    per-layer grades (None: defaults, every layer previewed, a contact sheet); shares: the
+    layers' :func:`energy_shares` if already known. Returns name → path (the contact sheet
+    under ``"contact"``).
     """
     directory = Path(directory)
     settings = _colour_settings(product)
@@ -208,7 +211,8 @@ def write_previews(directory: str | os.PathLike, stem: str, beauty: np.ndarray, 
         if layer.preview:
             written[name] = write_png(directory / f"{stem}.{name}.png", _display_image(image, layer, processor))
     if images and (product is None or product.contact_sheet):
-        written["contact"] = write_contact_sheet(directory / f"{stem}.contact.png", beauty, images, product)
+        written["contact"] = write_contact_sheet(directory / f"{stem}.contact.png", beauty, images, product,
+                                                 shares=shares)
     logger.info("wrote %d previews in %s", len(written), directory)
     return written
 
@@ -241,7 +245,7 @@ def _energy(image: np.ndarray) -> float:
 
 def write_contact_sheet(path: str | os.PathLike, beauty: np.ndarray, images: Mapping[str, np.ndarray],
                         product: Product | None = None, *, tile_width: int = 256,
-                        columns: int | None = None) -> Path:
+                        columns: int | None = None, shares: Mapping[str, float | None] | None = None) -> Path:
     """A grid of the beauty and every layer, each labelled with its name and energy share.
 
     Tiles are ``tile_width`` wide (the image's aspect kept, never upscaled), graded and
@@ -252,7 +256,8 @@ def write_contact_sheet(path: str | os.PathLike, beauty: np.ndarray, images: Map
 
     processor = display_processor(*_colour_settings(product))
     layers = _layers_of(product, images)
-    shares = energy_shares(beauty, images, layers)
+    if shares is None:
+        shares = energy_shares(beauty, images, layers)
     height, width = np.shape(beauty)[:2]
     tile_w = min(tile_width, width)
     tile_h = max(1, round(height * tile_w / width))
