@@ -350,3 +350,15 @@ def test_clear_glass_and_cut_out_spheres_vanish_in_a_uniform_dome(tmp_path, thre
     rgb, result = mean_rgb(path, spp=16, max_depth=max_depth)
     assert result.rgba[8, 8, 3] == 1.0  # the sphere fills the centre of the frame
     np.testing.assert_allclose(rgb, 1.0, rtol=0.01)
+
+
+def test_event_subjects_are_the_distinct_object_material_pairs_in_order():
+    """The vocabulary's surface subjects: np.unique of the (object, material) rows, computed
+    through one key per pair (materials may be -1: no material)."""
+    from pxr_layers.trace.render import _distinct_pairs
+
+    rng = np.random.default_rng(0)
+    objects, materials = rng.integers(0, 50, 20000), rng.integers(-1, 30, 20000)
+    expected, expected_inverse = np.unique(np.stack([objects, materials], 1), axis=0, return_inverse=True)
+    pairs, inverse = _distinct_pairs(objects, materials)
+    assert np.array_equal(pairs, expected) and np.array_equal(inverse, expected_inverse.reshape(-1))

@@ -69,9 +69,9 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
         log.warning("%s: no light emits anything: the image will be black", scene.stage_path)
     camera = PinholeCamera.from_spec(spec)
     bounce_norms = BounceNorms(scene, world) if settings.norm_bounces > 0 else None
-    # every distinct (object, material) pair of the triangles is one event subject
-    pairs, triangle_subject = np.unique(np.stack([world.triangle_object, world.triangle_material], axis=1), axis=0,
-                                        return_inverse=True)
+    # every distinct (object, material) pair of the triangles is one event subject, in
+    # (object, material) order: unique of one int64 key (far faster than rows of a matrix)
+    pairs, triangle_subject = _distinct_pairs(world.triangle_object, world.triangle_material)
     vocabulary = EventVocabulary(
         surface_objects=tuple(pairs[:, 0].tolist()), surface_materials=tuple(pairs[:, 1].tolist()),
         object_names=world.object_names, object_paths=world.object_paths,
@@ -81,6 +81,18 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
     return Integrator(world, materials, lights, camera, spec.resolution, settings, scene.frame, RayCaster(world),
                       vocabulary, triangle_subject.reshape(-1).astype(np.int64), bounce_norms)
 
+
+
+def _distinct_pairs(first: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(np.stack([first, second], 1), axis=0, return_inverse=True)`` for (n,)
+    integer arrays, through one int64 key per pair."""
+    first, second = np.asarray(first, np.int64), np.asarray(second, np.int64)
+    if not len(first):
+        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
+    low, span = second.min(), int(second.max() - second.min()) + 1
+    keys, inverse = np.unique((first - first.min()) * span + (second - low), return_inverse=True)
+    pairs = np.stack([keys // span + first.min(), keys % span + low], axis=1)
+    return pairs, inverse.reshape(-1)
 
 def render(
     scene: SceneData,
