@@ -446,6 +446,7 @@ class Integrator:
         delta = np.isinf(light_pdf)
         cos_shading = np.abs(wi_local[2, lanes])
         base = paths.throughput[:, lanes] * sample.radiance[:, lanes] * (cos_shading / np.where(delta, 1.0, light_pdf))
+        light_events = self._sampled_light_event(sample, lanes) if film.record else None  # the same for every lobe
         for lobe in bsdf.GLOSSY_LOBES:
             lobe_f = f[lobe][:, lanes]
             active = max3(lobe_f) > 0
@@ -459,7 +460,7 @@ class Integrator:
                 scatter = bsdf.SCATTER_DIFFUSE if lobe == bsdf.DIFFUSE else bsdf.SCATTER_GLOSSY
                 surface = self._surface_event(vertex.triangle[contributing], events.REFLECT, scatter, lobe)
                 node = film.classes.extend(paths.node[contributing], surface)
-                node = film.classes.extend(node, self._sampled_light_event(sample, contributing))
+                node = film.classes.extend(node, light_events[active])
                 if self.bounce_norms:
                     row = film.event_norms.append(paths.row[contributing], vertex.curvature[contributing],
                                                   vertex.texture[contributing],
