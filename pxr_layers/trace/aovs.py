@@ -95,18 +95,8 @@ class _DataTracer:
 
     def __init__(self, integrator: Integrator):
         self.integrator = integrator
-        world = integrator.world
-        camera = integrator.camera
-        self.camera_from_world = np.asarray(camera.world_from_camera, np.float64).T  # a rotation
-        # Which materials can cut a surface out (opacityThreshold > 0): constant per material.
-        material_count = int(world.triangle_material.max(initial=-1)) + 1
-        if material_count:
-            thresholds = integrator.materials.evaluate(
-                np.arange(material_count, dtype=np.int32), np.zeros((2, material_count), FLOAT)
-            ).opacity_threshold
-            self.cutout_material = np.append(thresholds > 0, False)  # index −1: light shapes
-        else:
-            self.cutout_material = np.zeros(1, bool)
+        self.camera_from_world = np.asarray(integrator.camera.world_from_camera, np.float64).T  # a rotation
+        self.cutout_material = np.append(integrator.materials.cutout, False)  # index −1: light shapes
 
     def trace_rows(self, first_row: int, stop_row: int, out: dict[str, np.ndarray]) -> None:
         """Fill rows [first_row, stop_row) of every array in `out`."""

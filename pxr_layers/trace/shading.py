@@ -94,6 +94,7 @@ class MaterialTable:
         self._use_specular_workflow = np.array([m.use_specular_workflow for m in materials], bool)
         self._ior = np.array([m.ior for m in materials], FLOAT)
         self._opacity_threshold = np.array([m.opacity_threshold for m in materials], FLOAT)
+        self.cutout = self._opacity_threshold > 0  # (materials,) bool: can cut a surface out
         self.emissive = (self._constants["emissive_color"].max(axis=0) > 0) | np.array(
             [isinstance(m.emissive_color, TextureInput) for m in materials]
         )
