@@ -40,11 +40,12 @@ from pathlib import Path
 
 import numpy as np
 import OpenEXR
-from distributed import Client, LocalCluster
+from distributed import Client
 
 from pxr_layers.cli.main import main as cli
 from pxr_layers.jobs import load_job
 from pxr_layers.jobs.executor import run_job
+from pxr_layers.jobs.workers import local_cluster
 
 SHOT = Path(__file__).resolve().parents[1] / "pipelines" / "shows" / "demo" / "shot010.toml"
 TARGET_SPEEDUP = 1.7
@@ -54,8 +55,7 @@ ENVIRONMENT = dict(os.environ)
 
 
 def job_seconds(job, workers: int) -> float:
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
-            Client(cluster) as client:
+    with local_cluster(workers, dashboard_address=None) as cluster, Client(cluster) as client:  # as `job run` starts it
         start = time.perf_counter()
         report = run_job(job, client=client)
         seconds = time.perf_counter() - start

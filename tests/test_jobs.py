@@ -11,10 +11,11 @@ import threading
 import time
 from pathlib import Path
 
+import dask
 import numpy as np
 import OpenEXR
 import pytest
-from distributed import Client, LocalCluster
+from distributed import Client
 from test_cli import SCRIPT
 
 from pxr_layers.jobs import load_job
@@ -27,6 +28,7 @@ from pxr_layers.jobs.executor import (
     tile_file,
     tiles,
 )
+from pxr_layers.jobs.workers import LOCAL_CLUSTER_CONFIG, local_cluster
 
 REPO = Path(__file__).resolve().parents[1]
 SHOT = REPO / "pipelines" / "shows" / "demo" / "shot010.toml"
@@ -47,7 +49,7 @@ def deliverables(directory: Path) -> dict[str, bytes]:
 
 @pytest.fixture(scope="module")
 def client():
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
+    with local_cluster(2, dashboard_address=":0") as cluster, \
             Client(cluster) as dask:
         yield dask
 
@@ -101,7 +103,7 @@ def test_same_bytes_whatever_the_split_and_the_worker_count(tmp_path, reference)
     _, _, expected = reference
     split = job_at(tmp_path / "split", **{"dask.batch_pixels": 1})
     assert len(tiles(frame_plan(split, 1.0), split.batch_pixels)) == 3
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
+    with local_cluster(1, dashboard_address=":0") as cluster, \
             Client(cluster) as one_worker:
         report = run_job(split, client=one_worker)
     assert report.tiles_rendered == 6
@@ -155,7 +157,7 @@ def test_resume_skips_done_frames_and_reuses_committed_tiles(tmp_path, client, r
 def test_a_worker_killed_mid_job_corrupts_nothing(tmp_path, reference):
     _, _, expected = reference
     job = job_at(tmp_path, **{"dask.batch_pixels": 1})
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
+    with local_cluster(2, dashboard_address=":0") as cluster, \
             Client(cluster) as dask:
         outcome: dict = {}
         runner = threading.Thread(target=lambda: outcome.update(report=run_job(job, client=dask)))
@@ -173,9 +175,14 @@ def test_a_worker_killed_mid_job_corrupts_nothing(tmp_path, reference):
 
 
 def test_jobs_tune_their_workers(client, reference):
-    """After a job, its workers run without Dask's statistical profiler (see jobs/workers.py)."""
+    """After a job, its workers run without Dask's statistical profiler, and the local
+    cluster's workers keep house at the pace local_cluster sets (see jobs/workers.py)."""
     profiling = client.run(lambda dask_worker: sorted(set(dask_worker.periodic_callbacks) & {"profile", "profile-cycle"}))
     assert len(profiling) == 2 and all(names == [] for names in profiling.values())
+    settings = client.run(lambda: {key: dask.config.get(key) for key in LOCAL_CLUSTER_CONFIG})
+    assert all(values == LOCAL_CLUSTER_CONFIG for values in settings.values())
+    assert dask.config.get("distributed.admin.tick.interval") != LOCAL_CLUSTER_CONFIG["distributed.admin.tick.interval"], \
+        "the cluster's settings stay out of the process that started it"
 
 
 def test_job_run_from_the_command_line(tmp_path):

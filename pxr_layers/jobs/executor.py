@@ -233,7 +233,8 @@ def run_job(job: Job, *, client=None, on_frame: Callable[[float, str], None] | N
     """Render every frame of ``job`` not done yet; returns what was done.
 
     client : a ``distributed.Client``; None starts one as the job says (its scheduler, or
-             a LocalCluster of ``job.workers`` single-threaded worker processes) and stops
+             a LocalCluster of ``job.workers`` single-threaded worker processes,
+             :func:`~pxr_layers.jobs.workers.local_cluster`) and stops
              it at the end.
     on_frame(frame, status) : called as frames are skipped, started and finished.
     """
@@ -270,7 +271,7 @@ class _client:
     def __enter__(self):
         if self.given is not None:
             return self.given
-        from distributed import Client, LocalCluster
+        from distributed import Client
 
         if self.job.scheduler:
             try:
@@ -280,8 +281,9 @@ class _client:
                                key="dask.scheduler") from None
             self.started = [client]
             return client
-        cluster = LocalCluster(n_workers=self.job.workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
+        from .workers import local_cluster
+
+        cluster = local_cluster(self.job.workers, dashboard_address=None)
         client = Client(cluster)
         self.started = [client, cluster]
         log.info("started a local Dask cluster of %d workers", self.job.workers)
