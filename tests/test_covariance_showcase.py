@@ -183,3 +183,6 @@ def test_texture_spectra_are_remembered_by_content_across_frames():
     changed[3, 5, 0] += 0.5
     assert texture_spectrum(changed) is not first
     assert texture_spectrum(image.reshape(128, 64, 3)) is not first  # same bytes, another shape
+    shared = image.copy()
+    shared.flags.writeable = False  # as the stage reader's textures: hashed once, then known by identity
+    assert texture_spectrum(shared) is first and texture_spectrum(shared) is first

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import OpenImageIO as oiio
 import pytest
@@ -280,6 +282,28 @@ def test_8bit_png_is_decoded_as_srgb_by_auto_and_kept_by_raw(tmp_path):
     np.testing.assert_allclose(decoded.pixels[:, :, 3], 1.0)
     # row 0 is the top row of the file
     np.testing.assert_allclose(scene.textures[raw.texture].pixels[0, 1, 0], 1.0)
+
+
+def test_the_next_read_takes_the_textures_of_the_last_unless_the_file_changed(tmp_path):
+    """A shot's frames read the same files: the decoded images are shared (read-only), in
+    each colour space, and a rewritten file is decoded again."""
+    png = write_image(tmp_path / "colour.png", PNG_VALUES, oiio.UINT8)
+    stage = new_stage(tmp_path)
+    bind(quad(stage), textured_material(stage, "/Looks/auto", "colour.png"))
+    first, _ = load(stage)
+    second, _ = load(stage)
+    assert second.textures[0].pixels is first.textures[0].pixels
+    assert not first.textures[0].pixels.flags.writeable
+    bind(quad(stage, "/raw", [(x, y + 2, z) for x, y, z in QUAD]),
+         textured_material(stage, "/Looks/raw", "colour.png", sourceColorSpace="raw"))
+    both, _ = load(stage)  # the remembered sRGB image, and the same file decoded raw
+    assert both.textures[0].pixels is first.textures[0].pixels
+    np.testing.assert_allclose(both.textures[1].pixels[:, :, :3], PNG_VALUES / 255.0, atol=1e-6)
+    brighter = np.minimum(PNG_VALUES.astype(np.int64) + 5, 255).astype(np.uint8)
+    write_image(png, brighter, oiio.UINT8)
+    os.utime(png, ns=(0, 0))  # a new modification time even on a coarse clock
+    changed, _ = load(stage)
+    np.testing.assert_allclose(changed.textures[1].pixels[:, :, :3], brighter / 255.0, atol=1e-6)
 
 
 def test_srgb_decoding_leaves_alpha_alone(tmp_path):

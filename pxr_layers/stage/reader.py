@@ -105,6 +105,7 @@ def _read_stage(
         len(lights),
         len(textures.images),
     )
+    textures.remember()  # the next frame's read takes them as they are
     scene = SceneData(
         stage_path=os.path.abspath(file),
         frame=frame_value,

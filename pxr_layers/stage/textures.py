@@ -4,13 +4,19 @@ Pixels are stored linear, float32, (h, w, 4) with row 0 = the top row of the fil
 scene.TextureImage documents. Channel expansion follows UsdUVTexture: one channel is grey
 (rgb = value, alpha = 1), two channels are grey + alpha, three get alpha = 1; channels past
 the fourth are dropped because no UsdUVTexture output can reach them.
+
+The textures of the last stage read are remembered in the process by file identity (path,
+modification time, size): the frames of a shot read the same files one after another, and
+the next read takes the decoded images instead of decoding them again. The images are
+read-only arrays, shared by the scenes of those frames.
 """
 
 from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass
+import threading
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -41,6 +47,31 @@ class _DecodedFile:
     pixels: np.ndarray
     is_uint8: bool
     wrap_modes: tuple[WrapMode | None, WrapMode | None]
+
+
+@dataclass
+class _FileTexture:
+    """A file's images as this read uses them; ``decoded`` is None when the images come
+    from an earlier read (decoded again only for a colour space that read did not use)."""
+
+    identity: tuple[str, int, int] | None  # (path, mtime ns, bytes); None: not remembered
+    is_uint8: bool
+    channels: int
+    wrap_modes: tuple[WrapMode | None, WrapMode | None]
+    decoded: _DecodedFile | None = None
+    images: dict[ColorSpace, np.ndarray] = field(default_factory=dict)  # (h, w, 4) read-only
+
+
+_REMEMBERED: dict[tuple[str, int, int], _FileTexture] = {}
+_REMEMBERED_LOCK = threading.Lock()  # frames may be read on several threads of a process
+
+
+def _file_identity(path: str) -> tuple[str, int, int] | None:
+    try:
+        status = os.stat(path)
+    except OSError:
+        return None
+    return (path, status.st_mtime_ns, status.st_size)
 
 
 @dataclass(frozen=True)
@@ -81,7 +112,7 @@ class TextureLibrary:
     def __init__(self, diagnostics: Diagnostics) -> None:
         self.images: list[TextureImage] = []
         self._diagnostics = diagnostics
-        self._files: dict[str, _DecodedFile | None] = {}
+        self._files: dict[str, _FileTexture | None] = {}
         self._indices: dict[tuple[str, ColorSpace], int] = {}
 
     def load(
@@ -94,8 +125,8 @@ class TextureLibrary:
                              everything else (float, 16-bit, grey) as raw.
         Returns None after a warning (once per file) when the file cannot be read.
         """
-        decoded = self._decode(path, user_prim)
-        if decoded is None:
+        texture = self._file(path, user_prim)
+        if texture is None:
             return None
         if source_color_space == "sRGB":
             color_space: ColorSpace = "sRGB"
@@ -108,29 +139,57 @@ class TextureLibrary:
                     "unknown sourceColorSpace values treated as 'auto' on: {prims}",
                     user_prim,
                 )
-            is_color_image = decoded.pixels.shape[2] >= 3
-            color_space = "sRGB" if decoded.is_uint8 and is_color_image else "raw"
+            color_space = "sRGB" if texture.is_uint8 and texture.channels >= 3 else "raw"
         key = (path, color_space)
         if key not in self._indices:
+            if color_space not in texture.images:
+                if texture.decoded is None:  # remembered from an earlier read in another colour space
+                    try:
+                        texture.decoded = _read_file(path)
+                    except OSError as error:
+                        self._unreadable(path, user_prim, error)
+                        return None
+                pixels = _expand_to_rgba(texture.decoded.pixels, color_space)
+                pixels.flags.writeable = False
+                texture.images[color_space] = pixels
             self._indices[key] = len(self.images)
-            pixels = _expand_to_rgba(decoded.pixels, color_space)
-            self.images.append(TextureImage(path=path, pixels=pixels))
-        return LoadedTexture(self._indices[key], decoded.wrap_modes)
+            self.images.append(TextureImage(path=path, pixels=texture.images[color_space]))
+        return LoadedTexture(self._indices[key], texture.wrap_modes)
 
-    def _decode(self, path: str, user_prim: str) -> _DecodedFile | None:
+    def remember(self) -> None:
+        """Keep this read's images for the next read in the process (replacing the last)."""
+        global _REMEMBERED
+        kept = {texture.identity: _FileTexture(texture.identity, texture.is_uint8, texture.channels,
+                                               texture.wrap_modes, images=dict(texture.images))
+                for texture in self._files.values() if texture is not None and texture.identity is not None}
+        with _REMEMBERED_LOCK:
+            _REMEMBERED = kept
+
+    def _file(self, path: str, user_prim: str) -> _FileTexture | None:
         if path in self._files:
             return self._files[path]
-        decoded = None
-        try:
-            decoded = _read_file(path)
-        except OSError as error:
-            self._diagnostics.warn(
-                f"cannot read texture {path} (used by {user_prim}): {error}; "
-                "using the fallback value instead",
-                once_key=f"texture:{path}",
-            )
-        self._files[path] = decoded
-        return decoded
+        identity = _file_identity(path)
+        with _REMEMBERED_LOCK:
+            earlier = _REMEMBERED.get(identity) if identity is not None else None
+        if earlier is not None:
+            texture = _FileTexture(identity, earlier.is_uint8, earlier.channels, earlier.wrap_modes,
+                                   images=dict(earlier.images))
+        else:
+            texture = None
+            try:
+                decoded = _read_file(path)
+                texture = _FileTexture(identity, decoded.is_uint8, decoded.pixels.shape[2], decoded.wrap_modes,
+                                       decoded)
+            except OSError as error:
+                self._unreadable(path, user_prim, error)
+        self._files[path] = texture
+        return texture
+
+    def _unreadable(self, path: str, user_prim: str, error: OSError) -> None:
+        self._diagnostics.warn(
+            f"cannot read texture {path} (used by {user_prim}): {error}; using the fallback value instead",
+            once_key=f"texture:{path}",
+        )
 
 
 def _read_file(path: str) -> _DecodedFile:

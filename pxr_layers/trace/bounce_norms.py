@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import threading
+import weakref
 from collections import OrderedDict
 
 import numpy as np
@@ -54,9 +55,7 @@ def texture_spectrum(pixels: np.ndarray) -> TextureSpectrum:
     are prepared one after another in one process, and textures rarely change between
     them, so the FFTs of a 4K texture are not redone per frame (hashing is far cheaper)."""
     pixels = np.ascontiguousarray(pixels)
-    key = hashlib.blake2b(pixels.view(np.uint8), digest_size=16)
-    key.update(repr((pixels.shape, pixels.dtype.str)).encode())
-    digest = key.digest()
+    digest = _content_digest(pixels)
     with _SPECTRA_LOCK:
         if digest not in _SPECTRA:
             _SPECTRA[digest] = TextureSpectrum.of_image(pixels)
@@ -64,6 +63,27 @@ def texture_spectrum(pixels: np.ndarray) -> TextureSpectrum:
                 _SPECTRA.popitem(last=False)
         _SPECTRA.move_to_end(digest)
         return _SPECTRA[digest]
+
+
+_DIGESTS: dict[int, tuple[weakref.ref, bytes]] = {}
+
+
+def _content_digest(pixels: np.ndarray) -> bytes:
+    """A hash of the pixels, their shape and type. A read-only array (the stage reader's
+    textures, shared by the frames it reads) cannot change, so it is hashed once."""
+    if not pixels.flags.writeable:
+        known = _DIGESTS.get(id(pixels))
+        if known is not None and known[0]() is pixels:
+            return known[1]
+    key = hashlib.blake2b(pixels.view(np.uint8), digest_size=16)
+    key.update(repr((pixels.shape, pixels.dtype.str)).encode())
+    digest = key.digest()
+    if not pixels.flags.writeable:
+        with _SPECTRA_LOCK:
+            for dead in [number for number, (array, _) in _DIGESTS.items() if array() is None]:
+                del _DIGESTS[dead]
+            _DIGESTS[id(pixels)] = (weakref.ref(pixels), digest)
+    return digest
 
 
 class BounceNorms:
