@@ -46,11 +46,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import JobError
 from ..layers.exr import write_atomically
-from ..paths.format import FLOAT16_MAX, NORM_DTYPE
+from ..paths.format import stored_norms
 from .definition import Job
 from .frame import (
     FrameAssembler,
@@ -193,7 +191,7 @@ def render_tile(plan: FramePlan, first: int, stop: int, path: str, data_path: st
 
     def keep(batch) -> None:
         if batch.records is not None:  # norms as the index stores them: a quarter of the bytes to move
-            norms = np.minimum(batch.records.norms, FLOAT16_MAX).astype(NORM_DTYPE)
+            norms = stored_norms(batch.records.norms)
             batch = dataclasses.replace(batch, records=dataclasses.replace(batch.records, norms=norms))
         batches.append(batch)
 

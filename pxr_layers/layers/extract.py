@@ -98,8 +98,9 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
             records = records[np.argsort(chunk_groups[records], kind="stable")]
             sorted_groups = chunk_groups[records]
             starts = np.flatnonzero(np.diff(sorted_groups, prepend=-1))
+            norms = np.take(chunk.norms, records, axis=0)  # take: 3x faster than [records] on (r, N, 3)
             matching = np.concatenate([np.zeros(0, np.int64)] + [
-                records[start:stop][groups[sorted_groups[start]].mask(chunk.norms[records[start:stop]])]
+                records[start:stop][groups[sorted_groups[start]].mask(norms[start:stop])]
                 for start, stop in zip(starts.tolist(), [*starts[1:].tolist(), len(records)])])
             if bit < len(keyed):
                 key[matching] |= 1 << bit

@@ -59,6 +59,15 @@ NORM_DTYPE = np.float16
 FLOAT16_MAX = float(np.finfo(np.float16).max)
 
 
+def stored_norms(norms: np.ndarray) -> np.ndarray:
+    """Norms (r, N, 3) as the index stores them: float16, saturated at FLOAT16_MAX (norms
+    are >= 0). Norms already stored so are returned as they are (the conversion is a
+    tenth of a tile's time: a job's tiles store them so, and the writer does not redo it)."""
+    if norms.dtype == NORM_DTYPE:
+        return norms
+    return np.minimum(norms, FLOAT16_MAX).astype(NORM_DTYPE)
+
+
 def shuffle(values: np.ndarray) -> bytes:
     """Bytes of `values` as byte planes: all first bytes, then all second bytes, ..."""
     flat = np.ascontiguousarray(values).reshape(-1)
