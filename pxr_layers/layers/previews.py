@@ -153,12 +153,18 @@ def _quantise(pixels: np.ndarray) -> np.ndarray:
 # --- files -----------------------------------------------------------------------------
 
 
+PNG_COMPRESSION_LEVEL = 1
+"""zlib level of the previews: half the time of OIIO's default (6) for 3 % more bytes (a
+shot writes dozens of previews per frame)."""
+
+
 def write_png(path: str | os.PathLike, pixels: np.ndarray, description: str | None = None) -> Path:
     """Write (h, w, 3) uint8 pixels as an 8-bit PNG, atomically (with an ImageDescription)."""
     import OpenImageIO as oiio
 
     path = Path(path)
     buffer = oiio.ImageBuf(np.ascontiguousarray(pixels, dtype=np.uint8))
+    buffer.specmod().attribute("png:compressionLevel", PNG_COMPRESSION_LEVEL)
     if description is not None:
         buffer.specmod().attribute("ImageDescription", description)
 
