@@ -19,11 +19,13 @@ The job's overhead is its time over the independent processes' on the same cores
 the direct render.
 
 The machine's 2 cores are shared with other machines' work, so timings vary from run to
-run by 10-30 % (the hypervisor takes whole seconds at times): the cluster and process runs are repeated ``--repeats`` times, interleaved,
-and the fastest of each is kept. Cluster and process start-up are outside the timings (a
-farm's workers are up before a job comes); everything a frame needs (stage read, Embree
-build, tracing, index, extraction, EXRs, previews) is inside. The EXRs of the job runs and
-the direct render are checked equal pixel for pixel.
+run by 10-30 %, and the hypervisor takes whole seconds at times (each run prints the CPU
+time it stole): each repeat runs the job on 1 then 2 workers, then 1 then 2 processes, back
+to back; the fastest run of each is kept, and each repeat's own ratios are printed too.
+Cluster and process start-up are outside the timings (a farm's workers are up before a job
+comes); everything a frame needs (stage read, Embree build, tracing, index, extraction,
+EXRs, previews) is inside. The EXRs of the job runs and the direct render are checked equal
+pixel for pixel.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 import OpenEXR
+import psutil
 from distributed import Client
 
 from pxr_layers.cli.main import main as cli
@@ -52,6 +55,11 @@ TARGET_SPEEDUP = 1.7
 ENVIRONMENT = dict(os.environ)
 """This process's environment before any cluster: a Dask nanny writes its workers' settings
 (MALLOC_TRIM_THRESHOLD_, OMP_NUM_THREADS) into os.environ before it spawns them."""
+
+
+def stolen_seconds() -> float:
+    """CPU seconds the hypervisor has given other machines (all CPUs, since boot)."""
+    return getattr(psutil.cpu_times(), "steal", 0.0)
 
 
 def job_seconds(job, workers: int) -> float:
@@ -131,6 +139,7 @@ def main() -> None:
     args = parser.parse_args()
     logging.getLogger("distributed").setLevel(logging.ERROR)
     times: dict[str, list[float]] = {"job 1": [], "job 2": [], "processes 1": [], "processes 2": []}
+    stolen: dict[str, list[float]] = {name: [] for name in times}
     with tempfile.TemporaryDirectory() as scratch:
         root = Path(scratch)
 
@@ -138,11 +147,17 @@ def main() -> None:
             return load_job(SHOT, {"frames": args.frames, "render.spp": args.spp,
                                    "render.resolution": list(args.resolution), "output.directory": str(root / name)})
 
-        for repeat in range(args.repeats):
+        def timed(name: str, run, *arguments) -> None:
+            before = stolen_seconds()
+            times[name].append(run(*arguments))
+            stolen[name].append(stolen_seconds() - before)
+
+        for repeat in range(args.repeats):  # each pair of runs back to back
             for workers in (1, 2):
-                times[f"job {workers}"].append(job_seconds(job_in(f"job{workers}.{repeat}"), workers))
+                timed(f"job {workers}", job_seconds, job_in(f"job{workers}.{repeat}"), workers)
+            for workers in (1, 2):
                 job = job_in(f"processes{workers}.{repeat}")
-                times[f"processes {workers}"].append(processes_seconds(job, workers, job.output_directory))
+                timed(f"processes {workers}", processes_seconds, job, workers, job.output_directory)
         job = job_in("render")
         direct = render_seconds(job, root / "render")
         for name in ("job1.0", "job2.0"):
@@ -152,7 +167,14 @@ def main() -> None:
 
     def line(label: str, name: str) -> str:
         runs = ", ".join(f"{value:.1f}" for value in times[name])
-        return f"  {label:<34}: {best[name]:6.1f} s  ({frames / best[name] * 60:5.1f} frames/min; runs {runs})"
+        steal = ", ".join(f"{value:.1f}" for value in stolen[name])
+        return (f"  {label:<34}: {best[name]:6.1f} s  ({frames / best[name] * 60:5.1f} frames/min; runs {runs} s; "
+                f"CPU stolen by the hypervisor {steal} s)")
+
+    def paired_ratios(kind: str) -> str:
+        ratios = [one / two for one, two in zip(times[f"{kind} 1"], times[f"{kind} 2"], strict=True)]
+        return (f"    run by run (1 then 2, back to back): {', '.join(f'{value:.2f}' for value in ratios)}x, "
+                f"median {float(np.median(ratios)):.2f}x")
 
     print(f"shot010 frames {args.frames} ({frames}), {args.resolution[0]}x{args.resolution[1]}, {args.spp} spp, "
           f"max depth {job.max_depth}, 3 products with previews; fastest of {args.repeats} interleaved runs")
@@ -161,10 +183,12 @@ def main() -> None:
     speedup = best["job 1"] / best["job 2"]
     print(f"  throughput 2 workers / 1 worker: {speedup:.2f}x (target >= {TARGET_SPEEDUP}x: "
           f"{'met' if speedup >= TARGET_SPEEDUP else 'MISSED'})")
+    print(paired_ratios("job"))
     print(line("pxr-layers render, 1 process", "processes 1"))
     print(line("pxr-layers render, 2 processes", "processes 2"))
     ceiling = best["processes 1"] / best["processes 2"]
     print(f"  baseline, 2 independent processes / 1: {ceiling:.2f}x (the job's ratio is {speedup / ceiling:.0%} of it)")
+    print(paired_ratios("processes"))
     for workers in (1, 2):
         overhead = best[f"job {workers}"] / best[f"processes {workers}"]
         print(f"  job overhead on {workers} core{'s' * (workers > 1)} (job / independent processes): {overhead:.2f}x "
