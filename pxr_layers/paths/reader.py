@@ -17,16 +17,26 @@ from . import format as fmt
 from .events import Event
 
 
-@dataclass(frozen=True)
 class PathClass:
-    """One distinct event sequence: its events camera first (and their ids into
-    ``PathIndex.events``), records and summed rgb."""
+    """One distinct event sequence: its event ids camera first (into ``PathIndex.events``),
+    records and summed rgb; ``events`` are the Events themselves.
 
-    id: int
-    events: tuple[Event, ...]
-    records: int
-    rgb: tuple[float, float, float]
-    event_ids: tuple[int, ...] = ()
+    An index can hold tens of thousands of classes and is opened for every extraction:
+    the Event tuple is built when asked for, not at open (a third of the open time).
+    """
+
+    __slots__ = ("_table", "event_ids", "id", "records", "rgb")
+
+    def __init__(self, id: int, event_ids: tuple[int, ...], records: int, rgb: tuple[float, float, float],
+                 table: tuple[Event, ...]):
+        self.id, self.event_ids, self.records, self.rgb, self._table = id, event_ids, records, rgb, table
+
+    @property
+    def events(self) -> tuple[Event, ...]:
+        return tuple(self._table[event] for event in self.event_ids)
+
+    def __repr__(self) -> str:
+        return f"PathClass({self.id}, {self.event_ids}, records={self.records})"
 
 
 @dataclass(frozen=True)
@@ -85,7 +95,7 @@ class PathIndex:
             for kind, scatter, ids, *name in tables["events"]
         )
         self.classes: tuple[PathClass, ...] = tuple(
-            PathClass(index, tuple(self.events[event] for event in events), records, tuple(rgb), tuple(events))
+            PathClass(index, tuple(events), records, tuple(rgb), self.events)
             for index, (events, records, rgb) in enumerate(
                 zip(tables["classes"], tables["class_records"], tables["class_rgb"]))
         )
