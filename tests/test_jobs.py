@@ -169,9 +169,16 @@ def test_a_worker_killed_mid_job_corrupts_nothing(tmp_path, reference):
         victim = next(iter(dask.run(os.getpid).values()))
         os.kill(victim, signal.SIGKILL)
         runner.join(timeout=300)
+        dask.wait_for_workers(2, timeout=60)
+        assert worker_settings(dask) == [LOCAL_CLUSTER_CONFIG] * 2, "the restarted worker keeps the cluster's pace"
     assert sorted(outcome["report"].rendered) == [1.0, 2.0]
     assert deliverables(tmp_path) == expected
     assert not [path for path in tmp_path.rglob("*") if ".tmp" in path.name]
+
+
+def worker_settings(client) -> list[dict]:
+    """LOCAL_CLUSTER_CONFIG's keys as each worker process has them."""
+    return list(client.run(lambda: {key: dask.config.get(key) for key in LOCAL_CLUSTER_CONFIG}).values())
 
 
 def test_jobs_tune_their_workers(client, reference):
@@ -179,8 +186,7 @@ def test_jobs_tune_their_workers(client, reference):
     cluster's workers keep house at the pace local_cluster sets (see jobs/workers.py)."""
     profiling = client.run(lambda dask_worker: sorted(set(dask_worker.periodic_callbacks) & {"profile", "profile-cycle"}))
     assert len(profiling) == 2 and all(names == [] for names in profiling.values())
-    settings = client.run(lambda: {key: dask.config.get(key) for key in LOCAL_CLUSTER_CONFIG})
-    assert all(values == LOCAL_CLUSTER_CONFIG for values in settings.values())
+    assert worker_settings(client) == [LOCAL_CLUSTER_CONFIG] * 2
     assert dask.config.get("distributed.admin.tick.interval") != LOCAL_CLUSTER_CONFIG["distributed.admin.tick.interval"], \
         "the cluster's settings stay out of the process that started it"
 

@@ -26,11 +26,16 @@ def local_cluster(workers: int, **options):
     """A ``distributed.LocalCluster`` of ``workers`` single-threaded worker processes (one
     task per core: a task traces with one thread), with ``LOCAL_CLUSTER_CONFIG``.
     ``options`` go to LocalCluster (``dashboard_address``, ...)."""
+    import copy
+
     import dask
     from distributed import LocalCluster
 
-    with dask.config.set(LOCAL_CLUSTER_CONFIG):  # read as the scheduler, nannies and workers start
-        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, **options)
+    with dask.config.set(LOCAL_CLUSTER_CONFIG):  # read as the scheduler and nannies start
+        # Each nanny starts (and restarts) its worker with the config it was given: a copy,
+        # as the settings are undone in the shared one when this block ends.
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                            config=copy.deepcopy(dask.config.config), **options)
 
 
 class WorkerTuning(WorkerPlugin):

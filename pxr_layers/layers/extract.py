@@ -280,9 +280,10 @@ def extract_reference(index: PathIndex, expressions: dict[str, str]) -> dict[str
     trees = {name: lpe.parse(expression) for name, expression in expressions.items()}
     width, height = index.manifest["resolution"]
     sums = np.zeros((len(trees), 3, width * height))
+    class_events = [path_class.events for path_class in index.classes]
     for chunk in index.records():
         for record in range(len(chunk.class_id)):
-            events = index.classes[chunk.class_id[record]].events
+            events = class_events[chunk.class_id[record]]
             for layer, tree in enumerate(trees.values()):
                 if lpe.reference_match(tree, events, chunk.norms[record]):
                     sums[layer, :, chunk.pixel[record]] += chunk.rgb[record]

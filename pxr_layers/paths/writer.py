@@ -71,7 +71,9 @@ class PathIndexWriter:
     # -- writing
 
     def add(self, records) -> None:
-        """Add one batch's ``Contributions`` (trace.integrator) in path order."""
+        """Add one batch's ``Contributions`` (trace.integrator) in path order. Norms come as
+        the tracer makes them (float32, saturated and cast here) or already as stored
+        (float16, taken as they are); the arrays are kept, not copied, until the next flush."""
         if records is None or not len(records.pixel):
             return
         class_id = self._global_classes(records.path_class, records.sequences)

@@ -6,13 +6,14 @@ scene.TextureImage documents. Channel expansion follows UsdUVTexture: one channe
 the fourth are dropped because no UsdUVTexture output can reach them.
 
 The textures of the last stage read are remembered in the process by file identity (path,
-modification time, size): the frames of a shot read the same files one after another, and
+inode, size, modification and change times): the frames of a shot read the same files one after another, and
 the next read takes the decoded images instead of decoding them again. The images are
 read-only arrays, shared by the scenes of those frames.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import threading
@@ -54,7 +55,7 @@ class _FileTexture:
     """A file's images as this read uses them; ``decoded`` is None when the images come
     from an earlier read (decoded again only for a colour space that read did not use)."""
 
-    identity: tuple[str, int, int] | None  # (path, mtime ns, bytes); None: not remembered
+    identity: tuple | None  # see _file_identity; None: not remembered
     is_uint8: bool
     channels: int
     wrap_modes: tuple[WrapMode | None, WrapMode | None]
@@ -62,16 +63,18 @@ class _FileTexture:
     images: dict[ColorSpace, np.ndarray] = field(default_factory=dict)  # (h, w, 4) read-only
 
 
-_REMEMBERED: dict[tuple[str, int, int], _FileTexture] = {}
+_REMEMBERED: dict[tuple, _FileTexture] = {}
 _REMEMBERED_LOCK = threading.Lock()  # frames may be read on several threads of a process
 
 
-def _file_identity(path: str) -> tuple[str, int, int] | None:
+def _file_identity(path: str) -> tuple | None:
+    """What tells a file's content apart: path, device and inode, size, modification and
+    change times (a copy that keeps the old mtime, cp -p or rsync -a, still changes ctime)."""
     try:
         status = os.stat(path)
     except OSError:
         return None
-    return (path, status.st_mtime_ns, status.st_size)
+    return (path, status.st_dev, status.st_ino, status.st_size, status.st_mtime_ns, status.st_ctime_ns)
 
 
 @dataclass(frozen=True)
@@ -159,8 +162,7 @@ class TextureLibrary:
     def remember(self) -> None:
         """Keep this read's images for the next read in the process (replacing the last)."""
         global _REMEMBERED
-        kept = {texture.identity: _FileTexture(texture.identity, texture.is_uint8, texture.channels,
-                                               texture.wrap_modes, images=dict(texture.images))
+        kept = {texture.identity: dataclasses.replace(texture, decoded=None, images=dict(texture.images))
                 for texture in self._files.values() if texture is not None and texture.identity is not None}
         with _REMEMBERED_LOCK:
             _REMEMBERED = kept
@@ -172,8 +174,7 @@ class TextureLibrary:
         with _REMEMBERED_LOCK:
             earlier = _REMEMBERED.get(identity) if identity is not None else None
         if earlier is not None:
-            texture = _FileTexture(identity, earlier.is_uint8, earlier.channels, earlier.wrap_modes,
-                                   images=dict(earlier.images))
+            texture = dataclasses.replace(earlier, images=dict(earlier.images))
         else:
             texture = None
             try:

@@ -69,16 +69,18 @@ _DIGESTS: dict[int, tuple[weakref.ref, bytes]] = {}
 
 
 def _content_digest(pixels: np.ndarray) -> bytes:
-    """A hash of the pixels, their shape and type. A read-only array (the stage reader's
-    textures, shared by the frames it reads) cannot change, so it is hashed once."""
-    if not pixels.flags.writeable:
+    """A hash of the pixels, their shape and type. An array that owns its data and was made
+    read-only (the stage reader's textures, shared by the frames it reads) is taken as
+    frozen and hashed once; a read-only view of writable data is hashed every time."""
+    frozen = not pixels.flags.writeable and pixels.base is None
+    if frozen:
         known = _DIGESTS.get(id(pixels))
         if known is not None and known[0]() is pixels:
             return known[1]
     key = hashlib.blake2b(pixels.view(np.uint8), digest_size=16)
     key.update(repr((pixels.shape, pixels.dtype.str)).encode())
     digest = key.digest()
-    if not pixels.flags.writeable:
+    if frozen:
         with _SPECTRA_LOCK:
             for dead in [number for number, (array, _) in _DIGESTS.items() if array() is None]:
                 del _DIGESTS[dead]
