@@ -50,12 +50,13 @@ def per_light_layers(lights: Iterable[str] | Mapping[str, Iterable[str]], *, gro
         for label in labels:
             if "'" in label or not label:
                 raise RecipeError(f"light label {label!r} cannot be quoted in an expression")
-        layer_name = LIGHT_LAYER_PREFIX + _identifier(group_name.rstrip("/").rsplit("/", 1)[-1])
+        name = _identifier(group_name.rstrip("/").rsplit("/", 1)[-1])
+        layer_name = LIGHT_LAYER_PREFIX + name  # as per_light_passes names it
         if layer_name in names or layer_name == OTHER_LIGHTS_LAYER:
             raise RecipeError(f"lights {names.get(layer_name, layer_name)!r} and {group_name!r} would both "
                               f"make layer {layer_name!r}: list them by prim path in a mapping of groups")
         names[layer_name] = group_name
-        sets[layer_name.removeprefix(LIGHT_LAYER_PREFIX)] = labels
+        sets[name] = labels
     return tuple(Layer(name, "lpe", expression, group=group, **layer_fields)
                  for name, expression in per_light_passes(sets).items())
 
