@@ -1,0 +1,210 @@
+"""Stage read: ``load_stage`` against a plain usd-core read loop on the same stage, in one run.
+
+    python benchmarks/bench_stage.py [--stage PATH] [--repeats 3] [--camera-wrapper]
+
+Both sides read the same USD file; each repeat runs the baseline, then ours, each in a
+**fresh Python subprocess**, and the fastest of --repeats is kept for each. Fresh processes
+rather than clearing USD's layer registry in one process, because more than the layer
+registry is kept between reads in a process: ``pxr_layers.stage`` remembers the textures of
+its last read (``textures.remember``), USD keeps its resolver and file-format caches, and the
+OS page cache is warm for both sides alike either way. In a fresh process nothing of an
+earlier repeat is reused. Imports (pxr, numpy, pxr_layers.stage) and USD's one-time plugin
+and schema-registry start-up (``Usd.Stage.CreateInMemory()``) happen in both children before
+the clock starts; the clock covers only the read.
+
+* baseline: ``Usd.Stage.Open(path, Usd.Stage.LoadAll)``, then one ``Usd.PrimRange`` over
+  the stage with instance proxies; for every ``UsdGeom.Mesh`` it reads points,
+  faceVertexCounts, faceVertexIndices, normals (``primvars:normals`` flattened, else the
+  ``normals`` attribute), the ``st`` primvar (``ComputeFlattened``), the world transform
+  (one shared ``UsdGeom.XformCache``) and the bound material
+  (``UsdShade.MaterialBindingAPI.ComputeBoundMaterial``); for every ``PointInstancer``
+  positions, orientations, scales and protoIndices. Every array goes through
+  ``np.asarray``, as any reader that hands numpy arrays on must. Tf warnings are trapped
+  (as ``load_stage`` traps them), so neither side pays for printing them.
+* ours: ``pxr_layers.stage.load_stage(path)``: the same open, plus triangulation, primvar
+  expansion per corner, placement in world metres (instances included), degenerate
+  triangles, materials and textures, lights, camera and render settings.
+
+Prints both times (the baseline split into open and traversal), the ratio ours/baseline and
+the triangle count of the SceneData. Target: ours ≤ 2× the baseline.
+
+The default stage is the OpenChessSet (1.4 M triangles, 49 meshes, payloads, PointInstancer,
+MaterialX looks); the script prints a message and exits 0 when the asset is absent.
+``load_stage`` needs a camera and that scene ships without one: ``--camera-wrapper`` times
+both sides on a temporary stage that sublayers the asset (same metersPerUnit, upAxis and
+time codes) and defines one camera at the origin (its framing does not matter to a read).
+Without the flag the as-shipped file is read, and a load_stage error is printed as such.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import textwrap
+from pathlib import Path
+
+SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
+DEFAULT_STAGE = SCENES / "usd-wg" / "full_assets" / "OpenChessSet" / "chess_set.usda"
+TARGET_RATIO = 2.0
+WRAPPER_CAMERA = "/PxrLayersBenchCamera"
+
+# Both children run this before the clock starts: imports and USD's one-time start-up
+# (plugin registry, schema registry), so the clock sees the read alone.
+_PRELUDE = """
+import json, logging, sys, time
+import numpy as np
+from pxr import Tf, Usd, UsdGeom, UsdShade
+Usd.Stage.CreateInMemory()
+path = sys.argv[1]
+"""
+
+_BASELINE = _PRELUDE + """
+def read(path):
+    with Tf.DiagnosticTrap() as trap:
+        start = time.perf_counter()
+        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
+        opened = time.perf_counter()
+        root = stage.GetRootLayer()
+        t = Usd.TimeCode(stage.GetStartTimeCode()) if root.HasStartTimeCode() else Usd.TimeCode.EarliestTime()
+        xforms = UsdGeom.XformCache(t)
+        meshes = triangles = instancers = instances = 0
+        predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
+        for prim in Usd.PrimRange(stage.GetPseudoRoot(), predicate):
+            if prim.IsA(UsdGeom.Mesh):
+                mesh = UsdGeom.Mesh(prim)
+                points = np.asarray(mesh.GetPointsAttr().Get(t))
+                counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(t))
+                indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(t))
+                primvars = UsdGeom.PrimvarsAPI(prim)
+                normals = primvars.GetPrimvar("normals")
+                if normals and normals.HasAuthoredValue():
+                    normals = np.asarray(normals.ComputeFlattened(t))
+                else:
+                    normals = mesh.GetNormalsAttr().Get(t)
+                    normals = None if normals is None else np.asarray(normals)
+                st = primvars.GetPrimvar("st")
+                if st and st.HasAuthoredValue():
+                    st = np.asarray(st.ComputeFlattened(t))
+                world = np.asarray(xforms.GetLocalToWorldTransform(prim))
+                material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+                meshes += 1
+                triangles += int(np.maximum(counts - 2, 0).sum())
+            elif prim.IsA(UsdGeom.PointInstancer):
+                instancer = UsdGeom.PointInstancer(prim)
+                arrays = [attribute.Get(t) for attribute in (
+                    instancer.GetPositionsAttr(), instancer.GetOrientationsAttr(),
+                    instancer.GetScalesAttr(), instancer.GetProtoIndicesAttr())]
+                positions, orientations, scales, proto_indices = (
+                    None if value is None else np.asarray(value) for value in arrays)
+                world = np.asarray(xforms.GetLocalToWorldTransform(prim))
+                instancers += 1
+                instances += 0 if proto_indices is None else len(proto_indices)
+        end = time.perf_counter()
+        trap.Clear()
+    return {"seconds": end - start, "open": opened - start, "traverse": end - opened,
+            "meshes": meshes, "triangles": triangles, "instancers": instancers, "instances": instances}
+
+print(json.dumps(read(path)))
+"""
+
+_OURS = _PRELUDE + """
+import pxr_layers.stage
+from pxr_layers.errors import PxrLayersError
+logging.basicConfig(level=logging.CRITICAL)  # the reader's warnings are not what is timed
+
+start = time.perf_counter()
+try:
+    scene, spec = pxr_layers.stage.load_stage(path)
+except PxrLayersError as error:
+    print(json.dumps({"error": str(error)}))
+    sys.exit(0)
+seconds = time.perf_counter() - start
+print(json.dumps({"seconds": seconds, "meshes": len(scene.meshes),
+                  "triangles": sum(len(mesh.triangles) for mesh in scene.meshes),
+                  "materials": len(scene.materials), "textures": len(scene.textures),
+                  "lights": len(scene.lights), "camera": spec.camera.path}))
+"""
+
+
+def run_child(code: str, stage: Path) -> dict:
+    """Run one timed read in a fresh interpreter; its last stdout line is a JSON report."""
+    completed = subprocess.run([sys.executable, "-P", "-c", code, str(stage)], capture_output=True, text=True)
+    if completed.returncode != 0:
+        raise SystemExit(f"bench_stage: a child failed (exit {completed.returncode}):\n"
+                         f"{textwrap.indent(completed.stderr.strip()[-4000:], '  ')}")
+    return json.loads(completed.stdout.strip().splitlines()[-1])
+
+
+def camera_wrapper(stage: Path, folder: Path) -> Path:
+    """A stage that sublayers ``stage`` (same metadata) and adds one camera."""
+    from pxr import Sdf, UsdGeom
+
+    asset = Sdf.Layer.FindOrOpen(str(stage))  # the root layer only: nothing composed
+    if asset is None:
+        raise SystemExit(f"bench_stage: cannot open {stage} as USD")
+    wrapper = Sdf.Layer.CreateNew(str(folder / "camera_wrapper.usda"))
+    wrapper.subLayerPaths.append(str(stage.resolve()))
+    for key in ("metersPerUnit", "upAxis", "startTimeCode", "endTimeCode", "timeCodesPerSecond",
+                "framesPerSecond", "defaultPrim"):
+        if asset.pseudoRoot.HasInfo(key):
+            wrapper.pseudoRoot.SetInfo(key, asset.pseudoRoot.GetInfo(key))
+    camera = Sdf.PrimSpec(wrapper.pseudoRoot, WRAPPER_CAMERA.lstrip("/"), Sdf.SpecifierDef,
+                          UsdGeom.Camera.__name__)
+    assert camera
+    wrapper.Save()
+    return folder / "camera_wrapper.usda"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--stage", type=Path, default=DEFAULT_STAGE, help=f"default: {DEFAULT_STAGE}")
+    parser.add_argument("--repeats", type=int, default=3, help="fresh-process reads of each side; fastest kept")
+    parser.add_argument("--camera-wrapper", action="store_true",
+                        help="time both sides on a temporary stage sublayering STAGE with a camera added "
+                             "(for stages without a camera, which load_stage refuses today)")
+    args = parser.parse_args()
+    if not args.stage.exists():
+        print(f"bench_stage: {args.stage} is absent; skipped")
+        return 0
+    if args.repeats < 1:
+        parser.error("--repeats must be at least 1")
+
+    with tempfile.TemporaryDirectory() as scratch:
+        stage = camera_wrapper(args.stage, Path(scratch)) if args.camera_wrapper else args.stage
+        note = f" (through a camera wrapper: {WRAPPER_CAMERA} added)" if args.camera_wrapper else ""
+        print(f"{args.stage}{note}")
+        print(f"fastest of {args.repeats}, each read in a fresh process, baseline then ours per repeat")
+        baselines, ours = [], []
+        for repeat in range(args.repeats):
+            baselines.append(run_child(_BASELINE, stage))
+            ours.append(run_child(_OURS, stage))
+            if "error" in ours[-1]:
+                break
+            print(f"  repeat {repeat + 1}: baseline {baselines[-1]['seconds']:6.3f} s, "
+                  f"ours {ours[-1]['seconds']:6.3f} s, ratio {ours[-1]['seconds'] / baselines[-1]['seconds']:.2f}",
+                  flush=True)
+
+    base = min(baselines, key=lambda report: report["seconds"])
+    print(f"  baseline (usd-core loop): {base['seconds']:6.3f} s  (open {base['open']:.3f} s, traversal "
+          f"{base['traverse']:.3f} s; {base['meshes']} mesh prims, {base['triangles']:,} triangles as "
+          f"authored, {base['instancers']} PointInstancers of {base['instances']} instances)")
+    if "error" in ours[-1]:
+        print(f"  ours (load_stage)       : FAILED: {ours[-1]['error']}")
+        if not args.camera_wrapper:
+            print("  (a stage without a camera: rerun with --camera-wrapper)")
+        return 1
+    best = min(ours, key=lambda report: report["seconds"])
+    ratio = best["seconds"] / base["seconds"]
+    print(f"  ours (load_stage)       : {best['seconds']:6.3f} s  ({best['meshes']} meshes, "
+          f"{best['triangles']:,} triangles placed, {best['materials']} materials, "
+          f"{best['textures']} textures, {best['lights']} lights)")
+    print(f"  triangles {best['triangles']:,}; ratio ours/baseline {ratio:.2f} "
+          f"(target ≤ {TARGET_RATIO:g}: {'met' if ratio <= TARGET_RATIO else 'MISSED'})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
