@@ -1,14 +1,19 @@
-"""Decode texture files once per (file, colour space) with OpenImageIO.
+"""Decode textures once per (asset, colour space) with OpenImageIO.
 
 Pixels are stored linear, float32, (h, w, 4) with row 0 = the top row of the file, as
 scene.TextureImage documents. Channel expansion follows UsdUVTexture: one channel is grey
 (rgb = value, alpha = 1), two channels are grey + alpha, three get alpha = 1; channels past
 the fourth are dropped because no UsdUVTexture output can reach them.
 
-The textures of the last stage read are remembered in the process by file identity (path,
-inode, size, modification and change times): the frames of a shot read the same files one after another, and
-the next read takes the decoded images instead of decoding them again. The images are
-read-only arrays, shared by the scenes of those frames.
+Textures arrive as resolved asset paths (Sdf.AssetPath.resolvedPath). A plain file on disk is
+opened by OIIO directly; anything else USD's asset resolver (Ar) resolved, a member of a
+package (``/x/shot.usdz[textures/rough.png]``) or a path of a custom resolver, is read through
+``Ar.GetResolver().OpenAsset`` and its bytes decoded by OIIO.
+
+The textures of the last stage read are remembered in the process by identity (see
+_texture_identity): the frames of a shot read the same files one after another, and the next
+read takes the decoded images instead of decoding them again. The images are read-only
+arrays, shared by the scenes of those frames.
 """
 
 from __future__ import annotations
@@ -16,13 +21,14 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
+import tempfile
 import threading
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 import OpenImageIO as oiio
-from pxr import Sdf, Usd
+from pxr import Ar, Sdf, Usd
 
 from pxr_layers.scene import FLOAT, TextureImage, WrapMode
 
@@ -55,7 +61,7 @@ class _FileTexture:
     """A file's images as this read uses them; ``decoded`` is None when the images come
     from an earlier read (decoded again only for a colour space that read did not use)."""
 
-    identity: tuple | None  # see _file_identity; None: not remembered
+    identity: tuple | None  # see _texture_identity; None: not remembered
     is_uint8: bool
     channels: int
     wrap_modes: tuple[WrapMode | None, WrapMode | None]
@@ -75,6 +81,26 @@ def _file_identity(path: str) -> tuple | None:
     except OSError:
         return None
     return (path, status.st_dev, status.st_ino, status.st_size, status.st_mtime_ns, status.st_ctime_ns)
+
+
+def _texture_identity(resolved_path: str) -> tuple | None:
+    """What tells a texture's content apart, None when nothing does (it is then not remembered).
+
+    A plain file: _file_identity. A package member ``pkg.usdz[inner]``: the package file's
+    identity and the member's name (a package's members change only with the package). Any
+    other resolver path: the path and the modification time the resolver reports for it.
+    """
+    if not Ar.IsPackageRelativePath(resolved_path):
+        identity = _file_identity(resolved_path)
+        if identity is not None:
+            return identity
+    else:
+        package, member = Ar.SplitPackageRelativePathOuter(resolved_path)
+        package_identity = _file_identity(package)
+        if package_identity is not None:
+            return ("package member", package_identity, member)
+    timestamp = Ar.GetResolver().GetModificationTimestamp(resolved_path, Ar.ResolvedPath(resolved_path))
+    return ("resolved asset", resolved_path, timestamp.GetTime()) if timestamp.IsValid() else None
 
 
 @dataclass(frozen=True)
@@ -121,7 +147,8 @@ class TextureLibrary:
     def load(
         self, path: str, source_color_space: str, user_prim: str
     ) -> LoadedTexture | None:
-        """Decode ``path`` (an already resolved file path) for the prim ``user_prim``.
+        """Decode ``path`` (a resolved asset path: a file, a package member, any resolver
+        path) for the prim ``user_prim``.
 
         source_color_space : "raw", "sRGB" or "auto" (UsdUVTexture's sourceColorSpace);
                              "auto" decodes 8-bit files with 3+ channels as sRGB and
@@ -148,7 +175,7 @@ class TextureLibrary:
             if color_space not in texture.images:
                 if texture.decoded is None:  # remembered from an earlier read in another colour space
                     try:
-                        texture.decoded = _read_file(path)
+                        texture.decoded = _read_texture(path)
                     except OSError as error:
                         self._unreadable(path, user_prim, error)
                         return None
@@ -170,7 +197,7 @@ class TextureLibrary:
     def _file(self, path: str, user_prim: str) -> _FileTexture | None:
         if path in self._files:
             return self._files[path]
-        identity = _file_identity(path)
+        identity = _texture_identity(path)
         with _REMEMBERED_LOCK:
             earlier = _REMEMBERED.get(identity) if identity is not None else None
         if earlier is not None:
@@ -178,7 +205,7 @@ class TextureLibrary:
         else:
             texture = None
             try:
-                decoded = _read_file(path)
+                decoded = _read_texture(path)
                 texture = _FileTexture(identity, decoded.is_uint8, decoded.pixels.shape[2], decoded.wrap_modes,
                                        decoded)
             except OSError as error:
@@ -193,7 +220,35 @@ class TextureLibrary:
         )
 
 
-def _read_file(path: str) -> _DecodedFile:
+def _read_texture(resolved_path: str) -> _DecodedFile:
+    """Decode a resolved asset path: a plain file directly, anything else through Ar."""
+    if os.path.isfile(resolved_path):
+        return _read_file(resolved_path)
+    asset = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(resolved_path))
+    if not asset:
+        raise OSError("USD's asset resolver cannot open it")
+    with asset:  # releases the package's file as soon as the bytes are copied
+        contents = asset.GetBuffer()
+    if contents is None:
+        raise OSError("USD's asset resolver cannot read it")
+    # OpenImageIO's Python binding has no IOProxy (OIIO's in-memory reader), so the bytes are
+    # decoded from a private temporary file (mode 0600), deleted as soon as the pixels are read,
+    # whatever happens. It keeps the asset's extension: OIIO picks its reader by extension first.
+    extension = Ar.GetResolver().GetExtension(resolved_path)
+    descriptor, temporary = tempfile.mkstemp(prefix="pxr_layers_texture_",
+                                             suffix=f".{extension}" if extension else "")
+    try:
+        with os.fdopen(descriptor, "wb") as file:
+            file.write(contents)
+        return _read_file(temporary, name=resolved_path)
+    except OSError as error:  # OIIO names the file it opened: name the asset instead
+        raise OSError(str(error).replace(temporary, resolved_path)) from None
+    finally:
+        os.unlink(temporary)
+
+
+def _read_file(path: str, name: str | None = None) -> _DecodedFile:
+    """Decode the image file ``path``; ``name`` is what log lines call it (default ``path``)."""
     config = oiio.ImageSpec()
     # OIIO premultiplies PNG/TIFF colour by alpha unless told otherwise; UsdUVTexture reads
     # channels exactly as stored.
@@ -215,7 +270,7 @@ def _read_file(path: str) -> _DecodedFile:
         words = metadata.split(",")
         words = words if len(words) == 2 else [words[0], words[0]]
         wrap_modes = [_OIIO_WRAP.get(word.strip()) for word in words]
-    logger.debug("decoded %s: %dx%d, %d channels of %s", path, spec.width, spec.height,
+    logger.debug("decoded %s: %dx%d, %d channels of %s", name or path, spec.width, spec.height,
                  spec.nchannels, spec.format)
     return _DecodedFile(
         pixels=pixels,
