@@ -74,12 +74,14 @@ def job_seconds(job, workers: int) -> float:
 def render_frames(job, frames, threads: int, directory: Path) -> None:
     """``pxr-layers render`` of each frame, as the job would render it."""
     for frame in frames:
-        args = ["render", str(job.stage), "--frame", f"{frame:g}", "--spp", str(job.spp), "--resolution",
-                *map(str, job.resolution), "--max-depth", str(job.max_depth), "--norm-bounces", str(job.norm_bounces),
-                "--seed", str(job.seed), "--threads", str(threads), "-o", str(directory), "--quiet"]
-        if job.per_light:
-            args += ["--per-light", job.per_light]
-        for layer in job.recipe_layers:
+        args = ["render", str(job.request.stage), "--frame", f"{frame:g}", "--spp", str(job.request.spp), "--resolution",
+                *map(str, job.request.resolution), "--max-depth", str(job.request.max_depth),
+                "--seed", str(job.request.seed), "--threads", str(threads), "-o", str(directory), "--quiet"]
+        if job.request.norm_bounces is not None:
+            args += ["--norm-bounces", str(job.request.norm_bounces)]
+        if job.request.per_light:
+            args += ["--per-light", job.request.per_light]
+        for layer in job.request.recipe_layers:
             args += ["--recipe", str(layer)]
         with contextlib.redirect_stdout(io.StringIO()):  # the paths it wrote
             assert cli(args) == 0
@@ -177,7 +179,7 @@ def main() -> None:
                 f"median {float(np.median(ratios)):.2f}x")
 
     print(f"shot010 frames {args.frames} ({frames}), {args.resolution[0]}x{args.resolution[1]}, {args.spp} spp, "
-          f"max depth {job.max_depth}, 3 products with previews; fastest of {args.repeats} interleaved runs")
+          f"max depth {job.request.max_depth}, 3 products with previews; fastest of {args.repeats} interleaved runs")
     print(line("job, 1 worker", "job 1"))
     print(line("job, 2 workers", "job 2"))
     speedup = best["job 1"] / best["job 2"]

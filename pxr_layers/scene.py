@@ -21,6 +21,9 @@ from typing import Literal
 
 import numpy as np
 
+from .recipe.model import Recipe
+from .request import DEFAULT_RESOLUTION
+
 FLOAT = np.float32
 INDEX = np.int32
 
@@ -170,14 +173,29 @@ class Camera:
 
 @dataclass(frozen=True)
 class RenderSpec:
-    """What to render, flattened from UsdRender settings and command-line flags."""
+    """What to render at one frame, flattened from the recipe, its RenderSettings and the
+    request (after OpenUSD's UsdRenderComputeSpec): the one source for the stage's read and
+    the tracer.
+
+    camera                    : the render camera at the frame
+    resolution                : (width, height) in pixels
+    settings_path             : the RenderSettings prim read, if any
+    included_purposes         : gprim purposes that render (the settings' includedPurposes)
+    material_binding_purposes : binding purposes, strongest first ("" = allPurpose)
+    frame                     : the time code asked for; None = the stage's start (NaN in
+                                SceneData.frame when the stage has none: the earliest sample)
+    recipe                    : the recipe the frame delivers
+    """
 
     camera: Camera
-    resolution: tuple[int, int] = (512, 512)  # (width, height) in pixels
+    resolution: tuple[int, int] = DEFAULT_RESOLUTION
     pixel_aspect_ratio: float = 1.0
     aspect_ratio_conform_policy: str = "expandAperture"
-    settings_path: str | None = None  # the RenderSettings prim read, if any
+    settings_path: str | None = None
+    included_purposes: tuple[str, ...] = ("default", "render")
     material_binding_purposes: tuple[str, ...] = ("full", "")
+    frame: float | None = None
+    recipe: Recipe | None = None
 
 
 @dataclass(frozen=True)

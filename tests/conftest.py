@@ -1,7 +1,16 @@
 """Shared fixtures."""
 
+import os
+from pathlib import Path
+
 import numpy as np
 import pytest
+
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+"""The workplace's ../shared folder beside the checkout: design notes and third-party assets
+(never copied into the repo)."""
+REQUIRE_SHARED = "PXR_LAYERS_REQUIRE_SHARED"
+"""Set (by .ci/run) to make a missing ../shared a failure instead of a skip."""
 
 
 @pytest.fixture
@@ -16,3 +25,15 @@ def shipped_scene():
     from pxr_layers.cli.demo import embedded_scene
 
     return embedded_scene
+
+
+@pytest.fixture(scope="session")
+def shared_scenes() -> Path:
+    """``../shared/scenes``: the real third-party USD assets. Skips without it, unless
+    PXR_LAYERS_REQUIRE_SHARED is set (CI has it), where its absence fails."""
+    scenes = SHARED / "scenes"
+    if scenes.is_dir():
+        return scenes
+    if os.environ.get(REQUIRE_SHARED):
+        pytest.fail(f"{scenes} is missing and {REQUIRE_SHARED} is set")
+    pytest.skip(f"{scenes} is not here (the workplace's shared assets)")

@@ -49,6 +49,52 @@ def test_missing_stage_is_one_line_and_exit_1(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
+BROKEN_SHOT = """#usda 1.0
+(
+    subLayers = [@./missing_lighting.usda@]
+)
+def Xform "World"
+{
+    def Sphere "ball" {}
+    def Xform "set" (references = @./missing_set.usda@) {}
+    def Xform "look" (references = @./look.mtlx@) {}
+}
+"""
+
+
+def test_composition_problems_are_warnings_each_printed_once_and_no_usd_chatter(tmp_path):
+    shot = tmp_path / "shot.usda"
+    shot.write_text(BROKEN_SHOT)
+    (tmp_path / "look.mtlx").write_text('<?xml version="1.0"?><materialx version="1.38"/>')
+    result = run("render", str(shot), "-o", str(tmp_path / "out"), *SMALL, "--no-previews")
+    assert result.returncode == 0, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert all(line.startswith("pxr-layers: WARNING: ") for line in lines), lines  # nothing raw from USD
+    assert len(lines) == len(set(lines)), lines
+    text = "\n".join(lines)
+    for name in ("missing_lighting.usda", "missing_set.usda", "look.mtlx", "/World/set", "/World/look", "default rig"):
+        assert text.count(name) == 1, (name, lines)
+    assert (tmp_path / "out" / "shot.exr").is_file()
+    strict = run("render", str(shot), "-o", str(tmp_path / "strict"), *SMALL, "--strict")
+    assert strict.returncode == 1 and "--strict" in strict.stderr and len(strict.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "strict").exists()
+
+
+def test_a_stage_without_camera_or_lights_is_framed_and_lit_by_default(tmp_path):
+    shot = tmp_path / "bare.usda"
+    shot.write_text('#usda 1.0\n(\n    upAxis = "Z"\n)\ndef Cube "box" { double size = 2 }\n')
+    result = run("render", str(shot), "-o", str(tmp_path / "bare.exr"), *SMALL[:-1], "--no-previews")
+    assert result.returncode == 0, result.stderr
+    assert "/pxrLayers/autoCamera frames the stage" in result.stderr
+    assert result.stderr.count("default rig") == 1
+    rgba = OpenEXR.File(str(tmp_path / "bare.exr")).channels()["RGBA"].pixels
+    assert 0.05 < rgba[..., 3].mean() < 0.95  # the box fills part of the frame, not all of it
+    assert rgba[12, 12, 3] == 1.0  # and is centred
+    dark = run("render", str(shot), "-o", str(tmp_path / "dark.exr"), *SMALL, "--no-default-lights", "--no-previews")
+    assert dark.returncode == 0 and "black" in dark.stderr
+    assert OpenEXR.File(str(tmp_path / "dark.exr")).channels()["RGBA"].pixels[..., :3].max() == 0.0
+
+
 def test_garbage_file_is_a_user_error(tmp_path):
     bad = tmp_path / "garbage.usda"
     bad.write_bytes(b"\x00\x01 this is not usd")

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from pxr_layers.errors import JobError, PxrLayersError
+from pxr_layers.request import RenderRequest
 from pxr_layers.jobs import (
     Job,
     definition,
@@ -134,11 +135,11 @@ def test_frame_tokens():
 def test_minimal_job_takes_every_default(tmp_path, stage):
     job = load_job(job_file(tmp_path))
     assert job.file == tmp_path / "shot.toml" and job.name == "shot"
-    assert job.stage == stage and job.frames == (1.0, 2.0, 3.0)
+    assert job.request.stage == stage and job.frames == (1.0, 2.0, 3.0)
     assert job.sources == (job.file,)
-    assert job.recipe_layers == () and job.settings is None and job.per_light is None
-    assert (job.spp, job.seed, job.max_depth, job.norm_bounces) == (64, 0, 8, 5)
-    assert job.resolution is None
+    assert job.request.recipe_layers == () and job.request.settings is None and job.request.per_light is None
+    assert job.request == RenderRequest(stage)  # every default is the render command's
+    assert job.request.resolution is None
     assert job.output_directory == tmp_path / "out" / "shot"
     assert job.output_template == "$JOB.$F4"
     assert (job.batch_pixels, job.retries, job.scheduler) == (16384, 2, None)
@@ -152,7 +153,7 @@ def test_minimal_job_takes_every_default(tmp_path, stage):
     assert job.product_path("/abs/x.$F4.exr", 2) == Path("/abs/x.0002.exr")
     assert pickle.loads(pickle.dumps(job)) == job  # Dask ships it to workers
     with pytest.raises(dataclasses.FrozenInstanceError):
-        job.spp = 1
+        job.request.spp = 1
 
 
 def test_the_readme_documents_every_key():
@@ -165,12 +166,12 @@ def test_the_readme_documents_every_key():
         assert key.default.strip('"') in default, (key.name, default)
 
 
-def test_defaults_are_the_render_commands():
-    from pxr_layers.cli import render
+def test_defaults_are_the_render_commands(tmp_path):
+    from pxr_layers.cli.main import build_parser
+    from pxr_layers.cli.render import request_from_args
 
-    assert definition.DEFAULT_SPP == render.DEFAULT_SPP
-    assert definition.DEFAULT_MAX_DEPTH == render.DEFAULT_MAX_DEPTH
-    assert definition.DEFAULT_NORM_BOUNCES == render.DEFAULT_NORM_BOUNCES
+    args = build_parser().parse_args(["render", "shot.usda"])
+    assert request_from_args(Path("shot.usda"), args) == RenderRequest(Path("shot.usda"))
     from pxr_layers.paths.format import SUFFIX
 
     assert definition.INDEX_SUFFIX == SUFFIX
@@ -198,10 +199,10 @@ def test_every_key_set(tmp_path, stage):
         batch_pixels = 1000
         retries = 0
     """))
-    assert job.settings == "/Render/Other"
-    assert job.recipe_layers == (preset("light_passes"), tmp_path / "looks" / "grade.usda")
-    assert job.per_light == "groups"
-    assert (job.spp, job.seed, job.max_depth, job.norm_bounces, job.resolution) == (4, 9, 3, 0, (320, 180))
+    assert job.request.settings == "/Render/Other"
+    assert job.request.recipe_layers == (preset("light_passes"), tmp_path / "looks" / "grade.usda")
+    assert job.request.per_light == "groups"
+    assert (job.request.spp, job.request.seed, job.request.max_depth, job.request.norm_bounces, job.request.resolution) == (4, 9, 3, 0, (320, 180))
     assert job.output_directory == Path("/tmp/renders/shot")
     assert job.beauty_path(3) == Path("/tmp/renders/shot/beauty/shot_v2.0003.exr")
     assert (job.scheduler, job.workers, job.batch_pixels, job.retries) == ("tcp://farm.example:8786", 3, 1000, 0)
@@ -243,13 +244,13 @@ def test_extends_merges_key_by_key_and_the_child_wins(tmp_path):
     show = tmp_path / "shows" / "demo" / "show.toml"
     assert job.sources == (shot, show)
     assert job.frames == (1.0, 5.0, 9.0, 13.0, 17.0, 21.0)  # the shot's
-    assert (job.spp, job.seed) == (8, 5)                    # [render] merged key by key
+    assert (job.request.spp, job.request.seed) == (8, 5)                    # [render] merged key by key
     assert job.retries == 4                                 # only the show sets it
     # Relative paths are relative to the file that sets them: the show's recipe file and
     # output directory from the show, the stage from the shot; $JOB is the shot's name.
-    assert job.recipe_layers == (preset("light_passes"), show.parent / "show_recipe.usda")
+    assert job.request.recipe_layers == (preset("light_passes"), show.parent / "show_recipe.usda")
     assert job.output_directory == show.parent / "renders" / "shot"
-    assert job.stage == tmp_path / "assets" / "shot.usda"
+    assert job.request.stage == tmp_path / "assets" / "shot.usda"
     assert job.index_path(5) == show.parent / "renders" / "shot" / "a.0005.pxlidx"
 
 
@@ -258,12 +259,12 @@ def test_recipe_layers_replace_and_add_layers_append(tmp_path):
     shot = show_and_shot(tmp_path, SHOW, head + '[recipe]\nadd_layers = ["showcase", "mine.usda"]\n')
     write(shot.parent / "mine.usda", "#usda 1.0\n")
     show_recipe = tmp_path / "shows" / "demo" / "show_recipe.usda"
-    assert load_job(shot).recipe_layers == (
+    assert load_job(shot).request.recipe_layers == (
         preset("light_passes"), show_recipe, preset("showcase"), shot.parent / "mine.usda")
     shot.write_text(head + '[recipe]\nlayers = ["showcase"]\n')
-    assert load_job(shot).recipe_layers == (preset("showcase"),)
+    assert load_job(shot).request.recipe_layers == (preset("showcase"),)
     shot.write_text(head + '[recipe]\nlayers = []\nadd_layers = ["showcase"]\n')
-    assert load_job(shot).recipe_layers == (preset("showcase"),)
+    assert load_job(shot).request.recipe_layers == (preset("showcase"),)
 
 
 def test_a_chain_of_three(tmp_path, stage):
@@ -271,7 +272,7 @@ def test_a_chain_of_three(tmp_path, stage):
     write(tmp_path / "show.toml", 'extends = "studio.toml"\n[render]\nseed = 2\n')
     job = load_job(job_file(tmp_path, '[dask]\nbatch_pixels = 128\n', head='extends = "show.toml"\n'
                             'stage = "assets/shot.usda"\nframes = [1]\n'))
-    assert (job.max_depth, job.seed, job.batch_pixels) == (4, 2, 128)
+    assert (job.request.max_depth, job.request.seed, job.batch_pixels) == (4, 2, 128)
     assert [p.name for p in job.sources] == ["shot.toml", "show.toml", "studio.toml"]
 
 
@@ -285,7 +286,7 @@ def test_overrides(tmp_path, stage, monkeypatch):
     write(tmp_path / "other.usda", "#usda 1.0\n")
     job = load_job(job_file(tmp_path), {"frames": "2-3", "render.spp": 4, "stage": "other.usda",
                                          "dask.scheduler": "local"})
-    assert (job.frames, job.spp, job.stage, job.scheduler) == ((2.0, 3.0), 4, tmp_path / "other.usda", None)
+    assert (job.frames, job.request.spp, job.request.stage, job.scheduler) == ((2.0, 3.0), 4, tmp_path / "other.usda", None)
     with pytest.raises(JobError, match="cannot be overridden"):
         load_job(job_file(tmp_path), {"extends": "x.toml"})
     with pytest.raises(JobError, match=r"did you mean render\.spp") as caught:
@@ -413,21 +414,21 @@ def test_shot010_loads():
     demo = SHOT010.parent
     assert isinstance(job, Job) and job.name == "shot010"
     assert job.sources == (SHOT010, demo / "show.toml")
-    assert job.stage == ANIMATED
+    assert job.request.stage == ANIMATED
     assert job.frames == tuple(float(f) for f in range(1, 25))
-    assert job.recipe_layers == (preset("light_passes"), preset("showcase"), demo / "shot010_recipe.usda")
-    assert job.per_light == "lights"
-    assert job.norm_bounces == job.max_depth == 8
+    assert job.request.recipe_layers == (preset("light_passes"), preset("showcase"), demo / "shot010_recipe.usda")
+    assert job.request.per_light == "lights"
+    assert job.request.norm_bounces is None and job.request.max_depth == 8
     assert job.output_directory == ROOT / "out" / "demo" / "shot010"
     assert job.beauty_path(1).name == "shot010.0001.exr"
     assert job.index_path(24).name == "shot010.0024.pxlidx"
 
 
 def test_shot010_recipe_resolves():
-    from pxr_layers.recipe import load_recipe
+    from pxr_layers.stage import load_recipe
 
     job = load_job(SHOT010)
-    recipe = load_recipe(job.stage, job.settings, recipe_layers=job.recipe_layers, per_light=job.per_light)
+    recipe = load_recipe(job.request.stage, job.request.settings, recipe_layers=job.request.recipe_layers, per_light=job.request.per_light)
     assert recipe.settings_path == "/Render/Shot010/Settings"
     lights = ["light_key", "light_fill", "light_sky", "light_other"]
     products = {product.name: product for product in recipe.products}

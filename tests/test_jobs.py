@@ -112,10 +112,12 @@ def test_same_bytes_whatever_the_split_and_the_worker_count(tmp_path, reference)
 
 def test_a_frame_is_the_same_as_pxr_layers_render(tmp_path, reference):
     job, _, _ = reference
-    command = [SCRIPT, "render", str(job.stage), "--frame", "1", "--spp", "64", "--resolution", "64", "48",
-               "--max-depth", "4", "--norm-bounces", str(job.norm_bounces), "--per-light", "lights", "--seed",
-               str(job.seed), "-o", str(tmp_path), "--quiet", "--no-previews"]
-    for layer in job.recipe_layers:
+    command = [SCRIPT, "render", str(job.request.stage), "--frame", "1", "--spp", "64", "--resolution", "64", "48",
+               "--max-depth", "4", "--per-light", "lights", "--seed",
+               str(job.request.seed), "-o", str(tmp_path), "--quiet", "--no-previews"]
+    if job.request.norm_bounces is not None:  # else both apply the request's norm-bounce rule
+        command += ["--norm-bounces", str(job.request.norm_bounces)]
+    for layer in job.request.recipe_layers:
         command += ["--recipe", str(layer)]
     result = subprocess.run(command, capture_output=True, text=True, check=False)
     assert result.returncode == 0, result.stderr

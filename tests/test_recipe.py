@@ -19,10 +19,11 @@ from pxr_layers.recipe import (
     Layer,
     Product,
     Recipe,
-    load_recipe,
     per_light_layers,
     preset,
 )
+
+from pxr_layers.stage import load_recipe  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHOWCASE = ROOT / "render" / "showcase.usda"
@@ -384,10 +385,6 @@ BAD_RECIPES = {
         {"vars_": [], "ordered": []},
         r"/Render/product\.orderedVars: the product has no layers",
     ),
-    "missing camera": (
-        {"settings_extra": ""},
-        r"/Render/product\.camera: no camera: set rel camera on /Render/product or /Render/Settings",
-    ),
     "camera that does not exist": (
         {"settings_extra": "rel camera = </World/nope>"},
         r"/Render/Settings\.camera: camera /World/nope does not exist",
@@ -449,11 +446,18 @@ def test_each_bad_recipe_gives_its_error(tmp_path, case):
     assert isinstance(caught.value, PxrLayersError)
 
 
+def test_a_recipe_without_a_camera_takes_the_stages_first_then_the_automatic_one(tmp_path):
+    path = shot(tmp_path, settings_extra="")
+    assert load_recipe(path).product().camera == "/World/cam"
+    path.write_text(path.read_text().replace('def Camera "cam" {}', ''))
+    assert load_recipe(path).product().camera == "/pxrLayers/autoCamera"
+
+
 def test_settings_selection_errors(tmp_path):
     none = tmp_path / "empty.usda"
     none.write_text('#usda 1.0\ndef Xform "World" {}\n')
-    with pytest.raises(RecipeError, match="no RenderSettings prim"):
-        load_recipe(none)
+    beauty = load_recipe(none).product()  # no settings: the beauty alone, at the default view
+    assert (beauty.output_name, beauty.layer_names, beauty.resolution) == ("empty.exr", ("color",), (512, 512))
     two = shot(tmp_path, metadata="")
     text = two.read_text().replace('def RenderSettings "Settings"', 'def RenderSettings "Other" { }\n    def RenderSettings "Settings"')
     two.write_text(text)
@@ -462,8 +466,8 @@ def test_settings_selection_errors(tmp_path):
     assert load_recipe(two, "/Render/Settings").settings_path == "/Render/Settings"
     with pytest.raises(RecipeError, match=r"/Render/Vars/diffuse: the requested settings is a RenderVar"):
         load_recipe(two, "/Render/Vars/diffuse")
-    with pytest.raises(RecipeError, match=r"/Render/Other\.products: names no RenderProduct"):
-        load_recipe(two, "/Render/Other")
+    # Settings without products render the beauty alone, with their camera and resolution.
+    assert load_recipe(two, "/Render/Other").product().layer_names == ("color",)
 
 
 def test_missing_files(tmp_path):

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from pxr_layers.recipe import Layer, Product, model, schema
+from pxr_layers.recipe import Layer, Product, model
+from pxr_layers.stage import schema
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMAS = ROOT / "schemas"
@@ -43,9 +44,9 @@ def test_schema_files_ship_together():
 def test_registration_in_a_fresh_process():
     result = run_python("""
         import sys
-        import pxr_layers, pxr_layers.recipe
-        assert "pxr" not in sys.modules, "importing pxr_layers or pxr_layers.recipe must not import pxr"
-        from pxr_layers.recipe import load_recipe  # loads the loader, which registers the schema
+        import pxr_layers, pxr_layers.recipe, pxr_layers.request, pxr_layers.scene
+        assert "pxr" not in sys.modules, "importing pxr_layers, its recipes or requests must not import pxr"
+        import pxr_layers.stage  # registers the schema
         from pxr import Usd, UsdRender
         stage = Usd.Stage.CreateInMemory()
         var = UsdRender.Var.Define(stage, "/v").GetPrim()
@@ -64,7 +65,7 @@ def test_registering_after_usd_built_its_schema_registry_is_a_clear_error():
         Usd.Stage.CreateInMemory().DefinePrim("/x", "Xform")
         from pxr_layers.errors import RecipeError
         try:
-            import pxr_layers.recipe.loader
+            import pxr_layers.stage
         except RecipeError as error:
             print(error)
     """)

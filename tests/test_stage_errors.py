@@ -6,6 +6,7 @@ import pytest
 from pxr import Usd, UsdGeom
 
 from pxr_layers.errors import PxrLayersError, StageError
+from pxr_layers.request import RenderRequest, VariantSelection
 from pxr_layers.stage import load_stage
 
 CAMERA = 'def Camera "cam" {}\n'
@@ -45,14 +46,23 @@ def test_file_that_is_not_usd_at_all(tmp_path):
 
 def test_missing_sublayer(tmp_path):
     path = write_usda(tmp_path / "shot.usda", CAMERA, "subLayers = [@./lighting.usda@]")
-    error = expect_error(tmp_path / "shot.usda", "does not compose")
+    error = expect_error(tmp_path / "shot.usda", "does not compose", request=RenderRequest("x", strict=True))
     assert "lighting.usda" in str(error) and path in str(error)
 
 
 def test_missing_reference(tmp_path):
     write_usda(tmp_path / "shot.usda", CAMERA + 'def Xform "set" (references = @./set.usda@) {}\n')
-    error = expect_error(tmp_path / "shot.usda", "does not compose")
+    error = expect_error(tmp_path / "shot.usda", "does not compose", request=RenderRequest("x", strict=True))
     assert "set.usda" in str(error)
+
+
+def test_composition_errors_are_warnings_naming_file_and_prim_unless_strict(tmp_path):
+    path = write_usda(tmp_path / "shot.usda", CAMERA + 'def Xform "set" (references = @./set.usda@) {}\n',
+                      "subLayers = [@./lighting.usda@]")
+    scene, _ = load_stage(path)
+    (warning,) = [text for text in scene.warnings if "composition errors" in text]
+    assert path in warning and "/set" in warning and "set.usda" in warning and "lighting.usda" in warning
+    assert "--strict" in warning and "\n" not in warning
 
 
 def test_nan_points_name_the_prim(tmp_path):
@@ -78,6 +88,10 @@ def test_inconsistent_topology_names_the_prim(tmp_path):
     assert expect_error(tmp_path / "bad.usda", "faceVertexIndices").prim == "/torn"
 
 
-def test_no_camera_names_the_file(tmp_path):
-    write_usda(tmp_path / "empty.usda", 'def Xform "world" {}\n')
-    expect_error(tmp_path / "empty.usda", "no camera")
+def test_a_bad_variant_selection_names_the_flag_prim_and_choices(tmp_path):
+    path = write_usda(tmp_path / "shot.usda", CAMERA + 'def Xform "asset" (variantSets = ["look"])\n{\n'
+                      '    variantSet "look" = {\n        "red" {\n        }\n        "blue" {\n        }\n    }\n}\n')
+    for text, pattern in (("/nowhere:look=red", "no such prim"), ("/asset:size=big", "no variant set 'size'"),
+                          ("/asset:look=green", r"no variant 'green' in look \(it has: blue, red\)")):
+        error = expect_error(path, pattern, request=RenderRequest("x", variants=(VariantSelection.parse(text),)))
+        assert text in str(error)

@@ -9,6 +9,7 @@ import OpenImageIO as oiio
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 
+from pxr_layers.request import RenderRequest
 from pxr_layers.stage import load_stage
 
 
@@ -233,9 +234,20 @@ def test_invisible_lights_are_skipped(tmp_path):
     assert [light.path for light in load(stage).lights] == ["/on"]
 
 
-def test_no_lights_and_no_emission_warns_the_image_will_be_black(tmp_path):
+def test_a_stage_nothing_lights_gets_the_default_rig_with_one_warning(tmp_path):
     stage = new_stage(tmp_path)
-    assert any("black" in warning for warning in load(stage).warnings)
+    scene = load(stage)
+    assert [(light.name, light.kind) for light in scene.lights] == [("defaultDome", "dome"), ("defaultKey", "distant")]
+    assert [light.path for light in scene.lights] == ["/pxrLayers/defaultLights/defaultDome",
+                                                      "/pxrLayers/defaultLights/defaultKey"]
+    assert len([warning for warning in scene.warnings if "default rig" in warning]) == 1
+
+
+def test_without_default_lights_an_unlit_stage_warns_the_image_will_be_black(tmp_path):
+    stage = new_stage(tmp_path)
+    stage.GetRootLayer().Save()
+    scene, _ = load_stage(stage.GetRootLayer().realPath, request=RenderRequest("x", default_lights=False))
+    assert scene.lights == () and any("black" in warning for warning in scene.warnings)
 
 
 def test_an_emissive_material_counts_as_light(tmp_path):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from pxr import Gf, Usd, UsdGeom, UsdRender
 
-from pxr_layers.errors import StageError
+from pxr_layers.errors import PxrLayersError
 from pxr_layers.stage import load_stage
 
 
@@ -152,9 +152,9 @@ def test_without_start_time_code_the_earliest_sample_is_read(tmp_path):
 def test_missing_or_wrong_settings_prim_is_an_error(tmp_path):
     stage = new_stage(tmp_path)
     UsdGeom.Camera.Define(stage, "/cam")
-    with pytest.raises(StageError, match="/Render/Nope"):
+    with pytest.raises(PxrLayersError, match="/Render/Nope"):
         load(stage, settings="/Render/Nope")
-    with pytest.raises(StageError, match="not RenderSettings"):
+    with pytest.raises(PxrLayersError, match="not RenderSettings"):
         load(stage, settings="/cam")
 
 
@@ -162,12 +162,12 @@ def test_missing_or_wrong_camera_prim_is_an_error(tmp_path):
     stage = new_stage(tmp_path)
     UsdGeom.Camera.Define(stage, "/cam")
     UsdGeom.Xform.Define(stage, "/group")
-    with pytest.raises(StageError, match="/nowhere"):
+    with pytest.raises(PxrLayersError, match="/nowhere"):
         load(stage, camera="/nowhere")
-    with pytest.raises(StageError, match="not a Camera"):
+    with pytest.raises(PxrLayersError, match="not a Camera"):
         load(stage, camera="/group")
     settings_with_camera(stage, "/Render/Broken", "/gone")
-    with pytest.raises(StageError, match="/gone"):
+    with pytest.raises(PxrLayersError, match="/gone"):
         load(stage, settings="/Render/Broken")
 
 

@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _recipe(index: PathIndex, args: argparse.Namespace) -> Recipe:
     """The --recipe layers, composed over the index's stage when it is still there."""
-    from ..recipe import load_recipe
+    from ..stage import load_recipe
 
     layers = [preset_or_file(text) for text in args.recipe]
     stage = Path(index.manifest.get("stage", ""))

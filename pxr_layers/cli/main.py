@@ -6,13 +6,14 @@ import argparse
 import logging
 import os
 import sys
+import warnings
 
 from .. import __version__
 from ..errors import PxrLayersError
 from . import demo, extract, index, job, logging_flags, lpe, render
 
 SUBCOMMANDS = {"render": render, "demo": demo, "index": index, "extract": extract, "lpe": lpe, "job": job}
-EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE, EXIT_INTERNAL_ERROR = 0, 1, 2, 3
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,6 +39,13 @@ def _quiet_libraries(record: logging.LogRecord) -> bool:
     return record.levelno >= logging.WARNING or not record.name.startswith(CHATTY_LIBRARIES)
 
 
+def _warning_as_log_line(message, category, filename, lineno, file=None, line=None) -> None:
+    """Python warnings (numpy's RuntimeWarnings above all) as our one-line warnings, with
+    the module that raised them, instead of a raw two-line printout with source code."""
+    logging.getLogger("pxr_layers").warning("%s: %s (%s:%d)", category.__name__, message,
+                                            os.path.basename(filename), lineno)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
@@ -49,6 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.verbose:
         for handler in logging.getLogger().handlers:
             handler.addFilter(_quiet_libraries)
+    warnings.showwarning = _warning_as_log_line
     args.show_progress = not args.quiet and not os.environ.get("CI")
     try:
         return SUBCOMMANDS[args.command].run(args)
@@ -58,6 +67,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("pxr-layers: interrupted; nothing was written", file=sys.stderr)
         return 130
+    except Exception as error:  # a bug of ours, not the user's input: one line, the trace with -v
+        logging.getLogger(__name__).debug("internal error", exc_info=True)
+        print(f"pxr-layers: internal error: {type(error).__name__}: {error} (a bug in pxr-layers; "
+              "-v prints the traceback)", file=sys.stderr)
+        return EXIT_INTERNAL_ERROR
 
 
 if __name__ == "__main__":

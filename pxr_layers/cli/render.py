@@ -8,13 +8,23 @@ import logging
 import time
 from pathlib import Path
 
-from ..errors import RecipeError
+from ..errors import PxrLayersError, RecipeError
 from ..jobs.frame import FrameAssembler, plan_frame, prepare_frame
 from ..layers.debug import write_covariance_debug
 from ..layers.deliver import Delivered
 from ..progress import Progress
-from ..recipe.model import PER_LIGHT_MODES
+from ..recipe.model import DEFAULT_INDEX_BOUNCES, PER_LIGHT_MODES
 from ..recipe.presets import PRESETS, preset
+from ..request import (
+    DEFAULT_MAX_DEPTH,
+    DEFAULT_RESOLUTION,
+    DEFAULT_SEED,
+    DEFAULT_SPP,
+    DEFAULT_SUBDIV_LEVEL,
+    MAX_SUBDIV_LEVEL,
+    RenderRequest,
+    VariantSelection,
+)
 from ..trace import render_data_aovs, trace_pixels
 
 HELP = "render a USD stage: beauty, path index, and the layers of its recipe"
@@ -24,11 +34,10 @@ DESCRIPTION = (
     "RenderVar) with OCIO previews beside it. The recipe is the stage's own UsdRender settings, "
     "or --recipe layers composed over it; a stage without one gives a beauty EXR. Camera and "
     "resolution come from the recipe's products, else the settings, else the stage's first "
-    "camera; the flags below override them."
+    "camera, else an automatic camera that frames the stage; the flags below override them. A "
+    "stage without lights is lit by a default rig (a dome and a key). References this USD build "
+    "cannot read and missing files are warnings, and the rest renders (--strict: errors)."
 )
-DEFAULT_SPP = 64
-DEFAULT_MAX_DEPTH = 8
-DEFAULT_NORM_BOUNCES = 5
 log = logging.getLogger(__name__)
 
 
@@ -58,8 +67,10 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-depth", type=_non_negative, default=DEFAULT_MAX_DEPTH, metavar="N",
                         help=f"most scattering events per path; 1 = direct light only (default {DEFAULT_MAX_DEPTH})")
     parser.add_argument("--resolution", type=_positive, nargs=2, metavar=("W", "H"),
-                        help="image size in pixels (default: the recipe's, else 512 512)")
-    parser.add_argument("--seed", type=int, default=0, metavar="N", help="random seed (default 0)")
+                        help="image size in pixels (default: the recipe's, else "
+                        f"{DEFAULT_RESOLUTION[0]} {DEFAULT_RESOLUTION[1]})")
+    parser.add_argument("--seed", type=int, default=DEFAULT_SEED, metavar="N",
+                        help=f"random seed (default {DEFAULT_SEED})")
     parser.add_argument("--frame", type=float, metavar="F",
                         help="time code to render (default: the stage's start time code)")
     parser.add_argument("--camera", metavar="PRIM", help="camera prim path (default: the recipe's camera)")
@@ -67,7 +78,20 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--norm-bounces", type=_non_negative, metavar="N",
                         help="events per path (camera side) whose covariance norms C, T, R the path "
                         "index keeps (default: the products' pxrLayers:index:bounces, else "
-                        f"{DEFAULT_NORM_BOUNCES}; 0: none)")
+                        f"{DEFAULT_INDEX_BOUNCES}, raised to --max-depth when a layer has a covariance "
+                        "condition; 0: none)")
+    parser.add_argument("--subdiv-level", type=_subdiv_level, default=DEFAULT_SUBDIV_LEVEL, metavar="N",
+                        help="uniform refinement level of subdivision surfaces (subdivisionScheme "
+                        f"catmullClark, loop, bilinear); 0 renders the cage (default {DEFAULT_SUBDIV_LEVEL}, "
+                        f"at most {MAX_SUBDIV_LEVEL})")
+    parser.add_argument("--variant", action="append", default=[], type=_variant, metavar="PRIM:SET=VALUE",
+                        help="select a variant, e.g. /World/Teapot:modelVariant=Fancy; repeat for more")
+    parser.add_argument("--no-default-lights", action="store_true",
+                        help="a stage without any light stays unlit (default: it gets a dome and a key "
+                        "light under /pxrLayers/defaultLights)")
+    parser.add_argument("--strict", action="store_true",
+                        help="any composition error (a missing or unreadable reference, payload or "
+                        "sublayer) is fatal, exit 1 (default: a warning, and the rest renders)")
     parser.add_argument("--no-index", action="store_true",
                         help="do not keep the path index STEM.pxlidx (it is what lets `pxr-layers extract` "
                         "cut new layers later without rendering again)")
@@ -88,19 +112,29 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def request_from_args(stage_path: Path, args: argparse.Namespace) -> RenderRequest:
+    """The render request the flags describe."""
+    return RenderRequest(
+        stage=stage_path, recipe_layers=tuple(preset_or_file(text) for text in args.recipe),
+        variants=tuple(args.variant), settings=args.settings, camera=args.camera, per_light=args.per_light,
+        resolution=tuple(args.resolution) if args.resolution else None, spp=args.spp, max_depth=args.max_depth,
+        seed=args.seed, norm_bounces=args.norm_bounces, subdiv_level=args.subdiv_level,
+        default_lights=not args.no_default_lights, strict=args.strict,
+    )
+
+
 def render_stage(stage_path: Path, args: argparse.Namespace) -> list[Delivered]:
     """Plan, render, index and deliver every product of the recipe; returns what was written."""
+    from ..stage import open_request
+
     directory, exr = output_target(args.output, Path("."))
-    plan = plan_frame(
-        stage_path, args.frame, recipe_layers=[preset_or_file(text) for text in args.recipe], settings=args.settings,
-        camera=args.camera, per_light=args.per_light, resolution=tuple(args.resolution) if args.resolution else None,
-        spp=args.spp, max_depth=args.max_depth, seed=args.seed, norm_bounces=args.norm_bounces,
-        directory=directory, exr=exr, keep_index=not args.no_index, aggregate_index=args.aggregate_index,
-        previews=not args.no_previews,
-    )
+    request = request_from_args(stage_path, args)
+    shot = open_request(request)  # the stage is composed and read once for the whole render
+    plan = plan_frame(request, args.frame, shot=shot, directory=directory, exr=exr, keep_index=not args.no_index,
+                      aggregate_index=args.aggregate_index, previews=not args.no_previews)
     if args.debug_covariance and plan.trace.norm_bounces == 0:
         plan = dataclasses.replace(plan, trace=dataclasses.replace(plan.trace, norm_bounces=1))
-    integrator = prepare_frame(plan)
+    integrator = prepare_frame(plan, shot)
     progress = Progress(plan.pixels * plan.trace.spp, "render", enabled=args.show_progress)
     start = time.perf_counter()
     with FrameAssembler(plan) as frame:
@@ -141,6 +175,20 @@ def _positive(text: str) -> int:
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
     return value
+
+
+def _subdiv_level(text: str) -> int:
+    value = _non_negative(text)
+    if value > MAX_SUBDIV_LEVEL:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_SUBDIV_LEVEL}, got {text}")
+    return value
+
+
+def _variant(text: str) -> VariantSelection:
+    try:
+        return VariantSelection.parse(text)
+    except PxrLayersError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def _non_negative(text: str) -> int:

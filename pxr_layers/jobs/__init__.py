@@ -8,7 +8,7 @@
     job = load_job("pipelines/shows/demo/shot010.toml")
     job.frames                  # (1.0, 2.0, ..., 24.0)
     job.index_path(1)           # .../shot010.0001.pxlidx
-    job.recipe_layers           # what load_recipe(recipe_layers=...) takes
+    job.request.recipe_layers           # what load_recipe(recipe_layers=...) takes
 """
 
 from .definition import (

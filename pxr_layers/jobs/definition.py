@@ -49,15 +49,19 @@ try:
 except ModuleNotFoundError:  # Python 3.10: the same parser, as a package
     import tomli as tomllib
 
-from ..errors import JobError
+from ..errors import JobError, RenderSettingsError
 from ..recipe.model import PER_LIGHT_MODES
 from ..recipe.presets import PRESETS, preset
+from ..request import (
+    DEFAULT_MAX_DEPTH,
+    DEFAULT_SEED,
+    DEFAULT_SPP,
+    DEFAULT_SUBDIV_LEVEL,
+    MAX_SUBDIV_LEVEL,
+    RenderRequest,
+    VariantSelection,
+)
 
-# The same defaults as `pxr-layers render` (pxr_layers/cli/render.py; a test keeps them equal).
-DEFAULT_SPP = 64
-DEFAULT_SEED = 0
-DEFAULT_MAX_DEPTH = 8
-DEFAULT_NORM_BOUNCES = 5
 DEFAULT_BATCH_PIXELS = 16384
 DEFAULT_RETRIES = 2
 DEFAULT_DIRECTORY = "out/$JOB"
@@ -86,16 +90,10 @@ class Job:
     file           : the job file given to load_job
     name           : its stem (``shot010``), ``$JOB`` in templates
     sources        : the job file, then each file it extends, in order (leaf first)
-    stage          : the USD stage to render
+    request        : what every frame renders, as ``pxr-layers render`` would for the same
+                     flags (stage, recipe layers, variants, settings, per-light mode, spp,
+                     seed, depth, norm bounces, resolution, subdiv level, default lights, strict)
     frames         : the frames (USD time codes) to render, whole numbers, in the order given
-    settings       : RenderSettings prim path, None = the recipe's / stage's default
-    recipe_layers  : recipe USD layers composed over the stage, as load_recipe takes them
-                     (the first strongest; the last one naming a renderSettingsPrimPath
-                     picks the settings when ``settings`` is None)
-    per_light      : "none" | "lights" | "groups" overriding every product's perLight;
-                     None = as each product says
-    spp, seed, max_depth, norm_bounces : as ``pxr-layers render``
-    resolution     : (width, height) pixels overriding the settings', or None
     output_directory : where every file of the job goes
     output_template  : the stem template of the beauty and the index (``shot010.$F4``)
     batch_pixels   : pixels per task (a frame is split into batches of this many pixels)
@@ -106,16 +104,8 @@ class Job:
 
     file: Path
     name: str
-    stage: Path
+    request: RenderRequest
     frames: tuple[float, ...]
-    recipe_layers: tuple[Path, ...] = ()
-    settings: str | None = None
-    per_light: str | None = None
-    spp: int = DEFAULT_SPP
-    seed: int = DEFAULT_SEED
-    max_depth: int = DEFAULT_MAX_DEPTH
-    norm_bounces: int = DEFAULT_NORM_BOUNCES
-    resolution: tuple[int, int] | None = None
     output_directory: Path = Path(".")
     output_template: str = DEFAULT_STEM
     batch_pixels: int = DEFAULT_BATCH_PIXELS
@@ -157,13 +147,16 @@ class Job:
 
     def as_dict(self) -> dict[str, Any]:
         """The job as JSON-friendly values (paths as strings), e.g. for a manifest."""
+        request = self.request
         return {
             "file": str(self.file), "name": self.name, "sources": [str(p) for p in self.sources],
-            "stage": str(self.stage), "frames": list(self.frames), "settings": self.settings,
-            "recipe_layers": [str(p) for p in self.recipe_layers], "per_light": self.per_light,
-            "spp": self.spp, "seed": self.seed, "max_depth": self.max_depth,
-            "norm_bounces": self.norm_bounces,
-            "resolution": list(self.resolution) if self.resolution else None,
+            "stage": str(request.stage), "frames": list(self.frames), "settings": request.settings,
+            "recipe_layers": [str(p) for p in request.recipe_layers], "per_light": request.per_light,
+            "variants": [str(selection) for selection in request.variants],
+            "spp": request.spp, "seed": request.seed, "max_depth": request.max_depth,
+            "norm_bounces": request.norm_bounces, "subdiv_level": request.subdiv_level,
+            "default_lights": request.default_lights, "strict": request.strict,
+            "resolution": list(request.resolution) if request.resolution else None,
             "output_directory": str(self.output_directory), "output_template": self.output_template,
             "batch_pixels": self.batch_pixels, "retries": self.retries,
             "scheduler": self.scheduler, "workers": self.workers,
@@ -192,14 +185,37 @@ def _type_name(value: Any) -> str:
             list: "a list", dict: "a table"}.get(type(value), type(value).__name__)
 
 
-def _integer(minimum: int) -> Callable[[Any, Path, str, str], int]:
+def _integer(minimum: int, maximum: int | None = None) -> Callable[[Any, Path, str, str], int]:
     def check(value: Any, base: Path, file: str, key: str) -> int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise _error(f"must be an integer, not {_type_name(value)} ({value!r})", file, key)
         if value < minimum:
             raise _error(f"must be at least {minimum}, not {value}", file, key)
+        if maximum is not None and value > maximum:
+            raise _error(f"must be at most {maximum}, not {value}", file, key)
         return value
     return check
+
+
+def _boolean(value: Any, base: Path, file: str, key: str) -> bool:
+    if not isinstance(value, bool):
+        raise _error(f"must be true or false, not {_type_name(value)} ({value!r})", file, key)
+    return value
+
+
+def _variants(value: Any, base: Path, file: str, key: str) -> tuple[VariantSelection, ...]:
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list):
+        raise _error(f"must be a list of \"PRIM:SET=VALUE\" strings, not {_type_name(value)}", file, key)
+    selections = []
+    for number, entry in enumerate(value):
+        entry_key = f"{key}[{number}]"
+        try:
+            selections.append(VariantSelection.parse(_string(entry, file, entry_key), where="variant"))
+        except RenderSettingsError as error:
+            raise _error(str(error), file, entry_key) from None
+    return tuple(selections)
 
 
 def _string(value: Any, file: str, key: str) -> str:
@@ -337,8 +353,14 @@ KEYS: tuple[_Key, ...] = (
     _Key("render.spp", _integer(1), str(DEFAULT_SPP), "samples per pixel"),
     _Key("render.seed", _integer(0), str(DEFAULT_SEED), "random seed (with the frame, keys every stream)"),
     _Key("render.max_depth", _integer(0), str(DEFAULT_MAX_DEPTH), "most scattering events per path"),
-    _Key("render.norm_bounces", _integer(0), str(DEFAULT_NORM_BOUNCES),
-         "events per path whose covariance norms the index keeps"),
+    _Key("render.norm_bounces", _integer(0), "the products'",
+         "events per path whose covariance norms the index keeps (default: the products' "
+         "pxrLayers:index:bounces, raised to max_depth when a layer has a covariance condition)"),
+    _Key("render.subdiv_level", _integer(0, MAX_SUBDIV_LEVEL), str(DEFAULT_SUBDIV_LEVEL),
+         "uniform refinement level of subdivision surfaces (0 = the cage)"),
+    _Key("render.default_lights", _boolean, "true", "a stage without any light gets the default rig"),
+    _Key("render.strict", _boolean, "false", "composition errors are fatal instead of warnings"),
+    _Key("variants", _variants, "[]", 'variant selections, ["/World/Teapot:modelVariant=Fancy"]'),
     _Key("render.resolution", _resolution, "the settings'", "[width, height] in pixels"),
     _Key("output.directory", _directory, f'"{DEFAULT_DIRECTORY}"',
          "where the files go, relative to the file that sets it ($JOB allowed)"),
@@ -350,6 +372,13 @@ KEYS: tuple[_Key, ...] = (
     _Key("dask.retries", _integer(0), str(DEFAULT_RETRIES), "retries of a failed task"),
 )
 _BY_NAME = {key.name: key for key in KEYS}
+_REQUEST_FIELDS = {
+    "variants": "variants", "settings": "settings", "recipe.per_light": "per_light",
+    "render.resolution": "resolution", "render.spp": "spp", "render.seed": "seed",
+    "render.max_depth": "max_depth", "render.norm_bounces": "norm_bounces",
+    "render.subdiv_level": "subdiv_level", "render.default_lights": "default_lights", "render.strict": "strict",
+}
+"""Job keys → the RenderRequest fields they set."""
 TABLES = tuple(dict.fromkeys(key.name.split(".")[0] for key in KEYS if "." in key.name))
 
 
@@ -671,13 +700,12 @@ def _resolve(leaf: Path, sources: list[Path], merged: dict[str, _Setting]) -> Jo
         raise _error(f"{template!r} has no frame number ($F4 or ####): all {len(frames.value)} frames "
                      "would write the same files", stem.file if stem else str(leaf), "output.stem")
 
+    # Keys not set take RenderRequest's own defaults, the ones `pxr-layers render` has.
+    request = RenderRequest(stage=stage.value, recipe_layers=tuple(layer.path for layer in layers),
+                            **{field: merged[key].value for key, field in _REQUEST_FIELDS.items() if key in merged})
     return Job(
-        file=leaf, name=name, sources=tuple(sources), stage=stage.value, frames=frames.value,
-        recipe_layers=tuple(layer.path for layer in layers), settings=value("settings"),
-        per_light=value("recipe.per_light"), spp=value("render.spp", DEFAULT_SPP),
-        seed=value("render.seed", DEFAULT_SEED), max_depth=value("render.max_depth", DEFAULT_MAX_DEPTH),
-        norm_bounces=value("render.norm_bounces", DEFAULT_NORM_BOUNCES),
-        resolution=value("render.resolution"), output_directory=directory, output_template=template,
+        file=leaf, name=name, sources=tuple(sources), request=request, frames=frames.value,
+        output_directory=directory, output_template=template,
         batch_pixels=value("dask.batch_pixels", DEFAULT_BATCH_PIXELS),
         retries=value("dask.retries", DEFAULT_RETRIES), scheduler=value("dask.scheduler"),
         workers=value("dask.workers") or default_workers(),

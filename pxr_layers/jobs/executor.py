@@ -82,9 +82,7 @@ class JobReport:
 
 def frame_plan(job: Job, frame: float, recipe=None, stage_sha256: str | None = None) -> FramePlan:
     return plan_frame(
-        job.stage, frame, recipe_layers=job.recipe_layers, settings=job.settings, per_light=job.per_light,
-        resolution=job.resolution, spp=job.spp, max_depth=job.max_depth, seed=job.seed,
-        norm_bounces=job.norm_bounces, directory=job.output_directory, index_path=job.index_path(frame),
+        job.request, frame, directory=job.output_directory, index_path=job.index_path(frame),
         product_path=lambda product: job.product_path(product.output_name, frame), recipe=recipe,
         stage_sha256=stage_sha256,
     )
@@ -123,7 +121,10 @@ def _fingerprint(plan: FramePlan) -> str:
     trace = plan.trace
     return json.dumps({
         "stage": str(plan.stage), "sha256": plan.manifest.get("stage_sha256"), "frame": plan.frame,
-        "camera": plan.camera, "resolution": list(plan.resolution), "settings": plan.shot_settings,
+        "camera": plan.camera, "resolution": list(plan.resolution), "settings": plan.recipe.settings_path,
+        "recipe_layers": [str(layer) for layer in plan.request.recipe_layers],
+        "variants": [str(selection) for selection in plan.request.variants],
+        "subdiv_level": plan.request.subdiv_level, "default_lights": plan.request.default_lights,
         "spp": trace.spp, "max_depth": trace.max_depth, "seed": trace.seed, "norm_bounces": trace.norm_bounces,
         "record": trace.record_paths,
     }, sort_keys=True)
@@ -240,9 +241,8 @@ def run_job(job: Job, *, client=None, on_frame: Callable[[float, str], None] | N
     report = JobReport()
     # Worked out once for every frame: the recipe (a stage's own is not animated) and the
     # stage file's hash (the fingerprint of each frame's tiles).
-    recipe = resolve_recipe(job.stage, recipe_layers=job.recipe_layers, settings=job.settings,
-                            per_light=job.per_light, frame=job.frames[0])
-    stage_sha256 = file_sha256(job.stage)
+    recipe = resolve_recipe(job.request, job.frames[0])
+    stage_sha256 = file_sha256(job.request.stage)
     todo = []
     for frame in job.frames:
         if is_done(job, frame):

@@ -12,7 +12,6 @@ for one frame, and what every frame of a job does with its batches spread over w
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import logging
@@ -25,7 +24,6 @@ from typing import Self
 import numpy as np
 
 from .. import __version__, lpe
-from ..errors import RecipeError
 from ..layers.deliver import (
     Delivered,
     check_raw_sources,
@@ -37,7 +35,8 @@ from ..layers.deliver import (
 from ..paths.format import SUFFIX as INDEX_SUFFIX
 from ..paths.reader import PathIndex
 from ..paths.writer import PathIndexWriter
-from ..recipe.model import BEAUTY_RAW_SOURCE, Layer, Product, Recipe
+from ..recipe.model import Product, Recipe
+from ..request import RenderRequest
 from ..trace import DATA_AOVS, Film, TraceSettings
 
 log = logging.getLogger(__name__)
@@ -47,8 +46,8 @@ log = logging.getLogger(__name__)
 class FramePlan:
     """Everything one frame needs, resolved; plain data (it travels to Dask workers).
 
-    stage, frame   : the USD file and the time code (None: the stage's start)
-    shot_settings  : the stage's RenderSettings prim for load_stage (None: its default)
+    request        : what to render (stage, recipe layers, variants, trace settings, ...)
+    frame          : the time code (None: the stage's start)
     camera         : the camera prim path; resolution : (width, height) pixels
     trace          : the tracer's settings (spp, depth, seed, norm bounces, recording)
     recipe         : the resolved recipe; outputs : product name → EXR path
@@ -59,9 +58,8 @@ class FramePlan:
     manifest       : the path index's manifest
     """
 
-    stage: Path
+    request: RenderRequest
     frame: float | None
-    shot_settings: str | None
     camera: str
     resolution: tuple[int, int]
     trace: TraceSettings
@@ -76,6 +74,10 @@ class FramePlan:
     manifest: dict = field(default_factory=dict)
 
     @property
+    def stage(self) -> Path:
+        return self.request.stage
+
+    @property
     def pixels(self) -> int:
         return self.resolution[0] * self.resolution[1]
 
@@ -86,18 +88,9 @@ class FramePlan:
 
 
 def plan_frame(
-    stage: Path,
+    request: RenderRequest,
     frame: float | None,
     *,
-    recipe_layers: Sequence[Path] = (),
-    settings: str | None = None,
-    camera: str | None = None,
-    per_light: str | None = None,
-    resolution: tuple[int, int] | None = None,
-    spp: int,
-    max_depth: int,
-    seed: int,
-    norm_bounces: int | None = None,
     directory: Path,
     exr: Path | None = None,
     index_path: Path | None = None,
@@ -107,25 +100,22 @@ def plan_frame(
     previews: bool = True,
     recipe: Recipe | None = None,
     stage_sha256: str | None = None,
+    shot=None,
 ) -> FramePlan:
-    """Resolve one frame. The recipe is ``settings`` of the stage with ``recipe_layers``
-    over it; a stage without one gives its beauty alone (STEM.exr). ``recipe``: an already
-    resolved recipe, ``stage_sha256``: the stage file's hash (a job works both out once for
-    all its frames).
+    """Resolve one frame of ``request``. ``recipe``: an already resolved recipe, else read
+    from ``shot`` (an open :class:`pxr_layers.stage.Shot`, else the request's stage is
+    opened); ``stage_sha256``: the stage file's hash (a job works both out once for all its
+    frames).
 
     Outputs: ``product_path(product)`` if given, else :func:`plan_outputs` (``exr``: one
     product's explicit file). The index: ``index_path``, else beside ``exr``, else
-    ``directory/STEM[.FFFF].pxlidx``. norm_bounces None: the products' index bounces,
-    raised to ``max_depth`` when a layer has a covariance condition (a condition under
-    ``.*`` may test any event of the path).
+    ``directory/STEM[.FFFF].pxlidx``. Norm bounces: :meth:`RenderRequest.resolved_norm_bounces`.
     """
-    stage = Path(stage)
-    shot_settings = None if recipe_layers else settings
+    stage = request.stage
     if recipe is None:
-        recipe = resolve_recipe(stage, recipe_layers=recipe_layers, settings=settings, camera=camera,
-                                per_light=per_light, frame=frame)
-    view_camera, view_resolution = recipe_view(recipe)
-    resolution = tuple(resolution or view_resolution)
+        recipe = resolve_recipe(request, frame, shot)
+    view_camera, view_resolution = recipe.view()
+    resolution = tuple(request.resolution or view_resolution)
     check_raw_sources(recipe, DATA_AOVS, "the renderer does not produce")
 
     if product_path is not None:
@@ -136,61 +126,44 @@ def plan_frame(
     if index_path is None:
         index_path = exr.with_suffix(INDEX_SUFFIX) if exr else directory / f"{stage.stem}{frame_suffix(frame)}{INDEX_SUFFIX}"
 
-    if norm_bounces is None:
-        norm_bounces = max(product.index.bounces for product in recipe.products)
-        if has_conditions(recipe) and norm_bounces < max_depth:
-            log.info("the recipe has covariance conditions: the index keeps the norms of all %d bounces", max_depth)
-            norm_bounces = max_depth
+    product_bounces = max(product.index.bounces for product in recipe.products)
+    norm_bounces = request.resolved_norm_bounces(product_bounces, has_conditions(recipe))
+    if norm_bounces > product_bounces and request.norm_bounces is None:
+        log.info("the recipe has covariance conditions: the index keeps the norms of all %d bounces", norm_bounces)
     # The layers are cut from the index, so lpe layers need one even when it is not kept.
     record = keep_index or any(product.expressions() for product in recipe.products)
-    trace = TraceSettings(spp=spp, max_depth=max_depth, seed=seed, norm_bounces=norm_bounces, record_paths=record)
+    trace = TraceSettings(spp=request.spp, max_depth=request.max_depth, seed=request.seed, norm_bounces=norm_bounces,
+                          record_paths=record)
     metadata = {
         "version": __version__,
         "stage": str(stage.resolve()),
         "camera": view_camera,
         "frame": "default" if frame is None else repr(float(frame)),
-        "spp": str(spp),
-        "maxDepth": str(max_depth),
-        "seed": str(seed),
+        "spp": str(request.spp),
+        "maxDepth": str(request.max_depth),
+        "seed": str(request.seed),
     }
+    if request.variants:
+        metadata["variants"] = " ".join(str(selection) for selection in request.variants)
     if keep_index:
         metadata["index"] = os.path.relpath(index_path, first.parent)
     manifest = {
-        **metadata, "stage_sha256": stage_sha256 or file_sha256(stage), "resolution": list(resolution), "spp": spp, "seed": seed,
-        "max_depth": max_depth, "beauty": os.path.relpath(first, index_path.parent),
+        **metadata, "stage_sha256": stage_sha256 or file_sha256(stage), "resolution": list(resolution),
+        "spp": request.spp, "seed": request.seed, "max_depth": request.max_depth,
+        "subdiv_level": request.subdiv_level, "beauty": os.path.relpath(first, index_path.parent),
     }
     manifest.pop("index", None)
-    return FramePlan(stage, frame, shot_settings, view_camera, resolution, trace, recipe, outputs, index_path,
+    return FramePlan(request, frame, view_camera, resolution, trace, recipe, outputs, index_path,
                      keep_index, aggregate_index, previews, tuple(raw_sources(recipe)), metadata, manifest)
 
 
-def resolve_recipe(stage: Path, *, recipe_layers: Sequence[Path] = (), settings: str | None = None,
-                   camera: str | None = None, per_light: str | None = None, frame: float | None = None) -> Recipe:
-    """The stage's recipe with ``recipe_layers`` over it. A stage without any gives its
-    beauty alone (STEM.exr), at the stage's camera and resolution (read at ``frame``)."""
-    from ..recipe import load_recipe
-    from ..recipe.loader import has_recipe
+def resolve_recipe(request: RenderRequest, frame: float | None = None, shot=None) -> Recipe:
+    """The request's recipe: its stage's own with its recipe layers over it, or the beauty
+    alone for a stage without any (per-light layers list the lights at ``frame``)."""
+    from ..stage import open_request
 
-    if recipe_layers or settings or has_recipe(stage):
-        return load_recipe(stage, settings, recipe_layers=list(recipe_layers), camera=camera, per_light=per_light)
-    from ..stage import load_stage
-
-    _, spec = load_stage(stage, frame=frame, camera=camera)
-    product = Product(name=stage.stem, output_name=f"{stage.stem}.exr", camera=spec.camera.path,
-                      resolution=spec.resolution, layers=(Layer("color", "raw", BEAUTY_RAW_SOURCE),))
-    return Recipe(products=(product,))
-
-
-def recipe_view(recipe: Recipe) -> tuple[str, tuple[int, int]]:
-    """The camera and resolution every product renders (one render feeds all products)."""
-    views = {(product.camera, product.resolution) for product in recipe.products}
-    if len(views) > 1:
-        described = "; ".join(f"{p.prim_path or p.name}: {p.camera} at {p.resolution[0]}x{p.resolution[1]}"
-                              for p in recipe.products)
-        raise RecipeError("the products ask for different cameras or resolutions, and one render feeds them "
-                          f"all ({described}): render them with separate --settings", file=recipe.file or None,
-                          prim=recipe.settings_path or None)
-    return views.pop()
+    shot = shot or open_request(request)
+    return shot.recipe(settings=request.settings, camera=request.camera, per_light=request.per_light, frame=frame)
 
 
 def has_conditions(recipe: Recipe) -> bool:
@@ -200,14 +173,15 @@ def has_conditions(recipe: Recipe) -> bool:
                for product in recipe.products for text in product.expressions().values())
 
 
-def prepare_frame(plan: FramePlan):
-    """Load the stage at the plan's frame and build its Embree scene: the tracer's Integrator."""
-    from ..stage import load_stage
+def prepare_frame(plan: FramePlan, shot=None):
+    """Read the plan's frame (from ``shot``, an open Shot of the plan's request, else the
+    stage is opened) and build its Embree scene: the tracer's Integrator."""
+    from ..stage import open_request
     from ..trace import prepare
 
-    scene, spec = load_stage(plan.stage, frame=plan.frame, camera=plan.camera, settings=plan.shot_settings)
-    spec = dataclasses.replace(spec, resolution=plan.resolution)
-    return prepare(scene, spec, plan.trace)
+    shot = shot or open_request(plan.request)
+    spec = shot.spec(plan.frame, plan.recipe, camera=plan.camera, resolution=plan.resolution)
+    return prepare(shot.scene(spec, subdiv_level=plan.request.subdiv_level), spec, plan.trace)
 
 
 class FrameAssembler:

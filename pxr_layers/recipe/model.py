@@ -321,6 +321,17 @@ class Recipe:
                 return product
         raise KeyError(f"no product {name!r} (products: {', '.join(p.name for p in self.products)})")
 
+    def view(self) -> tuple[str, tuple[int, int]]:
+        """The camera and resolution every product renders (one render feeds all products)."""
+        views = {(product.camera, product.resolution) for product in self.products}
+        if len(views) > 1:
+            described = "; ".join(f"{p.prim_path or p.name}: {p.camera} at {p.resolution[0]}x{p.resolution[1]}"
+                                  for p in self.products)
+            raise RecipeError("the products ask for different cameras or resolutions, and one render feeds "
+                              f"them all ({described}): render them with separate --settings",
+                              file=self.file or None, prim=self.settings_path or None)
+        return views.pop()
+
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 

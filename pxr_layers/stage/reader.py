@@ -1,4 +1,4 @@
-"""``load_stage``: one USD stage at one time code → SceneData + RenderSpec."""
+"""``read_scene``: a composed stage at one time code → SceneData."""
 
 from __future__ import annotations
 
@@ -6,20 +6,18 @@ import logging
 import os
 
 import numpy as np
-from pxr import Tf, Usd, UsdGeom, UsdShade
+from pxr import Usd, UsdGeom, UsdShade
 
-from pxr_layers.errors import StageError
-from pxr_layers.scene import Material, Mesh, RenderSpec, SceneData, TextureInput
+from pxr_layers.scene import Mesh, SceneData
 
 from .context import ReadContext
-from .diagnostics import Diagnostics
 from .implicit import tessellate
 from .lights import read_light
 from .materials import MaterialLibrary, ResolvedMaterial, display_color
-from .opening import open_stage, resolve_time, tf_error_summary
 from .placement import place_surface
-from .render_spec import read_render_spec
+from .skinning import SkinnedPoser
 from .surfaces import LocalSurface, read_mesh
+from .transforms import column_matrix
 from .textures import TextureLibrary
 from .walk import GprimPlacement, walk_stage
 
@@ -28,74 +26,34 @@ logger = logging.getLogger(__name__)
 _DEFAULT_UV_PRIMVAR = "st"
 
 
-def load_stage(
-    path: str | os.PathLike[str],
-    *,
-    frame: float | None = None,
-    camera: str | None = None,
-    settings: str | None = None,
-) -> tuple[SceneData, RenderSpec]:
-    """Read a USD stage into plain scene data and a render spec.
+def read_scene(
+    context: ReadContext,
+    frame_value: float,
+    material_binding_purposes: tuple[str, ...],
+    subdiv_level: int,
+    earlier_warnings: tuple[str, ...] = (),
+) -> SceneData:
+    """Read everything the tracer needs from ``context``'s stage at its time code.
 
-    frame    : time code to read everything at; None → the stage's startTimeCode if
-               authored, else the earliest time sample (SceneData.frame is then NaN)
-    camera   : prim path of the camera, overriding the render settings' camera
-    settings : prim path of the RenderSettings to use, instead of the stage's default
-               (``renderSettingsPrimPath``) settings
+    frame_value       : SceneData.frame (NaN for "the earliest sample")
+    subdiv_level      : uniform refinement level of subdivision surfaces
+    earlier_warnings  : warnings already logged for this stage (its opening), kept in
+                        SceneData.warnings but not logged again
 
-    Raises StageError (naming the file, and the prim when there is one) for a missing,
-    unreadable or non-composing file, a missing camera or settings prim, and bad geometry
-    (NaN points, broken topology). Everything the tracer cannot honour but can render
-    around is a warning, logged and kept in SceneData.warnings.
+    Raises StageError (naming the file, and the prim) for bad geometry (NaN points, broken
+    topology). Everything the tracer cannot honour but can render around is a warning,
+    logged once and kept in SceneData.warnings.
     """
-    file = os.fspath(path)
-    diagnostics = Diagnostics()
-    stage = open_stage(file, diagnostics)
-    with Tf.DiagnosticTrap() as trap:
-        try:
-            return _read_stage(stage, file, frame, camera, settings, diagnostics)
-        except Tf.ErrorException as error:
-            message = f"USD failed while reading: {tf_error_summary(error)}"
-            raise StageError(message, file=file) from None
-        finally:
-            # USD's Tf warnings (e.g. an instancer without prototypes) duplicate what the
-            # reader reports itself; keep them for debugging only.
-            for warning in trap.GetWarnings():
-                logger.debug("USD: %s", warning.commentary)
-            trap.Clear()
-
-
-def _read_stage(
-    stage: Usd.Stage,
-    file: str,
-    frame: float | None,
-    camera: str | None,
-    settings: str | None,
-    diagnostics: Diagnostics,
-) -> tuple[SceneData, RenderSpec]:
-    time, frame_value = resolve_time(stage, frame)
-    up_axis = "Z" if UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z else "Y"
-    context = ReadContext(
-        stage=stage,
-        time=time,
-        meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)),
-        up_axis=up_axis,
-        xform_cache=UsdGeom.XformCache(time),
-        diagnostics=diagnostics,
-        file=file,
-    )
-    render_spec, context.rendered_purposes = read_render_spec(context, camera, settings)
+    diagnostics, file = context.diagnostics, context.file
     textures = TextureLibrary(diagnostics)
-    materials = MaterialLibrary(context, textures, render_spec.material_binding_purposes)
+    materials = MaterialLibrary(context, textures, material_binding_purposes)
     contents = walk_stage(context)
 
-    builder = _MeshBuilder(context, materials)
+    builder = _MeshBuilder(context, materials, subdiv_level)
     meshes = [mesh for placement in contents.gprims if (mesh := builder.build(placement))]
     lights = [read_light(context, prim, textures) for prim in contents.lights]
-    if not lights and not any(_is_emissive(material) for material in materials.materials):
-        diagnostics.warn(
-            f"{file} has no lights and no emissive material: the image will be black"
-        )
+    if not meshes:
+        diagnostics.warn(f"{file} has no geometry that renders: the image holds its lights alone")
     logger.info(
         "%s: %d meshes, %d triangles, %d materials, %d lights, %d textures",
         file,
@@ -106,7 +64,7 @@ def _read_stage(
         len(textures.images),
     )
     textures.remember()  # the next frame's read takes them as they are
-    scene = SceneData(
+    return SceneData(
         stage_path=os.path.abspath(file),
         frame=frame_value,
         meshes=tuple(meshes),
@@ -114,18 +72,19 @@ def _read_stage(
         lights=tuple(lights),
         textures=tuple(textures.images),
         meters_per_unit=context.meters_per_unit,
-        up_axis=up_axis,
-        warnings=diagnostics.finish(),
+        up_axis=context.up_axis,
+        warnings=(*earlier_warnings, *diagnostics.finish()),
     )
-    return scene, render_spec
 
 
 class _MeshBuilder:
     """Builds scene.Mesh objects, triangulating each prototype gprim only once."""
 
-    def __init__(self, context: ReadContext, materials: MaterialLibrary) -> None:
+    def __init__(self, context: ReadContext, materials: MaterialLibrary, subdiv_level: int) -> None:
         self._context = context
         self._materials = materials
+        self._subdiv_level = subdiv_level
+        self._poser = SkinnedPoser(context.stage, context.time, context.diagnostics, xform_cache=context.xform_cache)
         # (prototype prim path, uv primvar) → surface: native instances and point-instanced
         # copies of one gprim share its triangulation.
         self._surfaces: dict[tuple[str, str], LocalSurface] = {}
@@ -144,7 +103,16 @@ class _MeshBuilder:
             ),
             _DEFAULT_UV_PRIMVAR,
         )
-        surface = self._surface(prim, uv_primvar)
+        world_from_local = placement.world_from_local
+        posed = self._poser.posed(prim) if prim.IsA(UsdGeom.Mesh) else None
+        if posed is None:
+            surface = self._surface(prim, uv_primvar)
+        else:
+            surface = self._read_mesh(prim, uv_primvar, posed.points)
+            # The skinned points sit in the skeleton's space: replace the prim's own world
+            # transform by it (and keep a point instance's placement of the prim, if any).
+            prim_world = column_matrix(context.xform_cache.GetLocalToWorldTransform(prim))
+            world_from_local = world_from_local @ np.linalg.inv(prim_world) @ posed.world_from_points
 
         face_material = np.full(surface.face_count, mesh_material.index, dtype=np.int64)
         # Reversed so that, where subsets overlap, the first subset listed wins.
@@ -154,7 +122,7 @@ class _MeshBuilder:
         triangle_material = face_material[surface.triangle_face]
         return place_surface(
             surface,
-            placement.world_from_local,
+            world_from_local,
             context.meters_per_unit,
             triangle_material,
             placement.name,
@@ -162,6 +130,11 @@ class _MeshBuilder:
             context.diagnostics,
             instance=placement.instance,
         )
+
+    def _read_mesh(self, prim: Usd.Prim, uv_primvar: str, points: np.ndarray | None) -> LocalSurface:
+        context = self._context
+        return read_mesh(prim, context.time, uv_primvar, context.diagnostics, context.file,
+                         subdiv_level=self._subdiv_level, points=points)
 
     def _subset_materials(
         self, prim: Usd.Prim, color: tuple[float, float, float] | None
@@ -183,15 +156,8 @@ class _MeshBuilder:
         if key not in self._surfaces:
             context = self._context
             if prim.IsA(UsdGeom.Mesh):
-                surface = read_mesh(
-                    prim, context.time, uv_primvar, context.diagnostics, context.file
-                )
+                surface = self._read_mesh(prim, uv_primvar, None)
             else:
                 surface = tessellate(prim, context.time)
             self._surfaces[key] = surface
         return self._surfaces[key]
-
-
-def _is_emissive(material: Material) -> bool:
-    emissive = material.emissive_color
-    return isinstance(emissive, TextureInput) or any(component > 0.0 for component in emissive)

@@ -63,7 +63,9 @@ def fresnel_dielectric(cos_i: np.ndarray, eta: np.ndarray) -> np.ndarray:
 
 def ggx_d(cos_h: np.ndarray, alpha: np.ndarray) -> np.ndarray:
     a2 = alpha * alpha
-    denominator = cos_h * cos_h * (a2 - 1.0) + 1.0
+    # The denominator is at least a2 (cos_h <= 1): it reaches 0 only for a mirror (a2 = 0),
+    # whose D is a delta that callers sample apart; the floor keeps that lane 0, not 0/0.
+    denominator = np.maximum(cos_h * cos_h * (a2 - 1.0) + 1.0, 1e-12)
     return a2 / (np.pi * denominator * denominator)
 
 

@@ -21,7 +21,10 @@ class RayCaster:
     """Closest-hit and any-hit queries against a World's triangles."""
 
     def __init__(self, world: World):
-        self._scene = rtcore_scene.EmbreeScene()
+        # A world without triangles (a dome alone) has no Embree scene: every ray misses.
+        self._scene = rtcore_scene.EmbreeScene() if world.triangle_count else None
+        if self._scene is None:
+            return
         mesh_construction.TriangleMesh(self._scene, world.vertices, world.triangles)
         # The first query commits the BVH without a lock: do it here, before any thread.
         probe = np.zeros((1, 3), FLOAT)
@@ -35,6 +38,9 @@ class RayCaster:
         Returns (triangle (n,) int32 with MISS for no hit, u (n,), v (n,), t (n,) float32);
         u and v are Embree's barycentrics: p = (1 - u - v) p0 + u p1 + v p2.
         """
+        if self._scene is None:
+            n = len(t_max)
+            return np.full(n, MISS, np.int32), np.zeros(n, FLOAT), np.zeros(n, FLOAT), np.asarray(t_max, FLOAT)
         result = self._scene.run(
             to_lanes(origins), to_lanes(directions), dists=np.ascontiguousarray(t_max, FLOAT), output=1
         )
@@ -42,6 +48,8 @@ class RayCaster:
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray) -> np.ndarray:
         """Any hit with t < t_max for origins, directions (3, n): (n,) bool."""
+        if self._scene is None:
+            return np.zeros(len(t_max), bool)
         hit = self._scene.run(
             to_lanes(origins), to_lanes(directions), dists=np.ascontiguousarray(t_max, FLOAT), query="OCCLUDED"
         )

@@ -290,6 +290,9 @@ class Integrator:
                     film.add(paths, missed, paths.throughput[:, missed] * radiance * weight,
                              event=self._light_event(np.full(len(missed), light)) if record else None)
 
+            if not hit.any():
+                break  # every path escaped (always, in a world of sky alone: no triangle to index)
+
             # -- emission from lights and emissive surfaces hit by the ray
             emitting = np.flatnonzero(hit & np.take(self.triangle_emits, triangle))
             if len(emitting):

@@ -102,8 +102,15 @@ def build_world(scene: SceneData) -> World:
         names.append(light.name)
         paths.append(light.path)
         instances.append(-1)
+    if not pieces and not scene.lights:
+        raise RenderSettingsError(f"{scene.stage_path}: nothing to render (no geometry and no lights)")
     if not pieces:
-        raise RenderSettingsError(f"{scene.stage_path}: nothing to render (no geometry and no area lights)")
+        # A sky alone (dome or distant lights, no geometry): every camera ray escapes. One empty
+        # piece keeps every table below well formed, with zero rows.
+        pieces.append((np.zeros((0, 3), FLOAT), np.zeros((0, 3), INDEX), None, None, np.zeros(0, INDEX), NOT_A_LIGHT))
+        names.append("")
+        paths.append("")
+        instances.append(-1)
 
     vertex_offset = 0
     vertices, triangles, normals, uvs, objects, materials, lights = [], [], [], [], [], [], []
@@ -135,7 +142,7 @@ def build_world(scene: SceneData) -> World:
     k1, k2, principal_direction = triangle_curvatures(corner_positions, corner_normals)
     corner_uvs = _corner_major(np.concatenate(uvs))
     gradient_s, gradient_t = uv_gradients(corner_positions, corner_uvs)
-    low, high = all_vertices.min(axis=0), all_vertices.max(axis=0)
+    low, high = (all_vertices.min(axis=0), all_vertices.max(axis=0)) if len(all_vertices) else (np.zeros(3),) * 2
     center = (low + high) / 2
     return World(
         vertices=all_vertices,

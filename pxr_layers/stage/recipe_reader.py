@@ -3,25 +3,26 @@
 A recipe is UsdRender: RenderSettings → RenderProduct (one EXR) → RenderVar (one layer),
 with the pxr-layers API schemas (``schemas/schema.usda``) for what UsdRender lacks. It can
 live in the shot stage itself, in a layer the shot sublayers or references, or in separate
-recipe layers composed over the shot at load time (``recipe_layers``). Every problem is a
-RecipeError naming the file, the prim and the attribute.
+recipe layers composed over the shot (:func:`pxr_layers.stage.open_shot` composes them:
+this module reads an open stage and never opens one). Every problem is a RecipeError
+naming the file, the prim and the attribute.
 """
 
 from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
-from pxr import Sdf, Tf, Usd, UsdGeom, UsdLux, UsdRender
+from pxr import Sdf, Usd, UsdGeom, UsdRender
 
-from ..errors import RecipeError, StageError
-from . import schema
-from .expressions import check_expression, covariance_needs, normalise_expression
-from .lights import per_light_layers
-from .model import (
+from ..errors import RecipeError
+from ..recipe.expressions import check_expression, covariance_needs, normalise_expression
+from ..recipe.lights import per_light_layers
+from ..recipe.model import (
+    BEAUTY_RAW_SOURCE,
     COLOUR_DATA_TYPES,
     KNOWN_RAW_SOURCES,
     LOSSY_COMPRESSIONS,
@@ -31,134 +32,94 @@ from .model import (
     Product,
     Recipe,
 )
-
-schema.register()  # before this module (or anyone) opens a stage
+from ..request import DEFAULT_RESOLUTION
+from . import schema
 
 logger = logging.getLogger(__name__)
-
-SUPPORTED_LIGHTS = (
-    UsdLux.RectLight, UsdLux.DiskLight, UsdLux.SphereLight, UsdLux.CylinderLight,
-    UsdLux.DistantLight, UsdLux.DomeLight, UsdLux.DomeLight_1,
-)
-"""The light types the tracer renders (as pxr_layers.stage.lights); others get no layer."""
 
 _PREFIX = "pxrLayers:"
 
 
-def load_recipe(
-    source: str | os.PathLike | Usd.Stage,
-    settings_prim: str | None = None,
-    *,
-    recipe_layers: Sequence[str | os.PathLike] = (),
-    camera: str | None = None,
-    per_light: str | None = None,
-    check_colour: bool = True,
-) -> Recipe:
-    """Read and validate the recipe of a stage.
+def find_settings(stage: Usd.Stage, file: str, settings_path: str | None,
+                  recipe_layers: Sequence[str | os.PathLike] = ()) -> UsdRender.Settings | None:
+    """The one rule for which RenderSettings prim applies, for the recipe and the read alike.
 
-    source        : the shot's USD file, or an open stage
-    settings_prim : the RenderSettings prim to read; None → the ``renderSettingsPrimPath``
-                    of the last recipe layer that sets one, else the stage's, else the
-                    only RenderSettings prim of the stage
-    recipe_layers : USD layers composed over the shot (sublayers of the session layer,
-                    the first strongest), e.g. a preset of render/recipes/
-    camera        : camera prim path overriding the products' and settings' camera
-    per_light     : "none" | "lights" | "groups" overriding every product's
-                    ``pxrLayers:perLight`` (the CLI's flag)
-    check_colour  : check that the OCIO config, display, view and rendering space exist
+    ``settings_path`` if given (it must be a RenderSettings prim); else the
+    ``renderSettingsPrimPath`` of the last recipe layer that names one; else the stage's;
+    else the only RenderSettings prim of the stage; None when the stage has none (it
+    renders its beauty alone). Several and none named is an error: which one is meant?
+    """
+    def settings_at(path: str, role: str) -> UsdRender.Settings:
+        if not Sdf.Path.IsValidPathString(str(path)) or not Sdf.Path(str(path)).IsAbsolutePath():
+            raise RecipeError(f"{role}: not an absolute prim path: {path!r}", file=file)
+        prim = stage.GetPrimAtPath(str(path))
+        if not prim or not prim.IsActive():
+            raise RecipeError(f"{role} does not exist", file=file, prim=str(path))
+        if not prim.IsA(UsdRender.Settings):
+            raise RecipeError(f"{role} is a {prim.GetTypeName() or 'typeless prim'}, not RenderSettings",
+                              file=file, prim=str(path))
+        return UsdRender.Settings(prim)
+
+    if settings_path is not None:
+        return settings_at(settings_path, "the requested settings")
+    key = UsdRender.Tokens.renderSettingsPrimPath
+    for layer_path in reversed(list(recipe_layers)):
+        layer = Sdf.Layer.FindOrOpen(os.fspath(layer_path))
+        named = layer.pseudoRoot.GetInfo(key) if layer and layer.pseudoRoot.HasInfo(key) else ""
+        if named:
+            return settings_at(named, f"renderSettingsPrimPath of {layer_path}")
+    named = stage.GetMetadata("renderSettingsPrimPath")
+    if named:
+        return settings_at(named, "the stage's renderSettingsPrimPath")
+    found = [prim for prim in stage.Traverse() if prim.IsA(UsdRender.Settings)]
+    if len(found) > 1:
+        paths = ", ".join(str(prim.GetPath()) for prim in found)
+        raise RecipeError(f"several RenderSettings prims ({paths}) and no renderSettingsPrimPath: "
+                          "name one with --settings", file=file)
+    return UsdRender.Settings(found[0]) if found else None
+
+
+def read_recipe(stage: Usd.Stage, file: str, settings: UsdRender.Settings | None, *,
+                default_camera: Callable[[], str], lights: Callable[[], list[tuple[str, str, str]]],
+                camera: str | None = None, per_light: str | None = None, check_colour: bool = True) -> Recipe:
+    """Read and validate the recipe of ``settings`` (None: the beauty alone).
+
+    default_camera : the camera of a product whose product and settings name none
+                     (the stage's first camera, else the automatic one)
+    lights         : (name, path, light group) of every light the render sees, for per-light layers
+    camera         : camera prim path overriding the products' and settings' camera
+    per_light      : "none" | "lights" | "groups" overriding every product's
+                     ``pxrLayers:perLight`` (the CLI's flag)
+    check_colour   : check that the OCIO config, display, view and rendering space exist
 
     Each product's camera and resolution: the product's own, else its settings', else
     those of the stage's ``renderSettingsPrimPath`` settings (so a preset composed over a
-    shot renders the shot's camera). No camera anywhere is an error.
+    shot renders the shot's camera). Settings without products, and no settings at all,
+    give one product holding the beauty alone, ``STEM.exr``.
     """
     if per_light is not None and per_light not in PER_LIGHT_MODES:
         raise RecipeError(f"unknown per-light mode {per_light!r} (allowed: {', '.join(PER_LIGHT_MODES)})")
-    if isinstance(source, Usd.Stage):
-        if recipe_layers:
-            raise RecipeError("recipe_layers needs a file to open, not an open stage: sublayer them yourself")
-        stage = source
-    else:
-        stage = _open(Path(source), [Path(layer) for layer in recipe_layers])
-    file = stage.GetRootLayer().realPath or stage.GetRootLayer().identifier
-    reader = _Reader(stage, file, camera, per_light, check_colour)
-    settings = reader.find_settings(settings_prim, [Path(layer) for layer in recipe_layers])
+    reader = _Reader(stage, file, camera, per_light, check_colour, default_camera, lights)
     return reader.recipe(settings)
-
-
-def has_recipe(path: str | os.PathLike) -> bool:
-    """Whether the stage names render settings (``renderSettingsPrimPath``), as load_stage
-    reads them; a stage without is rendered to its beauty alone."""
-    stage = _open(Path(path), [])
-    return bool(stage.GetMetadata("renderSettingsPrimPath"))
-
-
-def _open(path: Path, recipe_layers: list[Path]) -> Usd.Stage:
-    for layer in (path, *recipe_layers):
-        if not layer.is_file():
-            kind = StageError if layer == path else RecipeError
-            raise kind("file not found", file=str(layer))
-    try:
-        root = Sdf.Layer.FindOrOpen(str(path))
-        if recipe_layers:
-            session = Sdf.Layer.CreateAnonymous("pxr_layers_recipes.usda")
-            session.subLayerPaths = [str(layer.resolve()) for layer in recipe_layers]
-            stage = Usd.Stage.Open(root, session, Usd.Stage.LoadNone)
-        else:
-            stage = Usd.Stage.Open(root, Usd.Stage.LoadNone)
-    except Tf.ErrorException as error:
-        raise RecipeError(f"cannot open as USD: {_tf_message(error)}", file=str(path)) from None
-    if stage is None:
-        raise RecipeError("cannot open as USD", file=str(path))
-    errors = [str(error).strip().removesuffix("; skipping.") for error in stage.GetCompositionErrors()]
-    if errors:
-        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
-        raise RecipeError(f"does not compose: {errors[0]}{more}", file=str(path))
-    return stage
 
 
 class _Reader:
     """Reads one stage's recipe prims; every error names ``file``, a prim and an attribute."""
 
     def __init__(self, stage: Usd.Stage, file: str, camera: str | None, per_light: str | None,
-                 check_colour: bool):
+                 check_colour: bool, default_camera: Callable[[], str],
+                 lights: Callable[[], list[tuple[str, str, str]]]):
         self.stage = stage
         self.file = file
         self.camera_override = camera
         self.per_light_override = per_light
         self.check_colour = check_colour
-        self._lights: list[tuple[str, str, str]] | None = None
+        self.default_camera = default_camera
+        self.lights = lights
 
     def error(self, message: str, prim=None, attribute: str | None = None) -> RecipeError:
         path = str(prim.GetPath()) if isinstance(prim, Usd.Prim) else prim
         return RecipeError(message, file=self.file, prim=path, attribute=attribute)
-
-    # -- settings -------------------------------------------------------------------------
-
-    def find_settings(self, settings_prim: str | None, recipe_layers: list[Path]) -> UsdRender.Settings:
-        if settings_prim is not None:
-            return self._settings_at(settings_prim, "the requested settings")
-        for layer_path in reversed(recipe_layers):
-            layer = Sdf.Layer.FindOrOpen(str(layer_path))
-            key = UsdRender.Tokens.renderSettingsPrimPath
-            named = layer.pseudoRoot.GetInfo(key) if layer and layer.pseudoRoot.HasInfo(key) else ""
-            if named:
-                return self._settings_at(named, f"renderSettingsPrimPath of {layer_path}")
-        named = self.stage.GetMetadata("renderSettingsPrimPath")
-        if named:
-            return self._settings_at(named, "the stage's renderSettingsPrimPath")
-        found = [prim for prim in self.stage.Traverse() if prim.IsA(UsdRender.Settings)]
-        if len(found) == 1:
-            return UsdRender.Settings(found[0])
-        if not found:
-            raise self.error("no recipe: the stage has no RenderSettings prim")
-        paths = ", ".join(str(prim.GetPath()) for prim in found)
-        raise self.error(f"several RenderSettings prims ({paths}) and no renderSettingsPrimPath: name one")
-
-    def _settings_at(self, path: str, role: str) -> UsdRender.Settings:
-        prim = self._prim(path, role)
-        if not prim.IsA(UsdRender.Settings):
-            raise self.error(f"{role} is a {prim.GetTypeName() or 'typeless prim'}, not RenderSettings", prim)
-        return UsdRender.Settings(prim)
 
     def _prim(self, path: str, role: str) -> Usd.Prim:
         if not Sdf.Path.IsValidPathString(str(path)) or not Sdf.Path(str(path)).IsAbsolutePath():
@@ -174,12 +135,14 @@ class _Reader:
 
     # -- recipe ---------------------------------------------------------------------------
 
-    def recipe(self, settings: UsdRender.Settings) -> Recipe:
+    def recipe(self, settings: UsdRender.Settings | None) -> Recipe:
+        if settings is None:
+            return self.beauty_only(None)
         prim = settings.GetPrim()
         self.check_unknown_attributes(prim, ())
         targets = settings.GetProductsRel().GetForwardedTargets()
         if not targets:
-            raise self.error("names no RenderProduct", prim, "products")
+            return self.beauty_only(settings)
         products = []
         for target in targets:
             product_prim = self.stage.GetPrimAtPath(target)
@@ -193,6 +156,19 @@ class _Reader:
             return Recipe(products=tuple(products), settings_path=str(prim.GetPath()), file=self.file)
         except RecipeError as error:
             raise self.error(error.message, error.prim, error.attribute) from None
+
+    def beauty_only(self, settings: UsdRender.Settings | None) -> Recipe:
+        """No settings, or settings without products: the beauty alone, ``STEM.exr``, at the
+        settings' camera and resolution (without settings: the default camera, 512 × 512)."""
+        stem = Path(self.file).stem
+        if settings is None:
+            camera, resolution, settings_path = self.camera(None, None), DEFAULT_RESOLUTION, ""
+        else:
+            camera, resolution = self.camera(settings, None), self.resolution(settings, None)
+            settings_path = str(settings.GetPath())
+        product = Product(name=stem, output_name=f"{stem}.exr", camera=camera, resolution=resolution,
+                          layers=(Layer("color", "raw", BEAUTY_RAW_SOURCE),))
+        return Recipe(products=(product,), settings_path=settings_path, file=self.file)
 
     def product(self, settings: UsdRender.Settings, product: UsdRender.Product) -> Product:
         prim = product.GetPrim()
@@ -312,22 +288,6 @@ class _Reader:
             logger.warning("%s: per-light layers asked for, but the stage has no light", self.file)
         return per_light_layers(groups, pixel_type=pixel_type, compression=compression)
 
-    def lights(self) -> list[tuple[str, str, str]]:
-        """(name, path, light group) of every visible light the tracer renders."""
-        if self._lights is None:
-            self.stage.Load()  # lights may sit under payloads
-            found = []
-            predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
-            for prim in self.stage.Traverse(predicate):
-                if not any(prim.IsA(kind) for kind in SUPPORTED_LIGHTS):
-                    continue
-                if UsdGeom.Imageable(prim).ComputeVisibility() == UsdGeom.Tokens.invisible:
-                    continue
-                group = self.read(prim, schema.LIGHT_API, _PREFIX + "lightGroup")[0]
-                found.append((prim.GetName(), str(prim.GetPath()), str(group or "")))
-            self._lights = found
-        return self._lights
-
     def check_duplicates(self, product_prim: Usd.Prim, layers: list[Layer]) -> None:
         seen: dict[str, Layer] = {}
         for layer in layers:
@@ -398,7 +358,7 @@ class _Reader:
 
     # -- camera and resolution --------------------------------------------------------------
 
-    def camera(self, settings: UsdRender.Settings, product: UsdRender.Product) -> str:
+    def camera(self, settings: UsdRender.Settings | None, product: UsdRender.Product | None) -> str:
         if self.camera_override is not None:
             prim = self._prim(self.camera_override, "the requested camera")
             return self._checked_camera(prim, None, "the requested camera")
@@ -409,8 +369,7 @@ class _Reader:
                 if not camera or not camera.IsActive():
                     raise self.error(f"camera {targets[0]} does not exist", owner.GetPrim(), "camera")
                 return self._checked_camera(camera, owner.GetPrim(), f"camera {targets[0]}")
-        chain = " or ".join(str(owner.GetPath()) for owner in self._inheritance(settings, product))
-        raise self.error(f"no camera: set rel camera on {chain}", product.GetPrim(), "camera")
+        return self.default_camera()
 
     def _checked_camera(self, camera: Usd.Prim, owner: Usd.Prim | None, role: str) -> str:
         if not camera.IsA(UsdGeom.Camera):
@@ -418,7 +377,7 @@ class _Reader:
                              owner or camera, "camera" if owner else None)
         return str(camera.GetPath())
 
-    def resolution(self, settings: UsdRender.Settings, product: UsdRender.Product) -> tuple[int, int]:
+    def resolution(self, settings: UsdRender.Settings, product: UsdRender.Product | None) -> tuple[int, int]:
         for owner in self._inheritance(settings, product):
             attribute = owner.GetResolutionAttr()
             if attribute.HasAuthoredValue():
@@ -429,11 +388,11 @@ class _Reader:
         value = settings.GetResolutionAttr().Get()
         return int(value[0]), int(value[1])
 
-    def _inheritance(self, settings: UsdRender.Settings, product: UsdRender.Product):
+    def _inheritance(self, settings: UsdRender.Settings | None, product: UsdRender.Product | None):
         """Where a product's camera and resolution come from, strongest first."""
-        owners = [UsdRender.SettingsBase(product.GetPrim()), UsdRender.SettingsBase(settings.GetPrim())]
+        owners = [UsdRender.SettingsBase(owner.GetPrim()) for owner in (product, settings) if owner is not None]
         stage_settings = self._stage_settings()
-        if stage_settings is not None and stage_settings.GetPath() != settings.GetPath():
+        if stage_settings is not None and (settings is None or stage_settings.GetPath() != settings.GetPath()):
             owners.append(UsdRender.SettingsBase(stage_settings.GetPrim()))
         return owners
 
@@ -449,17 +408,3 @@ def _float32(value) -> float:
     """A float attribute as the shortest decimal that reads back as the same float32 (0.85,
     not 0.8500000238418579)."""
     return float(np.format_float_positional(np.float32(value), unique=True, trim="0"))
-
-
-def _tf_message(error: Exception) -> str:
-    """The quoted user-facing messages of a Tf.ErrorException, without C++ locations.
-
-    The text is "\n\tError in 'F' at line N in file P : 'message'" per error, and the
-    message itself may span lines.
-    """
-    messages = []
-    for chunk in str(error).split("Error in ")[1:]:
-        _, found, message = chunk.partition(" : '")
-        if found:
-            messages.append(" ".join(message.strip().removesuffix("'").split()))
-    return "; ".join(messages) if messages else " ".join(str(error).split())
