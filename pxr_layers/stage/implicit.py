@@ -32,16 +32,19 @@ _AXIS_FROM_Z = {
     "Y": np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),
 }
 
-IMPLICIT_TYPES = (
-    UsdGeom.Sphere,
-    UsdGeom.Cube,
-    UsdGeom.Cylinder,
-    UsdGeom.Cylinder_1,
-    UsdGeom.Cone,
-    UsdGeom.Capsule,
-    UsdGeom.Capsule_1,
-    UsdGeom.Plane,
-)
+# The attributes each implicit gprim is built from (sizes in stage units). The schemas are
+# disjoint (Cylinder_1 is not a Cylinder), so a prim matches exactly one row.
+_SIZE_ATTRIBUTES = {
+    UsdGeom.Sphere: ("radius",),
+    UsdGeom.Cube: ("size",),
+    UsdGeom.Cylinder: ("radius", "height"),
+    UsdGeom.Cylinder_1: ("radiusBottom", "radiusTop", "height"),
+    UsdGeom.Cone: ("radius", "height"),
+    UsdGeom.Capsule: ("radius", "height"),
+    UsdGeom.Capsule_1: ("radiusBottom", "radiusTop", "height"),
+    UsdGeom.Plane: ("width", "length"),
+}
+IMPLICIT_TYPES = tuple(_SIZE_ATTRIBUTES)
 
 
 @dataclass(frozen=True)
@@ -60,53 +63,63 @@ def is_implicit(prim: Usd.Prim) -> bool:
     return any(prim.IsA(schema) for schema in IMPLICIT_TYPES)
 
 
+def _dimensions(prim: Usd.Prim, time: Usd.TimeCode) -> dict[str, float | None]:
+    """The sizes an implicit gprim is built from (``_SIZE_ATTRIBUTES``), in stage units;
+    None where the attribute has no value (a blocked opinion)."""
+    schema = next((schema for schema in _SIZE_ATTRIBUTES if prim.IsA(schema)), None)
+    if schema is None:
+        raise ValueError(f"not an implicit gprim: {prim.GetPath()}")
+    values = {}
+    for name in _SIZE_ATTRIBUTES[schema]:
+        value = prim.GetAttribute(name).Get(time)
+        values[name] = None if value is None else float(value)
+    return values
+
+
+def unusable_dimension(prim: Usd.Prim, time: Usd.TimeCode) -> str | None:
+    """Why an implicit gprim has no surface (e.g. "radius is -1"), or None when it has one."""
+    return _why_unusable(prim, _dimensions(prim, time))
+
+
+def _why_unusable(prim: Usd.Prim, dimensions: dict[str, float | None]) -> str | None:
+    """Every size must be finite and positive, except that a capsule's ``height`` may be 0
+    (its hemispheres then make a sphere) and one of the two radii of a tapered shape may be
+    0 (a cone, or a capsule ending in a point), but not both."""
+    is_capsule = prim.IsA(UsdGeom.Capsule) or prim.IsA(UsdGeom.Capsule_1)
+    for name, value in dimensions.items():
+        if value is None:
+            return f"{name} has no value"
+        may_be_zero = (name == "height" and is_capsule) or name in ("radiusBottom", "radiusTop")
+        if not math.isfinite(value) or value < 0.0 or (value == 0.0 and not may_be_zero):
+            return f"{name} is {value:g}"
+    if dimensions.get("radiusBottom") == 0.0 and dimensions.get("radiusTop") == 0.0:
+        return "radiusBottom and radiusTop are 0"
+    return None
+
+
 def tessellate(prim: Usd.Prim, time: Usd.TimeCode) -> LocalSurface:
-    """Triangulate an implicit gprim in its object space (stage units)."""
+    """Triangulate an implicit gprim in its object space (stage units).
+
+    Callers skip prims with an :func:`unusable_dimension` first (walk.py does, with a
+    warning); sizes that cannot make a surface raise ValueError here rather than give NaN
+    points or collapsed triangles.
+    """
+    size = _dimensions(prim, time)
+    reason = _why_unusable(prim, size)
+    if reason is not None:
+        raise ValueError(f"{prim.GetPath()}: {reason}")
+    axis = str(prim.GetAttribute(UsdGeom.Tokens.axis).Get(time))
     if prim.IsA(UsdGeom.Cube):
-        return _cube(float(UsdGeom.Cube(prim).GetSizeAttr().Get(time)))
+        return _cube(size["size"])
     if prim.IsA(UsdGeom.Plane):
-        plane = UsdGeom.Plane(prim)
-        return _plane(
-            float(plane.GetWidthAttr().Get(time)),
-            float(plane.GetLengthAttr().Get(time)),
-            str(plane.GetAxisAttr().Get(time)),
-        )
+        return _plane(size["width"], size["length"], axis)
     if prim.IsA(UsdGeom.Sphere):
-        radius = float(UsdGeom.Sphere(prim).GetRadiusAttr().Get(time))
-        return _revolve([_sphere_cap(radius, 0.0, -1.0, 1.0, SPHERE_RINGS)], "Z")
-    if prim.IsA(UsdGeom.Cylinder):
-        shape = UsdGeom.Cylinder(prim)
-        radius = float(shape.GetRadiusAttr().Get(time))
-        strips = _frustum(radius, radius, float(shape.GetHeightAttr().Get(time)))
-        return _revolve(strips, str(shape.GetAxisAttr().Get(time)))
-    if prim.IsA(UsdGeom.Cylinder_1):
-        shape = UsdGeom.Cylinder_1(prim)
-        strips = _frustum(
-            float(shape.GetRadiusBottomAttr().Get(time)),
-            float(shape.GetRadiusTopAttr().Get(time)),
-            float(shape.GetHeightAttr().Get(time)),
-        )
-        return _revolve(strips, str(shape.GetAxisAttr().Get(time)))
-    if prim.IsA(UsdGeom.Cone):
-        shape = UsdGeom.Cone(prim)
-        strips = _frustum(
-            float(shape.GetRadiusAttr().Get(time)), 0.0, float(shape.GetHeightAttr().Get(time))
-        )
-        return _revolve(strips, str(shape.GetAxisAttr().Get(time)))
-    if prim.IsA(UsdGeom.Capsule):
-        shape = UsdGeom.Capsule(prim)
-        radius = float(shape.GetRadiusAttr().Get(time))
-        strips = _capsule(radius, radius, float(shape.GetHeightAttr().Get(time)))
-        return _revolve(strips, str(shape.GetAxisAttr().Get(time)))
-    if prim.IsA(UsdGeom.Capsule_1):
-        shape = UsdGeom.Capsule_1(prim)
-        strips = _capsule(
-            float(shape.GetRadiusBottomAttr().Get(time)),
-            float(shape.GetRadiusTopAttr().Get(time)),
-            float(shape.GetHeightAttr().Get(time)),
-        )
-        return _revolve(strips, str(shape.GetAxisAttr().Get(time)))
-    raise ValueError(f"not an implicit gprim: {prim.GetPath()}")
+        return _revolve([_sphere_cap(size["radius"], 0.0, -1.0, 1.0, SPHERE_RINGS)], "Z")
+    bottom = size.get("radiusBottom", size.get("radius"))
+    top = 0.0 if prim.IsA(UsdGeom.Cone) else size.get("radiusTop", size.get("radius"))
+    if prim.IsA(UsdGeom.Capsule) or prim.IsA(UsdGeom.Capsule_1):
+        return _revolve(_capsule(bottom, top, size["height"]), axis)
+    return _revolve(_frustum(bottom, top, size["height"]), axis)
 
 
 def _sphere_cap(

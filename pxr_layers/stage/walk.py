@@ -1,11 +1,17 @@
 """Find what renders on a stage: gprim placements (instances expanded) and lights.
 
 The walk visits instance proxies (native instances appear at their own paths), prunes
-invisible subtrees and purposes the render settings do not include (all but default and
-render unless they say otherwise), and stops at gprims, cameras,
-point instancers and lights (UsdGeom forbids gprims under gprims; a light's children are
-not lit geometry). PointInstancers are expanded here into one placement per instance and
-prototype gprim.
+invisible subtrees, purposes the render settings do not include (all but default and
+render unless they say otherwise) and models whose draw mode replaces them (draw_modes.py:
+cards models are drawn as the cards authored beforehand, bounds and origin models are
+guides and render nothing), and stops at gprims, cameras, point instancers and lights
+(UsdGeom forbids gprims under gprims; a light's children are not lit geometry).
+PointInstancers are expanded here into one placement per instance and prototype gprim.
+
+What would become NaN pixels or degenerate junk is skipped with one warning per kind of
+problem, naming the prims: implicit gprims whose sizes make no surface, gprims, lights and
+instancers whose world transform is not finite, and, one by one, point instances whose
+data is unusable (the rest of their instancer renders).
 """
 
 from __future__ import annotations
@@ -13,10 +19,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from pxr import Usd, UsdGeom, UsdLux, UsdRender, UsdShade, UsdSkel, UsdVol
+from pxr import Usd, UsdGeom, UsdLux, UsdRender, UsdShade, UsdVol
 
 from .context import ReadContext
-from .implicit import is_implicit
+from .draw_modes import applied_draw_mode, cards_pass_models, is_guide_mode
+from .implicit import is_implicit, unusable_dimension
 from .lights import is_supported_light
 from .transforms import column_matrix
 
@@ -75,28 +82,36 @@ class _PrototypeItem:
 
 def walk_stage(context: ReadContext) -> StageContents:
     contents = StageContents()
+    models_with_cards = cards_pass_models(context.stage)
     iterator = iter(Usd.PrimRange(context.stage.GetPseudoRoot(), _PREDICATE))
     for prim in iterator:
         if prim.IsPseudoRoot():
             continue
-        if not _is_rendered(context, prim):
+        if not _is_rendered(context, prim) or _is_replaced_by_draw_mode(
+            context, prim, models_with_cards
+        ):
             iterator.PruneChildren()
             continue
         if prim.IsA(UsdGeom.PointInstancer):
-            world = column_matrix(context.xform_cache.GetLocalToWorldTransform(prim))
-            _expand_instancer(context, prim, world, str(prim.GetPath()), 0, contents)
             iterator.PruneChildren()
-        elif _is_supported_gprim(context, prim):
-            world = column_matrix(context.xform_cache.GetLocalToWorldTransform(prim))
-            contents.gprims.append(
-                GprimPlacement(prim, world, str(prim.GetPath()), prim.GetName())
-            )
+            world = _finite_world_transform(context, prim)
+            if world is not None:
+                _expand_instancer(context, prim, world, str(prim.GetPath()), 0, contents)
+        elif _is_gprim(prim):
             iterator.PruneChildren()
+            if not _has_surface(context, prim):
+                continue
+            world = _finite_world_transform(context, prim)
+            if world is not None:
+                contents.gprims.append(
+                    GprimPlacement(prim, world, str(prim.GetPath()), prim.GetName())
+                )
         elif is_supported_light(prim):
-            contents.lights.append(prim)
             # A dome's children can only be portals (reported below); other lights stop here.
             if not (prim.IsA(UsdLux.DomeLight) or prim.IsA(UsdLux.DomeLight_1)):
                 iterator.PruneChildren()
+            if _finite_world_transform(context, prim) is not None:
+                contents.lights.append(prim)
         elif prim.HasAPI(UsdLux.LightAPI):
             _note_unsupported_light(context, prim)
         elif prim.IsA(UsdGeom.Camera) or _is_unsupported_geometry(context, prim):
@@ -118,17 +133,93 @@ def _is_rendered(context: ReadContext, prim: Usd.Prim) -> bool:
     return imageable.ComputePurpose() in context.rendered_purposes
 
 
-def _is_supported_gprim(context: ReadContext, prim: Usd.Prim) -> bool:
-    if not (prim.IsA(UsdGeom.Mesh) or is_implicit(prim)):
+def _is_replaced_by_draw_mode(
+    context: ReadContext,
+    prim: Usd.Prim,
+    models_with_cards: frozenset[str] = frozenset(),
+    in_prototype: bool = False,
+) -> bool:
+    """Whether a model's draw mode (UsdGeomModelAPI) replaces its subtree, which is then
+    pruned: cards models render as the cards draw_modes.author_draw_mode_cards wrote, bounds
+    and origin models not at all.
+
+    models_with_cards : the models the cards pass handled (cards_pass_models)
+    in_prototype      : inside a PointInstancer prototype, where no cards are authored: a
+                        cards model there renders its full geometry instead
+    """
+    mode = applied_draw_mode(prim)
+    if mode is None:
         return False
     path = str(prim.GetPath())
-    if prim.HasAPI(UsdLux.LightAPI):
-        _note_unsupported_light(context, prim)
-    if prim.HasAPI(UsdSkel.BindingAPI) and prim.GetAttribute("primvars:skel:jointIndices"):
-        context.diagnostics.note(
-            "skinning", "skinned meshes are rendered in their rest pose: {prims}", path
+    diagnostics = context.diagnostics
+    if is_guide_mode(mode):
+        diagnostics.note(
+            "draw-mode-guide",
+            "models in bounds or origin draw mode render nothing (those stand-ins are "
+            "wireframe guides, with no surface): {prims}",
+            f"{path} ({mode})",
+        )
+        return True
+    if mode != UsdGeom.Tokens.cards:
+        diagnostics.note(
+            "draw-mode-unknown", "unknown model:drawMode values treated as default: {prims}",
+            f"{path} ({mode})",
+        )
+        return False
+    if in_prototype:
+        diagnostics.note(
+            "draw-mode-prototype",
+            "models in cards draw mode inside PointInstancer prototypes render their full "
+            "geometry (cards are drawn only for models placed on the stage itself): {prims}",
+            path,
+        )
+        return False
+    if path not in models_with_cards:
+        diagnostics.note(
+            "draw-mode-no-cards",
+            "models in cards draw mode render nothing: their cards were not authored "
+            "(draw_modes.author_draw_mode_cards did not run on this stage): {prims}",
+            path,
         )
     return True
+
+
+def _is_gprim(prim: Usd.Prim) -> bool:
+    """A gprim the reader triangulates (Mesh, or an implicit shape)."""
+    return prim.IsA(UsdGeom.Mesh) or is_implicit(prim)
+
+
+def _has_surface(context: ReadContext, prim: Usd.Prim) -> bool:
+    """False (with a warning) for an implicit gprim whose sizes make no surface, which would
+    tessellate into NaN points or collapsed triangles."""
+    if prim.HasAPI(UsdLux.LightAPI):
+        _note_unsupported_light(context, prim)
+    if is_implicit(prim):
+        reason = unusable_dimension(prim, context.time)
+        if reason is not None:
+            context.diagnostics.note(
+                "implicit-size",
+                "implicit gprims whose sizes make no surface skipped: {prims}",
+                f"{prim.GetPath()} ({reason})",
+            )
+            return False
+    return True
+
+
+def _finite_world_transform(context: ReadContext, prim: Usd.Prim) -> np.ndarray | None:
+    """(4, 4) float64 world_from_local (column convention, stage units), or None (with a
+    warning) when it holds NaN or infinity: everything placed by it would be NaN."""
+    world = column_matrix(context.xform_cache.GetLocalToWorldTransform(prim))
+    if np.isfinite(world).all():
+        return world
+    _note_non_finite_transform(context, str(prim.GetPath()))
+    return None
+
+
+def _note_non_finite_transform(context: ReadContext, path: str) -> None:
+    context.diagnostics.note(
+        "non-finite-transform", "prims with NaN or infinite transforms skipped: {prims}", path
+    )
 
 
 def _is_unsupported_geometry(context: ReadContext, prim: Usd.Prim) -> bool:
@@ -160,6 +251,7 @@ def _expand_instancer(
     depth: int,
     contents: StageContents,
 ) -> None:
+    """world_from_instancer : (4, 4) float64, column convention, stage units (finite)."""
     diagnostics = context.diagnostics
     if depth >= _MAX_INSTANCER_DEPTH:
         diagnostics.note(
@@ -171,31 +263,21 @@ def _expand_instancer(
     time = context.time
     instancer = UsdGeom.PointInstancer(prim)
     prototype_paths = instancer.GetPrototypesRel().GetForwardedTargets()
-    proto_indices = instancer.GetProtoIndicesAttr().Get(time)
-    if not prototype_paths or not proto_indices:
+    proto_indices = np.asarray(instancer.GetProtoIndicesAttr().Get(time) or [], dtype=np.int64)
+    if not prototype_paths or not len(proto_indices):
         return
-    instance_transforms = instancer.ComputeInstanceTransformsAtTime(
-        time, time, UsdGeom.PointInstancer.IncludeProtoXform, UsdGeom.PointInstancer.IgnoreMask
+    prototype_roots = [context.stage.GetPrimAtPath(path) for path in prototype_paths]
+    instancer_from_instances, usable = _instance_transforms(
+        context, instancer, proto_indices, prototype_roots, instancer_path
     )
-    if len(instance_transforms) != len(proto_indices):
-        diagnostics.note(
-            "instancer-invalid",
-            "PointInstancers with inconsistent data (positions, protoIndices, prototypes) "
-            "skipped: {prims}",
-            instancer_path,
-        )
-        return
     # invisibleIds and inactiveIds, as one flag per instance (empty = all shown).
-    mask = instancer.ComputeMaskAtTime(time)
-    prototypes = [
-        _prototype_items(context, context.stage.GetPrimAtPath(path), instancer_path)
-        for path in prototype_paths
-    ]
-    for instance, (proto_index, transform) in enumerate(zip(proto_indices, instance_transforms)):
-        if len(mask) and not mask[instance]:
-            continue
-        world_from_instance = world_from_instancer @ column_matrix(transform)
-        for item in prototypes[proto_index]:
+    mask = np.asarray(instancer.ComputeMaskAtTime(time), dtype=bool)
+    shown = usable & mask if len(mask) == len(usable) else usable
+    prototypes = [_prototype_items(context, root, instancer_path) for root in prototype_roots]
+    world_from_instances = world_from_instancer @ instancer_from_instances
+    for instance in np.flatnonzero(shown).tolist():
+        world_from_instance = world_from_instances[instance]
+        for item in prototypes[proto_indices[instance]]:
             world = world_from_instance @ item.proto_from_prim
             path = f"{instancer_path}/instance_{instance}/{item.sub_path}"
             if item.is_instancer:
@@ -204,6 +286,139 @@ def _expand_instancer(
                 contents.gprims.append(
                     GprimPlacement(item.prim, world, path, item.prim.GetName(), instance)
                 )
+
+
+def _instance_transforms(
+    context: ReadContext,
+    instancer: UsdGeom.PointInstancer,
+    proto_indices: np.ndarray,
+    prototype_roots: list[Usd.Prim],
+    instancer_path: str,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each instance's transform and whether its data can be used.
+
+    proto_indices : (n,) int64
+    Returns instancer_from_instance, (n, 4, 4) float64 column convention (the prototype
+    root's own transform included), and usable, (n,) bool. An instance is unusable when its
+    protoIndex is out of range, an authored array (positions, orientations, scales) is too
+    short to reach it, or its transform is not finite; those instances are dropped with one
+    warning per instancer, or, when none is usable, the whole instancer is.
+
+    USD computes the transforms (velocities, accelerations and angular velocities included)
+    whenever the arrays agree, which is always for valid data; otherwise the usable
+    instances are composed here from positions, orientations and scales alone.
+    """
+    time = context.time
+    count = len(proto_indices)
+    positions = _vectors(instancer.GetPositionsAttr(), time, 3)
+    orientations = _vectors(instancer.GetOrientationsfAttr(), time, 4)
+    if not len(orientations):  # orientationsf wins over orientations, as in USD
+        orientations = _vectors(instancer.GetOrientationsAttr(), time, 4)
+    scales = _vectors(instancer.GetScalesAttr(), time, 3)
+    # Orientations and scales are optional: unauthored (empty) ones do not limit anything.
+    lengths = [len(positions), *(len(values) for values in (orientations, scales) if len(values))]
+    reached = np.arange(count) < min(lengths)
+    in_range = (proto_indices >= 0) & (proto_indices < len(prototype_roots))
+    if max(lengths) > count:
+        context.diagnostics.note(
+            "instancer-long-arrays",
+            "PointInstancers with more positions, orientations or scales than protoIndices "
+            "(the extra values are ignored): {prims}",
+            instancer_path,
+        )
+    transforms = None
+    if in_range.all() and all(length == count for length in lengths):
+        computed = instancer.ComputeInstanceTransformsAtTime(
+            time, time, UsdGeom.PointInstancer.IncludeProtoXform,
+            UsdGeom.PointInstancer.IgnoreMask,
+        )
+        if len(computed) == count:
+            transforms = np.asarray(computed).transpose(0, 2, 1)  # row → column convention
+    if transforms is None:
+        usable_rows = reached & in_range
+        root_transforms = np.stack([_local_transform(root, time) for root in prototype_roots])
+        transforms = compose_instance_transforms(
+            positions, orientations, scales, root_transforms, proto_indices, usable_rows
+        )
+    usable = reached & in_range & np.isfinite(transforms).all(axis=(1, 2))
+    dropped = int(count - usable.sum())
+    if dropped == count:
+        context.diagnostics.note(
+            "instancer-unusable",
+            "PointInstancers none of whose instances has usable data (NaN or infinite "
+            "positions, orientations or scales, protoIndices out of range, or arrays shorter "
+            "than protoIndices) skipped: {prims}",
+            instancer_path,
+        )
+    elif dropped:
+        context.diagnostics.note(
+            "instancer-dropped",
+            "dropped {count} point instances with unusable data (NaN or infinite positions, "
+            "orientations or scales, protoIndices out of range, or arrays shorter than "
+            "protoIndices) from: {prims}",
+            instancer_path,
+            dropped,
+        )
+    return transforms, usable
+
+
+def _vectors(attribute: Usd.Attribute, time: Usd.TimeCode, width: int) -> np.ndarray:
+    """An array attribute's value as (n, width) float64; (0, width) when unauthored."""
+    value = attribute.Get(time) if attribute else None
+    if not value:
+        return np.zeros((0, width))
+    return np.asarray(value, dtype=np.float64).reshape(-1, width)
+
+
+def _local_transform(prim: Usd.Prim, time: Usd.TimeCode) -> np.ndarray:
+    """(4, 4) column-convention local transform of a prototype root (identity if none)."""
+    if prim and prim.IsA(UsdGeom.Xformable):
+        return column_matrix(UsdGeom.Xformable(prim).GetLocalTransformation(time))
+    return np.eye(4)
+
+
+def compose_instance_transforms(
+    positions: np.ndarray,
+    orientations: np.ndarray,
+    scales: np.ndarray,
+    root_transforms: np.ndarray,
+    proto_indices: np.ndarray,
+    usable_rows: np.ndarray,
+) -> np.ndarray:
+    """instancer_from_instance = translate · rotate · scale · prototype root transform, as
+    UsdGeomPointInstancer composes it (velocities and accelerations aside).
+
+    positions       : (p, 3) float64, stage units
+    orientations    : (q, 4) float64 quaternions as Gf stores them, (i, j, k, real), used
+                      unnormalised as USD does; q = 0: no rotation
+    scales          : (s, 3) float64; s = 0: unit scale
+    root_transforms : (r, 4, 4) float64, column convention, one per prototype
+    proto_indices   : (n,) int64
+    usable_rows     : (n,) bool, the instances every array reaches with a valid protoIndex
+    Returns (n, 4, 4) float64, column convention; NaN where not usable_rows.
+    """
+    count = len(proto_indices)
+    transforms = np.full((count, 4, 4), np.nan)
+    rows = np.flatnonzero(usable_rows)
+    local = np.tile(np.eye(4), (len(rows), 1, 1))
+    if len(scales):
+        local[:, :3, :3] *= scales[rows][:, None, :]  # columns scaled: R · S
+    if len(orientations):
+        local[:, :3, :3] = _rotation_matrices(orientations[rows]) @ local[:, :3, :3]
+    local[:, :3, 3] = positions[rows]
+    transforms[rows] = local @ root_transforms[proto_indices[rows]]
+    return transforms
+
+
+def _rotation_matrices(quaternions: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) column-convention matrices of (n, 4) quaternions (i, j, k, real), taken as
+    they are, like GfMatrix4d.SetRotate: USD does not normalise instance orientations."""
+    x, y, z, w = quaternions.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=1),
+    ], axis=1)
 
 
 def _prototype_items(
@@ -216,19 +431,26 @@ def _prototype_items(
     parent_path = root.GetPath().GetParentPath()
     iterator = iter(Usd.PrimRange(root, _PREDICATE))
     for prim in iterator:
-        if not _is_rendered(context, prim):
+        if not _is_rendered(context, prim) or _is_replaced_by_draw_mode(
+            context, prim, in_prototype=True
+        ):
             iterator.PruneChildren()
             continue
         is_instancer = prim.IsA(UsdGeom.PointInstancer)
-        if is_instancer or _is_supported_gprim(context, prim):
+        if is_instancer or _is_gprim(prim):
+            iterator.PruneChildren()
+            if not is_instancer and not _has_surface(context, prim):
+                continue
             if prim == root:
                 proto_from_prim = np.eye(4)
             else:
                 relative, _ = context.xform_cache.ComputeRelativeTransform(prim, root)
                 proto_from_prim = column_matrix(relative)
+            if not np.isfinite(proto_from_prim).all():
+                _note_non_finite_transform(context, str(prim.GetPath()))
+                continue
             sub_path = str(prim.GetPath().MakeRelativePath(parent_path))
             items.append(_PrototypeItem(prim, proto_from_prim, sub_path, is_instancer))
-            iterator.PruneChildren()
         elif is_supported_light(prim) or prim.HasAPI(UsdLux.LightAPI):
             context.diagnostics.note(
                 "instanced-light",
