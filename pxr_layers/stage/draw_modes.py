@@ -44,13 +44,14 @@ import numpy as np
 import OpenImageIO as oiio
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, Vt
 
+from .defaults import ROOT
 from .diagnostics import Diagnostics
 from .textures import anchored_asset_path
 
 logger = logging.getLogger(__name__)
 
-# pxr-layers authors its own session-layer prims under /pxrLayers (stage/defaults.py).
-CARDS_ROOT = Sdf.Path("/pxrLayers/drawModeCards")
+# Beside the automatic camera and default lights, under pxr-layers' own session-layer root.
+CARDS_ROOT = Sdf.Path(ROOT).AppendChild("drawModeCards")
 # customData keys, under a "pxrLayers" dictionary: on CARDS_ROOT, every model the cards pass
 # handled (given cards, or skipped with a warning); on each card Xform, the model it stands
 # in for. (The ":" is USD's key path separator in GetCustomDataByKey.)
