@@ -1,5 +1,10 @@
 """Triangulate UsdGeom.Mesh prims into object-space surfaces.
 
+Polygonal meshes (``subdivisionScheme = none``) are fan-triangulated. Subdivision meshes are
+refined to the requested level with :mod:`.subdivision` (OpenSubdiv's rules, limit points and
+limit normals) and their quads split in two; as the UsdGeom schema says, their authored
+normals are ignored.
+
 The result, :class:`LocalSurface`, is still in the gprim's own space and stage units; it is
 computed once per prototype and placed in the world (possibly many times, for instances)
 by :mod:`.placement`.
@@ -10,10 +15,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pxr import Usd, UsdGeom
+from pxr import Sdf, Usd, UsdGeom
 
 from pxr_layers.errors import StageError
 
+from . import subdivision
 from .diagnostics import Diagnostics
 
 
@@ -25,13 +31,14 @@ class LocalSurface:
     triangles     : (t, 3) int64 indices into points, counter-clockwise seen from the front
                     (``orientation = leftHanded`` already flipped)
     normals       : (t, 3, 3) float64 object-space shading normal per corner (not
-                    necessarily unit length), or None
+                    necessarily unit length; the limit normals of a refined subdivision
+                    surface), or None
     smooth        : when ``normals`` is None, True asks for area-weighted vertex normals
-                    computed in world space (a subdivision surface looks smooth in any
-                    renderer); False means flat shading
+                    computed in world space (a subdivision mesh read at level 0 looks smooth
+                    in any renderer); False means flat shading
     uvs           : (t, 3, 2) float64 st per corner, or None
     triangle_face : (t,) int64 index of the authored face each triangle comes from
-                    (GeomSubsets select faces)
+                    (GeomSubsets select faces), also for refined subdivision surfaces
     face_count    : number of authored faces
     """
 
@@ -56,34 +63,35 @@ def read_mesh(
     uv_primvar: str,
     diagnostics: Diagnostics,
     file: str,
+    *,
+    subdiv_level: int,
+    points: np.ndarray | None = None,
 ) -> LocalSurface:
-    """Fan-triangulate a UsdGeom.Mesh with its normals and the ``uv_primvar`` primvar.
+    """Triangulate a UsdGeom.Mesh with its normals and the ``uv_primvar`` primvar.
+
+    subdiv_level : refinement level of subdivision meshes; 0 (or ``subdivisionScheme =
+                   none``) fan-triangulates the control mesh, shaded smooth if it is a
+                   subdivision mesh
+    points       : (v, 3) object-space points (stage units) replacing the authored ones,
+                   e.g. skinned; None reads ``points`` at ``time``
 
     Faces with fewer than 3 vertices and faces listed in ``holeIndices`` produce no
     triangles. Raises StageError on NaN/infinite points or inconsistent topology.
     """
     mesh = UsdGeom.Mesh(prim)
     path = str(prim.GetPath())
-    points = _as_array(mesh.GetPointsAttr().Get(time), 3)
+    points = _mesh_points(mesh, time, points, file, path)
     counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(time) or [], dtype=np.int64)
     indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(time) or [], dtype=np.int64)
+    _check_topology(points, counts, indices, file, path)
 
-    if not np.isfinite(points).all():
-        bad = int(np.count_nonzero(~np.isfinite(points).all(axis=1)))
-        raise StageError(f"{bad} points are NaN or infinite", file=file, prim=path)
-    if (counts < 0).any() or int(counts.sum()) != len(indices):
-        raise StageError(
-            f"faceVertexCounts sum to {int(counts.sum())} but there are {len(indices)} "
-            "faceVertexIndices",
-            file=file,
-            prim=path,
-        )
-    if len(indices) and (indices.min() < 0 or indices.max() >= len(points)):
-        raise StageError(
-            f"faceVertexIndices reach point {int(indices.max())} but there are "
-            f"{len(points)} points",
-            file=file,
-            prim=path,
+    scheme = mesh.GetSubdivisionSchemeAttr().Get(time)
+    if scheme != UsdGeom.Tokens.none and subdiv_level > 0:
+        # UsdGeom: normals are ignored on subdivision surfaces; a wrong type is still reported.
+        _authored_normals(mesh, time, diagnostics, path)
+        return _subdivision_surface(
+            mesh, time, uv_primvar, diagnostics, path, points, counts, indices, scheme,
+            subdiv_level,
         )
 
     face_count = len(counts)
@@ -114,7 +122,7 @@ def read_mesh(
         corner_count=len(indices),
     )
     normals = _read_normals(mesh, time, topology, diagnostics, path)
-    smooth = normals is None and mesh.GetSubdivisionSchemeAttr().Get(time) != UsdGeom.Tokens.none
+    smooth = normals is None and scheme != UsdGeom.Tokens.none
     uvs = None
     primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar(uv_primvar)
     if primvar and primvar.HasAuthoredValue():
@@ -130,6 +138,103 @@ def read_mesh(
     )
 
 
+def _mesh_points(
+    mesh: UsdGeom.Mesh, time: Usd.TimeCode, points: np.ndarray | None, file: str, path: str
+) -> np.ndarray:
+    """(v, 3) float64 object-space points: the given ones, else the authored ``points``."""
+    if points is None:
+        return _as_array(mesh.GetPointsAttr().Get(time), 3)
+    given = np.asarray(points, dtype=np.float64)
+    if given.ndim != 2 or given.shape[1] != 3:
+        raise StageError(
+            f"the points given for this mesh have shape {given.shape}, not (n, 3)",
+            file=file,
+            prim=path,
+        )
+    return given
+
+
+def _check_topology(
+    points: np.ndarray, counts: np.ndarray, indices: np.ndarray, file: str, path: str
+) -> None:
+    """Raise StageError naming the first bad value of points, counts or indices."""
+    if not np.isfinite(points).all():
+        bad = int(np.count_nonzero(~np.isfinite(points).all(axis=1)))
+        raise StageError(f"{bad} points are NaN or infinite", file=file, prim=path)
+    negative = np.flatnonzero(counts < 0)
+    if len(negative):
+        first = int(negative[0])
+        raise StageError(
+            f"faceVertexCounts[{first}] is {int(counts[first])}: a face cannot have a "
+            "negative number of vertices",
+            file=file,
+            prim=path,
+        )
+    if int(counts.sum()) != len(indices):
+        raise StageError(
+            f"faceVertexCounts sum to {int(counts.sum())} but there are {len(indices)} "
+            "faceVertexIndices",
+            file=file,
+            prim=path,
+        )
+    outside = np.flatnonzero((indices < 0) | (indices >= len(points)))
+    if len(outside):
+        first = int(outside[0])
+        raise StageError(
+            f"faceVertexIndices[{first}] is {int(indices[first])} but there are "
+            f"{len(points)} points",
+            file=file,
+            prim=path,
+        )
+
+
+def _vector_array(value, width: int) -> np.ndarray | None:
+    """(n, width) float64 if ``value`` is an array of ``width``-vectors of reals, else None.
+
+    A scalar, one vector, or a flat array (int[], double[]) is not reshaped into vectors: its
+    numbers would be read as nonsense.
+    """
+    array = np.asarray(value)
+    if array.ndim != 2 or array.shape[1] != width or array.dtype.kind != "f":
+        return None
+    return array.astype(np.float64)
+
+
+def _type_name(value) -> str:
+    """The USD type name of an authored value (``int[]``, ``double3``), for messages."""
+    type_name = Sdf.GetValueTypeNameForValue(value)
+    return str(type_name) if type_name else type(value).__name__
+
+
+def _expected_count(
+    interpolation: str, point_count: int, face_count: int, corner_count: int
+) -> int | None:
+    """How many values a primvar of ``interpolation`` needs (None: unknown interpolation)."""
+    return {
+        UsdGeom.Tokens.constant: 1,
+        UsdGeom.Tokens.uniform: face_count,
+        UsdGeom.Tokens.vertex: point_count,
+        UsdGeom.Tokens.varying: point_count,
+        UsdGeom.Tokens.faceVarying: corner_count,
+    }.get(interpolation)
+
+
+def _note_too_few(diagnostics: Diagnostics, path: str, name: str, count: int, interpolation: str):
+    diagnostics.note(
+        "primvar-size",
+        "primvars with too few values for their interpolation were ignored on: {prims}",
+        f"{path} ({name}: {count} values, {interpolation})",
+    )
+
+
+def _note_bad_type(diagnostics: Diagnostics, path: str, name: str, value) -> None:
+    diagnostics.note(
+        "primvar-type",
+        "primvars of an unexpected type were ignored on: {prims}",
+        f"{path}.{name} ({_type_name(value)})",
+    )
+
+
 @dataclass(frozen=True)
 class _Topology:
     corners: np.ndarray  # (t, 3) indices into faceVertexIndices
@@ -140,6 +245,39 @@ class _Topology:
     corner_count: int
 
 
+def _authored_normals(
+    mesh: UsdGeom.Mesh, time: Usd.TimeCode, diagnostics: Diagnostics, path: str
+) -> tuple[np.ndarray, str] | None:
+    """((n, 3) values, interpolation) of the authored normals, or None.
+
+    ``primvars:normals`` wins over the ``normals`` attribute. Normals of another type than an
+    array of 3-vectors (int, int[], double[] are seen in the wild) are ignored with a warning,
+    and the caller computes normals instead.
+    """
+    primvar = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("normals")
+    if primvar and primvar.HasAuthoredValue():
+        values, interpolation = primvar.ComputeFlattened(time), primvar.GetInterpolation()
+        name = primvar.GetName()
+    else:
+        attribute = mesh.GetNormalsAttr()
+        if not attribute.HasAuthoredValue():
+            return None
+        values, interpolation = attribute.Get(time), mesh.GetNormalsInterpolation()
+        name = "normals"
+    if values is None:
+        return None
+    array = _vector_array(values, 3)
+    if array is None:
+        diagnostics.note(
+            "normals-type",
+            "normals that are not an array of 3-vectors were ignored (normals computed "
+            "instead) on: {prims}",
+            f"{path}.{name} ({_type_name(values)})",
+        )
+        return None
+    return array, interpolation
+
+
 def _read_normals(
     mesh: UsdGeom.Mesh,
     time: Usd.TimeCode,
@@ -147,22 +285,16 @@ def _read_normals(
     diagnostics: Diagnostics,
     path: str,
 ) -> np.ndarray | None:
-    """Per-corner authored normals: ``primvars:normals`` wins over the ``normals`` attribute.
+    """Per-corner authored normals (see _authored_normals), or None.
 
     Authored normals are not negated for ``leftHanded`` meshes: they state the front side
     explicitly, and the triangle corners were reordered so the winding agrees with them.
     """
-    primvar = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("normals")
-    if primvar and primvar.HasAuthoredValue():
-        return _per_corner(primvar, time, 3, topology, diagnostics, path)
-    attribute = mesh.GetNormalsAttr()
-    if attribute.HasAuthoredValue():
-        values = attribute.Get(time)
-        if values is None:
-            return None
-        interpolation = mesh.GetNormalsInterpolation()
-        return _expand(_as_array(values, 3), interpolation, topology, diagnostics, path, "normals")
-    return None
+    authored = _authored_normals(mesh, time, diagnostics, path)
+    if authored is None:
+        return None
+    values, interpolation = authored
+    return _expand(values, interpolation, topology, diagnostics, path, "normals")
 
 
 def _per_corner(
@@ -176,14 +308,9 @@ def _per_corner(
     values = primvar.ComputeFlattened(time)
     if values is None:
         return None
-    try:
-        array = _as_array(values, width)
-    except (ValueError, TypeError):
-        diagnostics.note(
-            "primvar-type",
-            "primvars of an unexpected type were ignored on: {prims}",
-            f"{path}.{primvar.GetName()}",
-        )
+    array = _vector_array(values, width)
+    if array is None:
+        _note_bad_type(diagnostics, path, primvar.GetName(), values)
         return None
     return _expand(
         array, primvar.GetInterpolation(), topology, diagnostics, path, primvar.GetPrimvarName()
@@ -199,19 +326,11 @@ def _expand(
     name: str,
 ) -> np.ndarray | None:
     """Any primvar interpolation → (t, 3, k) values per triangle corner."""
-    expected = {
-        UsdGeom.Tokens.constant: 1,
-        UsdGeom.Tokens.uniform: topology.face_count,
-        UsdGeom.Tokens.vertex: topology.point_count,
-        UsdGeom.Tokens.varying: topology.point_count,
-        UsdGeom.Tokens.faceVarying: topology.corner_count,
-    }.get(interpolation)
+    expected = _expected_count(
+        interpolation, topology.point_count, topology.face_count, topology.corner_count
+    )
     if expected is None or len(values) < expected:
-        diagnostics.note(
-            "primvar-size",
-            "primvars with too few values for their interpolation were ignored on: {prims}",
-            f"{path} ({name}: {len(values)} values, {interpolation})",
-        )
+        _note_too_few(diagnostics, path, name, len(values), interpolation)
         return None
     triangle_count = len(topology.triangles)
     if interpolation == UsdGeom.Tokens.constant:
@@ -222,3 +341,201 @@ def _expand(
     if interpolation == UsdGeom.Tokens.faceVarying:
         return values[topology.corners]
     return values[topology.triangles]
+
+
+# --- subdivision surfaces ---------------------------------------------------------------------
+
+# The two triangles of a refined quad, in its corners: the winding of the quad.
+_QUAD_TRIANGLES = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
+_TRIANGLE = np.array([[0, 1, 2]], dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class _SubdivisionUvs:
+    """The uv primvar of a subdivision mesh, ready for subdivision.refine."""
+
+    interpolation: str
+    values: np.ndarray  # (n, 2): per point, per face, per corner (or indexed), or one
+    indices: np.ndarray | None  # (c,) faceVarying indices in refinement corner order
+
+
+def _subdivision_surface(
+    mesh: UsdGeom.Mesh,
+    time: Usd.TimeCode,
+    uv_primvar: str,
+    diagnostics: Diagnostics,
+    path: str,
+    points: np.ndarray,
+    counts: np.ndarray,
+    indices: np.ndarray,
+    scheme: str,
+    level: int,
+) -> LocalSurface:
+    """Refine a subdivision mesh ``level`` times to its limit surface and triangulate it."""
+    if scheme not in subdivision.SCHEMES:
+        diagnostics.note(
+            "subdivision-scheme",
+            "unknown subdivisionScheme values were read as catmullClark on: {prims}",
+            f"{path} ({scheme})",
+        )
+        scheme = "catmullClark"
+    corner_order = None
+    if mesh.GetOrientationAttr().Get(time) == UsdGeom.Tokens.leftHanded:
+        # Reversed faces are right-handed: the refinement and its normals see the front.
+        corner_order = _reversed_face_corners(counts)
+        indices = indices[corner_order]
+    uvs = _subdivision_uvs(mesh, time, uv_primvar, counts, corner_order, len(points),
+                           diagnostics, path)
+    interpolation = None if uvs is None else uvs.interpolation
+    refined = subdivision.refine(
+        points,
+        counts,
+        indices,
+        level,
+        scheme=scheme,
+        tags=_subdivision_tags(mesh, time, diagnostics, path),
+        vertex_data=uvs.values if interpolation == UsdGeom.Tokens.vertex else None,
+        varying_data=uvs.values if interpolation == UsdGeom.Tokens.varying else None,
+        face_varying=(
+            [subdivision.FaceVaryingPrimvar(uvs.values, uvs.indices)]
+            if interpolation == UsdGeom.Tokens.faceVarying
+            else []
+        ),
+    )
+    for warning in refined.warnings:
+        diagnostics.note(
+            "subdivision",
+            "subdivision meshes read with adjustments: {prims}",
+            f"{path} ({warning})",
+        )
+
+    corners_per_face = refined.faces.shape[1]
+    split = _QUAD_TRIANGLES if corners_per_face == 4 else _TRIANGLE
+    face_corner = np.arange(len(refined.faces), dtype=np.int64) * corners_per_face
+    triangle_corners = (face_corner[:, None, None] + split[None]).reshape(-1, 3)
+    triangles = refined.faces.reshape(-1)[triangle_corners]
+    triangle_face = np.repeat(refined.face_origin, len(split))
+    triangle_uvs = None
+    if interpolation == UsdGeom.Tokens.faceVarying:
+        triangle_uvs = refined.face_varying[0].reshape(-1, 2)[triangle_corners]
+    elif interpolation == UsdGeom.Tokens.vertex:
+        triangle_uvs = refined.vertex_data[triangles]
+    elif interpolation == UsdGeom.Tokens.varying:
+        triangle_uvs = refined.varying_data[triangles]
+    elif interpolation == UsdGeom.Tokens.uniform:
+        triangle_uvs = np.repeat(uvs.values[triangle_face][:, None, :], 3, axis=1)
+    elif interpolation == UsdGeom.Tokens.constant:
+        triangle_uvs = np.broadcast_to(uvs.values[0], (len(triangles), 3, 2)).copy()
+    return LocalSurface(
+        points=refined.points,
+        triangles=triangles,
+        normals=refined.normals.reshape(-1, 3)[triangle_corners],
+        smooth=True,
+        uvs=triangle_uvs,
+        triangle_face=triangle_face,
+        face_count=len(counts),
+    )
+
+
+def _reversed_face_corners(counts: np.ndarray) -> np.ndarray:
+    """(c,) corner order that reverses each face's winding, keeping its first corner."""
+    offsets = np.cumsum(counts) - counts
+    corner_face = np.repeat(np.arange(len(counts), dtype=np.int64), counts)
+    local = np.arange(int(counts.sum()), dtype=np.int64) - offsets[corner_face]
+    size = counts[corner_face]
+    return offsets[corner_face] + (size - local) % size
+
+
+def _subdivision_tags(
+    mesh: UsdGeom.Mesh, time: Usd.TimeCode, diagnostics: Diagnostics, path: str
+) -> subdivision.SubdivisionTags:
+    """The mesh's subdivision attributes; unknown tokens fall back to the schema's default."""
+    defaults = subdivision.SubdivisionTags()
+
+    def token(attribute: Usd.Attribute, allowed: tuple[str, ...], fallback: str) -> str:
+        value = attribute.Get(time)
+        if value is None:
+            return fallback
+        if value not in allowed:
+            diagnostics.note(
+                "subdivision-token",
+                "unknown subdivision tokens were replaced by the default on: {prims}",
+                f"{path}.{attribute.GetName()} ({value})",
+            )
+            return fallback
+        return str(value)
+
+    def array(attribute: Usd.Attribute, dtype) -> np.ndarray:
+        return np.asarray(attribute.Get(time) or [], dtype=dtype).reshape(-1)
+
+    return subdivision.SubdivisionTags(
+        interpolate_boundary=token(
+            mesh.GetInterpolateBoundaryAttr(),
+            subdivision.BOUNDARY_INTERPOLATIONS,
+            defaults.interpolate_boundary,
+        ),
+        face_varying_linear_interpolation=token(
+            mesh.GetFaceVaryingLinearInterpolationAttr(),
+            subdivision.FACE_VARYING_INTERPOLATIONS,
+            defaults.face_varying_linear_interpolation,
+        ),
+        triangle_subdivision_rule=token(
+            mesh.GetTriangleSubdivisionRuleAttr(),
+            subdivision.TRIANGLE_SUBDIVISION_RULES,
+            defaults.triangle_subdivision_rule,
+        ),
+        crease_indices=array(mesh.GetCreaseIndicesAttr(), np.int64),
+        crease_lengths=array(mesh.GetCreaseLengthsAttr(), np.int64),
+        crease_sharpnesses=array(mesh.GetCreaseSharpnessesAttr(), np.float64),
+        corner_indices=array(mesh.GetCornerIndicesAttr(), np.int64),
+        corner_sharpnesses=array(mesh.GetCornerSharpnessesAttr(), np.float64),
+        hole_indices=array(mesh.GetHoleIndicesAttr(), np.int64),
+    )
+
+
+def _subdivision_uvs(
+    mesh: UsdGeom.Mesh,
+    time: Usd.TimeCode,
+    uv_primvar: str,
+    counts: np.ndarray,
+    corner_order: np.ndarray | None,
+    point_count: int,
+    diagnostics: Diagnostics,
+    path: str,
+) -> _SubdivisionUvs | None:
+    """The uv primvar for refinement: faceVarying keeps its indices (seams are where they
+    differ), per corner values follow ``corner_order`` (left-handed faces reversed)."""
+    primvar = UsdGeom.PrimvarsAPI(mesh).GetPrimvar(uv_primvar)
+    if not (primvar and primvar.HasAuthoredValue()):
+        return None
+    interpolation = primvar.GetInterpolation()
+    corner_count = int(counts.sum())
+    indexed = interpolation == UsdGeom.Tokens.faceVarying and primvar.IsIndexed()
+    raw = primvar.Get(time) if indexed else primvar.ComputeFlattened(time)
+    if raw is None:
+        return None
+    values = _vector_array(raw, 2)
+    if values is None:
+        _note_bad_type(diagnostics, path, primvar.GetName(), raw)
+        return None
+    name = primvar.GetPrimvarName()
+    if indexed:
+        indices = np.asarray(primvar.GetIndices(time), dtype=np.int64)
+        if len(indices) < corner_count or (
+            corner_count and (indices[:corner_count].min() < 0
+                              or indices[:corner_count].max() >= len(values))
+        ):
+            _note_too_few(diagnostics, path, name, len(indices), interpolation)
+            return None
+        indices = indices[:corner_count]
+        if corner_order is not None:
+            indices = indices[corner_order]
+        return _SubdivisionUvs(interpolation, values, indices)
+    expected = _expected_count(interpolation, point_count, len(counts), corner_count)
+    if expected is None or len(values) < expected:
+        _note_too_few(diagnostics, path, name, len(values), interpolation)
+        return None
+    values = values[:expected]
+    if interpolation == UsdGeom.Tokens.faceVarying and corner_order is not None:
+        values = values[corner_order]
+    return _SubdivisionUvs(interpolation, values, None)
