@@ -500,6 +500,73 @@ def test_unindexed_face_varying_values_join_where_they_agree(rng):
                                refined.points[refined.faces][..., :2] * 0.25, atol=1e-12)
 
 
+# --- the fast path against its reference ---------------------------------------------------------
+
+
+def fan_test_meshes(rng):
+    """Meshes with boundaries, creases of decaying and Chaikin sharpness, a corner, a hole,
+    polygons, a non-manifold vertex and an inconsistently wound face."""
+    bumpy, counts, indices = grid(5, 4, rng.uniform(-1.0, 1.0, 30))
+    creased = SubdivisionTags(
+        crease_indices=np.array([1, 6, 11, 16, 21, 26, 2, 7]),
+        crease_lengths=np.array([6, 2]),
+        crease_sharpnesses=np.array([1.0, 3.0, 10.0, 0.5, 2.0, 1.5]),
+        corner_indices=np.array([13]), corner_sharpnesses=np.array([2.0]),
+        hole_indices=np.array([7]), crease_method="chaikin",
+    )
+    yield bumpy, counts, indices, creased
+    yield bumpy, counts, indices, SubdivisionTags(
+        crease_indices=creased.crease_indices, crease_lengths=creased.crease_lengths,
+        crease_sharpnesses=creased.crease_sharpnesses,
+    )
+    yield CUBE_POINTS, CUBE_COUNTS, CUBE_INDICES, SubdivisionTags()
+    polygons = np.array([(0, 0, 0), (1, 0, 0), (1.5, 1, 0.3), (0.5, 1.6, 0), (-0.5, 1, 0.2),
+                         (2, 0, 0.1), (-1, -1, 0), (0, -1, 0.4)])
+    # A pentagon, a triangle, and a quad touching the pentagon at vertex 0 only (a bowtie),
+    # then a triangle wound against the pentagon.
+    yield polygons, [5, 3, 3, 3], [0, 1, 2, 3, 4, 1, 5, 2, 0, 6, 7, 3, 2, 4], SubdivisionTags()
+
+
+def test_fans_propagated_through_levels_match_the_pointer_jumping_reference(rng):
+    from pxr_layers.stage import subdivision as sd
+
+    for points, counts, indices, tags in fan_test_meshes(rng):
+        counts, indices = np.asarray(counts), np.asarray(indices)
+        level, fans = sd._base_level(counts, indices, len(points), np.arange(len(counts)),
+                                     "catmullClark", tags, [])
+        data = np.asarray(points, dtype=float)
+        for _ in range(3):
+            child_sharpness = sd._child_edge_sharpness(level, tags.crease_method)
+            rules = sd._Rules("catmullClark", "quads", False, tags.crease_method)
+            data = sd._refine_vertex_data(level, data, rules, child_sharpness)
+            child = sd._child_level(level, "quads", child_sharpness)
+            fast = sd._child_fans(level, fans, child)
+            sharp = child.edge_sharpness > 0.0
+            reference = sd._fans(child, sharp)
+            np.testing.assert_array_equal(fast.twin, reference.twin)
+            np.testing.assert_array_equal(fast.manifold, reference.manifold)
+            np.testing.assert_array_equal(fast.closed, reference.closed)
+            good = np.flatnonzero(reference.manifold[child.corner_vertex])
+            # The same ring: rank differences agree up to a rotation of each ring...
+            valence = np.bincount(child.corner_vertex)[child.corner_vertex[good]]
+            offset = (fast.position[good] - reference.position[good]) % valence
+            per_vertex = np.full(child.vertex_count, -1)
+            per_vertex[child.corner_vertex[good]] = offset
+            np.testing.assert_array_equal(offset, per_vertex[child.corner_vertex[good]])
+            # ... and the same sectors (labelled by their first corner, which may differ where
+            # a smooth ring starts elsewhere), so the same normals.
+            fast_first, _ = sd._sectors(child, fast, sharp, good)
+            reference_first, _ = sd._sectors(child, reference, sharp, good)
+            pairs = np.unique(np.stack([fast_first, reference_first]), axis=1).shape[1]
+            assert pairs == len(np.unique(fast_first)) == len(np.unique(reference_first))
+            ring = sd._Ring.of(child, data, "quads")
+            np.testing.assert_allclose(
+                sd._corner_normals(child, fast, data, "catmullClark", ring),
+                sd._corner_normals(child, reference, data, "catmullClark", ring), atol=1e-12,
+            )
+            level, fans = child, fast
+
+
 # --- performance -----------------------------------------------------------------------------
 
 

@@ -210,7 +210,7 @@ def refine(
         )
         scheme = "catmullClark"
 
-    base = _base_level(
+    base, fans = _base_level(
         kept_counts,
         indices[kept_corner],
         vertex_count,
@@ -239,12 +239,16 @@ def refine(
                 _child_level(fvar_level, split, fvar_child_sharpness),
                 _refine_vertex_data(fvar_level, fvar_values, fvar_rules, fvar_child_sharpness),
             )
-        current = _child_level(current, split, child_sharpness)
+        child = _child_level(current, split, child_sharpness)
+        fans = _child_fans(current, fans, child) if split == "quads" else None
+        current = child
+    if fans is None:
+        fans = _fans(current, current.edge_sharpness > 0.0)
 
     smooth_limit = limit and scheme != "bilinear"
     ring = _Ring.of(current, data, split) if smooth_limit else None
     # Limit tangent masks, like limit position masks, weigh the last level's control points.
-    normals = _corner_normals(current, data[:, :3], scheme, ring)
+    normals = _corner_normals(current, fans, data[:, :3], scheme, ring)
     if smooth_limit:
         data = _limit_positions(current, data, scheme, ring)
         for index, (fvar_level, fvar_values) in enumerate(channels):
@@ -296,12 +300,17 @@ def _without_holes(
     """The last level's faces that are not holes, and only the points they use."""
     corners_per_face = 3 if scheme == "loop" else 4
     visible = ~level.face_hole
-    faces = level.corner_vertex.reshape(-1, corners_per_face)[visible]
+    holes = not visible.all()
+
+    def shown(per_face: np.ndarray) -> np.ndarray:  # (without copying when nothing is hidden)
+        return per_face[visible] if holes else per_face
+
+    faces = shown(level.corner_vertex.reshape(-1, corners_per_face))
     face_varying = tuple(
-        values[fvar_level.corner_vertex].reshape(-1, corners_per_face, values.shape[1])[visible]
+        shown(values[fvar_level.corner_vertex].reshape(-1, corners_per_face, values.shape[1]))
         for fvar_level, values in channels
     )
-    if not visible.all():
+    if holes:
         # Points only the hole faces used would be stray vertices for the renderer.
         used = np.zeros(level.vertex_count, dtype=bool)
         used[faces.reshape(-1)] = True
@@ -311,8 +320,8 @@ def _without_holes(
     return RefinedMesh(
         points=np.ascontiguousarray(data[:, :3]),
         faces=faces,
-        face_origin=level.face_origin[visible],
-        normals=normals.reshape(-1, corners_per_face, 3)[visible],
+        face_origin=shown(level.face_origin),
+        normals=shown(normals.reshape(-1, corners_per_face, 3)),
         vertex_data=np.ascontiguousarray(data[:, 3:]) if has_vertex_data else None,
         varying_data=varying_data,
         face_varying=face_varying,
@@ -404,8 +413,9 @@ def _base_level(
     scheme: str,
     tags: SubdivisionTags,
     warnings: list[str],
-) -> _Level:
-    """Level 0 with OpenSubdiv's sharpening of creases, corners, boundaries and holes."""
+) -> tuple[_Level, _Fans]:
+    """Level 0 (with its fans) with OpenSubdiv's sharpening of creases, corners, boundaries
+    and holes."""
     offsets, corner_face, corner_next, corner_prev = _face_structure(counts)
     edge_keys, corner_edge, edge_vertices = _unique_edges(indices, corner_next, vertex_count)
     edge_count = len(edge_keys)
@@ -483,7 +493,7 @@ def _base_level(
     vertex_edges = np.bincount(edge_vertices.reshape(-1), minlength=vertex_count)
     if tags.interpolate_boundary == "edgeAndCorner":
         vertex_sharpness[(vertex_faces == 1) & (vertex_edges == 2)] = SHARPNESS_INFINITE
-    fans = _fans(level, edge_sharpness > 0)
+    fans = _fans(level, edge_sharpness > 0.0)
     non_manifold = ~fans.manifold & (vertex_faces > 0)
     if non_manifold.any():
         warnings.append(
@@ -491,7 +501,7 @@ def _base_level(
             "made infinitely sharp"
         )
         vertex_sharpness[non_manifold] = SHARPNESS_INFINITE
-    return level
+    return level, fans
 
 
 def _crease_edges(
@@ -938,25 +948,40 @@ def _limit_positions(level: _Level, data: np.ndarray, scheme: str, ring: _Ring) 
 class _Fans:
     """The corners around each vertex, in counter-clockwise order (seen from the front).
 
-    position    : (c,) rank of the corner around its vertex from the fan's first corner
-    predecessor : (c,) the previous corner around the vertex, -1 at the fan's first corner
-    successor   : (c,) the next corner around the vertex, -1 at the fan's last corner
-    manifold    : (v,) the corners form one fan of consistently wound faces
-    closed      : (v,) that fan is a closed ring (an interior vertex)
+    position : (c,) rank of the corner around its vertex from the fan's first corner
+    twin     : (c,) the corner of the neighbouring face across the corner's outgoing edge
+               (wound the other way), -1 on a boundary or a non-manifold edge
+    manifold : (v,) the corners form one fan of consistently wound faces
+    closed   : (v,) that fan is a closed ring (an interior vertex)
+
+    Counter-clockwise, the corner after c is twin[prev(c)] (across c's incoming edge), and
+    the one before c is next(twin[c]) (across its outgoing edge).
     """
 
     position: np.ndarray
-    predecessor: np.ndarray
-    successor: np.ndarray
+    twin: np.ndarray
     manifold: np.ndarray
     closed: np.ndarray
+
+    def successor(self, level: _Level, corners: np.ndarray) -> np.ndarray:
+        """(n,) the next corner around the vertex of each of ``corners``, -1 after the last."""
+        following = self.twin[level.corner_prev[corners]]
+        after = self.position[np.maximum(following, 0)]
+        return np.where((following >= 0) & (after != 0), following, -1)
+
+    def predecessor(self, level: _Level, corners: np.ndarray) -> np.ndarray:
+        """(n,) the previous corner around the vertex of each of ``corners``, -1 at the first."""
+        across = self.twin[corners]
+        before = level.corner_next[np.maximum(across, 0)]
+        return np.where((across >= 0) & (self.position[corners] != 0), before, -1)
 
 
 def _fans(level: _Level, sharp_edge: np.ndarray) -> _Fans:
     """Rank corners around their vertices by pointer jumping (no loop per vertex).
 
     A closed ring is cut after a sharp edge when it has one, so that its sectors (runs of
-    faces between sharp edges, see _sectors) are contiguous.
+    faces between sharp edges, see _sectors) are contiguous. The reference for _child_fans,
+    and what the authored mesh and loop levels use.
     """
     corner_vertex = level.corner_vertex
     corner_edge = level.corner_edge
@@ -1008,7 +1033,65 @@ def _fans(level: _Level, sharp_edge: np.ndarray) -> _Fans:
     manifold = (
         (heads_per_vertex == 1) & ~unreached & (edge_counts == face_counts + ~closed)
     )
-    return _Fans(position, predecessor, successor, manifold, closed)
+    return _Fans(position, twin, manifold, closed)
+
+
+def _child_fans(parent: _Level, fans: _Fans, child: _Level) -> _Fans:
+    """The fans of a quad split's child level, from its parent's fans without searching.
+
+    Child corner 4c + k lies in the child quad of parent corner c: k = 0 at its vertex point,
+    1 at the point of its outgoing edge, 2 at its face point, 3 at the point of its incoming
+    edge. Counter-clockwise around an edge point come 4 next(o) + 3, 4 o + 1, 4 next(t) + 3,
+    4 t + 1 (o the edge's lower corner, t its twin); around a face point the face's corners in
+    order; around a vertex point the parent vertex's corners in order.
+    """
+    corners = np.arange(len(parent.corner_vertex), dtype=INDEX)
+    following, preceding = parent.corner_next, parent.corner_prev
+    twin = fans.twin
+    has_twin = twin >= 0
+    incoming_twin = twin[preceding]
+    child_twin = np.stack(
+        [
+            np.where(has_twin, 4 * following[np.maximum(twin, 0)] + 3, -1),
+            4 * following + 2,
+            4 * preceding + 1,
+            np.where(incoming_twin >= 0, 4 * incoming_twin, -1),
+        ],
+        axis=1,
+    ).reshape(-1)
+    owner = ~has_twin | (corners < twin)  # one corner per edge ranks its edge point's fan
+    position = np.stack(
+        [
+            fans.position,
+            np.where(owner, 1, 3),
+            corners - parent.face_offsets[parent.corner_face],
+            np.where(owner[preceding], 0, 2),
+        ],
+        axis=1,
+    ).reshape(-1)
+    edge_closed = np.zeros(parent.edge_count, dtype=bool)
+    edge_closed[parent.corner_edge[has_twin]] = True
+    all_faces = np.ones(parent.face_count, dtype=bool)
+    closed = np.concatenate([fans.closed, edge_closed, all_faces])
+    manifold = np.concatenate(
+        [fans.manifold, edge_closed | (parent.edge_face_count == 1), all_faces]
+    )
+    # A closed ring with sharp edges must start after one (see _fans); decayed sharpness can
+    # leave an inherited start smooth. Only halves of parent edges (k = 0, 3) can be sharp.
+    halves = np.concatenate([4 * corners, 4 * corners + 3])
+    sharp_out = halves[child.edge_sharpness[child.corner_edge[halves]] > 0.0]
+    sharp_out = sharp_out[closed[child.corner_vertex[sharp_out]]]
+    if len(sharp_out):
+        unset = np.iinfo(INDEX).max
+        first_sharp = np.full(child.vertex_count, unset, dtype=INDEX)
+        np.minimum.at(first_sharp, child.corner_vertex[sharp_out], position[sharp_out])
+        shift = np.where(first_sharp == unset, 0, first_sharp)
+        if (shift > 0).any():
+            moved = np.flatnonzero((shift > 0)[child.corner_vertex])
+            vertex = child.corner_vertex[moved]
+            valence = np.bincount(vertex, minlength=child.vertex_count)[vertex]
+            position[moved] = (position[moved] - shift[vertex]) % valence
+    return _Fans(position, child_twin, manifold, closed)
 
 
 def _sectors(
@@ -1020,12 +1103,13 @@ def _sectors(
     whose outgoing edge (the edge crossed to reach it) is sharp.
     """
     count = len(level.corner_vertex)
-    start = (fans.predecessor[corners] < 0) | sharp_edge[level.corner_edge[corners]]
+    preceding = fans.predecessor(level, corners)
+    start = (preceding < 0) | sharp_edge[level.corner_edge[corners]]
     is_start = np.zeros(count, dtype=bool)
     is_start[corners[start]] = True
     # Pointer jumping back to the sector's first corner (a start points at itself).
     jump = np.zeros(count, dtype=INDEX)
-    jump[corners] = np.where(start, corners, fans.predecessor[corners])
+    jump[corners] = np.where(start, corners, preceding)
     pending = corners[~start]
     for _ in range(count.bit_length() + 1):
         if not len(pending):
@@ -1033,7 +1117,7 @@ def _sectors(
         jump[pending] = jump[jump[pending]]
         pending = pending[~is_start[jump[pending]]]
     first = jump[corners]
-    following = fans.successor[corners]
+    following = fans.successor(level, corners)
     is_last = (following < 0) | is_start[np.maximum(following, 0)]
     last_of = np.zeros(count, dtype=INDEX)
     last_of[first[is_last]] = corners[is_last]
@@ -1050,7 +1134,7 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _corner_normals(
-    level: _Level, points: np.ndarray, scheme: str, ring: _Ring | None
+    level: _Level, fans: _Fans, points: np.ndarray, scheme: str, ring: _Ring | None
 ) -> np.ndarray:
     """(c, 3) unit normal per corner of the final level: limit normals given the ``ring`` of
     the limit stencils, area-weighted normals without it (no limit step).
@@ -1062,7 +1146,6 @@ def _corner_normals(
     corner_vertex = level.corner_vertex
     size = level.vertex_count
     sharp_edge = level.edge_sharpness > 0.0
-    fans = _fans(level, sharp_edge)
     sharp_edge_count = _bincount_ends(level.edge_vertices, sharp_edge, size)
     rule = _vertex_rules(level.vertex_sharpness, sharp_edge_count)
     face_counts = np.bincount(corner_vertex, minlength=size)
@@ -1110,71 +1193,58 @@ def _corner_face_areas(level: _Level, points: np.ndarray, corners: np.ndarray) -
 def _smooth_limit_normals(level: _Level, fans: _Fans, scheme: str, ring: _Ring) -> np.ndarray:
     """(v, 3) limit normal tan1 x tan2 of each vertex, valid at smooth interior vertices.
 
-    e_j is the far end of the edge of the j-th corner counter-clockwise around the vertex and
-    d_j (catmullClark) the diagonal vertex of that corner's quad.
+    OpenSubdiv's tangent masks weigh e_j, the far end of the edge of the j-th corner
+    counter-clockwise around the vertex, and (catmullClark) d_j, the diagonal vertex of that
+    corner's quad. The weights depend only on (valence, j): they are gathered from a table.
     """
     corner_vertex = level.corner_vertex
     size = level.vertex_count
     # Valences below 3 are never smooth here; clamping keeps their (unused) weights finite.
     valence = np.maximum(np.bincount(corner_vertex, minlength=size), 3)
     corner_valence = valence[corner_vertex]
-    table, row_start = _ring_angles(valence)
-    cos_table, sin_table = np.cos(table), np.sin(table)
-    ring_index = row_start[corner_valence] + np.minimum(fans.position, corner_valence - 1)
-    cos_j, sin_j = cos_table[ring_index], sin_table[ring_index]
+    tables, row_start = _tangent_weight_tables(valence, scheme)
+    entry = row_start[corner_valence] + np.minimum(fans.position, corner_valence - 1)
     tangents = []
-    if scheme == "catmullClark":
-        # OpenSubdiv's Catmark masks: 4 cos(j theta) on e_j and
-        # (cos(j theta) + cos((j+1) theta)) / (4 lambda - 1) on d_j, lambda the subdominant
-        # eigenvalue; tan2 the same with sines.
-        theta = 2.0 * np.pi / valence
-        cos_theta = np.cos(theta)
-        subdominant = 5.0 / 16.0 + (
-            cos_theta + np.cos(0.5 * theta) * np.sqrt(2.0 * (9.0 + cos_theta))
-        ) / 16.0
-        face_scale = (1.0 / (4.0 * subdominant - 1.0))[corner_vertex]
-        # (j + 1) theta: the next entry of the valence's row, wrapping at its end.
-        next_index = np.where(
-            fans.position + 1 >= corner_valence, row_start[corner_valence], ring_index + 1
-        )
-        cos_next, sin_next = cos_table[next_index], sin_table[next_index]
-        weights = [
-            (4.0 * cos_j, face_scale * (cos_j + cos_next)),
-            (4.0 * sin_j, face_scale * (sin_j + sin_next)),
-        ]
-        for edge_weight, diagonal_weight in weights:
-            tangent = np.empty((size, 3))
-            for axis in range(3):
-                tangent[:, axis] = np.bincount(
-                    corner_vertex,
-                    weights=edge_weight * ring.edge[:, axis]
-                    + diagonal_weight * ring.diagonal[:, axis],
-                    minlength=size,
-                )
-            tangents.append(tangent)
-    else:  # loop: cos/sin of the ring
-        for weight in (cos_j, sin_j):
-            tangent = np.empty((size, 3))
-            for axis in range(3):
-                tangent[:, axis] = np.bincount(
-                    corner_vertex, weights=weight * ring.edge[:, axis], minlength=size
-                )
-            tangents.append(tangent)
+    for edge_table, diagonal_table in tables:
+        edge_weight = edge_table[entry]
+        diagonal_weight = None if diagonal_table is None else diagonal_table[entry]
+        tangent = np.empty((size, 3))
+        for axis in range(3):
+            weights = edge_weight * ring.edge[:, axis]
+            if diagonal_weight is not None:
+                weights += diagonal_weight * ring.diagonal[:, axis]
+            tangent[:, axis] = np.bincount(corner_vertex, weights=weights, minlength=size)
+        tangents.append(tangent)
     return _cross(tangents[0], tangents[1])
 
 
-def _ring_angles(valence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(angles, row_start): 2 pi j / n for j < n of every valence n present, one row each.
+def _tangent_weight_tables(valence: np.ndarray, scheme: str):
+    """([(edge, diagonal) weights of tan1, of tan2], row_start) for the valences present.
 
-    The angle of rank j around a vertex of valence n is angles[row_start[n] + j]: a few
-    hundred cosines instead of one per corner.
+    The weights of rank j around a vertex of valence n are at row_start[n] + j. catmullClark
+    (OpenSubdiv's Catmark masks): 4 cos(j theta) on e_j and (cos(j theta) + cos((j+1) theta)) /
+    (4 lambda - 1) on d_j, lambda the subdominant eigenvalue; tan2 the same with sines. loop:
+    cos(j theta) and sin(j theta) on e_j.
     """
     present = np.unique(valence)
     row_start = np.zeros(int(present.max(initial=0)) + 1, dtype=INDEX)
     row_start[present] = np.cumsum(present) - present
-    rows = np.repeat(present, present)
-    ranks = np.arange(len(rows)) - np.repeat(np.cumsum(present) - present, present)
-    return 2.0 * np.pi * ranks / rows, row_start
+    n = np.repeat(present, present).astype(np.float64)
+    rank = np.arange(len(n)) - np.repeat(np.cumsum(present) - present, present)
+    theta = 2.0 * np.pi / n
+    angle = rank * theta
+    if scheme != "catmullClark":
+        return [(np.cos(angle), None), (np.sin(angle), None)], row_start
+    cos_theta = np.cos(theta)
+    subdominant = 5.0 / 16.0 + (
+        cos_theta + np.cos(0.5 * theta) * np.sqrt(2.0 * (9.0 + cos_theta))
+    ) / 16.0
+    face_scale = 1.0 / (4.0 * subdominant - 1.0)
+    tables = [
+        (4.0 * wave(angle), face_scale * (wave(angle) + wave(angle + theta)))
+        for wave in (np.cos, np.sin)
+    ]
+    return tables, row_start
 
 
 def _sector_normals(
@@ -1262,6 +1332,21 @@ def _sector_normals(
 # --- face-varying channels --------------------------------------------------------------------
 
 
+def _corner_classes(corner_vertex: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(class of each corner, first corner of each class): corners at the same vertex with
+    equal ``keys`` rows (c, k) are one class. Classes are numbered in sorted order."""
+    order = np.lexsort((*keys.T[::-1], corner_vertex))
+    sorted_keys = keys[order]
+    differs = np.ones(len(order), dtype=bool)
+    differs[1:] = (corner_vertex[order[1:]] != corner_vertex[order[:-1]]) | (
+        sorted_keys[1:] != sorted_keys[:-1]
+    ).any(axis=1)
+    starts = np.flatnonzero(differs)
+    corner_class = np.empty(len(order), dtype=INDEX)
+    corner_class[order] = np.cumsum(differs) - 1
+    return corner_class, order[starts]
+
+
 def _face_varying_level(
     base: _Level, primvar: FaceVaryingPrimvar, kept_corner: np.ndarray, tags: SubdivisionTags
 ) -> tuple[_Level, np.ndarray]:
@@ -1277,21 +1362,20 @@ def _face_varying_level(
     if primvar.indices is None:
         if len(values) != len(kept_corner):
             raise ValueError(f"{len(values)} face-varying values for {len(kept_corner)} corners")
-        per_corner = values[kept_corner]
-        values, value_of_corner = np.unique(per_corner, axis=0, return_inverse=True)
-        value_of_corner = value_of_corner.reshape(-1)
+        corner_values = values[kept_corner]
+        fvar_vertex, first_corner = _corner_classes(base.corner_vertex, corner_values)
     else:
         indices = np.asarray(primvar.indices, dtype=INDEX).reshape(-1)
         if len(indices) != len(kept_corner) or (
             len(indices) and (indices.min() < 0 or indices.max() >= len(values))
         ):
             raise ValueError("face-varying indices do not match the corners and values")
-        value_of_corner = indices[kept_corner]
-    keys = base.corner_vertex * max(len(values), 1) + value_of_corner
-    unique_keys, fvar_vertex = np.unique(keys, return_inverse=True)
-    fvar_vertex = fvar_vertex.reshape(-1).astype(INDEX)
-    vertex_of_value, value_index = np.divmod(unique_keys, max(len(values), 1))
-    value_count = len(unique_keys)
+        corner_values = values[indices[kept_corner]]
+        fvar_vertex, first_corner = _corner_classes(
+            base.corner_vertex, indices[kept_corner][:, None]
+        )
+    vertex_of_value = base.corner_vertex[first_corner]
+    value_count = len(first_corner)
     _, corner_edge, edge_vertices = _unique_edges(fvar_vertex, base.corner_next, value_count)
     edge_count = len(edge_vertices)
     edge_face_count = np.bincount(corner_edge, minlength=edge_count).astype(INDEX)
@@ -1355,4 +1439,4 @@ def _face_varying_level(
         face_hole=base.face_hole,
         face_origin=base.face_origin,
     )
-    return level, values[value_index]
+    return level, corner_values[first_corner]
