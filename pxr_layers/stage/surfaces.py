@@ -219,7 +219,9 @@ def _expected_count(
     }.get(interpolation)
 
 
-def _note_too_few(diagnostics: Diagnostics, path: str, name: str, count: int, interpolation: str):
+def _note_too_few(
+    diagnostics: Diagnostics, path: str, name: str, count: int, interpolation: str
+) -> None:
     diagnostics.note(
         "primvar-size",
         "primvars with too few values for their interpolation were ignored on: {prims}",
