@@ -207,6 +207,7 @@ def test_geom_subsets_give_per_face_materials(tmp_path):
     mesh.CreatePointsAttr(STRIP_POINTS)
     mesh.CreateFaceVertexCountsAttr([4, 4])
     mesh.CreateFaceVertexIndicesAttr(STRIP_INDICES)
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)  # two faces, four triangles
     bind(mesh, body)
     binding = UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
     subset = binding.CreateMaterialBindSubset("trim_faces", Vt.IntArray([1]))

@@ -13,8 +13,10 @@ Modules, in the order a read uses them:
 * ``shot``          the composed shot: settings, recipe, render spec, scene
 * ``recipe_reader`` UsdRender settings → the Recipe; ``schema`` the pxr-layers USD schema
 * ``render_spec``   what the settings say beyond the recipe, and the camera
+* ``draw_modes``    models drawn as cards (UsdGeomModelAPI) authored as card meshes
 * ``walk``          find gprims (instances and point instancers expanded) and lights
-* ``surfaces``      triangulate UsdGeom.Mesh; ``implicit`` tessellate Sphere, Cube, ...
+* ``surfaces``      triangulate UsdGeom.Mesh (``subdivision`` refines subdivision surfaces);
+                    ``implicit`` tessellate Sphere, Cube, ...; ``skinning`` poses UsdSkel meshes
 * ``placement``     put a triangulated surface in the world (metres, normals, degenerates)
 * ``materials``     binding and UsdPreviewSurface; ``textures`` decode images with OIIO
 * ``lights``        UsdLux with intensity, exposure, colour and normalize folded in

@@ -27,25 +27,26 @@ from .diagnostics import Diagnostics
 
 logger = logging.getLogger(__name__)
 
-# Tf.ErrorException text looks like "\n\tError in 'Func' at line N in file F : 'message'";
-# only the quoted message means anything to a user.
-_TF_MESSAGE = re.compile(r" : '(.*)'\s*$")
-
 # Pcp says this when a referenced file exists but no file-format plugin can read it, e.g.
 # .mtlx in a usd-core wheel built without usdMtlx: a capability of this USD build, not a
 # broken scene.
 _UNREADABLE_FORMAT = "Cannot determine file format"
+_ASSET = re.compile(r"@([^@]+)@")  # Pcp quotes asset paths as @path@
 
 SESSION_LAYER_NAME = "pxr_layers_session.usda"
 
 
 def tf_error_summary(error: BaseException) -> str:
-    """The user-facing messages of a Tf.ErrorException on one line."""
+    """The user-facing messages of a Tf.ErrorException on one line, without C++ locations.
+
+    The text is "\n\tError in 'F' at line N in file P : 'message'" per error, and a message
+    may itself hold quotes and span lines.
+    """
     messages = []
-    for line in str(error).splitlines():
-        match = _TF_MESSAGE.search(line)
-        if match:
-            messages.append(match.group(1))
+    for chunk in str(error).split("Error in ")[1:]:
+        _, found, message = chunk.partition(" : '")
+        if found:
+            messages.append(" ".join(message.strip().removesuffix("'").split()))
     return "; ".join(messages) if messages else " ".join(str(error).split())
 
 
@@ -139,7 +140,11 @@ def _check_composition(stage: Usd.Stage, path: str, diagnostics: Diagnostics, st
         message = " ".join(str(error).split()).removesuffix("; skipping.")
         site = str(error.rootSite.path) if error.rootSite else "/"
         unreadable = error.errorType == Pcp.ErrorType_InvalidAssetPath and _UNREADABLE_FORMAT in message
-        problems.append(("unreadable-reference" if unreadable else "composition", f"{site or '/'}: {message}"))
+        if unreadable:
+            asset = _ASSET.search(message)
+            problems.append(("unreadable-reference", f"{site} ({asset.group(1) if asset else message})"))
+        else:
+            problems.append(("composition", f"{site}: {message}"))
     if not problems:
         return
     if strict:
@@ -151,7 +156,7 @@ def _check_composition(stage: Usd.Stage, path: str, diagnostics: Diagnostics, st
                 kind,
                 f"{path}: skipped references to files this USD build cannot read (no file-format "
                 "plugin, e.g. MaterialX), the rest renders: {prims}",
-                problem.split(":", 1)[0],
+                problem,
             )
         else:
             diagnostics.note(

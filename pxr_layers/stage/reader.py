@@ -11,6 +11,7 @@ from pxr import Usd, UsdGeom, UsdShade
 from pxr_layers.scene import Mesh, SceneData
 
 from .context import ReadContext
+from .draw_modes import author_draw_mode_cards
 from .implicit import tessellate
 from .lights import read_light
 from .materials import MaterialLibrary, ResolvedMaterial, display_color
@@ -45,6 +46,7 @@ def read_scene(
     logged once and kept in SceneData.warnings.
     """
     diagnostics, file = context.diagnostics, context.file
+    author_draw_mode_cards(context.stage, context.time, diagnostics)  # before the walk, which prunes their models
     textures = TextureLibrary(diagnostics)
     materials = MaterialLibrary(context, textures, material_binding_purposes)
     contents = walk_stage(context)

@@ -57,6 +57,23 @@ def _as_array(value, width: int, dtype=np.float64) -> np.ndarray:
     return np.asarray(value, dtype=dtype).reshape(-1, width)
 
 
+MAX_REFINED_FACES = 1 << 16
+"""The most faces a subdivision surface is refined to. Each level multiplies the faces by 4,
+and a dense cage (a scan, a sculpt, the OpenChessSet's 20 k-face pieces) is already finer
+than a pixel at shot resolution: refining it would multiply the render's triangles by 16 at
+level 2 for no visible change. Such meshes get the levels that fit, or their cage."""
+
+
+def affordable_subdiv_level(face_count: int, asked: int) -> int:
+    """The highest level <= ``asked`` whose refined mesh keeps within MAX_REFINED_FACES faces
+    (each level multiplies the faces by 4; the first turns an n-gon into n quads, at most 4
+    for the cages this matters for)."""
+    level = 0
+    while level < asked and face_count * 4 ** (level + 1) <= MAX_REFINED_FACES:
+        level += 1
+    return level
+
+
 def read_mesh(
     prim: Usd.Prim,
     time: Usd.TimeCode,
@@ -69,9 +86,9 @@ def read_mesh(
 ) -> LocalSurface:
     """Triangulate a UsdGeom.Mesh with its normals and the ``uv_primvar`` primvar.
 
-    subdiv_level : refinement level of subdivision meshes; 0 (or ``subdivisionScheme =
-                   none``) fan-triangulates the control mesh, shaded smooth if it is a
-                   subdivision mesh
+    subdiv_level : refinement level of subdivision meshes, lowered for dense ones (see
+                   MAX_REFINED_FACES); 0 (or ``subdivisionScheme = none``) fan-triangulates
+                   the control mesh, shaded smooth if it is a subdivision mesh
     points       : (v, 3) object-space points (stage units) replacing the authored ones,
                    e.g. skinned; None reads ``points`` at ``time``
 
@@ -86,6 +103,17 @@ def read_mesh(
     _check_topology(points, counts, indices, file, path)
 
     scheme = mesh.GetSubdivisionSchemeAttr().Get(time)
+    if scheme != UsdGeom.Tokens.none:
+        level = affordable_subdiv_level(len(counts), subdiv_level)
+        if level < subdiv_level:
+            diagnostics.note(
+                "subdivision-budget",
+                f"dense subdivision surfaces refined to fewer levels than the {subdiv_level} asked, "
+                f"to stay within {MAX_REFINED_FACES} faces each (level 0: the cage, shaded smooth): "
+                "{prims}",
+                f"{path} ({len(counts)} faces: level {level})",
+            )
+        subdiv_level = level
     if scheme != UsdGeom.Tokens.none and subdiv_level > 0:
         # UsdGeom: normals are ignored on subdivision surfaces; a wrong type is still reported.
         _authored_normals(mesh, time, diagnostics, path)
