@@ -96,6 +96,37 @@ def test_a_stage_without_camera_or_lights_is_framed_and_lit_by_default(tmp_path)
     assert OpenEXR.File(str(tmp_path / "dark.exr")).channels()["RGBA"].pixels[..., :3].max() == 0.0
 
 
+NEGATIVE_LIGHT = """#usda 1.0
+def Xform "World"
+{
+    def Camera "cam"
+    {
+        double3 xformOp:translate = (0, 0, 5)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+    def Sphere "ball"
+    {
+    }
+    def SphereLight "key"
+    {
+        float inputs:intensity = -20
+        double3 xformOp:translate = (2, 2, 2)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+}
+"""
+
+
+def test_a_beauty_with_negative_pixels_is_refused_naming_the_paths_that_made_them(tmp_path):
+    shot = tmp_path / "negative.usda"
+    shot.write_text(NEGATIVE_LIGHT)
+    result = run("render", str(shot), "-o", str(tmp_path / "out"), *SMALL, "--no-previews")
+    assert result.returncode == 1
+    error = result.stderr.strip().splitlines()[-1]
+    assert "negative pixels" in error and "C RD'ball' L'key'" in error and "Traceback" not in result.stderr
+    assert not list((tmp_path / "out").glob("*"))  # neither the EXR nor the index
+
+
 def test_garbage_file_is_a_user_error(tmp_path):
     bad = tmp_path / "garbage.usda"
     bad.write_bytes(b"\x00\x01 this is not usd")

@@ -32,6 +32,8 @@ from ..layers.deliver import (
     plan_outputs,
     raw_sources,
 )
+from ..errors import RenderSettingsError
+from ..paths.events import path_text
 from ..paths.format import SUFFIX as INDEX_SUFFIX
 from ..paths.reader import PathIndex
 from ..paths.writer import PathIndexWriter
@@ -224,12 +226,45 @@ class FrameAssembler:
         if "primId" in data:
             metadata["primPaths"] = json.dumps(list(object_paths), separators=(",", ":"))
         rgba, _ = self.images()
+        index = PathIndex(plan.index_path) if self.writer else None
         try:
-            return deliver(PathIndex(plan.index_path) if self.writer else None, plan.recipe, rgba, plan.outputs,
-                           data=data, metadata=metadata, previews=plan.previews, show_progress=show_progress)
+            check_beauty(rgba, index, plan.stage)
+            return deliver(index, plan.recipe, rgba, plan.outputs, data=data, metadata=metadata,
+                           previews=plan.previews, show_progress=show_progress)
+        except RenderSettingsError:
+            plan.index_path.unlink(missing_ok=True)  # the frame's outputs appear together or not at all
+            raise
         finally:
             if not plan.keep_index:
                 plan.index_path.unlink(missing_ok=True)
+
+
+_CULPRITS_NAMED = 3
+
+
+def check_beauty(rgba: np.ndarray, index: PathIndex | None, stage: Path) -> None:
+    """Refuse a beauty with NaN, infinite or negative pixels, naming the paths (and so the
+    prims: objects, materials, lights) whose contributions made them, from the index.
+
+    rgba : (h, w, 4) float32. Raises RenderSettingsError; a clean image passes silently.
+    """
+    colour = rgba[..., :3]
+    bad = ~np.isfinite(colour).all(axis=-1) | (colour < 0.0).any(axis=-1)
+    if not bad.any():
+        return
+    y, x = np.argwhere(bad)[0]
+    culprits: dict[int, int] = {}
+    if index is not None:
+        for chunk in index.records(norms=False):
+            wrong = ~np.isfinite(chunk.rgb).all(axis=1) | (chunk.rgb < 0.0).any(axis=1)
+            ids, counts = np.unique(chunk.class_id[wrong], return_counts=True)
+            for class_id, count in zip(ids.tolist(), counts.tolist()):
+                culprits[class_id] = culprits.get(class_id, 0) + count
+    named = sorted(culprits, key=culprits.get, reverse=True)[:_CULPRITS_NAMED]
+    paths = "; ".join(path_text(index.classes[class_id].events) for class_id in named) if named else "unknown"
+    raise RenderSettingsError(f"{stage}: the beauty has {int(bad.sum())} NaN, infinite or negative pixels "
+                              f"(the first at x={x}, y={y}), brought by the paths {paths}: check the values of "
+                              "those prims (light intensity, exposure, colour; material inputs); nothing was written")
 
 
 def file_sha256(path: Path) -> str:
