@@ -96,6 +96,16 @@ def test_a_stage_without_camera_or_lights_is_framed_and_lit_by_default(tmp_path)
     assert OpenEXR.File(str(tmp_path / "dark.exr")).channels()["RGBA"].pixels[..., :3].max() == 0.0
 
 
+def test_a_dome_alone_renders_the_sky(tmp_path):
+    shot = tmp_path / "sky.usda"
+    shot.write_text('#usda 1.0\ndef DomeLight "sky"\n{\n    float inputs:intensity = 2\n}\n')
+    result = run("render", str(shot), "-o", str(tmp_path / "sky.exr"), *SMALL, "--no-previews")
+    assert result.returncode == 0, result.stderr
+    assert "has no geometry that renders" in result.stderr and "default rig" not in result.stderr
+    rgba = OpenEXR.File(str(tmp_path / "sky.exr")).channels()["RGBA"].pixels
+    assert np.allclose(rgba[..., :3], 2.0) and (rgba[..., 3] == 0.0).all()
+
+
 NEGATIVE_LIGHT = """#usda 1.0
 def Xform "World"
 {

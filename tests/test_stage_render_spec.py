@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -184,3 +185,37 @@ def test_included_purposes_of_the_settings_select_what_renders(tmp_path):
     settings.CreateIncludedPurposesAttr(["default", "proxy"])
     scene, _ = load(stage, settings="/Render/Preview")
     assert sorted(mesh.path for mesh in scene.meshes) == ["/default", "/proxy"]
+
+
+@pytest.mark.parametrize("up_axis", ["Y", "Z"])
+@pytest.mark.parametrize("resolution", [(64, 48), (48, 64)])
+def test_a_stage_without_camera_is_framed_whole_from_the_front_right_and_above(tmp_path, up_axis, resolution):
+    from pxr_layers.trace.camera import PinholeCamera
+
+    stage = new_stage(tmp_path, meters_per_unit=0.01)
+    UsdGeom.SetStageUpAxis(stage, up_axis)
+    cube = UsdGeom.Cube.Define(stage, "/World/box")
+    cube.CreateSizeAttr(200.0)  # 2 m in centimetres
+    cube.AddTranslateOp().Set(Gf.Vec3d(300, -100, 50))
+    stage.GetRootLayer().Save()
+    scene, spec = load_stage(stage.GetRootLayer().realPath)
+    assert spec.camera.path == "/pxrLayers/autoCamera"
+    spec = dataclasses.replace(spec, resolution=resolution)
+    camera = PinholeCamera.from_spec(spec)
+    centre = np.array([3.0, -1.0, 0.5])
+    corners = centre + np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    # Every corner of the box projects inside the film window, the centre on its middle.
+    local = (corners - camera.position) @ camera.world_from_camera
+    assert (local[:, 2] < 0).all()
+    film = local[:, :2] / -local[:, 2:3]
+    assert (np.abs(film[:, 0]) < camera.half_width).all() and (np.abs(film[:, 1]) < camera.half_height).all()
+    view = (centre - camera.position) @ camera.world_from_camera
+    assert np.allclose(view[:2] / -view[2], 0.0, atol=1e-9)
+    # Seen from the front (+Z for Y-up, −Y for Z-up), to the right and from above.
+    up = np.array([0, 0, 1.0]) if up_axis == "Z" else np.array([0, 1.0, 0])
+    front = np.array([0, -1.0, 0]) if up_axis == "Z" else np.array([0, 0, 1.0])
+    eye = camera.position - centre
+    assert eye @ up > 0 and eye @ front > 0 and eye[0] > 0
+    near, far = spec.camera.clipping
+    distances = np.linalg.norm(corners - camera.position, axis=1)
+    assert near < distances.min() and distances.max() < far
