@@ -498,3 +498,28 @@ def test_animated_showcase_frame_1_is_the_still_showcase(animated):
         np.testing.assert_allclose(mesh.points, reference.points, atol=1e-6)
     for light, reference in zip(scene.lights, still.lights):
         np.testing.assert_allclose(light.radiance, reference.radiance)
+
+
+def test_variants_and_the_stage_reading_keys_reach_the_request(tmp_path):
+    stage = tmp_path / "shot.usda"
+    stage.write_text("#usda 1.0\n")
+    job_file = tmp_path / "shot.toml"
+    job_file.write_text(textwrap.dedent("""
+        stage = "shot.usda"
+        frames = "1"
+        variants = ["/World/Teapot:modelVariant=Fancy", "/World/Teapot:shadingVariant=Blue"]
+        [render]
+        subdiv_level = 1
+        default_lights = false
+        strict = true
+    """))
+    request = load_job(job_file).request
+    assert [str(selection) for selection in request.variants] == ["/World/Teapot:modelVariant=Fancy",
+                                                                  "/World/Teapot:shadingVariant=Blue"]
+    assert (request.subdiv_level, request.default_lights, request.strict) == (1, False, True)
+    job_file.write_text(job_file.read_text().replace("Blue", "Blue=x"))
+    with pytest.raises(JobError, match=r"variants\[1\]"):
+        load_job(job_file)
+    job_file.write_text(job_file.read_text().replace("subdiv_level = 1", "subdiv_level = 9"))
+    with pytest.raises(JobError, match="at most 6"):
+        load_job(job_file)

@@ -18,6 +18,7 @@ from ..layers.extract import extract
 from ..paths.reader import PathIndex
 from ..recipe.model import PER_LIGHT_MODES, Layer, Product, Recipe
 from ..recipe.presets import PRESETS
+from ..request import VariantSelection
 from .render import output_target, preset_or_file
 
 HELP = "cut light layers out of a path index with Light Path Expressions"
@@ -95,8 +96,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _recipe(index: PathIndex, args: argparse.Namespace) -> Recipe:
-    """The --recipe layers, composed over the index's stage when it is still there."""
-    from ..stage import load_recipe
+    """The --recipe layers, composed over the index's stage (with the render's variant
+    selections) when it is still there."""
+    from ..stage import load_recipe, open_shot
 
     layers = [preset_or_file(text) for text in args.recipe]
     stage = Path(index.manifest.get("stage", ""))
@@ -104,7 +106,9 @@ def _recipe(index: PathIndex, args: argparse.Namespace) -> Recipe:
         if index.manifest.get("stage_sha256") not in (None, file_sha256(stage)):
             log.warning("%s has changed since %s was rendered: the recipe is read against today's stage",
                         stage, index.path)
-        return load_recipe(stage, args.settings, recipe_layers=layers, per_light=args.per_light)
+        variants = [VariantSelection.parse(text) for text in index.manifest.get("variants", "").split()]
+        shot = open_shot(stage, recipe_layers=layers, variants=variants)
+        return shot.recipe(settings=args.settings, per_light=args.per_light)
     log.warning("the stage %s of %s is not there: reading the recipe on its own", stage, index.path)
     return load_recipe(layers[0], args.settings, recipe_layers=layers[1:], per_light=args.per_light)
 
