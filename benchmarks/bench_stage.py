@@ -1,6 +1,6 @@
 """Stage read: ``load_stage`` against a plain usd-core read loop on the same stage, in one run.
 
-    python benchmarks/bench_stage.py [--stage PATH] [--repeats 3] [--camera-wrapper]
+    python benchmarks/bench_stage.py [--stage PATH] [--repeats 5]
 
 Both sides read the same USD file; each repeat runs the baseline, then ours, each in a
 **fresh Python subprocess**, and the fastest of --repeats is kept for each. Fresh processes
@@ -8,9 +8,10 @@ rather than clearing USD's layer registry in one process, because more than the 
 registry is kept between reads in a process: ``pxr_layers.stage`` remembers the textures of
 its last read (``textures.remember``), USD keeps its resolver and file-format caches, and the
 OS page cache is warm for both sides alike either way. In a fresh process nothing of an
-earlier repeat is reused. Imports (pxr, numpy, pxr_layers.stage) and USD's one-time plugin
-and schema-registry start-up (``Usd.Stage.CreateInMemory()``) happen in both children before
-the clock starts; the clock covers only the read.
+earlier repeat is reused. Imports (pxr, numpy, pxr_layers.stage and the reader module that
+load_stage imports on first use) and USD's one-time plugin and schema-registry start-up
+(``Usd.Stage.CreateInMemory()``) happen in both children before the clock starts; the clock
+covers only the read.
 
 * baseline: ``Usd.Stage.Open(path, Usd.Stage.LoadAll)``, then one ``Usd.PrimRange`` over
   the stage with instance proxies; for every ``UsdGeom.Mesh`` it reads points,
@@ -28,12 +29,11 @@ the clock starts; the clock covers only the read.
 Prints both times (the baseline split into open and traversal), the ratio ours/baseline and
 the triangle count of the SceneData. Target: ours ≤ 2× the baseline.
 
-The default stage is the OpenChessSet (1.4 M triangles, 49 meshes, payloads, PointInstancer,
-MaterialX looks); the script prints a message and exits 0 when the asset is absent.
-``load_stage`` needs a camera and that scene ships without one: ``--camera-wrapper`` times
-both sides on a temporary stage that sublayers the asset (same metersPerUnit, upAxis and
-time codes) and defines one camera at the origin (its framing does not matter to a read).
-Without the flag the as-shipped file is read, and a load_stage error is printed as such.
+The default stage is the OpenChessSet (21 mesh prims placed 49 times, 2.5 M triangles at the
+default subdivision level, payloads, PointInstancers, MaterialX looks); the script prints a
+message and exits 0 when the asset is absent. Stages are read as shipped: one without a
+camera gets load_stage's automatic camera (its framing is part of our read), and a load_stage
+error is printed as such.
 """
 
 from __future__ import annotations
@@ -42,14 +42,12 @@ import argparse
 import json
 import subprocess
 import sys
-import tempfile
 import textwrap
 from pathlib import Path
 
 SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 DEFAULT_STAGE = SCENES / "usd-wg" / "full_assets" / "OpenChessSet" / "chess_set.usda"
 TARGET_RATIO = 2.0
-WRAPPER_CAMERA = "/PxrLayersBenchCamera"
 
 # Both children run this before the clock starts: imports and USD's one-time start-up
 # (plugin registry, schema registry), so the clock sees the read alone.
@@ -112,6 +110,7 @@ print(json.dumps(read(path)))
 
 _OURS = _PRELUDE + """
 import pxr_layers.stage
+import pxr_layers.stage.reader  # load_stage imports it on first use: an import, not the read
 from pxr_layers.errors import PxrLayersError
 logging.basicConfig(level=logging.CRITICAL)  # the reader's warnings are not what is timed
 
@@ -138,33 +137,10 @@ def run_child(code: str, stage: Path) -> dict:
     return json.loads(completed.stdout.strip().splitlines()[-1])
 
 
-def camera_wrapper(stage: Path, folder: Path) -> Path:
-    """A stage that sublayers ``stage`` (same metadata) and adds one camera."""
-    from pxr import Sdf, UsdGeom
-
-    asset = Sdf.Layer.FindOrOpen(str(stage))  # the root layer only: nothing composed
-    if asset is None:
-        raise SystemExit(f"bench_stage: cannot open {stage} as USD")
-    wrapper = Sdf.Layer.CreateNew(str(folder / "camera_wrapper.usda"))
-    wrapper.subLayerPaths.append(str(stage.resolve()))
-    for key in ("metersPerUnit", "upAxis", "startTimeCode", "endTimeCode", "timeCodesPerSecond",
-                "framesPerSecond", "defaultPrim"):
-        if asset.pseudoRoot.HasInfo(key):
-            wrapper.pseudoRoot.SetInfo(key, asset.pseudoRoot.GetInfo(key))
-    camera = Sdf.PrimSpec(wrapper.pseudoRoot, WRAPPER_CAMERA.lstrip("/"), Sdf.SpecifierDef,
-                          UsdGeom.Camera.__name__)
-    assert camera
-    wrapper.Save()
-    return folder / "camera_wrapper.usda"
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--stage", type=Path, default=DEFAULT_STAGE, help=f"default: {DEFAULT_STAGE}")
-    parser.add_argument("--repeats", type=int, default=3, help="fresh-process reads of each side; fastest kept")
-    parser.add_argument("--camera-wrapper", action="store_true",
-                        help="time both sides on a temporary stage sublayering STAGE with a camera added "
-                             "(for stages without a camera, which load_stage refuses today)")
+    parser.add_argument("--repeats", type=int, default=5, help="fresh-process reads of each side; fastest kept")
     args = parser.parse_args()
     if not args.stage.exists():
         print(f"bench_stage: {args.stage} is absent; skipped")
@@ -172,20 +148,18 @@ def main() -> int:
     if args.repeats < 1:
         parser.error("--repeats must be at least 1")
 
-    with tempfile.TemporaryDirectory() as scratch:
-        stage = camera_wrapper(args.stage, Path(scratch)) if args.camera_wrapper else args.stage
-        note = f" (through a camera wrapper: {WRAPPER_CAMERA} added)" if args.camera_wrapper else ""
-        print(f"{args.stage}{note}")
-        print(f"fastest of {args.repeats}, each read in a fresh process, baseline then ours per repeat")
-        baselines, ours = [], []
-        for repeat in range(args.repeats):
-            baselines.append(run_child(_BASELINE, stage))
-            ours.append(run_child(_OURS, stage))
-            if "error" in ours[-1]:
-                break
-            print(f"  repeat {repeat + 1}: baseline {baselines[-1]['seconds']:6.3f} s, "
-                  f"ours {ours[-1]['seconds']:6.3f} s, ratio {ours[-1]['seconds'] / baselines[-1]['seconds']:.2f}",
-                  flush=True)
+    stage = args.stage
+    print(stage)
+    print(f"fastest of {args.repeats}, each read in a fresh process, baseline then ours per repeat")
+    baselines, ours = [], []
+    for repeat in range(args.repeats):
+        baselines.append(run_child(_BASELINE, stage))
+        ours.append(run_child(_OURS, stage))
+        if "error" in ours[-1]:
+            break
+        print(f"  repeat {repeat + 1}: baseline {baselines[-1]['seconds']:6.3f} s, "
+              f"ours {ours[-1]['seconds']:6.3f} s, ratio {ours[-1]['seconds'] / baselines[-1]['seconds']:.2f}",
+              flush=True)
 
     base = min(baselines, key=lambda report: report["seconds"])
     print(f"  baseline (usd-core loop): {base['seconds']:6.3f} s  (open {base['open']:.3f} s, traversal "
@@ -193,8 +167,6 @@ def main() -> int:
           f"authored, {base['instancers']} PointInstancers of {base['instances']} instances)")
     if "error" in ours[-1]:
         print(f"  ours (load_stage)       : FAILED: {ours[-1]['error']}")
-        if not args.camera_wrapper:
-            print("  (a stage without a camera: rerun with --camera-wrapper)")
         return 1
     best = min(ours, key=lambda report: report["seconds"])
     ratio = best["seconds"] / base["seconds"]

@@ -94,8 +94,11 @@ class Mesh:
     points            : (v, 3) float32, metres, world space
     triangles         : (t, 3) int32 indices into points, counter-clockwise seen from the
                         front (``orientation = leftHanded`` already flipped)
-    normals           : (t, 3, 3) float32 unit shading normal per triangle corner, world
-                        space, or None (flat shading from the geometric normal)
+    normal_values     : (n, 3) float32 unit shading normals, world space, or None (flat
+                        shading from the geometric normal)
+    normal_indices    : (t, 3) int32 index into normal_values per triangle corner (None with
+                        it). Smooth meshes have one normal per point (often ``triangles``
+                        itself); hard edges and faceVarying normals add values of their own.
     uvs               : (t, 3, 2) float32 st per triangle corner (the primvar the bound
                         material reads), or None
     triangle_material : (t,) int32 index into SceneData.materials (GeomSubsets resolved)
@@ -103,16 +106,27 @@ class Mesh:
                         innermost UsdGeom.PointInstancer's arrays (the ``instance_<N>`` of
                         its path); -1 for a gprim that is not point-instanced. Native
                         (scenegraph) instances are not point instances: -1.
+
+    The placements of one surface share their read-only triangles, normal_indices and uvs
+    arrays; only points and normal_values are their own.
     """
 
     name: str
     path: str
     points: np.ndarray
     triangles: np.ndarray
-    normals: np.ndarray | None
+    normal_values: np.ndarray | None
+    normal_indices: np.ndarray | None
     uvs: np.ndarray | None
     triangle_material: np.ndarray
     instance: int = -1
+
+    @property
+    def normals(self) -> np.ndarray | None:
+        """(t, 3, 3) float32 unit shading normal per triangle corner (a new array), or None."""
+        if self.normal_values is None:
+            return None
+        return self.normal_values[self.normal_indices]
 
 
 LightKind = Literal["rect", "disk", "sphere", "cylinder", "distant", "dome"]

@@ -8,16 +8,17 @@ import os
 import numpy as np
 from pxr import Usd, UsdGeom, UsdShade
 
-from pxr_layers.scene import Mesh, SceneData
+from pxr_layers.scene import INDEX, Mesh, SceneData
 
 from .context import ReadContext
+from .diagnostics import Diagnostics
 from .draw_modes import author_draw_mode_cards
 from .implicit import tessellate
 from .lights import read_light
 from .materials import MaterialLibrary, ResolvedMaterial, display_color
-from .placement import place_surface
+from .placement import PreparedSurface, place_surface, prepare_surface
 from .skinning import SkinnedPoser
-from .surfaces import LocalSurface, read_mesh
+from .surfaces import LocalSurface, mesh_opinions, read_mesh
 from .transforms import column_matrix
 from .textures import TextureLibrary
 from .walk import GprimPlacement, walk_stage
@@ -80,16 +81,24 @@ def read_scene(
 
 
 class _MeshBuilder:
-    """Builds scene.Mesh objects, triangulating each prototype gprim only once."""
+    """Builds scene.Mesh objects, triangulating each distinct surface only once.
+
+    Gprims share a triangulation (and its PreparedSurface) when they are the same prototype
+    gprim (native instances, point-instanced copies) or, for meshes, when every value the
+    surface is read from comes from the same opinions (surfaces.mesh_opinions: prims that
+    reference one asset). A prim that shares a surface read for another still gets the
+    read's warnings under its own path, as if it had been read itself.
+    """
 
     def __init__(self, context: ReadContext, materials: MaterialLibrary, subdiv_level: int) -> None:
         self._context = context
         self._materials = materials
         self._subdiv_level = subdiv_level
         self._poser = SkinnedPoser(context.stage, context.time, context.diagnostics, xform_cache=context.xform_cache)
-        # (prototype prim path, uv primvar) → surface: native instances and point-instanced
-        # copies of one gprim share its triangulation.
-        self._surfaces: dict[tuple[str, str], LocalSurface] = {}
+        # (prototype prim path, uv primvar) → surface, and mesh_opinions key → (surface, the
+        # path it was read under, the notes of its read).
+        self._surfaces: dict[tuple[str, str], PreparedSurface] = {}
+        self._by_opinions: dict[tuple, tuple[PreparedSurface, str, list[tuple]]] = {}
 
     def build(self, placement: GprimPlacement) -> Mesh | None:
         context = self._context
@@ -110,18 +119,19 @@ class _MeshBuilder:
         if posed is None:
             surface = self._surface(prim, uv_primvar)
         else:
-            surface = self._read_mesh(prim, uv_primvar, posed.points)
+            surface = prepare_surface(self._read_mesh(prim, uv_primvar, posed.points, context.diagnostics))
             # The skinned points sit in the skeleton's space: replace the prim's own world
             # transform by it (and keep a point instance's placement of the prim, if any).
             prim_world = column_matrix(context.xform_cache.GetLocalToWorldTransform(prim))
             world_from_local = world_from_local @ np.linalg.inv(prim_world) @ posed.world_from_points
 
-        face_material = np.full(surface.face_count, mesh_material.index, dtype=np.int64)
+        local = surface.surface
+        face_material = np.full(local.face_count, mesh_material.index, dtype=INDEX)
         # Reversed so that, where subsets overlap, the first subset listed wins.
         for faces, resolved in reversed(subset_materials):
-            faces = faces[(faces >= 0) & (faces < surface.face_count)]
+            faces = faces[(faces >= 0) & (faces < local.face_count)]
             face_material[faces] = resolved.index
-        triangle_material = face_material[surface.triangle_face]
+        triangle_material = face_material[local.triangle_face]
         return place_surface(
             surface,
             world_from_local,
@@ -133,9 +143,11 @@ class _MeshBuilder:
             instance=placement.instance,
         )
 
-    def _read_mesh(self, prim: Usd.Prim, uv_primvar: str, points: np.ndarray | None) -> LocalSurface:
+    def _read_mesh(
+        self, prim: Usd.Prim, uv_primvar: str, points: np.ndarray | None, diagnostics: Diagnostics
+    ) -> LocalSurface:
         context = self._context
-        return read_mesh(prim, context.time, uv_primvar, context.diagnostics, context.file,
+        return read_mesh(prim, context.time, uv_primvar, diagnostics, context.file,
                          subdiv_level=self._subdiv_level, points=points)
 
     def _subset_materials(
@@ -152,14 +164,43 @@ class _MeshBuilder:
             subsets.append((faces, self._materials.resolve(material, color)))
         return subsets
 
-    def _surface(self, prim: Usd.Prim, uv_primvar: str) -> LocalSurface:
+    def _surface(self, prim: Usd.Prim, uv_primvar: str) -> PreparedSurface:
         source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
         key = (str(source.GetPath()), uv_primvar)
-        if key not in self._surfaces:
-            context = self._context
-            if prim.IsA(UsdGeom.Mesh):
-                surface = self._read_mesh(prim, uv_primvar, None)
+        if key in self._surfaces:
+            return self._surfaces[key]
+        context = self._context
+        if not prim.IsA(UsdGeom.Mesh):
+            surface = prepare_surface(tessellate(prim, context.time))
+        else:
+            opinions = mesh_opinions(prim, context.time, uv_primvar)
+            path = str(prim.GetPath())
+            if opinions in self._by_opinions:
+                surface, read_path, notes = self._by_opinions[opinions]
+                for kind, template, noted, count in notes:
+                    if noted.startswith(read_path):  # the read names its prim first
+                        noted = path + noted[len(read_path):]
+                    context.diagnostics.note(kind, template, noted, count)
             else:
-                surface = tessellate(prim, context.time)
-            self._surfaces[key] = surface
-        return self._surfaces[key]
+                recorder = _NoteRecorder(context.diagnostics)
+                surface = prepare_surface(self._read_mesh(prim, uv_primvar, None, recorder))
+                if opinions is not None:
+                    self._by_opinions[opinions] = (surface, path, recorder.notes)
+        self._surfaces[key] = surface
+        return surface
+
+
+class _NoteRecorder:
+    """Diagnostics for one read_mesh call: passes notes on and keeps them, so that prims
+    sharing the surface can be noted alike."""
+
+    def __init__(self, diagnostics: Diagnostics) -> None:
+        self._diagnostics = diagnostics
+        self.notes: list[tuple[str, str, str, int]] = []
+
+    def note(self, kind: str, template: str, prim_path: str, count: int = 1) -> None:
+        self.notes.append((kind, template, prim_path, count))
+        self._diagnostics.note(kind, template, prim_path, count)
+
+    def warn(self, message: str, *, once_key: str | None = None) -> None:
+        self._diagnostics.warn(message, once_key=once_key)

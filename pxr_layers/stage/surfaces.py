@@ -6,8 +6,8 @@ limit normals) and their quads split in two; as the UsdGeom schema says, their a
 normals are ignored.
 
 The result, :class:`LocalSurface`, is still in the gprim's own space and stage units; it is
-computed once per prototype and placed in the world (possibly many times, for instances)
-by :mod:`.placement`.
+computed once per distinct surface (a prototype, or prims that read the same opinions: see
+:func:`mesh_opinions`) and placed in the world (possibly many times) by :mod:`.placement`.
 """
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ class LocalSurface:
     normals       : (t, 3, 3) float64 object-space shading normal per corner (not
                     necessarily unit length; the limit normals of a refined subdivision
                     surface), or None
-    smooth        : when ``normals`` is None, True asks for area-weighted vertex normals
-                    computed in world space (a subdivision mesh read at level 0 looks smooth
-                    in any renderer); False means flat shading
+    smooth        : when ``normals`` is None, True asks placement for area-weighted vertex
+                    normals (a subdivision mesh read at level 0 looks smooth in any
+                    renderer); False means flat shading
     uvs           : (t, 3, 2) float64 st per corner, or None
     triangle_face : (t,) int64 index of the authored face each triangle comes from
                     (GeomSubsets select faces), also for refined subdivision surfaces
@@ -72,6 +72,35 @@ def affordable_subdiv_level(face_count: int, asked: int) -> int:
     while level < asked and face_count * 4 ** (level + 1) <= MAX_REFINED_FACES:
         level += 1
     return level
+
+
+# Every attribute read_mesh reads (their metadata too: interpolation, elementSize), but the
+# uv primvar and its indices, whose name mesh_opinions is given.
+_SURFACE_ATTRIBUTES = (
+    "points", "faceVertexCounts", "faceVertexIndices", "holeIndices", "orientation",
+    "subdivisionScheme", "normals", "primvars:normals", "primvars:normals:indices",
+    "interpolateBoundary", "faceVaryingLinearInterpolation", "triangleSubdivisionRule",
+    "creaseIndices", "creaseLengths", "creaseSharpnesses", "cornerIndices", "cornerSharpnesses",
+)
+
+
+def mesh_opinions(prim: Usd.Prim, time: Usd.TimeCode, uv_primvar: str) -> tuple | None:
+    """Where the values read_mesh reads come from: for each attribute, the (layer, spec path)
+    of every opinion on it. Two meshes with equal keys read the same surface (prims that
+    reference one asset, as the OpenChessSet's Black and White pieces do). None when a value
+    might vary in time: the same specs then give different values under different layer
+    offsets."""
+    key = []
+    for name in (*_SURFACE_ATTRIBUTES, f"primvars:{uv_primvar}", f"primvars:{uv_primvar}:indices"):
+        attribute = prim.GetAttribute(name)
+        if not attribute:
+            key.append(())
+            continue
+        if attribute.ValueMightBeTimeVarying():
+            return None
+        stack = attribute.GetPropertyStack(time)
+        key.append(tuple((spec.layer.identifier, spec.path) for spec in stack))
+    return tuple(key)
 
 
 def read_mesh(
@@ -366,11 +395,11 @@ def _expand(
     if interpolation == UsdGeom.Tokens.constant:
         return np.broadcast_to(values[0], (triangle_count, 3, values.shape[1])).copy()
     if interpolation == UsdGeom.Tokens.uniform:
-        per_face = values[topology.triangle_face]
+        per_face = np.take(values, topology.triangle_face, axis=0)
         return np.repeat(per_face[:, None, :], 3, axis=1)
     if interpolation == UsdGeom.Tokens.faceVarying:
-        return values[topology.corners]
-    return values[topology.triangles]
+        return np.take(values, topology.corners, axis=0)  # (fancy indexing of rows is slower)
+    return np.take(values, topology.triangles, axis=0)
 
 
 # --- subdivision surfaces ---------------------------------------------------------------------
@@ -447,11 +476,11 @@ def _subdivision_surface(
     triangle_face = np.repeat(refined.face_origin, len(split))
     triangle_uvs = None
     if interpolation == UsdGeom.Tokens.faceVarying:
-        triangle_uvs = refined.face_varying[0].reshape(-1, 2)[triangle_corners]
+        triangle_uvs = np.take(refined.face_varying[0].reshape(-1, 2), triangle_corners, axis=0)
     elif interpolation == UsdGeom.Tokens.vertex:
-        triangle_uvs = refined.vertex_data[triangles]
+        triangle_uvs = np.take(refined.vertex_data, triangles, axis=0)
     elif interpolation == UsdGeom.Tokens.varying:
-        triangle_uvs = refined.varying_data[triangles]
+        triangle_uvs = np.take(refined.varying_data, triangles, axis=0)
     elif interpolation == UsdGeom.Tokens.uniform:
         triangle_uvs = np.repeat(uvs.values[triangle_face][:, None, :], 3, axis=1)
     elif interpolation == UsdGeom.Tokens.constant:
@@ -459,7 +488,7 @@ def _subdivision_surface(
     return LocalSurface(
         points=refined.points,
         triangles=triangles,
-        normals=refined.normals.reshape(-1, 3)[triangle_corners],
+        normals=np.take(refined.normals.reshape(-1, 3), triangle_corners, axis=0),
         smooth=True,
         uvs=triangle_uvs,
         triangle_face=triangle_face,

@@ -20,6 +20,7 @@ NOT_A_LIGHT = -1
 DISK_SEGMENTS = 64
 SPHERE_RINGS, SPHERE_SEGMENTS = 24, 48
 CYLINDER_SEGMENTS = 48
+CHUNK_TRIANGLES = 1 << 14  # per-chunk temporaries of about a megabyte
 
 
 @dataclass(frozen=True)
@@ -79,16 +80,34 @@ class World:
         return len(self.triangles)
 
 
+@dataclass(frozen=True)
+class _Piece:
+    """One mesh or light shape on its way into the World (see scene.Mesh for the arrays)."""
+
+    points: np.ndarray
+    triangles: np.ndarray
+    normal_values: np.ndarray | None
+    normal_indices: np.ndarray | None
+    uvs: np.ndarray | None
+    triangle_material: np.ndarray
+    light: int
+
+
 def build_world(scene: SceneData) -> World:
-    """Concatenate every mesh and area-light shape of `scene` into one World."""
-    pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray, int]] = []
+    """Concatenate every mesh and area-light shape of `scene` into one World.
+
+    The per-triangle tables are filled chunk by chunk (CHUNK_TRIANGLES): temporaries the size
+    of the whole scene would cost more in fresh pages than in arithmetic.
+    """
+    pieces: list[_Piece] = []
     names: list[str] = []
     paths: list[str] = []
     instances: list[int] = []
     for mesh in scene.meshes:
         if len(mesh.triangles) == 0:
             continue
-        pieces.append((mesh.points, mesh.triangles, mesh.normals, mesh.uvs, mesh.triangle_material, NOT_A_LIGHT))
+        pieces.append(_Piece(mesh.points, mesh.triangles, mesh.normal_values, mesh.normal_indices, mesh.uvs,
+                             mesh.triangle_material, NOT_A_LIGHT))
         names.append(mesh.name)
         paths.append(mesh.path)
         instances.append(mesh.instance)
@@ -98,7 +117,7 @@ def build_world(scene: SceneData) -> World:
             continue
         points, triangles = shape
         materials = np.full(len(triangles), -1, dtype=INDEX)
-        pieces.append((points, triangles, None, None, materials, light_index))
+        pieces.append(_Piece(points, triangles, None, None, None, materials, light_index))
         names.append(light.name)
         paths.append(light.path)
         instances.append(-1)
@@ -107,48 +126,67 @@ def build_world(scene: SceneData) -> World:
     if not pieces:
         # A sky alone (dome or distant lights, no geometry): every camera ray escapes. One empty
         # piece keeps every table below well formed, with zero rows.
-        pieces.append((np.zeros((0, 3), FLOAT), np.zeros((0, 3), INDEX), None, None, np.zeros(0, INDEX), NOT_A_LIGHT))
+        pieces.append(_Piece(np.zeros((0, 3), FLOAT), np.zeros((0, 3), INDEX), None, None, None, np.zeros(0, INDEX),
+                             NOT_A_LIGHT))
         names.append("")
         paths.append("")
         instances.append(-1)
 
-    vertex_offset = 0
-    vertices, triangles, normals, uvs, objects, materials, lights = [], [], [], [], [], [], []
-    for object_index, (points, tris, corner_normals, corner_uvs, tri_material, light_index) in enumerate(pieces):
-        points = np.asarray(points, dtype=FLOAT)
-        tris = np.asarray(tris, dtype=INDEX)
-        vertices.append(points)
-        triangles.append(tris + vertex_offset)
-        normals.append(None if corner_normals is None else np.asarray(corner_normals, dtype=FLOAT))
-        uvs.append(np.zeros((len(tris), 3, 2), FLOAT) if corner_uvs is None else np.asarray(corner_uvs, dtype=FLOAT))
-        objects.append(np.full(len(tris), object_index, dtype=INDEX))
-        materials.append(np.asarray(tri_material, dtype=INDEX))
-        lights.append(np.full(len(tris), light_index, dtype=INDEX))
+    vertex_count = sum(len(piece.points) for piece in pieces)
+    count = sum(len(piece.triangles) for piece in pieces)
+    all_vertices = np.empty((vertex_count, 3), FLOAT)
+    all_triangles = np.empty((count, 3), INDEX)
+    geometric_normal = np.empty((3, count), FLOAT)
+    area = np.empty(count, FLOAT)
+    corner_positions = np.empty((3, 3, count), FLOAT)
+    corner_normals = np.empty((3, 3, count), FLOAT)
+    corner_uvs = np.empty((3, 2, count), FLOAT)
+    triangle_object = np.empty(count, INDEX)
+    triangle_material = np.empty(count, INDEX)
+    triangle_light = np.empty(count, INDEX)
+    vertex_offset = triangle_offset = 0
+    for object_index, piece in enumerate(pieces):
+        points = np.asarray(piece.points, dtype=FLOAT)
+        all_vertices[vertex_offset:vertex_offset + len(points)] = points
+        size = len(piece.triangles)
+        own = slice(triangle_offset, triangle_offset + size)
+        triangle_object[own] = object_index
+        triangle_material[own] = piece.triangle_material
+        triangle_light[own] = piece.light
+        # Gathers one component at a time (contiguous (n,) rows in, contiguous rows out) fill
+        # the component-major tables without a transposed copy.
+        point_components = _components(points)
+        normal_components = None if piece.normal_values is None else _components(piece.normal_values)
+        for start in range(0, size, CHUNK_TRIANGLES):
+            rows = slice(start, min(start + CHUNK_TRIANGLES, size))
+            out = slice(triangle_offset + rows.start, triangle_offset + rows.stop)
+            tris = np.asarray(piece.triangles[rows], dtype=INDEX)
+            np.add(tris, vertex_offset, out=all_triangles[out])
+            positions = corner_positions[:, :, out]
+            _gather_corners(point_components, tris, positions)
+            unit_normal, double_area = _unit_cross(positions[1] - positions[0], positions[2] - positions[0])
+            geometric_normal[:, out] = unit_normal
+            np.divide(double_area, 2, out=area[out])
+            if normal_components is None:
+                corner_normals[:, :, out] = unit_normal  # flat: the geometric normal at each corner
+            else:
+                _gather_corners(normal_components, piece.normal_indices[rows], corner_normals[:, :, out])
+            if piece.uvs is None:
+                corner_uvs[:, :, out] = 0.0
+            else:
+                corner_uvs[:, :, out] = np.moveaxis(piece.uvs[rows], 0, -1)
         vertex_offset += len(points)
+        triangle_offset += size
 
-    all_vertices = np.concatenate(vertices)
-    all_triangles = np.concatenate(triangles)
-    corners = all_vertices[all_triangles]  # (t, 3, 3)
-    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    double_area = np.linalg.norm(cross, axis=1)
-    unit_normal = (cross / np.maximum(double_area, 1e-30)[:, None]).astype(FLOAT)
-    flat = np.repeat(unit_normal[:, None, :], 3, axis=1)
-    corner_normals = np.concatenate(
-        [flat[start:start + len(t)] if n is None else n for n, t, start in zip(normals, triangles, _starts(triangles))]
-    )
-
-    corner_positions = _corner_major(corners)
-    corner_normals = _corner_major(corner_normals)
     k1, k2, principal_direction = triangle_curvatures(corner_positions, corner_normals)
-    corner_uvs = _corner_major(np.concatenate(uvs))
     gradient_s, gradient_t = uv_gradients(corner_positions, corner_uvs)
     low, high = (all_vertices.min(axis=0), all_vertices.max(axis=0)) if len(all_vertices) else (np.zeros(3),) * 2
     center = (low + high) / 2
     return World(
         vertices=all_vertices,
         triangles=all_triangles,
-        geometric_normal=np.ascontiguousarray(unit_normal.T),
-        area=(double_area / 2).astype(FLOAT),
+        geometric_normal=geometric_normal,
+        area=area,
         corner_positions=corner_positions,
         corner_normals=corner_normals,
         corner_uvs=corner_uvs,
@@ -157,9 +195,9 @@ def build_world(scene: SceneData) -> World:
         principal_direction=principal_direction,
         gradient_s=gradient_s,
         gradient_t=gradient_t,
-        triangle_object=np.concatenate(objects),
-        triangle_material=np.concatenate(materials),
-        triangle_light=np.concatenate(lights),
+        triangle_object=triangle_object,
+        triangle_material=triangle_material,
+        triangle_light=triangle_light,
         object_names=tuple(names),
         object_paths=tuple(paths),
         object_instance=np.asarray(instances, dtype=INDEX),
@@ -172,8 +210,17 @@ def uv_gradients(corner_positions: np.ndarray, corner_uvs: np.ndarray) -> tuple[
     """Gradients of s and t over each triangle: (3, t) float32 each, in 1/m.
 
     Each gradient g lies in the triangle's plane with g·(p_k − p_0) = uv_k − uv_0 for the
-    two edges from corner 0; degenerate triangles get zero.
+    two edges from corner 0; degenerate triangles get zero. Computed in float64 by chunks.
     """
+    count = corner_positions.shape[2]
+    gradient_s, gradient_t = np.empty((3, count), FLOAT), np.empty((3, count), FLOAT)
+    for start in range(0, count, CHUNK_TRIANGLES):
+        rows = slice(start, min(start + CHUNK_TRIANGLES, count))
+        gradient_s[:, rows], gradient_t[:, rows] = _chunk_uv_gradients(corner_positions[:, :, rows], corner_uvs[:, :, rows])
+    return gradient_s, gradient_t
+
+
+def _chunk_uv_gradients(corner_positions: np.ndarray, corner_uvs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     p = corner_positions.astype(np.float64)
     uv = corner_uvs.astype(np.float64)
     edge_1, edge_2 = p[1] - p[0], p[2] - p[0]
@@ -189,17 +236,34 @@ def uv_gradients(corner_positions: np.ndarray, corner_uvs: np.ndarray) -> tuple[
         d2 = uv[2, component] - uv[0, component]
         alpha = (g22 * d1 - g12 * d2) * inverse
         beta = (g11 * d2 - g12 * d1) * inverse
-        gradients.append((alpha * edge_1 + beta * edge_2).astype(FLOAT))
+        gradients.append(alpha * edge_1 + beta * edge_2)
     return gradients[0], gradients[1]
 
 
-def _corner_major(per_triangle: np.ndarray) -> np.ndarray:
-    """(t, 3 corners, k) -> contiguous (3 corners, k, t) float32."""
-    return np.ascontiguousarray(per_triangle.transpose(1, 2, 0), dtype=FLOAT)
+def _components(vectors: np.ndarray) -> list[np.ndarray]:
+    """(n, 3) → its three (n,) float32 columns, each contiguous."""
+    return [np.ascontiguousarray(vectors[:, axis], dtype=FLOAT) for axis in range(3)]
 
 
-def _starts(arrays: list[np.ndarray]) -> list[int]:
-    return list(np.cumsum([0] + [len(a) for a in arrays[:-1]]))
+def _gather_corners(components: list[np.ndarray], corners: np.ndarray, out: np.ndarray) -> None:
+    """out[corner, axis] = components[axis][corners[:, corner]]: (3 corners, 3, n) from (t, 3)
+    indices (validated upstream, hence mode="clip": no bounds check, no buffering)."""
+    for corner in range(3):
+        index = corners[:, corner]
+        for axis, component in enumerate(components):
+            np.take(component, index, out=out[corner, axis], mode="clip")
+
+
+def _unit_cross(edge_a: np.ndarray, edge_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(3, n) float32 unit edge_a × edge_b and its (n,) length, for (3, n) float32 edges
+    (the arithmetic of np.cross and np.linalg.norm, component by component)."""
+    cross = np.empty_like(edge_a)
+    np.subtract(edge_a[1] * edge_b[2], edge_a[2] * edge_b[1], out=cross[0])
+    np.subtract(edge_a[2] * edge_b[0], edge_a[0] * edge_b[2], out=cross[1])
+    np.subtract(edge_a[0] * edge_b[1], edge_a[1] * edge_b[0], out=cross[2])
+    length = np.sqrt(cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2])
+    cross /= np.maximum(length, 1e-30)
+    return cross, length
 
 
 def light_shape(light: Light) -> tuple[np.ndarray, np.ndarray] | None:
