@@ -1,6 +1,6 @@
 """Stage read: ``load_stage`` against a plain usd-core read loop on the same stage, in one run.
 
-    python benchmarks/bench_stage.py [--stage PATH] [--repeats 5]
+    python benchmarks/bench_stage.py [--stage PATH] [--repeats 5] [--subdiv-level 2]
 
 Both sides read the same USD file; each repeat runs the baseline, then ours, each in a
 **fresh Python subprocess**, and the fastest of --repeats is kept for each. Fresh processes
@@ -22,9 +22,11 @@ covers only the read.
   positions, orientations, scales and protoIndices. Every array goes through
   ``np.asarray``, as any reader that hands numpy arrays on must. Tf warnings are trapped
   (as ``load_stage`` traps them), so neither side pays for printing them.
-* ours: ``pxr_layers.stage.load_stage(path)``: the same open, plus triangulation, primvar
-  expansion per corner, placement in world metres (instances included), degenerate
-  triangles, materials and textures, lights, camera and render settings.
+* ours: ``pxr_layers.stage.load_stage(path)``: the same open, plus triangulation
+  (subdivision surfaces refined to ``--subdiv-level``, the render's default 2 unless given;
+  0 reads the cages), primvar expansion per corner, placement in world metres (instances
+  included), degenerate triangles, materials and textures, lights, camera and render
+  settings.
 
 Prints both times (the baseline split into open and traversal), the ratio ours/baseline and
 the triangle count of the SceneData. Target: ours ≤ 2× the baseline.
@@ -44,6 +46,8 @@ import subprocess
 import sys
 import textwrap
 from pathlib import Path
+
+from pxr_layers.request import DEFAULT_SUBDIV_LEVEL
 
 SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 DEFAULT_STAGE = SCENES / "usd-wg" / "full_assets" / "OpenChessSet" / "chess_set.usda"
@@ -112,11 +116,13 @@ _OURS = _PRELUDE + """
 import pxr_layers.stage
 import pxr_layers.stage.reader  # load_stage imports it on first use: an import, not the read
 from pxr_layers.errors import PxrLayersError
+from pxr_layers.request import RenderRequest
 logging.basicConfig(level=logging.CRITICAL)  # the reader's warnings are not what is timed
+request = RenderRequest(stage=path, subdiv_level=int(sys.argv[2]))
 
 start = time.perf_counter()
 try:
-    scene, spec = pxr_layers.stage.load_stage(path)
+    scene, spec = pxr_layers.stage.load_stage(path, request=request)
 except PxrLayersError as error:
     print(json.dumps({"error": str(error)}))
     sys.exit(0)
@@ -128,9 +134,10 @@ print(json.dumps({"seconds": seconds, "meshes": len(scene.meshes),
 """
 
 
-def run_child(code: str, stage: Path) -> dict:
+def run_child(code: str, stage: Path, subdiv_level: int) -> dict:
     """Run one timed read in a fresh interpreter; its last stdout line is a JSON report."""
-    completed = subprocess.run([sys.executable, "-P", "-c", code, str(stage)], capture_output=True, text=True)
+    completed = subprocess.run([sys.executable, "-P", "-c", code, str(stage), str(subdiv_level)],
+                               capture_output=True, text=True)
     if completed.returncode != 0:
         raise SystemExit(f"bench_stage: a child failed (exit {completed.returncode}):\n"
                          f"{textwrap.indent(completed.stderr.strip()[-4000:], '  ')}")
@@ -141,6 +148,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--stage", type=Path, default=DEFAULT_STAGE, help=f"default: {DEFAULT_STAGE}")
     parser.add_argument("--repeats", type=int, default=5, help="fresh-process reads of each side; fastest kept")
+    parser.add_argument("--subdiv-level", type=int, default=DEFAULT_SUBDIV_LEVEL,
+                        help=f"our refinement level of subdivision surfaces (default {DEFAULT_SUBDIV_LEVEL}, "
+                             "the render's; 0 reads the cages)")
     args = parser.parse_args()
     if not args.stage.exists():
         print(f"bench_stage: {args.stage} is absent; skipped")
@@ -149,12 +159,12 @@ def main() -> int:
         parser.error("--repeats must be at least 1")
 
     stage = args.stage
-    print(stage)
+    print(f"{stage} (our subdivision level: {args.subdiv_level})")
     print(f"fastest of {args.repeats}, each read in a fresh process, baseline then ours per repeat")
     baselines, ours = [], []
     for repeat in range(args.repeats):
-        baselines.append(run_child(_BASELINE, stage))
-        ours.append(run_child(_OURS, stage))
+        baselines.append(run_child(_BASELINE, stage, args.subdiv_level))
+        ours.append(run_child(_OURS, stage, args.subdiv_level))
         if "error" in ours[-1]:
             break
         print(f"  repeat {repeat + 1}: baseline {baselines[-1]['seconds']:6.3f} s, "

@@ -95,7 +95,8 @@ class Mesh:
     triangles         : (t, 3) int32 indices into points, counter-clockwise seen from the
                         front (``orientation = leftHanded`` already flipped)
     normal_values     : (n, 3) float32 unit shading normals, world space, or None (flat
-                        shading from the geometric normal)
+                        shading from the geometric normal); rows no corner refers to are
+                        unspecified
     normal_indices    : (t, 3) int32 index into normal_values per triangle corner (None with
                         it). Smooth meshes have one normal per point (often ``triangles``
                         itself); hard edges and faceVarying normals add values of their own.
@@ -126,7 +127,7 @@ class Mesh:
         """(t, 3, 3) float32 unit shading normal per triangle corner (a new array), or None."""
         if self.normal_values is None:
             return None
-        return self.normal_values[self.normal_indices]
+        return np.take(self.normal_values, self.normal_indices, axis=0)
 
 
 LightKind = Literal["rect", "disk", "sphere", "cylinder", "distant", "dome"]

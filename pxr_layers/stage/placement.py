@@ -82,6 +82,7 @@ class PreparedSurface:
     normal_values: np.ndarray | None
     normal_indices: np.ndarray | None
     degenerate: np.ndarray
+    # (mirrored, drop_degenerate) → _Layout, made on first use: a cache, not a fact.
     _layouts: dict[tuple[bool, bool], _Layout] = field(default_factory=dict, repr=False)
 
     def layout(self, mirrored: bool, drop_degenerate: bool) -> _Layout:
@@ -203,8 +204,8 @@ def _world_normals(
     directions: np.ndarray, normal_indices: np.ndarray, points: np.ndarray, triangles: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """(n', 3) float32 unit normals and their (t, 3) int32 corner indices, from the (n, 3)
-    float64 world-space ``directions``; a corner whose direction has no length (or is not
-    finite) takes its triangle's geometric normal, appended as a value of its own.
+    float64 world-space ``directions``; a corner whose direction has no length (or is NaN)
+    takes its triangle's geometric normal, appended as a value of its own.
 
     points : (v, 3) float64 world; triangles : (t, 3) in the placement's winding
     """
