@@ -520,6 +520,6 @@ def test_variants_and_the_stage_reading_keys_reach_the_request(tmp_path):
     job_file.write_text(job_file.read_text().replace("Blue", "Blue=x"))
     with pytest.raises(JobError, match=r"variants\[1\]"):
         load_job(job_file)
-    job_file.write_text(job_file.read_text().replace("subdiv_level = 1", "subdiv_level = 9"))
+    job_file.write_text(job_file.read_text().replace("Blue=x", "Blue").replace("subdiv_level = 1", "subdiv_level = 9"))
     with pytest.raises(JobError, match="at most 6"):
         load_job(job_file)
