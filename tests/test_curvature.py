@@ -97,3 +97,19 @@ def test_uv_gradients_map_texture_units_to_metres():
     np.testing.assert_allclose(np.sum(world.gradient_s[:, mask] * world.gradient_t[:, mask], axis=0), 0, atol=1e-6)
     floor = world.triangle_object == world.object_names.index("floor")  # no st authored
     assert np.all(world.gradient_s[:, floor] == 0) and np.all(world.gradient_t[:, floor] == 0)
+
+
+def test_the_closed_form_solve_equals_the_linear_algebra_reference(rng):
+    from pxr_layers.trace.curvature import reference_triangle_curvatures
+
+    count = 5000
+    positions = rng.normal(size=(3, 3, count)).astype(np.float32)
+    normals = positions + 0.3 * rng.normal(size=(3, 3, count)).astype(np.float32)  # bent, not flat
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    k1, k2, direction = triangle_curvatures(positions, normals)
+    r1, r2, reference_direction = reference_triangle_curvatures(positions, normals)
+    np.testing.assert_allclose(k1, r1, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(k2, r2, rtol=1e-5, atol=1e-6)
+    distinct = np.abs(r1 - r2) > 1e-3 * np.maximum(np.abs(r1), 1.0)  # the direction of an umbilic is arbitrary
+    alignment = np.abs(np.sum(direction * reference_direction, axis=0))
+    assert (alignment[distinct] > 1 - 1e-4).all()

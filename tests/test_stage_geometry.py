@@ -481,3 +481,23 @@ def test_unsupported_geometry_is_skipped_with_one_warning(tmp_path):
     for expected in ("/hair (BasisCurves)", "/dust (Points)", "/panel (NurbsPatch)",
                      "/smoke (Volume)"):
         assert expected in unsupported[0]
+
+
+def test_prims_referencing_one_asset_share_its_surface_and_each_keeps_its_warnings(tmp_path):
+    asset = Usd.Stage.CreateNew(str(tmp_path / "asset.usda"))
+    piece = define_mesh(asset, "/Piece", QUAD, [4], [0, 1, 2, 3])
+    piece.GetPrim().CreateAttribute("primvars:st", Sdf.ValueTypeNames.TexCoord2fArray).Set([(0, 0)])
+    UsdGeom.Primvar(piece.GetPrim().GetAttribute("primvars:st")).SetInterpolation(UsdGeom.Tokens.vertex)
+    asset.SetDefaultPrim(piece.GetPrim())
+    asset.GetRootLayer().Save()
+    stage = new_stage(tmp_path)
+    for name, x in (("black", 0.0), ("white", 5.0)):
+        prim = stage.DefinePrim(f"/World/{name}")
+        prim.GetReferences().AddReference("./asset.usda")
+        UsdGeom.Xformable(prim).AddTranslateOp().Set(Gf.Vec3d(x, 0, 0))
+    scene = load(stage)
+    black, white = sorted(scene.meshes, key=lambda mesh: mesh.path)
+    assert np.array_equal(black.triangles, white.triangles)
+    np.testing.assert_allclose(white.points - black.points, [[5.0, 0, 0]] * len(black.points))
+    (warning,) = [text for text in scene.warnings if "too few values" in text]
+    assert "/World/black" in warning and "/World/white" in warning
