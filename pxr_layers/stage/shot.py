@@ -11,6 +11,7 @@ frame's render spec and a frame's scene, all read from that one composition.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 from collections.abc import Sequence
@@ -28,6 +29,7 @@ from .defaults import AUTO_CAMERA_PATH, define_auto_camera, define_default_light
 from .diagnostics import Diagnostics
 from .lights import is_supported_light
 from .opening import compose_stage, resolve_time, trapped_usd_diagnostics
+from .reader import read_scene
 from .recipe_reader import find_settings, read_recipe
 from .render_spec import camera_prim, read_camera, settings_fields
 from .walk import walk_stage
@@ -93,7 +95,7 @@ class Shot:
         view_camera, view_resolution = recipe.view()
         with trapped_usd_diagnostics(self.file):
             time, _ = resolve_time(self.stage, frame)
-            settings = self.find_settings(recipe.settings_path or None) if recipe.settings_path else None
+            settings = self.find_settings(recipe.settings_path) if recipe.settings_path else None
             fields = settings_fields(settings, time)
             camera_path = camera or view_camera
             context = self._context(time, fields["included_purposes"], Diagnostics())
@@ -108,8 +110,6 @@ class Shot:
 
     def scene(self, spec: RenderSpec, *, subdiv_level: int) -> SceneData:
         """Everything the tracer needs at ``spec.frame``."""
-        from .reader import read_scene
-
         with trapped_usd_diagnostics(self.file):
             time, frame_value = resolve_time(self.stage, spec.frame)
             diagnostics = Diagnostics()
@@ -198,9 +198,8 @@ def load_stage(path: str | os.PathLike[str], *, frame: float | None = None, came
     request  : the rest (recipe layers, variants, subdiv level, default lights, strict);
                its stage, camera and settings are replaced by the arguments above
     """
-    request = request or RenderRequest(stage=path)
-    shot = open_shot(path, recipe_layers=request.recipe_layers, variants=request.variants, strict=request.strict,
-                     default_lights=request.default_lights)
+    request = dataclasses.replace(request, stage=path) if request else RenderRequest(stage=path)
+    shot = open_request(request)
     recipe = shot.recipe(settings=settings, camera=camera, frame=frame, check_colour=False)
     spec = shot.spec(frame, recipe, camera=camera)
     return shot.scene(spec, subdiv_level=request.subdiv_level), spec
