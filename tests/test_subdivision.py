@@ -724,3 +724,14 @@ def test_normals_of_the_wrong_type_warn_and_are_computed_instead(normals_types_s
     if level == 0:  # well-typed normals (float and double precision) are used
         assert surfaces["normal3fArray"].normals is not None
         assert surfaces["double3Array"].normals is not None
+
+
+def test_posed_points_replace_the_rest_pose_normals_by_smooth_ones():
+    stage = Usd.Stage.CreateInMemory()
+    mesh = mesh_prim(stage, "/cube", CUBE_POINTS, CUBE_COUNTS, CUBE_INDICES)
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateNormalsAttr([(0.0, 0.0, 1.0)] * len(CUBE_POINTS))  # of the rest pose
+    rest, _ = read(mesh.GetPrim(), level=0)
+    assert rest.normals is not None and not rest.smooth
+    posed, _ = read(mesh.GetPrim(), level=0, points=CUBE_POINTS * [1.0, 2.0, 1.0])
+    assert posed.normals is None and posed.smooth

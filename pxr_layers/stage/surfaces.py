@@ -119,13 +119,15 @@ def read_mesh(
                    MAX_REFINED_FACES); 0 (or ``subdivisionScheme = none``) fan-triangulates
                    the control mesh, shaded smooth if it is a subdivision mesh
     points       : (v, 3) object-space points (stage units) replacing the authored ones,
-                   e.g. skinned; None reads ``points`` at ``time``
+                   e.g. skinned (the authored normals, of the rest pose, are then replaced by
+                   smooth normals of these points); None reads ``points`` at ``time``
 
     Faces with fewer than 3 vertices and faces listed in ``holeIndices`` produce no
     triangles. Raises StageError on NaN/infinite points or inconsistent topology.
     """
     mesh = UsdGeom.Mesh(prim)
     path = str(prim.GetPath())
+    points_override = points
     points = _mesh_points(mesh, time, points, file, path)
     counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(time) or [], dtype=np.int64)
     indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(time) or [], dtype=np.int64)
@@ -179,7 +181,12 @@ def read_mesh(
         corner_count=len(indices),
     )
     normals = _read_normals(mesh, time, topology, diagnostics, path)
-    smooth = normals is None and scheme != UsdGeom.Tokens.none
+    posed = points_override is not None
+    if posed:
+        # Authored normals belong to the rest pose: the posed (skinned) surface is shaded by
+        # smooth normals of its own points instead.
+        normals = None
+    smooth = normals is None and (posed or scheme != UsdGeom.Tokens.none)
     uvs = None
     primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar(uv_primvar)
     if primvar and primvar.HasAuthoredValue():
