@@ -24,6 +24,12 @@ the cages studios author, and cheap next to the render."""
 MAX_SUBDIV_LEVEL = 6
 """Past this a level multiplies a production mesh's triangles by another 4x: a mistake, not a
 look (a 100 k-face cage at 6 is 400 M quads)."""
+MAX_REFINED_FACES = 1 << 16
+"""The most faces a subdivision surface is refined to. Each level multiplies the faces by 4,
+and a dense cage (a scan, a sculpt, the OpenChessSet's 20 k-face pieces) is already finer
+than a pixel at shot resolution: refining it would multiply the render's triangles by 16 at
+level 2 for no visible change. Such meshes get the levels that fit, or their cage."""
+
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ from ..request import (
     DEFAULT_SEED,
     DEFAULT_SPP,
     DEFAULT_SUBDIV_LEVEL,
+    MAX_REFINED_FACES,
     MAX_SUBDIV_LEVEL,
     RenderRequest,
     VariantSelection,
@@ -35,7 +36,7 @@ DESCRIPTION = (
     "or --recipe layers composed over it; a stage without one gives a beauty EXR. Camera and "
     "resolution come from the recipe's products, else the settings, else the stage's first "
     "camera, else an automatic camera that frames the stage; the flags below override them. A "
-    "stage without lights is lit by a default rig (a dome and a key). References this USD build "
+    "stage that nothing lights (no light, no emissive material) gets a default rig (a dome and a key). References this USD build "
     "cannot read and missing files are warnings, and the rest renders (--strict: errors)."
 )
 log = logging.getLogger(__name__)
@@ -58,7 +59,7 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
                         f"{', '.join(PRESETS)}); repeat for more, the first is the strongest")
     parser.add_argument("--settings", metavar="PRIM",
                         help="the RenderSettings prim to use (default: the renderSettingsPrimPath of the "
-                        "last --recipe that sets one, else the stage's)")
+                        "last --recipe that sets one, else the stage's, else its only RenderSettings prim)")
     parser.add_argument("--per-light", choices=PER_LIGHT_MODES, metavar="MODE",
                         help="add per-light layers to every product: none, lights (one layer per light) "
                         "or groups (one per pxrLayers:lightGroup); default: each product's pxrLayers:perLight")
@@ -82,13 +83,13 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
                         "condition; 0: none)")
     parser.add_argument("--subdiv-level", type=_subdiv_level, default=DEFAULT_SUBDIV_LEVEL, metavar="N",
                         help="uniform refinement level of subdivision surfaces (subdivisionScheme "
-                        f"catmullClark, loop, bilinear); 0 renders the cage (default {DEFAULT_SUBDIV_LEVEL}, "
-                        f"at most {MAX_SUBDIV_LEVEL})")
+                        f"catmullClark, loop, bilinear), lowered where a mesh would pass {MAX_REFINED_FACES} "
+                        f"faces; 0 renders the cage (default {DEFAULT_SUBDIV_LEVEL}, at most {MAX_SUBDIV_LEVEL})")
     parser.add_argument("--variant", action="append", default=[], type=_variant, metavar="PRIM:SET=VALUE",
                         help="select a variant, e.g. /World/Teapot:modelVariant=Fancy; repeat for more")
     parser.add_argument("--no-default-lights", action="store_true",
-                        help="a stage without any light stays unlit (default: it gets a dome and a key "
-                        "light under /pxrLayers/defaultLights)")
+                        help="a stage that nothing lights stays unlit (default: it gets a dome and a "
+                        "key light under /pxrLayers/defaultLights)")
     parser.add_argument("--strict", action="store_true",
                         help="any composition error (a missing or unreadable reference, payload or "
                         "sublayer) is fatal, exit 1 (default: a warning, and the rest renders)")

@@ -18,6 +18,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom
 
 from pxr_layers.errors import StageError
+from pxr_layers.request import MAX_REFINED_FACES
 
 from . import subdivision
 from .diagnostics import Diagnostics
@@ -55,13 +56,6 @@ def _as_array(value, width: int, dtype=np.float64) -> np.ndarray:
     if value is None:
         return np.zeros((0, width), dtype=dtype)
     return np.asarray(value, dtype=dtype).reshape(-1, width)
-
-
-MAX_REFINED_FACES = 1 << 16
-"""The most faces a subdivision surface is refined to. Each level multiplies the faces by 4,
-and a dense cage (a scan, a sculpt, the OpenChessSet's 20 k-face pieces) is already finer
-than a pixel at shot resolution: refining it would multiply the render's triangles by 16 at
-level 2 for no visible change. Such meshes get the levels that fit, or their cage."""
 
 
 def affordable_subdiv_level(face_count: int, asked: int) -> int:
