@@ -1,7 +1,7 @@
 """Every failure a user can cause has its own exception class, all under PxrLayersError.
 
 The CLI turns any PxrLayersError into one line on stderr and exit code 1; anything else is a
-bug and keeps its traceback.
+bug: one "internal error" line and exit code 3, the traceback with -v.
 """
 
 

@@ -6,6 +6,7 @@ Plain data (no pxr, no numpy): it travels to Dask workers and into tests as it i
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -94,16 +95,17 @@ class RenderRequest:
     strict: bool = False
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "stage", Path(self.stage))
-        object.__setattr__(self, "recipe_layers", tuple(Path(layer) for layer in self.recipe_layers))
+        # Absolute: the paths end up in the files' metadata, which must not depend on the cwd.
+        object.__setattr__(self, "stage", Path(os.path.abspath(self.stage)))
+        object.__setattr__(self, "recipe_layers", tuple(Path(os.path.abspath(layer)) for layer in self.recipe_layers))
         object.__setattr__(self, "variants", tuple(self.variants))
         if self.resolution is not None:
             object.__setattr__(self, "resolution", (int(self.resolution[0]), int(self.resolution[1])))
-        for name, low in (("spp", 1), ("max_depth", 0), ("seed", None), ("norm_bounces", 0)):
+        for name, low in (("spp", 1), ("max_depth", 0), ("seed", 0), ("norm_bounces", 0)):
             value = getattr(self, name)
             if value is None:
                 continue
-            if not isinstance(value, int) or isinstance(value, bool) or (low is not None and value < low):
+            if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise RenderSettingsError(f"{name} must be an integer >= {low}, not {value!r}")
         if not 0 <= self.subdiv_level <= MAX_SUBDIV_LEVEL:
             raise RenderSettingsError(f"subdiv level must be 0 to {MAX_SUBDIV_LEVEL}, not {self.subdiv_level}")

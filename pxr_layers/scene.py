@@ -186,6 +186,12 @@ class Camera:
     clipping: tuple[float, float] = (0.01, 1.0e6)
 
 
+DEFAULT_INCLUDED_PURPOSES = ("default", "render")
+"""Gprim purposes that render without RenderSettings (UsdRender's includedPurposes fallback)."""
+DEFAULT_BINDING_PURPOSES = ("full", "")
+"""Material binding purposes, strongest first, without RenderSettings ("" = allPurpose)."""
+
+
 @dataclass(frozen=True)
 class RenderSpec:
     """What to render at one frame, flattened from the recipe, its RenderSettings and the
@@ -207,8 +213,8 @@ class RenderSpec:
     pixel_aspect_ratio: float = 1.0
     aspect_ratio_conform_policy: str = "expandAperture"
     settings_path: str | None = None
-    included_purposes: tuple[str, ...] = ("default", "render")
-    material_binding_purposes: tuple[str, ...] = ("full", "")
+    included_purposes: tuple[str, ...] = DEFAULT_INCLUDED_PURPOSES
+    material_binding_purposes: tuple[str, ...] = DEFAULT_BINDING_PURPOSES
     frame: float | None = None
     recipe: Recipe | None = None
 

@@ -127,13 +127,22 @@ def Xform "World"
 """
 
 
-def test_a_beauty_with_negative_pixels_is_refused_naming_the_paths_that_made_them(tmp_path):
+def test_a_beauty_with_negative_pixels_names_the_paths_that_made_them(tmp_path):
     shot = tmp_path / "negative.usda"
     shot.write_text(NEGATIVE_LIGHT)
     result = run("render", str(shot), "-o", str(tmp_path / "out"), *SMALL, "--no-previews")
+    assert result.returncode == 0
+    (warning,) = [line for line in result.stderr.splitlines() if "negative pixels" in line]
+    assert "C RD'ball' L'key'" in warning
+
+
+def test_a_beauty_with_nan_pixels_is_refused_naming_the_paths_that_made_them(tmp_path):
+    shot = tmp_path / "nan.usda"
+    shot.write_text(NEGATIVE_LIGHT.replace("-20", "nan"))
+    result = run("render", str(shot), "-o", str(tmp_path / "out"), *SMALL, "--no-previews")
     assert result.returncode == 1
     error = result.stderr.strip().splitlines()[-1]
-    assert "negative pixels" in error and "C RD'ball' L'key'" in error and "Traceback" not in result.stderr
+    assert "NaN or infinite pixels" in error and "C RD'ball' L'key'" in error and "Traceback" not in result.stderr
     assert not list((tmp_path / "out").glob("*"))  # neither the EXR nor the index
 
 

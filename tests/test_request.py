@@ -21,8 +21,8 @@ def test_variant_selections_parse_and_print_back():
 
 
 def test_requests_check_their_numbers():
-    assert RenderRequest("shot.usda").stage == Path("shot.usda")
-    for fields in ({"spp": 0}, {"max_depth": -1}, {"norm_bounces": -2}, {"spp": 1.5},
+    assert RenderRequest("shot.usda").stage == Path.cwd() / "shot.usda"  # absolute: metadata must not depend on the cwd
+    for fields in ({"spp": 0}, {"max_depth": -1}, {"norm_bounces": -2}, {"spp": 1.5}, {"seed": -1},
                    {"subdiv_level": MAX_SUBDIV_LEVEL + 1}, {"resolution": (0, 10)}):
         with pytest.raises(RenderSettingsError):
             RenderRequest("shot.usda", **fields)

@@ -96,9 +96,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _recipe(index: PathIndex, args: argparse.Namespace) -> Recipe:
-    """The --recipe layers, composed over the index's stage (with the render's variant
-    selections) when it is still there."""
-    from ..stage import load_recipe, open_shot
+    """The --recipe layers, composed over the index's stage as the render composed it (its
+    variant selections, its default lights, per-light layers listed at its frame) when the
+    stage is still there; else the recipe layers alone (without a default rig: nothing of the
+    index could match its lights)."""
+    from ..stage import open_shot
 
     layers = [preset_or_file(text) for text in args.recipe]
     stage = Path(index.manifest.get("stage", ""))
@@ -107,10 +109,12 @@ def _recipe(index: PathIndex, args: argparse.Namespace) -> Recipe:
             log.warning("%s has changed since %s was rendered: the recipe is read against today's stage",
                         stage, index.path)
         variants = [VariantSelection.parse(text) for text in index.manifest.get("variants", "").split()]
-        shot = open_shot(stage, recipe_layers=layers, variants=variants)
-        return shot.recipe(settings=args.settings, per_light=args.per_light)
-    log.warning("the stage %s of %s is not there: reading the recipe on its own", stage, index.path)
-    return load_recipe(layers[0], args.settings, recipe_layers=layers[1:], per_light=args.per_light)
+        shot = open_shot(stage, recipe_layers=layers, variants=variants,
+                         default_lights=index.manifest.get("defaultLights", "true") == "true")
+    else:
+        log.warning("the stage %s of %s is not there: reading the recipe on its own", stage, index.path)
+        shot = open_shot(layers[0], recipe_layers=layers[1:], default_lights=False)
+    return shot.recipe(settings=args.settings, per_light=args.per_light, frame=_manifest_frame(index))
 
 
 def _at_index_view(product: Product, index: PathIndex) -> Product:

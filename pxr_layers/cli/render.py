@@ -70,7 +70,7 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resolution", type=_positive, nargs=2, metavar=("W", "H"),
                         help="image size in pixels (default: the recipe's, else "
                         f"{DEFAULT_RESOLUTION[0]} {DEFAULT_RESOLUTION[1]})")
-    parser.add_argument("--seed", type=int, default=DEFAULT_SEED, metavar="N",
+    parser.add_argument("--seed", type=_non_negative, default=DEFAULT_SEED, metavar="N",
                         help=f"random seed (default {DEFAULT_SEED})")
     parser.add_argument("--frame", type=float, metavar="F",
                         help="time code to render (default: the stage's start time code)")

@@ -344,7 +344,7 @@ KEYS: tuple[_Key, ...] = (
     _Key("extends", _path, "none", "a parent job file, relative to this one; this file wins"),
     _Key("stage", _path, "required", "the USD stage, relative to the file that sets it"),
     _Key("frames", _frames_value, "required", '"1-24", "1-24x4" (every 4th), "1-10,20", or [1, 5, 9]'),
-    _Key("settings", _prim_path, "the recipe's", "RenderSettings prim path (load_recipe's settings_prim)"),
+    _Key("settings", _prim_path, "the recipe's", "RenderSettings prim path (render --settings)"),
     _Key("recipe.layers", _recipe_layers, "[]",
          "recipe layers: preset names (pxr_layers.recipe.PRESETS) or USD files; replaces the parent's"),
     _Key("recipe.add_layers", _recipe_layers, "[]", "appended to the layers the parent resolved to"),

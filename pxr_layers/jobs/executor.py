@@ -122,7 +122,9 @@ def _fingerprint(plan: FramePlan) -> str:
     return json.dumps({
         "stage": str(plan.stage), "sha256": plan.manifest.get("stage_sha256"), "frame": plan.frame,
         "camera": plan.camera, "resolution": list(plan.resolution), "settings": plan.recipe.settings_path,
-        "recipe_layers": [str(layer) for layer in plan.request.recipe_layers],
+        # The layers' contents, not only their names: a recipe layer may override any opinion.
+        "recipe_layers": [(str(layer), file_sha256(layer)) for layer in plan.request.recipe_layers],
+        "recipe": plan.recipe.to_json(), "data_aovs": list(plan.data_aovs),
         "variants": [str(selection) for selection in plan.request.variants],
         "subdiv_level": plan.request.subdiv_level, "default_lights": plan.request.default_lights,
         "spp": trace.spp, "max_depth": trace.max_depth, "seed": trace.seed, "norm_bounces": trace.norm_bounces,
@@ -239,9 +241,13 @@ def run_job(job: Job, *, client=None, on_frame: Callable[[float, str], None] | N
     """
     started = time.perf_counter()
     report = JobReport()
-    # Worked out once for every frame: the recipe (a stage's own is not animated) and the
-    # stage file's hash (the fingerprint of each frame's tiles).
+    # Worked out once for every frame: the recipe (a stage's own is not animated), unless it
+    # has per-light layers, whose lights are listed at each frame as `render --frame` lists
+    # them (a light may be invisible at some frames); and the stage file's hash (the
+    # fingerprint of each frame's tiles).
     recipe = resolve_recipe(job.request, job.frames[0])
+    if any(product.per_light != "none" for product in recipe.products):
+        recipe = None
     stage_sha256 = file_sha256(job.request.stage)
     todo = []
     for frame in job.frames:

@@ -32,7 +32,7 @@ from ..layers.deliver import (
     plan_outputs,
     raw_sources,
 )
-from ..errors import RenderSettingsError
+from ..errors import PxrLayersError, RenderSettingsError
 from ..paths.events import path_text
 from ..paths.format import SUFFIX as INDEX_SUFFIX
 from ..paths.reader import PathIndex
@@ -147,6 +147,8 @@ def plan_frame(
     }
     if request.variants:
         metadata["variants"] = " ".join(str(selection) for selection in request.variants)
+    if not request.default_lights:
+        metadata["defaultLights"] = "false"
     if keep_index:
         metadata["index"] = os.path.relpath(index_path, first.parent)
     manifest = {
@@ -231,7 +233,7 @@ class FrameAssembler:
             check_beauty(rgba, index, plan.stage)
             return deliver(index, plan.recipe, rgba, plan.outputs, data=data, metadata=metadata,
                            previews=plan.previews, show_progress=show_progress)
-        except RenderSettingsError:
+        except PxrLayersError:
             plan.index_path.unlink(missing_ok=True)  # the frame's outputs appear together or not at all
             raise
         finally:
@@ -243,28 +245,39 @@ _CULPRITS_NAMED = 3
 
 
 def check_beauty(rgba: np.ndarray, index: PathIndex | None, stage: Path) -> None:
-    """Refuse a beauty with NaN, infinite or negative pixels, naming the paths (and so the
-    prims: objects, materials, lights) whose contributions made them, from the index.
+    """Refuse a beauty with NaN or infinite pixels, and warn of negative ones (a wide-gamut
+    HDRI can hold small negative texels), naming the paths (and so the prims: objects,
+    materials, lights) whose contributions made them, from the index.
 
-    rgba : (h, w, 4) float32. Raises RenderSettingsError; a clean image passes silently.
+    rgba : (h, w, 4) float32. Raises RenderSettingsError for non-finite pixels.
     """
     colour = rgba[..., :3]
-    bad = ~np.isfinite(colour).all(axis=-1) | (colour < 0.0).any(axis=-1)
-    if not bad.any():
-        return
-    y, x = np.argwhere(bad)[0]
+    non_finite = ~np.isfinite(colour).all(axis=-1)
+    negative = (colour < 0.0).any(axis=-1) & ~non_finite
+    for bad, fatal, what in ((non_finite, True, "NaN or infinite"), (negative, False, "negative")):
+        if not bad.any():
+            continue
+        y, x = np.argwhere(bad)[0]
+        message = (f"{stage}: the beauty has {int(bad.sum())} {what} pixels (the first at x={x}, y={y}), brought "
+                   f"by the paths {_culprit_paths(index, fatal)}: check the values of those prims (light "
+                   "intensity, exposure, colour, textures; material inputs)")
+        if fatal:
+            raise RenderSettingsError(message + "; nothing was written")
+        log.warning(message)
+
+
+def _culprit_paths(index: PathIndex | None, non_finite: bool) -> str:
+    """The path classes of the index with most non-finite (else negative) contributions."""
+    if index is None:
+        return "(unknown: the render kept no path index)"
     culprits: dict[int, int] = {}
-    if index is not None:
-        for chunk in index.records(norms=False):
-            wrong = ~np.isfinite(chunk.rgb).all(axis=1) | (chunk.rgb < 0.0).any(axis=1)
-            ids, counts = np.unique(chunk.class_id[wrong], return_counts=True)
-            for class_id, count in zip(ids.tolist(), counts.tolist()):
-                culprits[class_id] = culprits.get(class_id, 0) + count
+    for chunk in index.records(norms=False):
+        wrong = ~np.isfinite(chunk.rgb).all(axis=1) if non_finite else (chunk.rgb < 0.0).any(axis=1)
+        ids, counts = np.unique(chunk.class_id[wrong], return_counts=True)
+        for class_id, count in zip(ids.tolist(), counts.tolist()):
+            culprits[class_id] = culprits.get(class_id, 0) + count
     named = sorted(culprits, key=culprits.get, reverse=True)[:_CULPRITS_NAMED]
-    paths = "; ".join(path_text(index.classes[class_id].events) for class_id in named) if named else "unknown"
-    raise RenderSettingsError(f"{stage}: the beauty has {int(bad.sum())} NaN, infinite or negative pixels "
-                              f"(the first at x={x}, y={y}), brought by the paths {paths}: check the values of "
-                              "those prims (light intensity, exposure, colour; material inputs); nothing was written")
+    return "; ".join(path_text(index.classes[class_id].events) for class_id in named) if named else "unknown"
 
 
 def file_sha256(path: Path) -> str:

@@ -1,6 +1,7 @@
 """The resolved recipe: frozen, validated dataclasses that everything downstream reads.
 
-Nothing here imports pxr. :func:`pxr_layers.recipe.load_recipe` builds these from USD;
+Nothing here imports pxr. :func:`pxr_layers.stage.load_recipe` (``Shot.recipe``) builds
+these from USD;
 tests and the CLI may also build them directly (construction validates the same rules and
 raises :class:`~pxr_layers.errors.RecipeError`).
 

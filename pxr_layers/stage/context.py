@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 from pxr import Usd, UsdGeom
 
+from pxr_layers.scene import DEFAULT_INCLUDED_PURPOSES
+
 from .diagnostics import Diagnostics
 
 
@@ -25,4 +27,4 @@ class ReadContext:
     xform_cache: UsdGeom.XformCache
     diagnostics: Diagnostics
     file: str
-    rendered_purposes: tuple[str, ...] = ("default", "render")
+    rendered_purposes: tuple[str, ...] = DEFAULT_INCLUDED_PURPOSES

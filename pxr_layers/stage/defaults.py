@@ -97,7 +97,10 @@ def frame_auto_camera(stage: Usd.Stage, time: Usd.TimeCode, purposes: tuple[str,
     """
     tokens = [UsdGeom.Tokens.default_ if purpose == "default" else purpose for purpose in purposes]
     cache = UsdGeom.BBoxCache(time, tokens, useExtentsHint=True)
-    box = cache.ComputeWorldBound(stage.GetPseudoRoot()).ComputeAlignedRange()
+    box = Gf.Range3d()
+    for prim in stage.GetPseudoRoot().GetChildren():
+        if not is_ours(prim.GetPath()):  # not the draw-mode cards an earlier frame authored
+            box.UnionWith(cache.ComputeWorldBound(prim).ComputeAlignedRange())
     up = _up_vector(up_axis)
     azimuth = math.radians(AUTO_CAMERA_AZIMUTH_DEGREES)
     elevation = math.radians(AUTO_CAMERA_ELEVATION_DEGREES)

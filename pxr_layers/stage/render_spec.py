@@ -7,13 +7,11 @@ import math
 from pxr import Sdf, Usd, UsdGeom, UsdRender
 
 from pxr_layers.errors import StageError
-from pxr_layers.scene import Camera
+from pxr_layers.scene import DEFAULT_BINDING_PURPOSES, DEFAULT_INCLUDED_PURPOSES, Camera
 
 from .context import ReadContext
 from .transforms import column_matrix, rigid_in_metres
 
-DEFAULT_BINDING_PURPOSES = ("full", "")
-DEFAULT_INCLUDED_PURPOSES = ("default", "render")
 
 
 def settings_fields(settings: UsdRender.Settings | None, time: Usd.TimeCode) -> dict[str, object]:

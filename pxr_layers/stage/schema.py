@@ -4,8 +4,7 @@ USD builds its schema registry once, the first time a process creates or opens a
 asks the registry anything). Plugins registered after that are loaded, but their schemas
 never reach the registry: ``ApplyAPI("PxrLayersVarAPI")`` fails and fallbacks are missing,
 silently. So :func:`register` must run before the first stage; pxr-layers calls it when
-``pxr_layers.stage`` or the recipe loader is first imported (the only two places that open
-stages). Importing ``pxr`` itself is harmless. Tools outside pxr-layers (usdview, a DCC)
+``pxr_layers.stage`` (the only code that opens stages) is first imported. Importing ``pxr`` itself is harmless. Tools outside pxr-layers (usdview, a DCC)
 should put :func:`schema_dir` on ``PXR_PLUGINPATH_NAME`` instead.
 """
 
