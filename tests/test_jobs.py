@@ -211,3 +211,20 @@ def test_job_run_from_the_command_line(tmp_path):
     assert bad.returncode == 1 and "frames" in bad.stderr and bad.stderr.count("\n") == 1
     usage = subprocess.run([*command[:4], "--spp", "many"], capture_output=True, text=True, check=False)
     assert usage.returncode == 2
+
+
+def test_a_user_error_in_a_task_is_raised_once_not_retried(tmp_path, client):
+    from pxr_layers.errors import PxrLayersError
+    from test_cli import NEGATIVE_LIGHT
+
+    stage = tmp_path / "nan.usda"
+    stage.write_text(NEGATIVE_LIGHT.replace("-20", "nan"))
+    job_file = tmp_path / "nan.toml"
+    job_file.write_text(f'stage = "{stage.name}"\nframes = "1"\n[render]\nspp = 4\nresolution = [16, 16]\n'
+                        f'[output]\ndirectory = "out"\n[dask]\nretries = 2\n')
+    job = load_job(job_file)
+    started = time.perf_counter()
+    with pytest.raises(PxrLayersError, match="NaN or infinite pixels"):
+        run_job(job, client=client)
+    assert time.perf_counter() - started < 60
+    assert not list((tmp_path / "out").glob("*.exr")) and not list((tmp_path / "out").glob("*.pxlidx"))

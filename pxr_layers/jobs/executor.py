@@ -46,7 +46,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import JobError
+from ..errors import JobError, PxrLayersError
 from ..layers.exr import write_atomically
 from ..paths.format import stored_norms
 from .definition import Job
@@ -298,6 +298,33 @@ class _client:
             thing.close()
 
 
+@dataclass(frozen=True)
+class UserErrorResult:
+    """A task's PxrLayersError, returned instead of raised: Dask would retry it (running it
+    again cannot mend the user's input) and print its traceback per try."""
+
+    text: str
+
+
+def _user_errors_returned(task: Callable) -> Callable:
+    """``task`` returning UserErrorResult for a PxrLayersError (its own, or one of the input
+    tasks handed to it in a list) instead of raising it; other errors are still raised and
+    retried (a killed worker, a full disk)."""
+    def run(*args):
+        for value in args:
+            if isinstance(value, list):
+                failed = next((item for item in value if isinstance(item, UserErrorResult)), None)
+                if failed is not None:
+                    return failed
+        try:
+            return task(*args)
+        except PxrLayersError as error:
+            return UserErrorResult(str(error))
+
+    run.__name__ = task.__name__  # Dask names the task after it
+    return run
+
+
 def _run_frames(job: Job, client, plans: list[FramePlan], report: JobReport, on_frame) -> None:
     """Submit every frame's tiles and its assembly (which waits for them); wait for all."""
     from distributed import as_completed
@@ -320,22 +347,24 @@ def _run_frames(job: Job, client, plans: list[FramePlan], report: JobReport, on_
             if path.exists():
                 report.tiles_reused += 1
                 continue
-            inputs.append(client.submit(render_tile, plan, first, stop, str(path), data_path, retries=job.retries,
-                                        pure=False, priority=tile_priority))
+            inputs.append(client.submit(_user_errors_returned(render_tile), plan, first, stop, str(path), data_path,
+                                        retries=job.retries, pure=False, priority=tile_priority))
             data_path = None  # the frame's first tile to render brings the data
             report.tiles_rendered += 1
         if data_path is not None:  # every tile was committed by an earlier run, not the data
-            inputs.append(client.submit(render_frame_data, plan, data_path, retries=job.retries, pure=False,
-                                        priority=tile_priority))
+            inputs.append(client.submit(_user_errors_returned(render_frame_data), plan, data_path,
+                                        retries=job.retries, pure=False, priority=tile_priority))
         # Assembling runs on a worker too: frames are assembled in parallel, next to the
         # tiles of later frames, and the client only waits.
-        future = client.submit(assemble_frame, job, plan, inputs, retries=job.retries, pure=False,
-                               priority=assembly_priority)
+        future = client.submit(_user_errors_returned(assemble_frame), job, plan, inputs, retries=job.retries,
+                               pure=False, priority=assembly_priority)
         assemblies[future] = plan.frame
         if on_frame:
             on_frame(plan.frame, f"submitted {len(inputs)} tasks ({len(tile_list)} tiles) and the assembly")
     for future in as_completed(list(assemblies)):
-        future.result()  # raises the task's error once its retries are spent
+        result = future.result()  # raises the task's error once its retries are spent
+        if isinstance(result, UserErrorResult):
+            raise PxrLayersError(result.text)
         report.rendered.append(assemblies[future])
         if on_frame:
             on_frame(assemblies[future], f"done ({len(report.rendered)} of {len(plans)} frames)")
