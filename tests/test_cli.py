@@ -96,6 +96,15 @@ def test_a_stage_without_camera_or_lights_is_framed_and_lit_by_default(tmp_path)
     assert OpenEXR.File(str(tmp_path / "dark.exr")).channels()["RGBA"].pixels[..., :3].max() == 0.0
 
 
+def test_a_recipe_layer_that_is_not_usd_is_one_line_naming_it(tmp_path):
+    junk = tmp_path / "junk.usda"
+    junk.write_text("not usd {{")
+    result = run("render", str(RENDER_DIR / "cornell.usda"), "--recipe", str(junk), "-o", str(tmp_path / "out"), *SMALL)
+    assert result.returncode == 1
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(junk) in lines[0] and "cannot open as USD" in lines[0]
+
+
 def test_a_dome_alone_renders_the_sky(tmp_path):
     shot = tmp_path / "sky.usda"
     shot.write_text('#usda 1.0\ndef DomeLight "sky"\n{\n    float inputs:intensity = 2\n}\n')

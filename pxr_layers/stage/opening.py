@@ -90,6 +90,15 @@ def compose_stage(
     for layer in recipe_layers:
         if not os.path.isfile(layer):
             raise RecipeError("file not found", file=os.fspath(layer))
+        with Tf.DiagnosticTrap() as trap:
+            try:
+                readable = Sdf.Layer.FindOrOpen(os.fspath(layer)) is not None
+            except Tf.ErrorException as error:
+                raise RecipeError(f"cannot open as USD: {tf_error_summary(error)}", file=os.fspath(layer)) from None
+            finally:
+                trap.Clear()
+        if not readable:
+            raise RecipeError("cannot open as USD", file=os.fspath(layer))
     with Tf.DiagnosticTrap() as trap:
         try:
             root = Sdf.Layer.FindOrOpen(path)
