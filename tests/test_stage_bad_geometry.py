@@ -32,7 +32,7 @@ from pxr_layers.stage.walk import compose_instance_transforms, walk_stage
 
 TIME = Usd.TimeCode.Default()
 NAN, INF = float("nan"), float("inf")
-TEAPOT = Path("/work/shared/scenes/usd-wg/full_assets/Teapot")
+TEAPOT = "usd-wg/full_assets/Teapot"  # under ../shared/scenes (the shared_scenes fixture)
 
 
 def new_stage() -> Usd.Stage:
@@ -569,11 +569,9 @@ def test_from_texture_without_metadata_falls_back_to_box_cards(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def draw_modes_asset():
+def draw_modes_asset(shared_scenes):
     """The DrawModes stage with its cards authored, walked at its start time."""
-    path = TEAPOT / "DrawModes.usd"
-    if not path.exists():
-        pytest.skip(f"{path} is not available")
+    path = shared_scenes / TEAPOT / "DrawModes.usd"
     stage = Usd.Stage.Open(str(path))
     time = Usd.TimeCode(stage.GetStartTimeCode())
     diagnostics = Diagnostics()
@@ -597,7 +595,7 @@ def test_asset_default_models_render_their_meshes(draw_modes_asset):
         assert np.isfinite(placed_points(placement, time)).all()
 
 
-def test_asset_cards_models_render_textured_card_quads(draw_modes_asset):
+def test_asset_cards_models_render_textured_card_quads(draw_modes_asset, shared_scenes):
     stage, time, represented, contents, _ = draw_modes_asset
     assert sorted(represented) == sorted(f"/World/{teapot}_{n}" for teapot in TEAPOTS for n in (1, 2))
     cards = sorted(placement.path for placement in contents.gprims
@@ -611,7 +609,7 @@ def test_asset_cards_models_render_textured_card_quads(draw_modes_asset):
             assert card_mesh(stage, name).GetFaceVertexCountsAttr().Get() == Vt.IntArray([4] * 6)
             assert face_materials(stage, name) == ["XPos", "XNeg", "YPos", "YNeg", "ZPos", "ZNeg"]
             for face in ("XPos", "XNeg", "YPos", "YNeg", "ZPos", "ZNeg"):
-                assert texture_of(stage, face, name) == str(TEAPOT / "cards" / variant / f"{face}.png")
+                assert texture_of(stage, face, name) == str(shared_scenes / TEAPOT / "cards" / variant / f"{face}.png")
     # the cards stand where the model would: the box of cards is the model's world bound
     bounds = UsdGeom.BBoxCache(time, [UsdGeom.Tokens.default_], useExtentsHint=True)
     for name in ("FancyTeapot_2", "UtahTeapot_CeramicRed_2"):

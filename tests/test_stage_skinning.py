@@ -9,7 +9,6 @@ points in the same place: world_from_points @ posed.points.
 from __future__ import annotations
 
 import logging
-import os
 import time
 
 import numpy as np
@@ -21,8 +20,7 @@ from pxr_layers.stage.skinning import PosedPoints, SkinnedPoser
 
 logger = logging.getLogger(__name__)
 
-ELEPHANT = "/work/shared/scenes/usd-wg/full_assets/ElephantWithMonochord/SoC-ElephantWithMonochord.usdc"
-ELEPHANT_THUMBNAIL = ELEPHANT.replace(".usdc", "_thumbnail.usda")
+ELEPHANT_THUMBNAIL = "usd-wg/full_assets/ElephantWithMonochord/SoC-ElephantWithMonochord_thumbnail.usda"
 # Agreement with the bake, relative to the size of the posed mesh: both run UsdSkel's float32
 # kernels, so what is left is the float32 rounding of points and transforms.
 RELATIVE_TOLERANCE = 1e-5
@@ -285,11 +283,9 @@ def test_broken_skinning_warns_and_leaves_rest_pose(break_it, kind_words):
 
 
 @pytest.fixture(scope="module")
-def elephant_stage():
+def elephant_stage(shared_scenes):
     """The USD-WG Elephant with Monochord (two SkelRoots, 60 time codes per second)."""
-    if not os.path.exists(ELEPHANT_THUMBNAIL):
-        pytest.skip(f"{ELEPHANT_THUMBNAIL} is not available")
-    return Usd.Stage.Open(ELEPHANT_THUMBNAIL)
+    return Usd.Stage.Open(str(shared_scenes / ELEPHANT_THUMBNAIL))
 
 
 ELEPHANT_MESHES = [

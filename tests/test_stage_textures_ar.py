@@ -22,11 +22,10 @@ from pxr_layers.stage import textures as textures_module
 from pxr_layers.stage.diagnostics import Diagnostics
 from pxr_layers.stage.textures import TextureLibrary
 
-TEST_ASSETS = "/work/shared/scenes/usd-wg/test_assets"
-USDZ_ASSETS = [
-    f"{TEST_ASSETS}/RoughnessTest/RoughnessTest.usdz",
-    f"{TEST_ASSETS}/USDZ/AnimatedCube/AnimatedCube.usdz",
-    f"{TEST_ASSETS}/NormalsTextureBiasAndScale/NormalsTextureBiasAndScale.usdz",
+USDZ_ASSETS = [  # under ../shared/scenes (the shared_scenes fixture)
+    "usd-wg/test_assets/RoughnessTest/RoughnessTest.usdz",
+    "usd-wg/test_assets/USDZ/AnimatedCube/AnimatedCube.usdz",
+    "usd-wg/test_assets/NormalsTextureBiasAndScale/NormalsTextureBiasAndScale.usdz",
 ]
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tga", ".exr", ".tif", ".tiff", ".hdr")
 
@@ -71,11 +70,8 @@ def extracted(package: str, member: str, folder) -> str:
 
 
 @pytest.fixture
-def usdz_asset(request):
-    path = request.param
-    if not os.path.exists(path):
-        pytest.skip(f"{path} is not available")
-    return path
+def usdz_asset(request, shared_scenes):
+    return str(shared_scenes / request.param)
 
 
 @pytest.fixture
@@ -116,10 +112,8 @@ def test_package_members_decode_like_the_extracted_file(usdz_asset, tmp_path, pr
     assert list(private_temp_dir.iterdir()) == []  # every temporary file deleted
 
 
-def test_members_are_remembered_by_package_identity_and_name(tmp_path):
-    package = USDZ_ASSETS[0]
-    if not os.path.exists(package):
-        pytest.skip(f"{package} is not available")
+def test_members_are_remembered_by_package_identity_and_name(tmp_path, shared_scenes):
+    package = str(shared_scenes / USDZ_ASSETS[0])
     copy = str(tmp_path / "copy.usdz")
     shutil.copy(package, copy)
     first_member, second_member = image_members(copy)[:2]

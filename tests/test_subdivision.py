@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import logging
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,10 +18,7 @@ from pxr_layers.stage.diagnostics import Diagnostics
 from pxr_layers.stage.subdivision import FaceVaryingPrimvar, SubdivisionTags, refine
 from pxr_layers.stage.surfaces import read_mesh
 
-NORMALS_TYPES = Path(
-    "/work/shared/scenes/usd-wg/test_assets/schemaTests/usdGeom/meshes/normals_types/"
-    "normalsTypes.usda"
-)
+NORMALS_TYPES = "usd-wg/test_assets/schemaTests/usdGeom/meshes/normals_types/normalsTypes.usda"  # in ../shared/scenes
 
 # The cube [-1/2, 1/2]^3, faces wound counter-clockwise seen from outside.
 CUBE_POINTS = np.array(
@@ -693,10 +689,8 @@ def test_negative_face_vertex_index_names_the_entry():
 
 
 @pytest.fixture
-def normals_types_stage():
-    if not NORMALS_TYPES.exists():
-        pytest.skip(f"{NORMALS_TYPES} is not available")
-    return Usd.Stage.Open(str(NORMALS_TYPES))
+def normals_types_stage(shared_scenes):
+    return Usd.Stage.Open(str(shared_scenes / NORMALS_TYPES))
 
 
 @pytest.mark.parametrize("level", [0, 2])
@@ -706,7 +700,7 @@ def test_normals_of_the_wrong_type_warn_and_are_computed_instead(normals_types_s
     for prim in normals_types_stage.Traverse():
         if prim.IsA(UsdGeom.Mesh):
             surfaces[prim.GetName()] = read_mesh(
-                prim, Usd.TimeCode.Default(), "st", diagnostics, str(NORMALS_TYPES),
+                prim, Usd.TimeCode.Default(), "st", diagnostics, NORMALS_TYPES,
                 subdiv_level=level,
             )
     warnings = diagnostics.finish()
