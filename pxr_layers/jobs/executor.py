@@ -80,11 +80,13 @@ class JobReport:
 # -- the frames and their tiles ---------------------------------------------------------------
 
 
-def frame_plan(job: Job, frame: float, recipe=None, stage_sha256: str | None = None) -> FramePlan:
+def frame_plan(job: Job, frame: float, recipe=None, stage_sha256: str | None = None, shot=None) -> FramePlan:
+    """The plan of one frame; ``recipe`` None reads it at the frame from ``shot`` (an open
+    Shot of the job's request, else the stage is opened)."""
     return plan_frame(
         job.request, frame, directory=job.output_directory, index_path=job.index_path(frame),
         product_path=lambda product: job.product_path(product.output_name, frame), recipe=recipe,
-        stage_sha256=stage_sha256,
+        stage_sha256=stage_sha256, shot=shot,
     )
 
 
@@ -245,7 +247,10 @@ def run_job(job: Job, *, client=None, on_frame: Callable[[float, str], None] | N
     # has per-light layers, whose lights are listed at each frame as `render --frame` lists
     # them (a light may be invisible at some frames); and the stage file's hash (the
     # fingerprint of each frame's tiles).
-    recipe = resolve_recipe(job.request, job.frames[0])
+    from ..stage import open_request
+
+    shot = open_request(job.request)  # the client composes the stage once for every frame's plan
+    recipe = resolve_recipe(job.request, job.frames[0], shot)
     if any(product.per_light != "none" for product in recipe.products):
         recipe = None
     stage_sha256 = file_sha256(job.request.stage)
@@ -256,7 +261,7 @@ def run_job(job: Job, *, client=None, on_frame: Callable[[float, str], None] | N
             if on_frame:
                 on_frame(frame, "skipped (done)")
         else:
-            todo.append(frame_plan(job, frame, recipe, stage_sha256))
+            todo.append(frame_plan(job, frame, recipe, stage_sha256, shot))
     if not todo:
         report.seconds = time.perf_counter() - started
         return report

@@ -12,6 +12,7 @@ frame's render spec and a frame's scene, all read from that one composition.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import os
 from collections.abc import Sequence
@@ -69,9 +70,11 @@ class Shot:
         frame : the time at which to list the lights of per-light layers (None: the start)
         """
         settings_prim = self.find_settings(settings)
+        # Listed once, however many products add per-light layers (each walk is a whole traversal).
+        lights = functools.cache(lambda: self.lights(settings_prim, frame))
         with trapped_usd_diagnostics(self.file):
             return read_recipe(self.stage, self.file, settings_prim, default_camera=lambda: self.first_camera,
-                               lights=lambda: self.lights(settings_prim, frame), camera=camera,
+                               lights=lights, camera=camera,
                                per_light=per_light, check_colour=check_colour)
 
     def lights(self, settings: UsdRender.Settings | None = None, frame: float | None = None) -> list[tuple[str, str, str]]:
