@@ -123,16 +123,13 @@ def test_reflectance_norm_is_zero_on_diffuse_and_grows_as_roughness_falls(showca
 def test_reflectance_norm_is_strictly_monotonic_in_roughness():
     roughness = np.linspace(1.0, 0.0, 41)
     alpha = (roughness**2).astype(np.float32)
-    lobes = bsdf.Lobes(
-        diffuse=np.zeros((3, len(alpha)), np.float32), specular_weight=np.ones_like(alpha), f0=np.ones((3, len(alpha))),
-        f90=np.ones_like(alpha), alpha=alpha, coat_weight=np.zeros_like(alpha), coat_alpha=alpha,
-        glass_weight=np.zeros_like(alpha), eta=np.ones_like(alpha), probability=np.zeros((4, len(alpha))),
-    )
-    reflectance = lobe_reflectance(lobes, bsdf.SPECULAR)
+    lobes = bsdf.lobe_rows(len(alpha))
+    lobes[:, bsdf.ALPHA] = lobes[:, bsdf.COAT_ALPHA] = alpha
+    reflectance = lobe_reflectance(lobes, np.full(len(alpha), bsdf.SPECULAR))
     assert np.all(np.diff(reflectance[alpha >= bsdf.SINGULAR_ALPHA]) > 0)
     assert np.all(reflectance <= SINGULAR_REFLECTANCE)
     assert reflectance[-1] == pytest.approx(SINGULAR_REFLECTANCE)
-    assert np.all(lobe_reflectance(lobes, bsdf.DIFFUSE) == 0)
+    assert np.all(lobe_reflectance(lobes, np.full(len(alpha), bsdf.DIFFUSE)) == 0)
 
 
 def test_debug_images_show_the_same_norms(showcase):

@@ -41,8 +41,9 @@ import numpy as np
 from ..errors import RenderSettingsError
 from ..scene import FLOAT
 from .integrator import MAX_PASS_THROUGH, T_INFINITY, Integrator
-from .shading import surface_points
-from .vectors import dot, normalize
+from .stages.camera import camera_rays
+from .stages.intersect import intersect
+from .stages.surface import surface
 
 log = logging.getLogger(__name__)
 
@@ -96,43 +97,41 @@ class _DataTracer:
     def __init__(self, integrator: Integrator):
         self.integrator = integrator
         self.camera_from_world = np.asarray(integrator.camera.world_from_camera, np.float64).T  # a rotation
-        self.cutout_material = np.append(integrator.materials.cutout, False)  # index −1: light shapes
 
     def trace_rows(self, first_row: int, stop_row: int, out: dict[str, np.ndarray]) -> None:
         """Fill rows [first_row, stop_row) of every array in `out`."""
         integrator = self.integrator
         world = integrator.world
         width = integrator.width
-        pixel = np.arange(first_row * width, stop_row * width, dtype=np.int64)
-        film_x = ((pixel % width) + 0.5) / width
-        film_y = ((pixel // width) + 0.5) / integrator.height
-        origins, directions = integrator.camera.rays(film_x, film_y)
-        n = len(pixel)
-
-        # Closest hit that is not cut out: lanes crossing a cut-out go on from behind it.
+        queue = camera_rays(integrator.camera, integrator.key, (width, integrator.height), 1, first_row * width,
+                            stop_row * width, jitter=False)
+        n = len(queue)
+        view = queue.direction.astype(np.float64)  # (n, 3) unit rays through the pixel centres
         triangle = np.full(n, -1, np.int32)
-        bary_u, bary_v = np.zeros(n, FLOAT), np.zeros(n, FLOAT)
         distance = np.zeros(n, np.float64)  # metres along the ray from the camera
+        normal = np.zeros((n, 3), FLOAT)
         lanes = np.arange(n)
-        t_max = np.full(n, integrator.camera.t_max, FLOAT)
+        # The closest surface that is not cut out: lanes crossing a cut-out go on from behind
+        # it, as the integrator's paths do (stages.surface decides what is cut out).
         for _ in range(MAX_PASS_THROUGH + 1):
-            tri, u, v, t = integrator.caster.intersect(origins, directions[:, lanes], t_max)
-            hit = tri >= 0
-            lanes, tri, u, v, t, origins = lanes[hit], tri[hit], u[hit], v[hit], t[hit], origins[:, hit]
-            triangle[lanes], bary_u[lanes], bary_v[lanes] = tri, u, v
-            distance[lanes] += t
-            cut = self._cut_out(tri, u, v)
-            if not cut.any():
+            hits = intersect(integrator.caster, queue)
+            hit = np.flatnonzero(hits.triangle >= 0)
+            queue, hits, lanes = queue.take(hit), hits.take(hit), lanes[hit]
+            if not len(queue):
                 break
-            lanes, tri, u, v = lanes[cut], tri[cut], u[cut], v[cut]
-            triangle[lanes] = -1
-            points = surface_points(world, tri, u, v)
-            geometric = points.geometric_normal
-            facing = np.where(dot(geometric, directions[:, lanes]) > 0, geometric, -geometric)
-            origins = points.position + facing * integrator.epsilon  # just behind the surface
-            t_max = np.full(len(lanes), T_INFINITY, FLOAT)
-        else:
-            triangle[lanes] = -1  # still cut out after MAX_PASS_THROUGH crossings: nothing seen
+            surfaces = surface(queue, hits, np.ones(len(queue), bool), integrator.geometry, integrator.materials.arrays,
+                               np.zeros(0, FLOAT), max_depth=0)
+            seen = np.flatnonzero(~surfaces.cut)
+            triangle[lanes[seen]] = hits.triangle[seen]
+            distance[lanes[seen]] = queue.travelled[seen]
+            normal[lanes[seen]] = surfaces.frame[seen, 2]  # the shading normal, on the camera's side
+            crossing = np.flatnonzero(surfaces.cut)
+            queue, lanes = queue.take(crossing), lanes[crossing]
+            if not len(queue):
+                break
+            queue.origin = surfaces.position[crossing] - surfaces.facing[crossing] * np.float32(integrator.epsilon)
+            queue.t_max = np.full(len(queue), T_INFINITY, FLOAT)
+        # lanes still crossing cut-outs after MAX_PASS_THROUGH of them see nothing
 
         hits = np.flatnonzero(triangle >= 0)
         rows = slice(first_row, stop_row)
@@ -148,33 +147,12 @@ class _DataTracer:
                 flat["instanceId"][hits, 0] = np.take(world.object_instance, obj)
         if {"depth", "Peye"} & flat.keys():
             # Camera-space position from the ray itself (no world-space subtraction).
-            ray_eye = self.camera_from_world @ directions[:, hits].astype(np.float64)
-            position_eye = ray_eye * distance[hits]
+            position_eye = (view[hits] @ self.camera_from_world.T) * distance[hits, None]
             if "depth" in flat:
-                flat["depth"][hits, 0] = -position_eye[2]
+                flat["depth"][hits, 0] = -position_eye[:, 2]
             if "Peye" in flat:
-                flat["Peye"][hits] = position_eye.T
-        if {"normal", "Neye"} & flat.keys():
-            points = surface_points(world, tri, bary_u[hits], bary_v[hits])
-            towards_camera = -directions[:, hits]
-            geometric = points.geometric_normal
-            facing = np.where(dot(geometric, towards_camera) < 0, -geometric, geometric)
-            shading = points.shading_normal
-            shading = np.where(dot(shading, facing) < 0, -shading, shading)  # the facing side
-            normal = normalize(np.where(dot(shading, shading) > 0.5, shading, facing))
-            if "normal" in flat:
-                flat["normal"][hits] = normal.T
-            if "Neye" in flat:
-                flat["Neye"][hits] = (self.camera_from_world @ normal.astype(np.float64)).T
-
-    def _cut_out(self, triangle: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """(n,) bool: hits on a surface its material cuts out (opacity < opacityThreshold)."""
-        world = self.integrator.world
-        material = np.take(world.triangle_material, triangle)
-        cut = np.take(self.cutout_material, material)  # −1 (light shapes) → the appended False
-        candidates = np.flatnonzero(cut)
-        if len(candidates):
-            st = surface_points(world, triangle[candidates], u[candidates], v[candidates]).st
-            inputs = self.integrator.materials.evaluate(material[candidates], st)
-            cut[candidates] = inputs.opacity < inputs.opacity_threshold
-        return cut
+                flat["Peye"][hits] = position_eye
+        if "normal" in flat:
+            flat["normal"][hits] = normal[hits]
+        if "Neye" in flat:
+            flat["Neye"][hits] = normal[hits].astype(np.float64) @ self.camera_from_world.T

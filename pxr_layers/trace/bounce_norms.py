@@ -100,39 +100,35 @@ class BounceNorms:
         used = sorted({index for index in textured if index >= 0})
         self.spectra = {index: texture_spectrum(scene.textures[index].pixels) for index in used}
 
-    def curvature_and_texture(self, triangle: np.ndarray, st: np.ndarray, tangent: np.ndarray,
-                              bitangent: np.ndarray, footprint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """C and T (both (n,) float32) at hits on `triangle` (n,) with texture coordinates
-        st (2, n), shading-frame axes tangent, bitangent (3, n) and footprint (n,) metres."""
-        curvature = np.take(self.curvature, triangle)
-        texture = np.zeros(len(triangle), FLOAT)
+    def texture(self, surfaces, footprint: np.ndarray) -> None:
+        """Fill ``surfaces.texture`` (T, cycles/m) of a SurfaceQueue's textured lanes, for
+        footprints (n,) metres wide."""
         if not self.spectra:
-            return curvature, texture
-        texture_index = np.take(self.material_texture, np.take(self.world.triangle_material, triangle))
+            return
+        scattering = np.flatnonzero(surfaces.scatters)
+        texture_index = np.take(self.material_texture, np.take(self.world.triangle_material,
+                                                               surfaces.triangle[scattering]))
         for index, spectrum in self.spectra.items():
-            lanes = np.flatnonzero(texture_index == index)
+            lanes = scattering[texture_index == index]
             if not len(lanes):
                 continue
-            tri = triangle[lanes]
+            tri = surfaces.triangle[lanes]
             grad_s = np.take(self.world.gradient_s, tri, axis=1)
             grad_t = np.take(self.world.gradient_t, tri, axis=1)
-            tx, ty = tangent[:, lanes], bitangent[:, lanes]
+            tx, ty = surfaces.frame[lanes, 0].T, surfaces.frame[lanes, 1].T
             # J = ∂(s, t)/∂(t̂x, t̂y), texture units per metre
             jacobian = np.stack([np.stack([dot(grad_s, tx), dot(grad_s, ty)], -1),
                                  np.stack([dot(grad_t, tx), dot(grad_t, ty)], -1)], -2).astype(np.float64)
             texels_per_metre = np.maximum(np.linalg.norm(grad_s, axis=0) * spectrum.width,
                                           np.linalg.norm(grad_t, axis=0) * spectrum.height)
-            block_uv = spectrum.lookup(st[:, lanes], footprint[lanes] * texels_per_metre)
-            texture[lanes] = texture_norm(texture_to_tangent(block_uv, jacobian))
-        return curvature, texture
+            block_uv = spectrum.lookup(surfaces.st[lanes].T, footprint[lanes] * texels_per_metre)
+            surfaces.texture[lanes] = texture_norm(texture_to_tangent(block_uv, jacobian))
 
 
-def lobe_reflectance(lobes: bsdf.Lobes, lobe: np.ndarray | int, lanes: np.ndarray | None = None) -> np.ndarray:
-    """R (n,) float32 of `lobe` (one id, or (n,) ids) at `lanes` of `lobes` (all if None)."""
-    alpha_specular = lobes.alpha if lanes is None else lobes.alpha[lanes]
-    alpha_coat = lobes.coat_alpha if lanes is None else lobes.coat_alpha[lanes]
-    lobe = np.broadcast_to(np.asarray(lobe), alpha_specular.shape)
-    alpha = np.where(lobe == bsdf.SPECULAR, alpha_specular, alpha_coat)
+def lobe_reflectance(lobes: np.ndarray, lobe: np.ndarray) -> np.ndarray:
+    """R (n,) float32 of the lobes `lobe` (n,) ids taken at hits with lobe rows (n,
+    LOBE_FIELDS) (bsdf.py)."""
+    alpha = np.where(lobe == bsdf.SPECULAR, lobes[:, bsdf.ALPHA], lobes[:, bsdf.COAT_ALPHA])
     glossy = 1.0 / (2.0 * np.pi * np.maximum(alpha, bsdf.SINGULAR_ALPHA))
     singular = (lobe == bsdf.GLASS) | (alpha < bsdf.SINGULAR_ALPHA)
     reflectance = np.where(singular, SINGULAR_REFLECTANCE, glossy)

@@ -1,8 +1,7 @@
-"""UsdPreviewSurface as a sum of lobes, evaluated and sampled on batches.
+"""UsdPreviewSurface as a sum of lobes, prepared, evaluated and sampled lane by lane.
 
 All directions are in the local shading frame (z = shading normal turned toward the
-viewer), pointing away from the surface; ``wo`` is toward the previous vertex. Vectors
-and colours are component-major (3, n) arrays (see vectors.py).
+viewer), pointing away from the surface; ``wo`` is toward the previous vertex.
 
     f = opacity · [ (1 − c·Fc(cos θo)) · (f_diffuse + f_specular) + c · f_coat ]
         + (1 − opacity) · f_glass
@@ -22,284 +21,267 @@ narrow to evaluate in float32 and no light sample could ever land in it.
 Each lobe is sampled on its own (one-sample lobe selection with probabilities from each
 lobe's albedo estimate) and the path is labelled with the lobe it took, so a
 contribution always belongs to exactly one scattering event type.
+
+A hit's lobes are one row of LOBE_FIELDS float32 values (``prepare`` fills it; columns
+below), so a queue of hits holds them as one (n, LOBE_FIELDS) array.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
 
 import numpy as np
 
-from ..scene import FLOAT
-from .shading import SurfaceInputs
-from .vectors import dot, luminance, normalize
+from .compiled import inline
+from .vectors import luminance_of, normalized
 
 DIFFUSE, SPECULAR, COAT, GLASS = range(4)
+LOBE_COUNT = 4
 GLOSSY_LOBES = (DIFFUSE, SPECULAR, COAT)  # the lobes a light sample can land in
 SINGULAR_ALPHA = 1e-4
-COAT_F0 = np.float32(0.04)
-INV_PI = np.float32(1 / np.pi)
+COAT_F0 = 0.04
+INV_PI = 1 / math.pi
 
 # LPE scattering of an event, as int8 codes into lpe.events.SCATTERINGS.
 SCATTER_DIFFUSE, SCATTER_GLOSSY, SCATTER_SINGULAR, SCATTER_STRAIGHT = range(4)
 
+# Columns of a lobe row.
+DIFFUSE_RGB = 0  # 3 columns: weight of the Lambertian term (f = diffuse / π)
+SPECULAR_WEIGHT = 3  # opacity · (1 − c·Fc)
+F0_RGB = 4  # 3 columns
+F90 = 7
+ALPHA = 8
+COAT_WEIGHT = 9  # opacity · c
+COAT_ALPHA = 10
+GLASS_WEIGHT = 11  # 1 − opacity
+ETA = 12  # n_inside / n_outside seen from wo's side
+PROBABILITY = 13  # 4 columns: lobe selection probabilities (sum to 1, or 0 = absorb)
+LOBE_FIELDS = 17
 
-def schlick(f0: np.ndarray, f90: np.ndarray, cos: np.ndarray) -> np.ndarray:
-    """Schlick Fresnel. f0 (3, n) or (n,), f90 and cos (n,) -> shaped like f0."""
-    weight = (1.0 - np.clip(cos, 0.0, 1.0)) ** 5
+
+@inline
+def schlick(f0, f90, cos):
+    weight = (1.0 - min(max(cos, 0.0), 1.0)) ** 5
     return f0 + (f90 - f0) * weight
 
 
-def fresnel_dielectric(cos_i: np.ndarray, eta: np.ndarray) -> np.ndarray:
-    """Unpolarised Fresnel reflectance; eta = n_transmitted / n_incident. (n,) -> (n,)."""
-    cos_i = np.clip(cos_i, 0.0, 1.0)
-    sin2_t = (1.0 - cos_i**2) / eta**2
-    total = sin2_t >= 1.0
-    cos_t = np.sqrt(np.maximum(1.0 - sin2_t, 0.0))
-    r_parallel = (eta * cos_i - cos_t) / np.maximum(eta * cos_i + cos_t, 1e-12)
-    r_perpendicular = (cos_i - eta * cos_t) / np.maximum(cos_i + eta * cos_t, 1e-12)
-    return np.where(total, 1.0, 0.5 * (r_parallel**2 + r_perpendicular**2)).astype(FLOAT)
+@inline
+def fresnel_dielectric(cos_i, eta):
+    """Unpolarised Fresnel reflectance; eta = n_transmitted / n_incident."""
+    cos_i = min(max(cos_i, 0.0), 1.0)
+    sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
+    if sin2_t >= 1.0:
+        return 1.0
+    cos_t = math.sqrt(max(1.0 - sin2_t, 0.0))
+    r_parallel = (eta * cos_i - cos_t) / max(eta * cos_i + cos_t, 1e-12)
+    r_perpendicular = (cos_i - eta * cos_t) / max(cos_i + eta * cos_t, 1e-12)
+    return 0.5 * (r_parallel * r_parallel + r_perpendicular * r_perpendicular)
 
 
-def ggx_d(cos_h: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+@inline
+def ggx_d(cos_h, alpha):
     a2 = alpha * alpha
     # The denominator is at least a2 (cos_h <= 1): it reaches 0 only for a mirror (a2 = 0),
     # whose D is a delta that callers sample apart; the floor keeps that lane 0, not 0/0.
-    denominator = np.maximum(cos_h * cos_h * (a2 - 1.0) + 1.0, 1e-12)
-    return a2 / (np.pi * denominator * denominator)
+    denominator = max(cos_h * cos_h * (a2 - 1.0) + 1.0, 1e-12)
+    return a2 / (math.pi * denominator * denominator)
 
 
-def smith_g1(cos: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+@inline
+def smith_g1(cos, alpha):
     a2 = alpha * alpha
-    cos = np.maximum(cos, 1e-7)
-    return 2.0 * cos / (cos + np.sqrt(a2 + (1.0 - a2) * cos * cos))
+    cos = max(cos, 1e-7)
+    return 2.0 * cos / (cos + math.sqrt(a2 + (1.0 - a2) * cos * cos))
 
 
-@dataclass
-class Lobes:
-    """Per-hit lobe parameters, prepared once per hit from the material inputs."""
-
-    diffuse: np.ndarray  # (3, n) weight of the Lambertian term (f = diffuse / π)
-    specular_weight: np.ndarray  # (n,) opacity · (1 − c·Fc)
-    f0: np.ndarray  # (3, n)
-    f90: np.ndarray  # (n,)
-    alpha: np.ndarray  # (n,)
-    coat_weight: np.ndarray  # (n,) opacity · c
-    coat_alpha: np.ndarray  # (n,)
-    glass_weight: np.ndarray  # (n,) 1 − opacity
-    eta: np.ndarray  # (n,) n_inside/n_outside seen from wo's side
-    probability: np.ndarray  # (4, n) lobe selection probabilities (sum to 1, or 0 = absorb)
-
-    @property
-    def specular_singular(self) -> np.ndarray:
-        return self.alpha < SINGULAR_ALPHA
-
-    @property
-    def coat_singular(self) -> np.ndarray:
-        return self.coat_alpha < SINGULAR_ALPHA
+@inline
+def ggx_eval(wox, woy, woz, wix, wiy, wiz, alpha, f0r, f0g, f0b, f90):
+    """GGX reflection: f (r, g, b) and its VNDF sampling pdf."""
+    if wiz <= 0 or woz <= 0:
+        return 0.0, 0.0, 0.0, 0.0
+    hx, hy, hz = normalized(wox + wix, woy + wiy, woz + wiz, 1e-12)
+    d = ggx_d(hz, alpha)
+    g1_o = smith_g1(woz, alpha)
+    scalar = d * g1_o * smith_g1(wiz, alpha) / max(4 * woz * wiz, 1e-12)
+    cos_oh = wox * hx + woy * hy + woz * hz
+    return (schlick(f0r, f90, cos_oh) * scalar, schlick(f0g, f90, cos_oh) * scalar,
+            schlick(f0b, f90, cos_oh) * scalar, g1_o * d / max(4 * woz, 1e-12))
 
 
-def prepare(inputs: SurfaceInputs, cos_o: np.ndarray, entering: np.ndarray) -> Lobes:
-    """Lobe weights for viewing cosine cos_o (n,); entering (n,) bool: wo on the front side."""
-    metallic = np.clip(inputs.metallic, 0.0, 1.0)
-    r0 = ((1.0 - inputs.ior) / (1.0 + inputs.ior)) ** 2
-    metallic_f0 = r0 * (1.0 - metallic) + inputs.diffuse_color * metallic
-    f0 = np.where(inputs.use_specular_workflow, inputs.specular_color, metallic_f0).astype(FLOAT)
-    f90 = (f0.max(axis=0) > 0).astype(FLOAT)
-    opacity = np.clip(inputs.opacity, 0.0, 1.0)
-    clearcoat = np.clip(inputs.clearcoat, 0.0, 1.0)
+@inline
+def prepare(lobes, lane, diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, roughness,
+            metallic, opacity, clearcoat, clearcoat_roughness, use_specular_workflow, ior, opacity_threshold,
+            cos_o, entering, scatters):
+    """Fill row `lane` of `lobes` from a hit's material inputs, for viewing cosine cos_o;
+    entering: wo is on the front side; a lane that may not scatter gets no lobe."""
+    metallic = min(max(metallic, 0.0), 1.0)
+    r0 = ((1.0 - ior) / (1.0 + ior)) ** 2
+    if use_specular_workflow:
+        f0r, f0g, f0b = specular_r, specular_g, specular_b
+    else:
+        f0r = r0 * (1.0 - metallic) + diffuse_r * metallic
+        f0g = r0 * (1.0 - metallic) + diffuse_g * metallic
+        f0b = r0 * (1.0 - metallic) + diffuse_b * metallic
+    f90 = 1.0 if max(f0r, f0g, f0b) > 0 else 0.0
+    opacity = min(max(opacity, 0.0), 1.0)
+    clearcoat = min(max(clearcoat, 0.0), 1.0)
     coat_fresnel = schlick(COAT_F0, 1.0, cos_o)
     base = opacity * (1.0 - clearcoat * coat_fresnel)
-    specular_fresnel = schlick(f0, f90, cos_o)
-    diffuse = (base * (1.0 - metallic)) * (1.0 - specular_fresnel) * np.maximum(inputs.diffuse_color, 0.0)
-    glass = np.where(inputs.opacity_threshold > 0, 0.0, 1.0 - opacity)
-    weights = np.stack(
-        [luminance(diffuse), base * luminance(specular_fresnel), opacity * clearcoat * coat_fresnel, glass]
-    ).astype(FLOAT)
-    total = weights.sum(axis=0)
-    probability = (weights / np.where(total > 0, total, 1.0)).astype(FLOAT)
-    return Lobes(
-        diffuse=diffuse.astype(FLOAT),
-        specular_weight=base.astype(FLOAT),
-        f0=f0,
-        f90=f90,
-        alpha=(np.clip(inputs.roughness, 0.0, 1.0) ** 2).astype(FLOAT),
-        coat_weight=(opacity * clearcoat).astype(FLOAT),
-        coat_alpha=(np.clip(inputs.clearcoat_roughness, 0.0, 1.0) ** 2).astype(FLOAT),
-        glass_weight=glass.astype(FLOAT),
-        eta=np.where(entering, inputs.ior, 1.0 / inputs.ior).astype(FLOAT),
-        probability=probability,
-    )
+    fr, fg, fb = schlick(f0r, f90, cos_o), schlick(f0g, f90, cos_o), schlick(f0b, f90, cos_o)
+    scale = base * (1.0 - metallic)
+    dr = scale * (1.0 - fr) * max(diffuse_r, 0.0)
+    dg = scale * (1.0 - fg) * max(diffuse_g, 0.0)
+    db = scale * (1.0 - fb) * max(diffuse_b, 0.0)
+    glass = 0.0 if opacity_threshold > 0 else 1.0 - opacity
+    w0 = luminance_of(dr, dg, db)
+    w1 = base * luminance_of(fr, fg, fb)
+    w2 = opacity * clearcoat * coat_fresnel
+    total = w0 + w1 + w2 + glass
+    norm = 1.0 / total if total > 0 and scatters else 0.0
+    row = lobes[lane]
+    row[0], row[1], row[2] = dr, dg, db
+    row[SPECULAR_WEIGHT] = base
+    row[4], row[5], row[6] = f0r, f0g, f0b
+    row[F90] = f90
+    row[ALPHA] = min(max(roughness, 0.0), 1.0) ** 2
+    row[COAT_WEIGHT] = opacity * clearcoat
+    row[COAT_ALPHA] = min(max(clearcoat_roughness, 0.0), 1.0) ** 2
+    row[GLASS_WEIGHT] = glass
+    row[ETA] = ior if entering else 1.0 / ior
+    row[13], row[14], row[15], row[16] = w0 * norm, w1 * norm, w2 * norm, glass * norm
 
 
-def _ggx_eval(wo, wi, alpha, f0, f90):
-    """GGX reflection for wo, wi (3, n) local: f (3, n) and its VNDF sampling pdf (n,)."""
-    half = normalize(wo + wi, 1e-12)
-    cos_o, cos_i = wo[2], wi[2]
-    d = ggx_d(half[2], alpha)
-    g1_o = smith_g1(cos_o, alpha)
-    g1_i = smith_g1(cos_i, alpha)
-    fresnel = schlick(f0, f90, dot(wo, half))
-    valid = (cos_i > 0) & (cos_o > 0)
-    scalar = np.where(valid, d * g1_o * g1_i / np.maximum(4 * cos_o * cos_i, 1e-12), 0.0)
-    pdf = np.where(valid, g1_o * d / np.maximum(4 * cos_o, 1e-12), 0.0)
-    return (fresnel * scalar).astype(FLOAT), pdf.astype(FLOAT)
+@inline
+def evaluate(row, wox, woy, woz, wix, wiy, wiz, f, pdf):
+    """The non-singular lobes of `row` for a light direction wi: f[lobe, rgb] for DIFFUSE,
+    SPECULAR, COAT (zero for singular lobes and below the surface) and pdf[lobe], each
+    lobe's effective sampling density (its selection probability times its solid-angle
+    pdf), as the MIS weights need."""
+    for lobe in range(3):
+        pdf[lobe] = 0.0
+        f[lobe, 0] = f[lobe, 1] = f[lobe, 2] = 0.0
+    if wiz > 0:
+        f[DIFFUSE, 0] = row[0] * INV_PI
+        f[DIFFUSE, 1] = row[1] * INV_PI
+        f[DIFFUSE, 2] = row[2] * INV_PI
+        pdf[DIFFUSE] = wiz * INV_PI * row[PROBABILITY + DIFFUSE]
+    if row[ALPHA] >= SINGULAR_ALPHA and row[PROBABILITY + SPECULAR] > 0:
+        r, g, b, p = ggx_eval(wox, woy, woz, wix, wiy, wiz, row[ALPHA], row[4], row[5], row[6], row[F90])
+        weight = row[SPECULAR_WEIGHT]
+        f[SPECULAR, 0], f[SPECULAR, 1], f[SPECULAR, 2] = r * weight, g * weight, b * weight
+        pdf[SPECULAR] = p * row[PROBABILITY + SPECULAR]
+    if row[COAT_ALPHA] >= SINGULAR_ALPHA and row[PROBABILITY + COAT] > 0:
+        r, g, b, p = ggx_eval(wox, woy, woz, wix, wiy, wiz, row[COAT_ALPHA], COAT_F0, COAT_F0, COAT_F0, 1.0)
+        weight = row[COAT_WEIGHT]
+        f[COAT, 0], f[COAT, 1], f[COAT, 2] = r * weight, g * weight, b * weight
+        pdf[COAT] = p * row[PROBABILITY + COAT]
 
 
-def evaluate(lobes: Lobes, wo: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Non-singular lobes for a light direction wi (3, n).
-
-    Returns f (3 lobes, 3 rgb, n) for DIFFUSE, SPECULAR, COAT (zero for singular lobes and
-    below the surface) and each lobe's effective sampling density (3 lobes, n): its
-    selection probability times its solid-angle pdf, as the MIS weights need.
-    """
-    n = wo.shape[1]
-    cos_i = wi[2]
-    above = cos_i > 0
-    f = np.zeros((3, 3, n), FLOAT)
-    pdf = np.zeros((3, n), FLOAT)
-    f[DIFFUSE] = lobes.diffuse * np.where(above, INV_PI, 0.0)
-    pdf[DIFFUSE] = np.where(above, cos_i * INV_PI, 0.0) * lobes.probability[DIFFUSE]
-
-    glossy = ~lobes.specular_singular & (lobes.probability[SPECULAR] > 0)
-    if glossy.any():
-        idx = np.flatnonzero(glossy)
-        fs, ps = _ggx_eval(wo[:, idx], wi[:, idx], lobes.alpha[idx], lobes.f0[:, idx], lobes.f90[idx])
-        f[SPECULAR][:, idx] = fs * lobes.specular_weight[idx]
-        pdf[SPECULAR][idx] = ps * lobes.probability[SPECULAR][idx]
-    coated = ~lobes.coat_singular & (lobes.probability[COAT] > 0)
-    if coated.any():
-        idx = np.flatnonzero(coated)
-        fc, pc = _ggx_eval(wo[:, idx], wi[:, idx], lobes.coat_alpha[idx], COAT_F0, np.float32(1.0))
-        f[COAT][:, idx] = fc * lobes.coat_weight[idx]
-        pdf[COAT][idx] = pc * lobes.probability[COAT][idx]
-    return f, pdf
+@inline
+def _visible_normal(wox, woy, woz, alpha, u1, u2):
+    """Heitz 2018: a microfacet normal distributed as GGX's visible normals from wo."""
+    sx, sy, sz = normalized(wox * alpha, woy * alpha, woz, 1e-30)
+    length2 = sx * sx + sy * sy
+    if length2 <= 0:
+        t1x, t1y = 1.0, 0.0
+    else:
+        inv_len = 1.0 / math.sqrt(length2)
+        t1x, t1y = -sy * inv_len, sx * inv_len
+    t2x, t2y, t2z = -sz * t1y, sz * t1x, sx * t1y - sy * t1x
+    radius = math.sqrt(u1)
+    phi = 2 * math.pi * u2
+    p1 = radius * math.cos(phi)
+    p2 = radius * math.sin(phi)
+    s = 0.5 * (1.0 + sz)
+    p2 = (1.0 - s) * math.sqrt(max(1.0 - p1 * p1, 0.0)) + s * p2
+    p3 = math.sqrt(max(1.0 - p1 * p1 - p2 * p2, 0.0))
+    nx = p1 * t1x + p2 * t2x + p3 * sx
+    ny = p1 * t1y + p2 * t2y + p3 * sy
+    nz = p2 * t2z + p3 * sz
+    return normalized(nx * alpha, ny * alpha, max(nz, 1e-7), 1e-30)
 
 
-@dataclass
-class BsdfSample:
-    """A sampled continuation for n lanes.
-
-    direction : (3, n) local, unit
-    weight    : (3, n) f·|cos|/pdf_effective (already divided by the lobe probability)
-    pdf       : (n,) effective solid-angle density (0 for singular events: no MIS)
-    lobe      : (n,) int8 DIFFUSE / SPECULAR / COAT / GLASS
-    scatter   : (n,) int8 code into lpe.events.SCATTERINGS (D, G, S)
-    transmit  : (n,) bool, the direction crosses the surface
-    valid     : (n,) bool, False where the path ends (no lobe, below the horizon)
-    """
-
-    direction: np.ndarray
-    weight: np.ndarray
-    pdf: np.ndarray
-    lobe: np.ndarray
-    scatter: np.ndarray
-    transmit: np.ndarray
-    valid: np.ndarray
-
-
-def _sample_ggx_visible_normal(wo: np.ndarray, alpha: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
-    """Heitz 2018: a microfacet normal (3, n) distributed as GGX's visible normals from wo."""
-    stretched = normalize(np.stack([wo[0] * alpha, wo[1] * alpha, wo[2]]))
-    length2 = stretched[0] ** 2 + stretched[1] ** 2
-    degenerate = length2 <= 0
-    inv_len = 1.0 / np.sqrt(np.where(degenerate, 1.0, length2))
-    t1 = np.stack([np.where(degenerate, 1.0, -stretched[1] * inv_len),
-                   np.where(degenerate, 0.0, stretched[0] * inv_len),
-                   np.zeros_like(inv_len)])
-    t2 = np.stack([stretched[1] * t1[2] - stretched[2] * t1[1],
-                   stretched[2] * t1[0] - stretched[0] * t1[2],
-                   stretched[0] * t1[1] - stretched[1] * t1[0]])
-    radius = np.sqrt(u1)
-    phi = 2 * np.pi * u2
-    p1 = radius * np.cos(phi)
-    p2 = radius * np.sin(phi)
-    s = 0.5 * (1.0 + stretched[2])
-    p2 = (1.0 - s) * np.sqrt(np.maximum(1.0 - p1 * p1, 0.0)) + s * p2
-    p3 = np.sqrt(np.maximum(1.0 - p1 * p1 - p2 * p2, 0.0))
-    normal = p1 * t1 + p2 * t2 + p3 * stretched
-    return normalize(np.stack([normal[0] * alpha, normal[1] * alpha, np.maximum(normal[2], 1e-7)])).astype(FLOAT)
-
-
-def _reflect(wo: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    return 2.0 * dot(wo, normal) * normal - wo
-
-
-def _lanes(mask: np.ndarray):
-    """Indices of the True lanes, or a full slice when all are (saves a gather and scatter)."""
-    return slice(None) if mask.all() else np.flatnonzero(mask)
-
-
-def _count(lanes, n: int) -> int:
-    return n if isinstance(lanes, slice) else len(lanes)
-
-
-def sample(lobes: Lobes, wo: np.ndarray, u: np.ndarray) -> BsdfSample:
-    """Choose a lobe and a direction. u : (3, n) uniforms (lobe, then two for the direction)."""
-    n = wo.shape[1]
-    cdf = np.cumsum(lobes.probability, axis=0)
-    lobe = np.minimum((u[0] >= cdf).sum(axis=0), 3).astype(np.int8)
-    valid = cdf[-1] > 0
-    direction = np.zeros((3, n), FLOAT)
-    weight = np.zeros((3, n), FLOAT)
-    pdf = np.zeros(n, FLOAT)
-    scatter = np.full(n, SCATTER_DIFFUSE, np.int8)
-    transmit = np.zeros(n, bool)
-
-    lanes = _lanes(valid & (lobe == DIFFUSE))
-    if _count(lanes, n):
-        radius = np.sqrt(u[1, lanes])
-        phi = 2 * np.pi * u[2, lanes]
-        z = np.sqrt(np.maximum(1.0 - u[1, lanes], 0.0))
-        direction[:, lanes] = np.stack([radius * np.cos(phi), radius * np.sin(phi), z])
+@inline
+def sample(row, wox, woy, woz, u0, u1, u2):
+    """Choose a lobe (u0) and a direction (u1, u2). Returns (wi x, y, z local unit;
+    weight r, g, b = f·|cos|/pdf, already divided by the lobe probability; pdf, the
+    effective solid-angle density, 0 for singular events: no MIS; lobe; scatter code;
+    transmit: the direction crosses the surface; valid: False where the path ends)."""
+    p_diffuse, p_specular = row[PROBABILITY + DIFFUSE], row[PROBABILITY + SPECULAR]
+    p_coat, p_glass = row[PROBABILITY + COAT], row[PROBABILITY + GLASS]
+    total = p_diffuse + p_specular + p_coat + p_glass
+    lobe = 0
+    cdf = p_diffuse
+    if u0 >= cdf:
+        lobe = 1
+        cdf += p_specular
+        if u0 >= cdf:
+            lobe = 2
+            cdf += p_coat
+            if u0 >= cdf:
+                lobe = 3
+    while lobe > 0 and not row[PROBABILITY + lobe] > 0:  # u0 beyond a total rounded below 1
+        lobe -= 1
+    if not total > 0:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, lobe, SCATTER_DIFFUSE, False, False
+    if lobe == DIFFUSE:
+        radius = math.sqrt(u1)
+        phi = 2 * math.pi * u2
+        z = math.sqrt(max(1.0 - u1, 0.0))
+        x, y, z = normalized(radius * math.cos(phi), radius * math.sin(phi), z, 1e-12)
         # f·cos/pdf = (diffuse/π)·cos / (p·cos/π)
-        probability = lobes.probability[DIFFUSE, lanes]
-        weight[:, lanes] = lobes.diffuse[:, lanes] / probability
-        pdf[lanes] = z * INV_PI * probability
+        return (x, y, z, row[0] / p_diffuse, row[1] / p_diffuse, row[2] / p_diffuse, z * INV_PI * p_diffuse,
+                lobe, SCATTER_DIFFUSE, False, True)
+    if lobe == GLASS:
+        eta = row[ETA]
+        fresnel = fresnel_dielectric(woz, eta)
+        if u1 < fresnel:
+            x, y, z = -wox, -woy, woz
+            scale = row[GLASS_WEIGHT] / p_glass
+            transmit = False
+        else:
+            cos_t = math.sqrt(max(1.0 - (1.0 - woz * woz) / (eta * eta), 0.0))
+            x, y, z = -wox / eta, -woy / eta, -woz / eta + woz / eta - cos_t
+            # Radiance crossing into a denser medium is compressed by 1/eta² (pbrt's BTDF scale).
+            scale = row[GLASS_WEIGHT] / (eta * eta) / p_glass
+            transmit = True
+        x, y, z = normalized(x, y, z, 1e-12)
+        return x, y, z, scale, scale, scale, 0.0, lobe, SCATTER_SINGULAR, transmit, True
+    if lobe == SPECULAR:
+        alpha, weight, probability = row[ALPHA], row[SPECULAR_WEIGHT], p_specular
+        f0r, f0g, f0b, f90 = row[4], row[5], row[6], row[F90]
+    else:
+        alpha, weight, probability = row[COAT_ALPHA], row[COAT_WEIGHT], p_coat
+        f0r, f0g, f0b, f90 = COAT_F0, COAT_F0, COAT_F0, 1.0
+    singular = alpha < SINGULAR_ALPHA
+    if singular:
+        nx, ny, nz = 0.0, 0.0, 1.0
+    else:
+        nx, ny, nz = _visible_normal(wox, woy, woz, alpha, u1, u2)
+    cos_oh = wox * nx + woy * ny + woz * nz
+    x, y, z = normalized(2 * cos_oh * nx - wox, 2 * cos_oh * ny - woy, 2 * cos_oh * nz - woz, 1e-12)
+    if not z > 0:
+        return x, y, z, 0.0, 0.0, 0.0, 0.0, lobe, SCATTER_SINGULAR if singular else SCATTER_GLOSSY, False, False
+    # VNDF sampling: f·cos/pdf = F·G1(wi) for the microfacet lobe; F for a mirror.
+    g1_i = 1.0 if singular else smith_g1(z, alpha)
+    scale = g1_i * weight / probability
+    pdf = 0.0
+    if not singular:
+        pdf = ggx_eval(wox, woy, woz, x, y, z, alpha, f0r, f0g, f0b, f90)[3] * probability
+    return (x, y, z, schlick(f0r, f90, cos_oh) * scale, schlick(f0g, f90, cos_oh) * scale,
+            schlick(f0b, f90, cos_oh) * scale, pdf, lobe, SCATTER_SINGULAR if singular else SCATTER_GLOSSY,
+            False, True)
 
-    for which, alpha, layer_weight, f0, f90 in (
-        (SPECULAR, lobes.alpha, lobes.specular_weight, lobes.f0, lobes.f90),
-        (COAT, lobes.coat_alpha, lobes.coat_weight, None, None),
-    ):
-        lanes = _lanes(valid & (lobe == which))
-        if not _count(lanes, n):
-            continue
-        lane_f0 = COAT_F0 if f0 is None else f0[:, lanes]
-        lane_f90 = np.float32(1.0) if f90 is None else f90[lanes]
-        probability = lobes.probability[which, lanes]
-        lane_alpha = alpha[lanes]
-        singular = lane_alpha < SINGULAR_ALPHA
-        wo_l = wo[:, lanes]
-        microfacet = _sample_ggx_visible_normal(wo_l, np.maximum(lane_alpha, SINGULAR_ALPHA), u[1, lanes], u[2, lanes])
-        normal = np.where(singular, np.array([[0.0], [0.0], [1.0]], FLOAT), microfacet)
-        wi = _reflect(wo_l, normal).astype(FLOAT)
-        direction[:, lanes] = wi
-        fresnel = schlick(lane_f0, lane_f90, dot(wo_l, normal))
-        # VNDF sampling: f·cos/pdf = F·G1(wi) for the microfacet lobe; F for a mirror.
-        g1_i = np.where(singular, 1.0, smith_g1(wi[2], lane_alpha))
-        weight[:, lanes] = fresnel * np.where(wi[2] > 0, g1_i * layer_weight[lanes] / probability, 0.0)
-        if (~singular).any():
-            _, lobe_pdf = _ggx_eval(wo_l, wi, np.maximum(lane_alpha, SINGULAR_ALPHA), lane_f0, lane_f90)
-            pdf[lanes] = np.where(singular, 0.0, lobe_pdf * probability)
-        scatter[lanes] = np.where(singular, SCATTER_SINGULAR, SCATTER_GLOSSY)
-        valid[lanes] &= wi[2] > 0
 
-    lanes = _lanes(valid & (lobe == GLASS))
-    if _count(lanes, n):
-        wo_l = wo[:, lanes]
-        eta = lobes.eta[lanes]
-        fresnel = fresnel_dielectric(wo_l[2], eta)
-        reflect = u[1, lanes] < fresnel
-        cos_t = np.sqrt(np.maximum(1.0 - (1.0 - wo_l[2] ** 2) / eta**2, 0.0))
-        refracted = -wo_l / eta
-        refracted[2] += wo_l[2] / eta - cos_t
-        mirror = np.stack([-wo_l[0], -wo_l[1], wo_l[2]])
-        direction[:, lanes] = np.where(reflect, mirror, refracted)
-        # Radiance crossing into a denser medium is compressed by 1/eta² (pbrt's BTDF scale).
-        scale = np.where(reflect, 1.0, 1.0 / eta**2) * lobes.glass_weight[lanes] / lobes.probability[GLASS, lanes]
-        weight[:, lanes] = scale
-        scatter[lanes] = SCATTER_SINGULAR
-        transmit[lanes] = ~reflect
+@inline
+def power_heuristic(chosen, other):
+    """MIS weight of the strategy with density `chosen` against `other`; a delta strategy
+    (infinite density) takes the whole weight."""
+    a = min(chosen, 1e150) ** 2
+    b = min(other, 1e150) ** 2
+    return a / (a + b) if a + b > 0 else 0.0
 
-    direction = normalize(direction, 1e-12).astype(FLOAT)
-    return BsdfSample(direction, weight, pdf, lobe, scatter, transmit, valid)
+
+def lobe_rows(count: int) -> np.ndarray:
+    """An empty (count, LOBE_FIELDS) float32 table of lobe rows."""
+    return np.zeros((count, LOBE_FIELDS), np.float32)

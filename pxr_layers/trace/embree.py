@@ -11,7 +11,6 @@ import numpy as np
 from embreex import mesh_construction, rtcore_scene
 
 from ..scene import FLOAT
-from .vectors import to_lanes
 from .world import World
 
 MISS = -1
@@ -33,7 +32,7 @@ class RayCaster:
     def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray):
         """Closest hits.
 
-        origins, directions : (3, n) float32 (directions need not be unit; t is in their units)
+        origins, directions : (n, 3) float32 (directions need not be unit; t is in their units)
         t_max               : (n,) float32
         Returns (triangle (n,) int32 with MISS for no hit, u (n,), v (n,), t (n,) float32);
         u and v are Embree's barycentrics: p = (1 - u - v) p0 + u p1 + v p2.
@@ -42,15 +41,19 @@ class RayCaster:
             n = len(t_max)
             return np.full(n, MISS, np.int32), np.zeros(n, FLOAT), np.zeros(n, FLOAT), np.asarray(t_max, FLOAT)
         result = self._scene.run(
-            to_lanes(origins), to_lanes(directions), dists=np.ascontiguousarray(t_max, FLOAT), output=1
+            _rows(origins), _rows(directions), dists=np.ascontiguousarray(t_max, FLOAT), output=1
         )
         return result["primID"], result["u"], result["v"], result["tfar"]
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray) -> np.ndarray:
-        """Any hit with t < t_max for origins, directions (3, n): (n,) bool."""
+        """Any hit with t < t_max for origins, directions (n, 3): (n,) bool."""
         if self._scene is None:
             return np.zeros(len(t_max), bool)
         hit = self._scene.run(
-            to_lanes(origins), to_lanes(directions), dists=np.ascontiguousarray(t_max, FLOAT), query="OCCLUDED"
+            _rows(origins), _rows(directions), dists=np.ascontiguousarray(t_max, FLOAT), query="OCCLUDED"
         )
         return hit != MISS
+
+
+def _rows(vectors: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(vectors, FLOAT)

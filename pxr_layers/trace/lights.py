@@ -10,51 +10,31 @@ Three kinds of emitters:
 
 One light per shading point is picked from a discrete distribution over "sources"
 (all emitting triangles count as one source) in proportion to an estimate of their power.
-Vectors and colours are component-major (3, n) arrays (see vectors.py).
+``LightSampler`` builds the tables (``LightArrays``) once per frame; kernels call
+:func:`sample`, :func:`emitted`, :func:`triangle_pdf` and the dome functions lane by lane.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from ..scene import FLOAT, SceneData
-from .shading import MaterialTable, interpolate
-from .textures import sample_bilinear
-from .vectors import dot, length, luminance, transform_rows
-from .world import World
+from . import shading, textures
+from .compiled import inline, kernel, scratch
+from .shading import MaterialArrays, MaterialTable
+from .vectors import basis, luminance, normalized
+from .world import GeometryArrays, World
 
 DOME_GRID = (64, 128)  # (rows, columns) of the dome's sampling distribution at most
-
-
-@dataclass
-class LightSample:
-    """n light samples toward points.
-
-    direction : (3, n) unit, from the shading point toward the light
-    distance  : (n,) metres to the sampled point (inf for distant and dome)
-    radiance  : (3, n) arriving radiance (irradiance for a delta distant light)
-    pdf       : (n,) solid-angle density including the light selection (inf = delta)
-    light     : (n,) int32 index into SceneData.lights, -1 for an emissive surface
-    triangle  : (n,) int32 sampled emitting triangle, -1 for distant and dome
-    """
-
-    direction: np.ndarray
-    distance: np.ndarray
-    radiance: np.ndarray
-    pdf: np.ndarray
-    light: np.ndarray
-    triangle: np.ndarray
 
 
 def _cumulative(weights: np.ndarray) -> np.ndarray:
     cdf = np.cumsum(weights, dtype=np.float64)
     return cdf / cdf[-1]
-
-
-def _pick(cdf: np.ndarray, u: np.ndarray) -> np.ndarray:
-    return np.minimum(np.searchsorted(cdf, u, side="right"), len(cdf) - 1)
 
 
 class DomeDistribution:
@@ -85,53 +65,6 @@ class DomeDistribution:
         self.column_cdf /= self.column_cdf[:, -1:]
         mean_texel = 1.0 if pixels is None else float(luminance(np.moveaxis(pixels[..., :3], -1, 0)).mean())
         self.mean_luminance = float(luminance(self.radiance)) * mean_texel
-
-    def radiance_toward(self, direction_world: np.ndarray) -> np.ndarray:
-        """Radiance (3, n) arriving from world directions (3, n)."""
-        if self.pixels is None:
-            return np.repeat(self.radiance[:, None], direction_world.shape[1], axis=1)
-        st = self._st(transform_rows(self.light_from_world, direction_world))
-        texels = sample_bilinear(self.pixels, st, "repeat", "clamp")
-        return texels[:3] * self.radiance[:, None]
-
-    @staticmethod
-    def _st(local: np.ndarray) -> np.ndarray:
-        """Lat-long st (2, n) of dome-frame directions (3, n)."""
-        latitude = np.arcsin(np.clip(local[1], -1, 1))
-        longitude = np.arctan2(local[0], local[2])
-        s = (np.pi - longitude) / (2 * np.pi)
-        t = (latitude + np.pi / 2) / np.pi  # st's t runs bottom to top
-        return np.stack([s, t]).astype(FLOAT)
-
-    def pdf(self, direction_world: np.ndarray) -> np.ndarray:
-        """Solid-angle density (n,) of sampling world directions (3, n)."""
-        local = transform_rows(self.light_from_world, direction_world)
-        st = self._st(local)
-        rows, cols = self.shape
-        column = np.clip((st[0] * cols).astype(np.int64), 0, cols - 1)
-        row = np.clip(((1 - st[1]) * rows).astype(np.int64), 0, rows - 1)
-        sin_theta = np.sqrt(np.maximum(1 - local[1] ** 2, 1e-12))
-        return (self.cell_probability[row, column] * rows * cols / (2 * np.pi**2 * sin_theta)).astype(FLOAT)
-
-    def sample(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Directions (3, n) world and their densities (n,), from u (2, n)."""
-        rows, cols = self.shape
-        row = _pick(self.row_cdf, u[0])
-        column = np.minimum((u[1][:, None] >= self.column_cdf[row]).sum(axis=1), cols - 1)
-        # Reuse the fractional position inside the chosen cell for a continuous direction.
-        row_low = np.where(row > 0, self.row_cdf[np.maximum(row - 1, 0)], 0.0)
-        row_fraction = (u[0] - row_low) / np.maximum(self.row_cdf[row] - row_low, 1e-12)
-        column_low = np.where(column > 0, self.column_cdf[row, np.maximum(column - 1, 0)], 0.0)
-        column_fraction = (u[1] - column_low) / np.maximum(self.column_cdf[row, column] - column_low, 1e-12)
-        v = (row + np.clip(row_fraction, 0, 1)) / rows
-        s = (column + np.clip(column_fraction, 0, 1)) / cols
-        latitude = np.pi / 2 - np.pi * v
-        longitude = np.pi - 2 * np.pi * s
-        local = np.stack(
-            [np.cos(latitude) * np.sin(longitude), np.sin(latitude), np.cos(latitude) * np.cos(longitude)]
-        ).astype(FLOAT)
-        world = transform_rows(self.light_from_world.T, local)  # inverse rotation = transpose
-        return world, self.pdf(world)
 
 
 def _block_mean(image: np.ndarray, rows: int, cols: int) -> np.ndarray:
@@ -166,33 +99,84 @@ class DistantLight:
         return self.radiance * np.pi * (1 - self.cos_max**2)
 
 
-class LightSampler:
-    """Picks and samples lights; knows every light's density for MIS."""
 
-    def __init__(self, scene: SceneData, world: World, materials: MaterialTable):
-        self.world = world
-        self.materials = materials
+AREA, DISTANT, DOME = range(3)  # source kinds
+
+
+class LightArrays(NamedTuple):
+    """What kernels read of the lights of a frame.
+
+    light_radiance   : (lights, 3) radiance of each light (its shape's, for area lights)
+    emitter_triangles: (e,) int32 triangles NEE samples, triangle_cdf (e,) float64 over them
+    triangle_probability : (t,) float32 probability of each triangle among the emitters
+    area_probability : (1,) float64 probability of the area source
+    distant_*        : per distant light (d,): direction (d, 3) unit toward it, radiance
+                       (d, 3), cos_max (cosine of the cone's half angle, 1 = delta), light
+                       index, source probability
+    dome_*           : per dome (D,): radiance (D, 3), light_from_world (D, 3, 3), texture
+                       (index into texture_info, −1 = none), rows, columns, offset into the
+                       flat cell tables, offset into dome_row_cdf, light index, probability
+    dome_cell_probability, dome_column_cdf : flat float64 (Σ rows·columns); dome_row_cdf
+                       flat float64 (Σ rows)
+    source_kind (s,) int64 AREA / DISTANT / DOME, source_item (s,) index among its kind,
+    source_cdf (s,) float64
+    texels, texture_info : the domes' textures (textures.py atlas)
+    """
+
+    light_radiance: np.ndarray
+    emitter_triangles: np.ndarray
+    triangle_cdf: np.ndarray
+    triangle_probability: np.ndarray
+    area_probability: np.ndarray
+    distant_direction: np.ndarray
+    distant_radiance: np.ndarray
+    distant_cos_max: np.ndarray
+    distant_light: np.ndarray
+    distant_probability: np.ndarray
+    dome_radiance: np.ndarray
+    dome_rotation: np.ndarray
+    dome_texture: np.ndarray
+    dome_rows: np.ndarray
+    dome_columns: np.ndarray
+    dome_cell_offset: np.ndarray
+    dome_row_offset: np.ndarray
+    dome_light: np.ndarray
+    dome_probability: np.ndarray
+    dome_cell_probability: np.ndarray
+    dome_column_cdf: np.ndarray
+    dome_row_cdf: np.ndarray
+    source_kind: np.ndarray
+    source_item: np.ndarray
+    source_cdf: np.ndarray
+    texels: np.ndarray
+    texture_info: np.ndarray
+
+
+class LightSampler:
+    """Picks lights in proportion to an estimate of their power; builds ``arrays``."""
+
+    def __init__(self, scene: SceneData, world: World, materials: MaterialTable, geometry: GeometryArrays):
         emissive_material = np.concatenate([materials.emissive, [False]])  # index -1 → False
         surface_emitter = (world.triangle_light < 0) & emissive_material[world.triangle_material]
         light_emitter = world.triangle_light >= 0
-        self.emitter_triangles = np.flatnonzero(surface_emitter | light_emitter).astype(np.int32)
-        self.light_radiance = np.array([light.radiance for light in scene.lights], FLOAT).reshape(-1, 3).T.copy()
+        self.triangle_emits = surface_emitter | light_emitter  # (t,) bool
+        emitter_triangles = np.flatnonzero(self.triangle_emits).astype(np.int32)
+        light_radiance = np.array([light.radiance for light in scene.lights], FLOAT).reshape(-1, 3)
 
-        sources: list[tuple[str, object, float]] = []
+        sources: list[tuple[int, object, float]] = []
         scene_area = np.pi * world.radius**2
-        if len(self.emitter_triangles):
-            tri = self.emitter_triangles
-            radiance = self._triangle_radiance_estimate(tri)
-            sides = np.where(world.triangle_light[tri] < 0, 2.0, 1.0)
-            power = world.area[tri] * luminance(radiance) * np.pi * sides
+        triangle_cdf = np.ones(1)
+        triangle_probability = np.zeros(world.triangle_count, FLOAT)
+        if len(emitter_triangles):
+            radiance = _centroid_emission(emitter_triangles, geometry, materials.arrays, light_radiance)
+            sides = np.where(world.triangle_light[emitter_triangles] < 0, 2.0, 1.0)
+            power = world.area[emitter_triangles] * luminance(radiance.T) * np.pi * sides
             keep = power > 0
-            self.emitter_triangles = tri[keep]
-            power = power[keep]
+            emitter_triangles, power = emitter_triangles[keep], power[keep]
             if len(power):
-                self.triangle_cdf = _cumulative(power)
-                self.triangle_probability = np.zeros(world.triangle_count, FLOAT)
-                self.triangle_probability[self.emitter_triangles] = power / power.sum()
-                sources.append(("area", None, float(power.sum())))
+                triangle_cdf = _cumulative(power)
+                triangle_probability[emitter_triangles] = power / power.sum()
+                sources.append((AREA, None, float(power.sum())))
         self.distant: list[DistantLight] = []
         self.domes: list[DomeDistribution] = []
         for index, light in enumerate(scene.lights):
@@ -203,161 +187,247 @@ class LightSampler:
                 distant = DistantLight(index, (toward / np.linalg.norm(toward)).astype(FLOAT),
                                        np.asarray(light.radiance, FLOAT), float(np.cos(half_angle)))
                 self.distant.append(distant)
-                sources.append(("distant", distant, float(luminance(distant.irradiance)) * scene_area))
+                sources.append((DISTANT, distant, float(luminance(distant.irradiance)) * scene_area))
             elif light.kind == "dome":
                 orthonormal = rotation / np.linalg.norm(rotation, axis=0, keepdims=True)
                 pixels = None if light.texture is None else scene.textures[light.texture].pixels
                 dome = DomeDistribution(index, light.radiance, pixels, orthonormal.T)
                 self.domes.append(dome)
-                sources.append(("dome", dome, dome.mean_luminance * np.pi * scene_area))
-        self.sources = [source for source in sources if source[2] > 0]
-        power = np.array([source[2] for source in self.sources] or [1.0])
-        self.source_cdf = _cumulative(power)
-        self.source_probability = power / power.sum()
-        self._area_probability = 0.0
-        self._probability_of: dict[int, float] = {}
-        for (kind, obj, _), probability in zip(self.sources, self.source_probability):
-            if kind == "area":
-                self._area_probability = float(probability)
-            else:
-                self._probability_of[id(obj)] = float(probability)
-
-    @property
-    def has_lights(self) -> bool:
-        return bool(self.sources)
-
-    def _triangle_radiance_estimate(self, triangles: np.ndarray) -> np.ndarray:
-        """Radiance (3, t) of emitting triangles at their centroids (for power estimates)."""
-        third = np.full(len(triangles), 1 / 3, FLOAT)
-        st = interpolate(self.world.corner_uvs, triangles, third, third)
-        return self.emitted(triangles, st, np.ones(len(triangles), FLOAT))
-
-    def emitted(self, triangle: np.ndarray, st: np.ndarray, cos_toward_viewer: np.ndarray) -> np.ndarray:
-        """Radiance (3, n) leaving emitting triangles (n,) toward a viewer.
-
-        st                : (2, n) texture coordinates on the triangles
-        cos_toward_viewer : (n,) cosine between the triangle's geometric normal and the
-                            direction to the viewer; light shapes emit on their front only.
-        """
-        light = np.take(self.world.triangle_light, triangle)
-        is_light = light >= 0
-        radiance = np.zeros((3, len(triangle)), FLOAT)
-        lights = np.flatnonzero(is_light)
-        if len(lights):
-            front = cos_toward_viewer[lights] > 0
-            radiance[:, lights] = np.take(self.light_radiance, light[lights], axis=1) * front
-        surface = np.flatnonzero(~is_light)
-        if len(surface):
-            material = np.take(self.world.triangle_material, triangle[surface])
-            radiance[:, surface] = self.materials.emission(material, st[:, surface])
-        return radiance
-
-    def triangle_pdf(self, triangle: np.ndarray, distance: np.ndarray, cos_light: np.ndarray) -> np.ndarray:
-        """Solid-angle density (n,) with which next-event estimation picks a point seen at
-        `distance` (n,) on `triangle` (n,) under |cos_light| (n,)."""
-        if self._area_probability == 0:
-            return np.zeros(len(triangle), FLOAT)
-        area_density = self._area_probability * np.take(self.triangle_probability, triangle) / np.take(
-            self.world.area, triangle
-        )
-        return (area_density * distance**2 / np.maximum(np.abs(cos_light), 1e-8)).astype(FLOAT)
-
-    def source_probability_of(self, source: object) -> float:
-        return self._probability_of.get(id(source), 0.0)
-
-    def sample(self, points: np.ndarray, u: np.ndarray) -> LightSample:
-        """One light sample per point. points (3, n) metres, u (4, n) uniforms."""
-        n = points.shape[1]
-        direction = np.zeros((3, n), FLOAT)
-        direction[2] = 1
-        distance = np.full(n, np.inf, FLOAT)
-        radiance = np.zeros((3, n), FLOAT)
-        pdf = np.zeros(n, FLOAT)
-        light = np.full(n, -1, np.int32)
-        triangle = np.full(n, -1, np.int32)
-        if not self.sources:
-            return LightSample(direction, distance, radiance, pdf, light, triangle)
-        source = _pick(self.source_cdf, u[0])
-        for source_index, (kind, obj, _) in enumerate(self.sources):
-            lanes = np.flatnonzero(source == source_index)
-            if not len(lanes):
-                continue
-            probability = self.source_probability[source_index]
-            if kind == "area":
-                self._sample_triangles(points, u, lanes, direction, distance, radiance, pdf, light, triangle)
-            elif kind == "distant":
-                distant: DistantLight = obj  # type: ignore[assignment]
-                light[lanes] = distant.light_index
-                if distant.is_delta:
-                    direction[:, lanes] = distant.direction[:, None]
-                    pdf[lanes] = np.inf
-                    radiance[:, lanes] = (distant.radiance / probability)[:, None]
-                else:
-                    direction[:, lanes] = _sample_cone(distant.direction, distant.cos_max, u[1, lanes], u[2, lanes])
-                    pdf[lanes] = probability / distant.solid_angle
-                    radiance[:, lanes] = distant.radiance[:, None]
-            else:
-                dome: DomeDistribution = obj  # type: ignore[assignment]
-                light[lanes] = dome.light_index
-                sampled, density = dome.sample(u[1:3, lanes])
-                direction[:, lanes] = sampled
-                radiance[:, lanes] = dome.radiance_toward(sampled)
-                pdf[lanes] = probability * density
-        return LightSample(direction, distance, radiance, pdf, light, triangle)
-
-    def _sample_triangles(self, points, u, lanes, direction, distance, radiance, pdf, light, triangle):
-        chosen = np.take(self.emitter_triangles, _pick(self.triangle_cdf, u[3, lanes]))
-        # A uniform point on the triangle.
-        root = np.sqrt(u[1, lanes])
-        bu = (u[2, lanes] * root).astype(FLOAT)
-        bv = (1.0 - root).astype(FLOAT)
-        position = interpolate(self.world.corner_positions, chosen, bu, bv)
-        offset = position - points[:, lanes]
-        distance_to = length(offset)
-        to_light = offset / np.maximum(distance_to, 1e-12)
-        normal = np.take(self.world.geometric_normal, chosen, axis=1)
-        cos_light = -dot(normal, to_light)
-        st = interpolate(self.world.corner_uvs, chosen, bu, bv)
-        direction[:, lanes] = to_light
-        distance[lanes] = distance_to
-        radiance[:, lanes] = self.emitted(chosen, st, cos_light)
-        pdf[lanes] = self.triangle_pdf(chosen, distance_to, cos_light)
-        light[lanes] = np.take(self.world.triangle_light, chosen)
-        triangle[lanes] = chosen
-
-    def escaped(self, directions: np.ndarray):
-        """Each infinite light seen along escaping directions (3, n).
-
-        Yields (light index, radiance (3, n), density (n,) of NEE picking that direction).
-        """
+                sources.append((DOME, dome, dome.mean_luminance * np.pi * scene_area))
+        sources = [source for source in sources if source[2] > 0]
+        self.has_lights = bool(sources)
+        self.has_infinite_lights = bool(self.domes or any(not d.is_delta for d in self.distant))
+        power = np.array([source[2] for source in sources] or [1.0])
+        probability = power / power.sum()
+        probability_of = {id(obj): p for (_, obj, _), p in zip(sources, probability)}
+        area_probability = sum(p for (kind, _, _), p in zip(sources, probability) if kind == AREA)
+        items = {AREA: [None], DISTANT: self.distant, DOME: self.domes}
+        dome_textures = [dome.pixels for dome in self.domes if dome.pixels is not None]
+        texels, texture_info = textures.pack(dome_textures)
+        rows = np.array([dome.shape[0] for dome in self.domes], np.int64)
+        cols = np.array([dome.shape[1] for dome in self.domes], np.int64)
+        texture_of, next_texture = [], 0
         for dome in self.domes:
-            probability = self.source_probability_of(dome)
-            yield dome.light_index, dome.radiance_toward(directions), probability * dome.pdf(directions)
-        for distant in self.distant:
-            if distant.is_delta:
-                continue
-            inside = dot(directions, distant.direction[:, None]) >= distant.cos_max
-            radiance = np.where(inside, distant.radiance[:, None], 0.0).astype(FLOAT)
-            density = np.where(inside, self.source_probability_of(distant) / distant.solid_angle, 0.0)
-            yield distant.light_index, radiance, density.astype(FLOAT)
+            texture_of.append(-1 if dome.pixels is None else next_texture)
+            next_texture += dome.pixels is not None
+
+        def flat(values: list[np.ndarray]) -> np.ndarray:
+            return np.concatenate([np.ravel(v) for v in values]) if values else np.zeros(0)
+
+        self.arrays = LightArrays(
+            light_radiance=light_radiance,
+            emitter_triangles=emitter_triangles,
+            triangle_cdf=triangle_cdf,
+            triangle_probability=triangle_probability,
+            area_probability=np.array([area_probability], np.float64),
+            distant_direction=np.array([d.direction for d in self.distant], np.float64).reshape(-1, 3),
+            distant_radiance=np.array([d.radiance for d in self.distant], np.float64).reshape(-1, 3),
+            distant_cos_max=np.array([d.cos_max for d in self.distant], np.float64),
+            distant_light=np.array([d.light_index for d in self.distant], np.int64),
+            distant_probability=np.array([probability_of.get(id(d), 0.0) for d in self.distant], np.float64),
+            dome_radiance=np.array([d.radiance for d in self.domes], np.float64).reshape(-1, 3),
+            dome_rotation=np.array([d.light_from_world for d in self.domes], np.float64).reshape(-1, 3, 3),
+            dome_texture=np.array(texture_of, np.int64),
+            dome_rows=rows, dome_columns=cols,
+            dome_cell_offset=np.concatenate([[0], np.cumsum(rows * cols)[:-1]]).astype(np.int64) if len(rows)
+            else np.zeros(0, np.int64),
+            dome_row_offset=np.concatenate([[0], np.cumsum(rows)[:-1]]).astype(np.int64) if len(rows)
+            else np.zeros(0, np.int64),
+            dome_light=np.array([d.light_index for d in self.domes], np.int64),
+            dome_probability=np.array([probability_of.get(id(d), 0.0) for d in self.domes], np.float64),
+            dome_cell_probability=flat([d.cell_probability for d in self.domes]),
+            dome_column_cdf=flat([d.column_cdf for d in self.domes]),
+            dome_row_cdf=flat([d.row_cdf for d in self.domes]),
+            source_kind=np.array([kind for kind, _, _ in sources] or [AREA], np.int64),
+            source_item=np.array([items[kind].index(obj) if kind != AREA else 0 for kind, obj, _ in sources] or [0],
+                                 np.int64),
+            source_cdf=_cumulative(power),
+            texels=texels, texture_info=texture_info,
+        )
 
 
-def _sample_cone(axis: np.ndarray, cos_max: float, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
-    """Uniform directions (3, n) within the cone around the unit axis (3,)."""
-    cos_theta = 1.0 - u1 * (1.0 - cos_max)
-    sin_theta = np.sqrt(np.maximum(1.0 - cos_theta**2, 0.0))
-    phi = 2 * np.pi * u2
-    tangent, bitangent = orthonormal_basis(axis[:, None].astype(FLOAT))
-    return (tangent * (sin_theta * np.cos(phi)) + bitangent * (sin_theta * np.sin(phi))
-            + axis[:, None] * cos_theta).astype(FLOAT)
+def _centroid_emission(triangles: np.ndarray, geometry: GeometryArrays, materials: MaterialArrays,
+                       light_radiance: np.ndarray) -> np.ndarray:
+    """Radiance (e, 3) leaving emitting triangles at their centroids, toward their front."""
+    out = np.zeros((len(triangles), 3), np.float64)
+    _centroid_emission_kernel(triangles, geometry.corner_uvs, geometry.triangle_material, geometry.triangle_light,
+                              light_radiance, materials.constants, materials.slot_input, materials.input_ints,
+                              materials.input_floats, materials.texels, materials.texture_info, scratch(3), out)
+    return out
 
 
-def orthonormal_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Tangent and bitangent (3, n) completing unit normals (3, n) (Duff et al. 2017)."""
-    x, y, z = normal
-    sign = np.where(z >= 0, 1.0, -1.0).astype(FLOAT)
-    a = -1.0 / (sign + z)
-    b = x * y * a
-    tangent = np.stack([1.0 + sign * x * x * a, sign * b, -sign * x])
-    bitangent = np.stack([b, sign + y * y * a, -y])
-    return tangent.astype(FLOAT), bitangent.astype(FLOAT)
+@kernel
+def _centroid_emission_kernel(triangles, corner_uvs, triangle_material, triangle_light, light_radiance, constants,
+                              slot_input, input_ints, input_floats, texels, texture_info, radiance, out):
+    third = 1.0 / 3.0
+    for lane in range(len(triangles)):
+        triangle = triangles[lane]
+        s, t = shading.interpolate_st(corner_uvs, triangle, third, third)
+        emitted(triangle, s, t, 1.0, triangle_material, triangle_light, light_radiance, constants, slot_input,
+                input_ints, input_floats, texels, texture_info, radiance)
+        out[lane, 0], out[lane, 1], out[lane, 2] = radiance[0], radiance[1], radiance[2]
+
+
+# -- per-lane functions of kernels
+
+@inline
+def pick(cdf, start, count, u):
+    """The first index i in [0, count) with cdf[start + i] > u (the last if none)."""
+    low, high = 0, count - 1
+    while low < high:
+        middle = (low + high) // 2
+        if cdf[start + middle] > u:
+            high = middle
+        else:
+            low = middle + 1
+    return low
+
+
+@inline
+def emitted(triangle, s, t, cos_toward_viewer, triangle_material, triangle_light, light_radiance, constants,
+            slot_input, input_ints, input_floats, texels, texture_info, out):
+    """Radiance leaving an emitting `triangle` at (s, t) toward a viewer under
+    cos_toward_viewer (from its geometric normal) into out (3,): light shapes emit on their
+    front only, emissive surfaces on both sides."""
+    light = triangle_light[triangle]
+    if light >= 0:
+        front = 1.0 if cos_toward_viewer > 0 else 0.0
+        out[0], out[1], out[2] = (light_radiance[light, 0] * front, light_radiance[light, 1] * front,
+                                  light_radiance[light, 2] * front)
+    else:
+        shading.emission(constants, slot_input, input_ints, input_floats, texels, texture_info,
+                         triangle_material[triangle], s, t, out)
+
+
+@inline
+def triangle_pdf(triangle, distance, cos_light, area_probability, triangle_probability, area):
+    """Solid-angle density with which NEE picks a point seen at `distance` on `triangle`
+    under |cos_light|."""
+    if area_probability[0] == 0:
+        return 0.0
+    area_density = area_probability[0] * triangle_probability[triangle] / area[triangle]
+    return area_density * distance * distance / max(abs(cos_light), 1e-8)
+
+
+@inline
+def dome_local(rotation, dome, x, y, z):
+    return (rotation[dome, 0, 0] * x + rotation[dome, 0, 1] * y + rotation[dome, 0, 2] * z,
+            rotation[dome, 1, 0] * x + rotation[dome, 1, 1] * y + rotation[dome, 1, 2] * z,
+            rotation[dome, 2, 0] * x + rotation[dome, 2, 1] * y + rotation[dome, 2, 2] * z)
+
+
+@inline
+def _lat_long(lx, ly, lz):
+    """Lat-long st of a dome-frame direction (st's t runs bottom to top)."""
+    latitude = math.asin(min(max(ly, -1.0), 1.0))
+    longitude = math.atan2(lx, lz)
+    return (math.pi - longitude) / (2 * math.pi), (latitude + math.pi / 2) / math.pi
+
+
+@inline
+def dome_radiance(lights, dome, x, y, z):
+    """Radiance (r, g, b) dome `dome` sends from world direction (x, y, z)."""
+    r, g, b = lights.dome_radiance[dome, 0], lights.dome_radiance[dome, 1], lights.dome_radiance[dome, 2]
+    texture = lights.dome_texture[dome]
+    if texture < 0:
+        return r, g, b
+    lx, ly, lz = dome_local(lights.dome_rotation, dome, x, y, z)
+    s, t = _lat_long(lx, ly, lz)
+    i00, i10, i01, i11, fx, fy = textures.footprint(lights.texture_info, texture, s, t, 0, 2)
+    texels = lights.texels
+    return (r * textures.blend(texels, i00, i10, i01, i11, fx, fy, 0),
+            g * textures.blend(texels, i00, i10, i01, i11, fx, fy, 1),
+            b * textures.blend(texels, i00, i10, i01, i11, fx, fy, 2))
+
+
+@inline
+def dome_pdf(lights, dome, x, y, z):
+    """Solid-angle density of dome `dome`'s own sampling of world direction (x, y, z)
+    (without the source's probability)."""
+    lx, ly, lz = dome_local(lights.dome_rotation, dome, x, y, z)
+    s, t = _lat_long(lx, ly, lz)
+    rows, cols = lights.dome_rows[dome], lights.dome_columns[dome]
+    column = min(max(np.int64(s * cols), 0), cols - 1)
+    row = min(max(np.int64((1 - t) * rows), 0), rows - 1)
+    sin_theta = math.sqrt(max(1 - ly * ly, 1e-12))
+    cell = lights.dome_cell_probability[lights.dome_cell_offset[dome] + row * cols + column]
+    return cell * rows * cols / (2 * math.pi * math.pi * sin_theta)
+
+
+@inline
+def dome_sample(lights, dome, u1, u2):
+    """A world direction (x, y, z) from dome `dome`'s distribution."""
+    rows, cols = lights.dome_rows[dome], lights.dome_columns[dome]
+    row_cdf, column_cdf = lights.dome_row_cdf, lights.dome_column_cdf
+    row_start, cell_start = lights.dome_row_offset[dome], lights.dome_cell_offset[dome]
+    row = pick(row_cdf, row_start, rows, u1)
+    row_low = row_cdf[row_start + row - 1] if row > 0 else 0.0
+    row_fraction = (u1 - row_low) / max(row_cdf[row_start + row] - row_low, 1e-12)
+    start = cell_start + row * cols
+    column = pick(column_cdf, start, cols, u2)
+    column_low = column_cdf[start + column - 1] if column > 0 else 0.0
+    column_fraction = (u2 - column_low) / max(column_cdf[start + column] - column_low, 1e-12)
+    v = (row + min(max(row_fraction, 0.0), 1.0)) / rows
+    s = (column + min(max(column_fraction, 0.0), 1.0)) / cols
+    latitude = math.pi / 2 - math.pi * v
+    longitude = math.pi - 2 * math.pi * s
+    lx, ly, lz = math.cos(latitude) * math.sin(longitude), math.sin(latitude), math.cos(latitude) * math.cos(longitude)
+    rotation = lights.dome_rotation  # world = rotationᵀ · local (a rotation's inverse)
+    return (rotation[dome, 0, 0] * lx + rotation[dome, 1, 0] * ly + rotation[dome, 2, 0] * lz,
+            rotation[dome, 0, 1] * lx + rotation[dome, 1, 1] * ly + rotation[dome, 2, 1] * lz,
+            rotation[dome, 0, 2] * lx + rotation[dome, 1, 2] * ly + rotation[dome, 2, 2] * lz)
+
+
+@inline
+def sample(lights, geometry, materials, px, py, pz, u0, u1, u2, u3, scratch):
+    """One light sample toward point (px, py, pz) from uniforms u0 (source), u1, u2
+    (position), u3 (triangle). Returns (direction x, y, z unit toward the light; distance,
+    metres, inf for distant and dome; radiance r, g, b arriving (irradiance for a delta
+    distant light, already divided by its probability); pdf, solid angle, with the
+    light's selection, inf for a delta; light index, −1 for an emissive surface; triangle
+    sampled, −1 for distant and dome). pdf 0: no sample."""
+    source = pick(lights.source_cdf, 0, len(lights.source_cdf), u0)
+    kind, item = lights.source_kind[source], lights.source_item[source]
+    if kind == AREA:
+        chosen = lights.emitter_triangles[pick(lights.triangle_cdf, 0, len(lights.triangle_cdf), u3)]
+        root = math.sqrt(u1)
+        bu, bv = u2 * root, 1.0 - root
+        corners = geometry.corner_positions
+        w = 1.0 - bu - bv
+        qx = w * corners[chosen, 0, 0] + bu * corners[chosen, 1, 0] + bv * corners[chosen, 2, 0]
+        qy = w * corners[chosen, 0, 1] + bu * corners[chosen, 1, 1] + bv * corners[chosen, 2, 1]
+        qz = w * corners[chosen, 0, 2] + bu * corners[chosen, 1, 2] + bv * corners[chosen, 2, 2]
+        ox, oy, oz = qx - px, qy - py, qz - pz
+        distance = math.sqrt(ox * ox + oy * oy + oz * oz)
+        dx, dy, dz = normalized(ox, oy, oz, 1e-12)
+        normal = geometry.geometric_normal
+        cos_light = -(normal[chosen, 0] * dx + normal[chosen, 1] * dy + normal[chosen, 2] * dz)
+        s, t = shading.interpolate_st(geometry.corner_uvs, chosen, bu, bv)
+        emitted(chosen, s, t, cos_light, geometry.triangle_material, geometry.triangle_light,
+                lights.light_radiance, materials.constants, materials.slot_input, materials.input_ints,
+                materials.input_floats, materials.texels, materials.texture_info, scratch)
+        pdf = triangle_pdf(chosen, distance, cos_light, lights.area_probability, lights.triangle_probability,
+                           geometry.area)
+        return (dx, dy, dz, distance, scratch[0], scratch[1], scratch[2], pdf, geometry.triangle_light[chosen],
+                chosen)
+    if kind == DISTANT:
+        light = lights.distant_light[item]
+        ax, ay, az = lights.distant_direction[item, 0], lights.distant_direction[item, 1], lights.distant_direction[item, 2]
+        r, g, b = lights.distant_radiance[item, 0], lights.distant_radiance[item, 1], lights.distant_radiance[item, 2]
+        probability = lights.distant_probability[item]
+        cos_max = lights.distant_cos_max[item]
+        if cos_max >= 1.0:
+            return ax, ay, az, math.inf, r / probability, g / probability, b / probability, math.inf, light, -1
+        cos_theta = 1.0 - u1 * (1.0 - cos_max)
+        sin_theta = math.sqrt(max(1.0 - cos_theta * cos_theta, 0.0))
+        phi = 2 * math.pi * u2
+        tx, ty, tz, bx, by, bz = basis(ax, ay, az)
+        cx, sx = sin_theta * math.cos(phi), sin_theta * math.sin(phi)
+        dx, dy, dz = (tx * cx + bx * sx + ax * cos_theta, ty * cx + by * sx + ay * cos_theta,
+                      tz * cx + bz * sx + az * cos_theta)
+        pdf = probability / (2 * math.pi * (1 - cos_max))
+        return dx, dy, dz, math.inf, r, g, b, pdf, light, -1
+    dx, dy, dz = dome_sample(lights, item, u1, u2)
+    r, g, b = dome_radiance(lights, item, dx, dy, dz)
+    pdf = lights.dome_probability[item] * dome_pdf(lights, item, dx, dy, dz)
+    return dx, dy, dz, math.inf, r, g, b, pdf, lights.dome_light[item], -1

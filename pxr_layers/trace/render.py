@@ -23,7 +23,7 @@ from .embree import RayCaster
 from .integrator import BatchResult, Integrator, TraceSettings
 from .lights import LightSampler
 from .shading import MaterialTable
-from .world import build_world
+from .world import build_world, geometry_arrays
 
 log = logging.getLogger(__name__)
 
@@ -63,8 +63,9 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
     if settings.max_depth < 0:
         raise RenderSettingsError(f"max depth must be 0 or more, got {settings.max_depth}")
     world = build_world(scene)
+    geometry = geometry_arrays(world)
     materials = MaterialTable(scene)
-    lights = LightSampler(scene, world, materials)
+    lights = LightSampler(scene, world, materials, geometry)
     if not lights.has_lights:
         log.warning("%s: no light emits anything: the image will be black", scene.stage_path)
     camera = PinholeCamera.from_spec(spec)
@@ -78,7 +79,7 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
         material_names=tuple(m.name for m in scene.materials), material_paths=tuple(m.path for m in scene.materials),
         light_names=tuple(light.name for light in scene.lights), light_paths=tuple(light.path for light in scene.lights),
     )
-    return Integrator(world, materials, lights, camera, spec.resolution, settings, scene.frame, RayCaster(world),
+    return Integrator(world, geometry, materials, lights, camera, spec.resolution, settings, scene.frame, RayCaster(world),
                       vocabulary, triangle_subject.reshape(-1).astype(np.int64), bounce_norms)
 
 

@@ -4,50 +4,64 @@ A path's stream is keyed by (seed, frame, pixel, sample) and each random number 
 by a *dimension* index, so results never depend on batch sizes, thread counts or the order
 in which paths are traced. The mixer is SplitMix64's finaliser (Steele et al. 2014), a
 bijection on 64-bit integers with full avalanche, which is all a counter-based generator
-needs.
+needs. Kernels call :func:`path_key` and :func:`uniform` per lane (uint64 arithmetic
+wraps, as intended).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-_U64 = np.uint64
-_GOLDEN = _U64(0x9E3779B97F4A7C15)
-_PIXEL_STEP = _U64(0xD1B54A32D192ED03)
-_SAMPLE_STEP = _U64(0xAEF17502108EF2D9)
-_MUL1 = _U64(0xBF58476D1CE4E5B9)
-_MUL2 = _U64(0x94D049BB133111EB)
+from .compiled import inline
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_PIXEL_STEP = np.uint64(0xD1B54A32D192ED03)
+_SAMPLE_STEP = np.uint64(0xAEF17502108EF2D9)
+_MUL1 = np.uint64(0xBF58476D1CE4E5B9)
+_MUL2 = np.uint64(0x94D049BB133111EB)
+_S30, _S27, _S31, _S40 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(40)
+_ONE = np.uint64(1)
 _TO_UNIT = np.float32(2.0**-24)
 
+CAMERA_DIMENSIONS = 2  # film jitter x, y
+STEP_DIMENSIONS = 8  # per bounce: lobe, direction ×2, light pick, light position ×3, roulette
+LOBE, DIRECTION, LIGHT_PICK, LIGHT_POSITION, ROULETTE = 0, 1, 3, 4, 7  # offsets within a step
 
-def mix64(z: np.ndarray) -> np.ndarray:
-    """SplitMix64 finaliser. z : any shape, uint64 (wrapping arithmetic is intended)."""
-    z = (z ^ (z >> _U64(30))) * _MUL1
-    z = (z ^ (z >> _U64(27))) * _MUL2
-    return z ^ (z >> _U64(31))
+
+@inline
+def mix64(z):
+    """SplitMix64 finaliser of one uint64."""
+    z = (z ^ (z >> _S30)) * _MUL1
+    z = (z ^ (z >> _S27)) * _MUL2
+    return z ^ (z >> _S31)
 
 
 def frame_key(seed: int, frame: float) -> np.uint64:
     """One 64-bit key for a (seed, frame) pair; a NaN frame (default time) is its own key."""
-    frame_bits = np.array([frame], dtype=np.float64).view(np.uint64)
-    seed_bits = np.array([seed & 0xFFFFFFFFFFFFFFFF], dtype=np.uint64)
+    frame_bits = np.array([frame], dtype=np.float64).view(np.uint64)[0]
+    seed_bits = np.uint64(seed & 0xFFFFFFFFFFFFFFFF)
+    return np.uint64(_mix64_scalar(_mix64_scalar(seed_bits) ^ frame_bits))
+
+
+def _mix64_scalar(z: np.uint64) -> np.uint64:
     with np.errstate(over="ignore"):
-        return mix64(mix64(seed_bits) ^ frame_bits)[0]
+        return mix64.py_func(np.uint64(z))
 
 
-def path_keys(key: np.uint64, pixel: np.ndarray, sample: np.ndarray) -> np.ndarray:
-    """Per-path stream keys. pixel, sample : (n,) integer arrays -> (n,) uint64."""
-    with np.errstate(over="ignore"):
-        z = mix64(key + pixel.astype(np.uint64) * _PIXEL_STEP)
-        return mix64(z + sample.astype(np.uint64) * _SAMPLE_STEP)
+@inline
+def path_key(key, pixel, sample):
+    """The stream key of one path (uint64) from the frame key and its pixel and sample."""
+    z = mix64(key + np.uint64(pixel) * _PIXEL_STEP)
+    return mix64(z + np.uint64(sample) * _SAMPLE_STEP)
 
 
-def uniforms(keys: np.ndarray, first_dimension: int, count: int) -> np.ndarray:
-    """Uniform floats in [0, 1) for dimensions first_dimension .. +count of each stream.
+@inline
+def uniform(key, dimension):
+    """A float32 in [0, 1) (24 bits) for `dimension` of the stream `key`."""
+    bits = mix64(key + (np.uint64(dimension) + _ONE) * _GOLDEN)
+    return np.float32(bits >> _S40) * _TO_UNIT
 
-    keys : (n,) uint64 path keys -> (count, n) float32 (one row per dimension), 24 bits.
-    """
-    dims = (np.arange(first_dimension, first_dimension + count, dtype=np.uint64) + _U64(1)) * _GOLDEN
-    with np.errstate(over="ignore"):
-        bits = mix64(keys[None, :] + dims[:, None])
-    return (bits >> _U64(40)).astype(np.float32) * _TO_UNIT
+
+def step_dimension(step: int) -> int:
+    """The first dimension of bounce `step` (after the camera's)."""
+    return CAMERA_DIMENSIONS + step * STEP_DIMENSIONS

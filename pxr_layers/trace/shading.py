@@ -1,136 +1,137 @@
-"""Surface points and UsdPreviewSurface inputs evaluated for batches of ray hits.
+"""UsdPreviewSurface inputs as tables for kernels, and their per-lane evaluation.
 
-Vectors and colours are component-major (3, n) arrays (see vectors.py).
+``MaterialTable`` turns SceneData.materials into arrays (one row per material, plus a last
+row that index −1, the light shapes, reads and never shades): ``constants`` (m + 1,
+MATERIAL_FIELDS) float32 holds every input's constant value, ``slot_input`` (m + 1, SLOTS)
+int32 the texture input driving each slot (−1: none), and the texture inputs themselves
+are ``input_ints`` (k, 7) int32 (texture, channel count, channels ×3, wrap s, wrap t) and
+``input_floats`` (k, 8) float32 (scale ×4, bias ×4), with the textures packed in one atlas
+(textures.py). A texture input's value is ``texel[channels] · scale[channels] +
+bias[channels]``; a colour driven by one channel repeats it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
-from ..scene import FLOAT, Material, SceneData, TextureInput
-from .textures import sample_bilinear
-from .vectors import normalize
-from .world import World
+from ..scene import Material, SceneData, TextureInput
+from . import textures
+from .compiled import inline
 
-_COLOR_INPUTS = ("diffuse_color", "emissive_color", "specular_color")
-_SCALAR_INPUTS = ("roughness", "metallic", "opacity", "clearcoat", "clearcoat_roughness")
-
-
-@dataclass
-class SurfacePoints:
-    """Geometry at n hit points (world space, metres).
-
-    position         : (3, n) float32
-    geometric_normal : (3, n) float32 unit, from the triangle's winding (not flipped)
-    shading_normal   : (3, n) float32 unit, interpolated
-    st               : (2, n) float32
-    triangle         : (n,) int32
-    """
-
-    position: np.ndarray
-    geometric_normal: np.ndarray
-    shading_normal: np.ndarray
-    st: np.ndarray
-    triangle: np.ndarray
+# Columns of a material row; the slots (inputs a texture may drive) in the same order.
+DIFFUSE, EMISSIVE, SPECULAR = 0, 3, 6  # 3 columns each
+ROUGHNESS, METALLIC, OPACITY, CLEARCOAT, CLEARCOAT_ROUGHNESS = 9, 10, 11, 12, 13
+IOR, OPACITY_THRESHOLD, USE_SPECULAR_WORKFLOW = 14, 15, 16
+MATERIAL_FIELDS = 17
+_SLOTS = (("diffuse_color", DIFFUSE, 3), ("emissive_color", EMISSIVE, 3), ("specular_color", SPECULAR, 3),
+          ("roughness", ROUGHNESS, 1), ("metallic", METALLIC, 1), ("opacity", OPACITY, 1),
+          ("clearcoat", CLEARCOAT, 1), ("clearcoat_roughness", CLEARCOAT_ROUGHNESS, 1))
+SLOT_COLUMN = np.array([column for _, column, _ in _SLOTS], np.int64)
+SLOT_WIDTH = np.array([width for _, _, width in _SLOTS], np.int64)
+SLOTS = len(_SLOTS)
+EMISSIVE_SLOT = 1
 
 
-def surface_points(world: World, triangle: np.ndarray, u: np.ndarray, v: np.ndarray) -> SurfacePoints:
-    """Interpolate position, normal and st at barycentrics (u, v) of `triangle` (all (n,))."""
-    position = interpolate(world.corner_positions, triangle, u, v)
-    shading = normalize(interpolate(world.corner_normals, triangle, u, v), 1e-12)
-    st = interpolate(world.corner_uvs, triangle, u, v)
-    normal = np.take(world.geometric_normal, triangle, axis=1)
-    return SurfacePoints(position, normal, shading, st, triangle)
+class MaterialArrays(NamedTuple):
+    """What kernels read of the materials (see the module docstring)."""
 
-
-def interpolate(corners: np.ndarray, triangle: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(1 − u − v)·c0 + u·c1 + v·c2 of corner data (3 corners, k, t) at `triangle`, u, v
-    (all (n,)) -> (k, n) float32."""
-    u = u.astype(FLOAT, copy=False)
-    v = v.astype(FLOAT, copy=False)
-    c0 = np.take(corners[0], triangle, axis=1)
-    c1 = np.take(corners[1], triangle, axis=1)
-    c2 = np.take(corners[2], triangle, axis=1)
-    return c0 + (c1 - c0) * u + (c2 - c0) * v
-
-
-@dataclass
-class SurfaceInputs:
-    """UsdPreviewSurface inputs at n points; (3, n) for colours, (n,) for scalars."""
-
-    diffuse_color: np.ndarray
-    emissive_color: np.ndarray
-    specular_color: np.ndarray
-    roughness: np.ndarray
-    metallic: np.ndarray
-    opacity: np.ndarray
-    clearcoat: np.ndarray
-    clearcoat_roughness: np.ndarray
-    use_specular_workflow: np.ndarray  # (n,) bool
-    ior: np.ndarray
-    opacity_threshold: np.ndarray
+    constants: np.ndarray
+    slot_input: np.ndarray
+    textured: np.ndarray  # (m + 1,) bool: some slot is textured
+    input_ints: np.ndarray
+    input_floats: np.ndarray
+    texels: np.ndarray
+    texture_info: np.ndarray
 
 
 class MaterialTable:
-    """Every material's constant inputs as arrays, plus the list of texture-driven inputs."""
+    """Every material's inputs as arrays, for kernels (``arrays``)."""
 
     def __init__(self, scene: SceneData):
         materials = scene.materials or (Material(name="default", path="<default>"),)
-        self._textures = scene.textures
-        self._constants: dict[str, np.ndarray] = {}
-        self._textured: list[tuple[str, int, TextureInput]] = []
-        for name in _COLOR_INPUTS + _SCALAR_INPUTS:
-            width = 3 if name in _COLOR_INPUTS else 1
-            table = np.zeros((width, len(materials)), FLOAT)
-            for index, material in enumerate(materials):
+        rows = len(materials) + 1
+        constants = np.zeros((rows, MATERIAL_FIELDS), np.float32)
+        slot_input = np.full((rows, SLOTS), -1, np.int32)
+        input_ints: list[list[int]] = []
+        input_floats: list[list[float]] = []
+        used_textures: dict[int, int] = {}
+        for index, material in enumerate(materials):
+            for slot, (name, column, width) in enumerate(_SLOTS):
                 value = getattr(material, name)
                 if isinstance(value, TextureInput):
-                    self._textured.append((name, index, value))
+                    atlas_index = used_textures.setdefault(value.texture, len(used_textures))
+                    channels = list(value.channels)[:3]
+                    input_ints.append([atlas_index, len(channels), *(channels + [0, 0, 0])[:3],
+                                       textures.wrap_code(value.wrap_s), textures.wrap_code(value.wrap_t)])
+                    input_floats.append([*value.scale, *value.bias])
+                    slot_input[index, slot] = len(input_ints) - 1
                 else:
-                    table[:, index] = value
-            self._constants[name] = table if width == 3 else table[0]
-        self._use_specular_workflow = np.array([m.use_specular_workflow for m in materials], bool)
-        self._ior = np.array([m.ior for m in materials], FLOAT)
-        self._opacity_threshold = np.array([m.opacity_threshold for m in materials], FLOAT)
-        self.cutout = self._opacity_threshold > 0  # (materials,) bool: can cut a surface out
-        self.emissive = (self._constants["emissive_color"].max(axis=0) > 0) | np.array(
-            [isinstance(m.emissive_color, TextureInput) for m in materials]
-        )
+                    constants[index, column:column + width] = value
+            constants[index, IOR] = material.ior
+            constants[index, OPACITY_THRESHOLD] = material.opacity_threshold
+            constants[index, USE_SPECULAR_WORKFLOW] = float(material.use_specular_workflow)
+        images = [scene.textures[texture].pixels for texture in used_textures]
+        texels, info = textures.pack(images)
+        self.arrays = MaterialArrays(
+            constants=constants, slot_input=slot_input, textured=(slot_input >= 0).any(axis=1),
+            input_ints=np.array(input_ints, np.int32).reshape(-1, 7),
+            input_floats=np.array(input_floats, np.float32).reshape(-1, 8), texels=texels, texture_info=info)
+        # (materials,) bool, without the light-shape row
+        self.cutout = constants[:-1, OPACITY_THRESHOLD] > 0
+        self.emissive = (constants[:-1, EMISSIVE:EMISSIVE + 3].max(axis=1) > 0) | (slot_input[:-1, EMISSIVE_SLOT] >= 0)
 
-    def evaluate(self, material: np.ndarray, st: np.ndarray) -> SurfaceInputs:
-        """Inputs of `material` (n,) int32 at texture coordinates st (2, n)."""
-        values = self._lookup_all(material, st, self._constants)
-        return SurfaceInputs(
-            **values,
-            use_specular_workflow=np.take(self._use_specular_workflow, material),
-            ior=np.take(self._ior, material),
-            opacity_threshold=np.take(self._opacity_threshold, material),
-        )
 
-    def emission(self, material: np.ndarray, st: np.ndarray) -> np.ndarray:
-        """emissiveColor (3, n) at st (2, n) of `material` (n,)."""
-        wanted = {"emissive_color": self._constants["emissive_color"]}
-        return self._lookup_all(material, st, wanted)["emissive_color"]
+@inline
+def _input_value(input_ints, input_floats, texels, texture_info, item, s, t, out, column, width):
+    """Write texture input `item` at (s, t) into out[column:column + width]."""
+    texture, count = input_ints[item, 0], input_ints[item, 1]
+    i00, i10, i01, i11, fx, fy = textures.footprint(texture_info, texture, s, t, input_ints[item, 5],
+                                                    input_ints[item, 6])
+    for k in range(width):
+        channel = input_ints[item, 2 + min(k, count - 1)]
+        texel = textures.blend(texels, i00, i10, i01, i11, fx, fy, channel)
+        out[column + k] = texel * input_floats[item, channel] + input_floats[item, 4 + channel]
 
-    def _lookup_all(self, material, st, tables) -> dict[str, np.ndarray]:
-        values = {name: np.take(table, material, axis=-1) for name, table in tables.items()}
-        for name, material_index, texture_input in self._textured:
-            if name not in values:
-                continue
-            lanes = np.flatnonzero(material == material_index)
-            if len(lanes):
-                values[name][..., lanes] = self._texture(texture_input, st[:, lanes], values[name].ndim)
-        return values
 
-    def _texture(self, texture_input: TextureInput, st: np.ndarray, ndim: int) -> np.ndarray:
-        image = self._textures[texture_input.texture].pixels
-        texels = sample_bilinear(image, st, texture_input.wrap_s, texture_input.wrap_t)
-        channels = list(texture_input.channels)
-        scale = np.asarray(texture_input.scale, FLOAT)[channels, None]
-        bias = np.asarray(texture_input.bias, FLOAT)[channels, None]
-        value = texels[channels] * scale + bias
-        if ndim == 1:
-            return value[0]
-        return value if len(value) == 3 else np.repeat(value[:1], 3, axis=0)
+@inline
+def material_inputs(constants, slot_input, textured, input_ints, input_floats, texels, texture_info, material,
+                    s, t, out):
+    """Every input of `material` at texture coordinates (s, t) into out (MATERIAL_FIELDS,)."""
+    for column in range(MATERIAL_FIELDS):
+        out[column] = constants[material, column]
+    if textured[material]:
+        for slot in range(SLOTS):
+            item = slot_input[material, slot]
+            if item >= 0:
+                _input_value(input_ints, input_floats, texels, texture_info, item, s, t, out, SLOT_COLUMN[slot],
+                             SLOT_WIDTH[slot])
+
+
+@inline
+def emission(constants, slot_input, input_ints, input_floats, texels, texture_info, material, s, t, out):
+    """emissiveColor of `material` at (s, t) into out (3,)."""
+    item = slot_input[material, EMISSIVE_SLOT]
+    if item >= 0:
+        _input_value(input_ints, input_floats, texels, texture_info, item, s, t, out, 0, 3)
+    else:
+        out[0], out[1], out[2] = (constants[material, EMISSIVE], constants[material, EMISSIVE + 1],
+                                  constants[material, EMISSIVE + 2])
+
+
+@inline
+def interpolate3(corners, triangle, u, v, out):
+    """(1 − u − v)·c0 + u·c1 + v·c2 of `triangle`'s corners (t, 3 corners, 3) into out (3,)."""
+    w = 1.0 - u - v
+    for axis in range(3):
+        out[axis] = (w * corners[triangle, 0, axis] + u * corners[triangle, 1, axis]
+                     + v * corners[triangle, 2, axis])
+
+
+@inline
+def interpolate_st(corner_uvs, triangle, u, v):
+    """Texture coordinates (s, t) at barycentrics (u, v) of `triangle` (corners (t, 3, 2))."""
+    w = 1.0 - u - v
+    return (w * corner_uvs[triangle, 0, 0] + u * corner_uvs[triangle, 1, 0] + v * corner_uvs[triangle, 2, 0],
+            w * corner_uvs[triangle, 0, 1] + u * corner_uvs[triangle, 1, 1] + v * corner_uvs[triangle, 2, 1])

@@ -1,51 +1,83 @@
-"""Bilinear texture lookups with UsdUVTexture wrap modes, on batches of st coordinates."""
+"""Bilinear texture lookups with UsdUVTexture wrap modes, lane by lane, from one atlas.
+
+Every texture of a frame is packed into one flat float32 ``texels`` array; ``info`` (x, 4)
+int64 holds each one's (offset, width, height, channels), its pixels row-major (h, w, c)
+with row 0 the top of the image. st (0, 0) is the lower-left corner, (1, 1) upper-right.
+"""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from ..scene import FLOAT, WrapMode
+from .compiled import inline
+
+WRAP_MODES = ("repeat", "mirror", "clamp", "black")  # the codes kernels receive
+OFFSET, WIDTH, HEIGHT, CHANNELS = range(4)
 
 
-def _wrap(index: np.ndarray, size: int, mode: WrapMode) -> tuple[np.ndarray, np.ndarray | None]:
-    """Texel indices made valid for `mode`, and a (n,) bool mask of black texels (or None)."""
-    if mode == "repeat":
-        return np.mod(index, size), None
-    if mode == "mirror":
-        period = np.mod(index, 2 * size)
-        return np.where(period < size, period, 2 * size - 1 - period), None
-    clamped = np.clip(index, 0, size - 1)
-    return clamped, ((index < 0) | (index >= size)) if mode == "black" else None
+def pack(images: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(texels (N,) float32, info (x, 4) int64) of images (h, w, c) float32."""
+    info = np.zeros((len(images), 4), np.int64)
+    offset = 0
+    for index, image in enumerate(images):
+        height, width, channels = image.shape
+        info[index] = offset, width, height, channels
+        offset += image.size
+    texels = np.empty(offset, np.float32)
+    for index, image in enumerate(images):
+        texels[info[index, OFFSET]:info[index, OFFSET] + image.size] = np.asarray(image, np.float32).reshape(-1)
+    return texels, info
 
 
-def sample_bilinear(
-    pixels: np.ndarray, st: np.ndarray, wrap_s: WrapMode = "repeat", wrap_t: WrapMode = "repeat"
-) -> np.ndarray:
-    """Filtered texels at UsdUVTexture coordinates.
+def wrap_code(mode: str) -> int:
+    return WRAP_MODES.index(mode)
 
-    pixels : (h, w, c) float32, row 0 = top of the image
-    st     : (2, n) float32; (0, 0) is the lower-left corner of the image, (1, 1) upper-right
-    Returns (c, n) float32.
-    """
-    height, width = pixels.shape[:2]
-    x = st[0] * width - 0.5
-    y = (1.0 - st[1]) * height - 0.5
-    x0 = np.floor(x)
-    y0 = np.floor(y)
-    fx = (x - x0).astype(FLOAT)
-    fy = (y - y0).astype(FLOAT)
-    x0 = x0.astype(np.int64)
-    y0 = y0.astype(np.int64)
+
+@inline
+def _wrap(index, size, mode):
+    """A texel index made valid for `mode`, and whether the texel is black."""
+    if mode == 0:
+        return index % size, False
+    if mode == 1:
+        period = index % (2 * size)
+        return (period if period < size else 2 * size - 1 - period), False
+    black = mode == 3 and (index < 0 or index >= size)
+    return min(max(index, 0), size - 1), black
+
+
+@inline
+def footprint(info, texture, s, t, wrap_s, wrap_t):
+    """The four texels of a bilinear lookup: flat offsets of texels (x0, y0), (x1, y0),
+    (x0, y1), (x1, y1) into the atlas (−1: black) and the fractions fx, fy."""
+    offset, width, height, channels = info[texture, 0], info[texture, 1], info[texture, 2], info[texture, 3]
+    x = s * width - 0.5
+    y = (1.0 - t) * height - 0.5
+    if not (math.isfinite(x) and math.isfinite(y)):
+        x, y = 0.0, 0.0
+    x0f, y0f = math.floor(x), math.floor(y)
+    fx, fy = x - x0f, y - y0f
+    x0, y0 = np.int64(x0f), np.int64(y0f)
     xa, black_xa = _wrap(x0, width, wrap_s)
     xb, black_xb = _wrap(x0 + 1, width, wrap_s)
     ya, black_ya = _wrap(y0, height, wrap_t)
     yb, black_yb = _wrap(y0 + 1, height, wrap_t)
+    i00 = -1 if black_xa or black_ya else offset + (ya * width + xa) * channels
+    i10 = -1 if black_xb or black_ya else offset + (ya * width + xb) * channels
+    i01 = -1 if black_xa or black_yb else offset + (yb * width + xa) * channels
+    i11 = -1 if black_xb or black_yb else offset + (yb * width + xb) * channels
+    return i00, i10, i01, i11, fx, fy
 
-    def texel(yi, xi, black_y, black_x):
-        value = pixels[yi, xi].T  # (c, n)
-        black = black_y if black_x is None else black_x if black_y is None else black_y | black_x
-        return value if black is None else np.where(black, 0.0, value)
 
-    top = texel(ya, xa, black_ya, black_xa) * (1 - fx) + texel(ya, xb, black_ya, black_xb) * fx
-    bottom = texel(yb, xa, black_yb, black_xa) * (1 - fx) + texel(yb, xb, black_yb, black_xb) * fx
-    return (top * (1 - fy) + bottom * fy).astype(FLOAT)
+@inline
+def _texel(texels, index, channel):
+    return 0.0 if index < 0 else texels[index + channel]
+
+
+@inline
+def blend(texels, i00, i10, i01, i11, fx, fy, channel):
+    """One channel of the lookup whose footprint is (i00, i10, i01, i11, fx, fy)."""
+    top = _texel(texels, i00, channel) * (1 - fx) + _texel(texels, i10, channel) * fx
+    bottom = _texel(texels, i01, channel) * (1 - fx) + _texel(texels, i11, channel) * fx
+    return top * (1 - fy) + bottom * fy

@@ -1,16 +1,21 @@
-"""Component-major vectors: every per-lane vector or colour in trace/ is a (3, n) array.
+"""Small vector helpers: numpy ones for set-up code, compiled per-lane ones for kernels.
 
-Rows v[0], v[1], v[2] are contiguous, so arithmetic, broadcasting against per-lane
-scalars (n,) and masking are plain 1-D loops. The (n, 3) layout numpy users reach for
-first is several times slower here: its axis-1 reductions and (n, 1) broadcasts run a
-strided three-element inner loop per lane.
+Set-up code (camera, light tables) works on component-major (3, n) arrays: rows are
+contiguous, so arithmetic and broadcasting are plain 1-D loops. Kernels work lane by lane
+on scalars; their queues are lane-major (n, 3), the layout Embree reads.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..scene import FLOAT
+from .compiled import inline
+
+LUMINANCE_WEIGHTS = (0.2126, 0.7152, 0.0722)  # Rec.709
+_LR, _LG, _LB = LUMINANCE_WEIGHTS
 
 
 def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -28,23 +33,52 @@ def normalize(a: np.ndarray, floor: float = 1e-30) -> np.ndarray:
     return a / np.maximum(length(a), floor)
 
 
-def max3(a: np.ndarray) -> np.ndarray:
-    """Largest component per lane: (3, n) -> (n,)."""
-    return np.maximum(np.maximum(a[0], a[1]), a[2])
-
-
 def luminance(rgb: np.ndarray) -> np.ndarray:
     """Rec.709 luminance: (3, ...) -> (...)."""
-    return rgb[0] * 0.2126 + rgb[1] * 0.7152 + rgb[2] * 0.0722
-
-
-def to_lanes(a: np.ndarray) -> np.ndarray:
-    """(3, n) -> contiguous (n, 3) float32, the layout Embree reads."""
-    out = np.empty((a.shape[1], 3), FLOAT)
-    out[:, 0], out[:, 1], out[:, 2] = a[0], a[1], a[2]
-    return out
+    return rgb[0] * _LR + rgb[1] * _LG + rgb[2] * _LB
 
 
 def transform_rows(matrix: np.ndarray, a: np.ndarray) -> np.ndarray:
     """matrix (3, 3) @ vectors (3, n) -> (3, n) float32."""
     return (matrix.astype(FLOAT) @ a).astype(FLOAT, copy=False)
+
+
+# -- per-lane helpers of kernels (scalars in, scalars out)
+
+@inline
+def luminance_of(r, g, b):
+    return r * _LR + g * _LG + b * _LB
+
+
+@inline
+def normalized(x, y, z, floor):
+    """(x, y, z) / max(|(x, y, z)|, floor)."""
+    scale = 1.0 / max(math.sqrt(x * x + y * y + z * z), floor)
+    return x * scale, y * scale, z * scale
+
+
+@inline
+def basis(x, y, z):
+    """Tangent and bitangent completing the unit normal (x, y, z) (Duff et al. 2017):
+    (tx, ty, tz, bx, by, bz)."""
+    sign = 1.0 if z >= 0 else -1.0
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    return 1.0 + sign * x * x * a, sign * b, -sign * x, b, sign + y * y * a, -y
+
+
+@inline
+def to_local(frame, lane, x, y, z):
+    """World (x, y, z) in the shading frame ``frame[lane]`` (3 rows: tangent, bitangent,
+    normal) -> local (x, y, z)."""
+    return (frame[lane, 0, 0] * x + frame[lane, 0, 1] * y + frame[lane, 0, 2] * z,
+            frame[lane, 1, 0] * x + frame[lane, 1, 1] * y + frame[lane, 1, 2] * z,
+            frame[lane, 2, 0] * x + frame[lane, 2, 1] * y + frame[lane, 2, 2] * z)
+
+
+@inline
+def to_world(frame, lane, x, y, z):
+    """Local (x, y, z) of the shading frame ``frame[lane]`` -> world (x, y, z)."""
+    return (frame[lane, 0, 0] * x + frame[lane, 1, 0] * y + frame[lane, 2, 0] * z,
+            frame[lane, 0, 1] * x + frame[lane, 1, 1] * y + frame[lane, 2, 1] * z,
+            frame[lane, 0, 2] * x + frame[lane, 1, 2] * y + frame[lane, 2, 2] * z)

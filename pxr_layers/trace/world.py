@@ -9,6 +9,7 @@ normal points the way the light emits.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -78,6 +79,34 @@ class World:
     @property
     def triangle_count(self) -> int:
         return len(self.triangles)
+
+
+class GeometryArrays(NamedTuple):
+    """The World's per-triangle tables triangle-major, as kernels read them lane by lane
+    (one hit's corners are then adjacent in memory).
+
+    corner_positions, corner_normals : (t, 3 corners, 3) float32
+    corner_uvs       : (t, 3 corners, 2) float32
+    geometric_normal : (t, 3) float32
+    area, triangle_material, triangle_light : (t,) as in World
+    """
+
+    corner_positions: np.ndarray
+    corner_normals: np.ndarray
+    corner_uvs: np.ndarray
+    geometric_normal: np.ndarray
+    area: np.ndarray
+    triangle_material: np.ndarray
+    triangle_light: np.ndarray
+
+
+def geometry_arrays(world: World) -> GeometryArrays:
+    def triangle_major(table: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(np.moveaxis(table, -1, 0))
+
+    return GeometryArrays(triangle_major(world.corner_positions), triangle_major(world.corner_normals),
+                          triangle_major(world.corner_uvs), triangle_major(world.geometric_normal), world.area,
+                          world.triangle_material, world.triangle_light)
 
 
 @dataclass(frozen=True)

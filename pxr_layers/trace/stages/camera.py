@@ -1,0 +1,55 @@
+"""Stage 1: camera rays, one per path (pixel · spp + sample), jittered in the pixel."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import rng
+from ..camera import PinholeCamera
+from ..compiled import kernel
+from .queues import PathQueue
+
+
+def camera_rays(camera: PinholeCamera, frame_key: np.uint64, resolution: tuple[int, int], spp: int,
+                first_path: int, stop_path: int, jitter: bool = True) -> PathQueue:
+    """The PathQueue of paths [first_path, stop_path): unit throughput, rays through the
+    film at each pixel's jittered position (its centre without `jitter`)."""
+    count = stop_path - first_path
+    width, height = resolution
+    queue = PathQueue(
+        pixel=np.empty(count, np.int64), sample=np.empty(count, np.int32), key=np.empty(count, np.uint64),
+        depth=np.zeros(count, np.int32), previous_pdf=np.zeros(count, np.float32),
+        previous_singular=np.ones(count, bool),  # the camera: what it sees directly is not MIS'd
+        throughput=np.ones((count, 3), np.float32), travelled=np.zeros(count, np.float32),
+        origin=np.empty((count, 3), np.float32), direction=np.empty((count, 3), np.float32),
+        t_max=np.full(count, camera.t_max, np.float32), node=np.zeros(count, np.int64),
+        row=np.full(count, -1, np.int64))
+    _camera_kernel(first_path, spp, width, height, frame_key, np.asarray(camera.world_from_camera, np.float64),
+                   np.asarray(camera.position, np.float64), camera.half_width, camera.half_height, camera.offset_x,
+                   camera.offset_y, jitter, queue.pixel, queue.sample, queue.key, queue.origin, queue.direction)
+    return queue
+
+
+@kernel
+def _camera_kernel(first_path, spp, width, height, frame_key, rotation, position, half_width, half_height,
+                   offset_x, offset_y, jitter, pixel_out, sample_out, key_out, origin_out, direction_out):
+    for lane in range(len(pixel_out)):
+        path = first_path + lane
+        pixel = path // spp
+        sample = path % spp
+        key = rng.path_key(frame_key, pixel, sample)
+        jx = rng.uniform(key, 0) if jitter else 0.5
+        jy = rng.uniform(key, 1) if jitter else 0.5
+        film_x = ((pixel % width) + jx) / width
+        film_y = ((pixel // width) + jy) / height
+        x = (2.0 * film_x - 1.0) * half_width + offset_x
+        y = (1.0 - 2.0 * film_y) * half_height + offset_y
+        wx = rotation[0, 0] * x + rotation[0, 1] * y - rotation[0, 2]
+        wy = rotation[1, 0] * x + rotation[1, 1] * y - rotation[1, 2]
+        wz = rotation[2, 0] * x + rotation[2, 1] * y - rotation[2, 2]
+        scale = 1.0 / math.sqrt(wx * wx + wy * wy + wz * wz)
+        pixel_out[lane], sample_out[lane], key_out[lane] = pixel, sample, key
+        origin_out[lane, 0], origin_out[lane, 1], origin_out[lane, 2] = position[0], position[1], position[2]
+        direction_out[lane, 0], direction_out[lane, 1], direction_out[lane, 2] = wx * scale, wy * scale, wz * scale

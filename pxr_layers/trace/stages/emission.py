@@ -1,0 +1,56 @@
+"""Stage 4: rays that hit a light's shape or an emissive surface receive its emission."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..bsdf import power_heuristic
+from ..compiled import kernel, scratch
+from ..lights import LightArrays, emitted, triangle_pdf
+from ..shading import MaterialArrays, interpolate_st
+from ..world import GeometryArrays
+from .queues import Hits, PathQueue, Splats, trimmed
+
+
+def emission(queue: PathQueue, hits: Hits, triangle_emits: np.ndarray, geometry: GeometryArrays,
+             materials: MaterialArrays, lights: LightArrays) -> Splats:
+    """The emission the hits of `queue` see, MIS-weighted against light sampling (light
+    shapes emit on their front only). Zero contributions are left out."""
+    capacity = len(queue)
+    splats = Splats(np.empty(capacity, np.int64), np.empty((capacity, 3), np.float32),
+                    np.empty(capacity, np.int32), np.empty(capacity, np.int32))
+    count = _emission_kernel(hits.triangle, hits.u, hits.v, hits.t, triangle_emits, queue.direction,
+                             queue.throughput, queue.previous_pdf, queue.previous_singular, geometry, materials,
+                             lights, scratch(3), splats.lane, splats.rgb, splats.light, splats.triangle)
+    return trimmed(splats, count)
+
+
+@kernel
+def _emission_kernel(triangle, bary_u, bary_v, t_hit, triangle_emits, direction, throughput, previous_pdf,
+                     previous_singular, geometry, materials, lights, radiance, lane_out, rgb_out, light_out, triangle_out):
+    count = 0
+    normal = geometry.geometric_normal
+    for lane in range(len(triangle)):
+        tri = triangle[lane]
+        if tri < 0 or not triangle_emits[tri]:
+            continue
+        cos_emitter = -(normal[tri, 0] * direction[lane, 0] + normal[tri, 1] * direction[lane, 1]
+                        + normal[tri, 2] * direction[lane, 2])
+        s, t = interpolate_st(geometry.corner_uvs, tri, bary_u[lane], bary_v[lane])
+        emitted(tri, s, t, cos_emitter, geometry.triangle_material, geometry.triangle_light, lights.light_radiance,
+                materials.constants, materials.slot_input, materials.input_ints, materials.input_floats,
+                materials.texels, materials.texture_info, radiance)
+        if previous_singular[lane]:
+            weight = 1.0
+        else:
+            density = triangle_pdf(tri, t_hit[lane], cos_emitter, lights.area_probability,
+                                   lights.triangle_probability, geometry.area)
+            weight = power_heuristic(previous_pdf[lane], density)
+        r = throughput[lane, 0] * radiance[0] * weight
+        g = throughput[lane, 1] * radiance[1] * weight
+        b = throughput[lane, 2] * radiance[2] * weight
+        if r != 0 or g != 0 or b != 0:
+            lane_out[count], light_out[count], triangle_out[count] = lane, geometry.triangle_light[tri], tri
+            rgb_out[count, 0], rgb_out[count, 1], rgb_out[count, 2] = r, g, b
+            count += 1
+    return count

@@ -1,0 +1,83 @@
+"""Stage 6: next-event estimation — one light sample per shading point, its shadow ray,
+and the tentative radiance each glossy lobe would receive through it."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import bsdf, lights as light_sampling, rng
+from ..compiled import kernel, scratch
+from ..embree import RayCaster
+from ..lights import LightArrays
+from ..shading import MaterialArrays
+from ..vectors import to_local
+from ..world import GeometryArrays
+from .queues import PathQueue, ShadowQueue, SurfaceQueue, trimmed
+
+T_INFINITY = np.float32(1e30)
+
+
+def light_samples(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: float, geometry: GeometryArrays,
+                  materials: MaterialArrays, lights: LightArrays) -> ShadowQueue:
+    """A light sample for every shading point that may scatter, with its shadow ray and
+    each lobe's MIS-weighted contribution if the ray is unoccluded. Samples that cannot
+    contribute (no density, behind the surface, black light or lobes) are left out."""
+    n = len(queue)
+    shadows = ShadowQueue(lane=np.empty(n, np.int64), origin=np.empty((n, 3), np.float32),
+                          direction=np.empty((n, 3), np.float32), t_max=np.empty(n, np.float32),
+                          radiance=np.empty((n, 3, 3), np.float32), light=np.empty(n, np.int32),
+                          triangle=np.empty(n, np.int32), visible=np.zeros(n, bool))
+    count = _light_sample_kernel(queue.key, queue.throughput, surfaces.position, surfaces.facing, surfaces.frame,
+                                 surfaces.wo, surfaces.lobes, surfaces.scatters, rng.step_dimension(step), epsilon,
+                                 geometry, materials, lights, scratch(3, 3), scratch(3), scratch(3), shadows.lane, shadows.origin, shadows.direction,
+                                 shadows.t_max, shadows.radiance, shadows.light, shadows.triangle)
+    return trimmed(shadows, count)
+
+
+def cast_shadows(caster: RayCaster, shadows: ShadowQueue) -> None:
+    """Set ``shadows.visible``: which shadow rays reach their light."""
+    if len(shadows):
+        shadows.visible = ~caster.occluded(shadows.origin, shadows.direction, shadows.t_max)
+
+
+@kernel
+def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, scatters, dimension, epsilon, geometry,
+                         materials, lights, f, lobe_pdf, radiance, lane_out, origin_out, direction_out, t_max_out, radiance_out, light_out,
+                         triangle_out):
+    count = 0
+    for lane in range(len(key)):
+        if not scatters[lane]:
+            continue
+        stream = key[lane]
+        u0 = rng.uniform(stream, dimension + rng.LIGHT_PICK)
+        u1 = rng.uniform(stream, dimension + rng.LIGHT_POSITION)
+        u2 = rng.uniform(stream, dimension + rng.LIGHT_POSITION + 1)
+        u3 = rng.uniform(stream, dimension + rng.LIGHT_POSITION + 2)
+        px, py, pz = position[lane, 0], position[lane, 1], position[lane, 2]
+        dx, dy, dz, distance, r, g, b, pdf, light, triangle = light_sampling.sample(
+            lights, geometry, materials, px, py, pz, u0, u1, u2, u3, radiance)
+        nx, ny, nz = facing[lane, 0], facing[lane, 1], facing[lane, 2]
+        if not pdf > 0 or dx * nx + dy * ny + dz * nz <= 0 or max(r, g, b) <= 0:
+            continue
+        ix, iy, iz = to_local(frame, lane, dx, dy, dz)
+        bsdf.evaluate(lobes[lane], wo[lane, 0], wo[lane, 1], wo[lane, 2], ix, iy, iz, f, lobe_pdf)
+        if max(f[0, 0], f[0, 1], f[0, 2], f[1, 0], f[1, 1], f[1, 2], f[2, 0], f[2, 1], f[2, 2]) <= 0:
+            continue
+        delta = math.isinf(pdf)
+        scale = abs(iz) / (1.0 if delta else pdf)
+        br, bg, bb = throughput[lane, 0] * r * scale, throughput[lane, 1] * g * scale, throughput[lane, 2] * b * scale
+        for lobe in range(3):
+            weight = 1.0 if delta else bsdf.power_heuristic(pdf, lobe_pdf[lobe])
+            radiance_out[count, lobe, 0] = br * f[lobe, 0] * weight
+            radiance_out[count, lobe, 1] = bg * f[lobe, 1] * weight
+            radiance_out[count, lobe, 2] = bb * f[lobe, 2] * weight
+        lane_out[count], light_out[count], triangle_out[count] = lane, light, triangle
+        origin_out[count, 0] = px + nx * epsilon
+        origin_out[count, 1] = py + ny * epsilon
+        origin_out[count, 2] = pz + nz * epsilon
+        direction_out[count, 0], direction_out[count, 1], direction_out[count, 2] = dx, dy, dz
+        t_max_out[count] = distance * (1 - 1e-4) - 2 * epsilon if math.isfinite(distance) else T_INFINITY
+        count += 1
+    return count
