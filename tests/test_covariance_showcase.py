@@ -114,9 +114,9 @@ def test_reflectance_norm_is_zero_on_diffuse_and_grows_as_roughness_falls(showca
     glossy = reflectance[(first.lobe == "specular") & (first.obj == "glossyBox")]
     mirror = reflectance[(first.lobe == "specular") & (first.obj == "mirrorPanel")]
     assert len(glossy) > 10 and len(mirror) > 10
-    # GGX α = roughness²: R = 1/(2πα)
-    np.testing.assert_allclose(glossy, 1 / (2 * np.pi * 0.2**2), rtol=1e-5)
-    np.testing.assert_allclose(mirror, 1 / (2 * np.pi * 0.02**2), rtol=1e-5)
+    # GGX α = roughness²: R = 1/(2πα), to the precision the index stores (float16)
+    np.testing.assert_allclose(glossy, 1 / (2 * np.pi * 0.2**2), rtol=2**-11)
+    np.testing.assert_allclose(mirror, 1 / (2 * np.pi * 0.02**2), rtol=2**-11)
     assert mirror.min() > glossy.max() > 0
 
 

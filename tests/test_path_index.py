@@ -241,3 +241,28 @@ def test_byte_planes_round_trip_bit_for_bit(dtype):
     assert np.array_equal(planes[0], values.reshape(-1).view(np.uint8)[::itemsize])  # the low bytes first
     again = fmt.unshuffle(data, dtype, values.shape)
     assert again.dtype == np.dtype(dtype) and again.tobytes() == values.tobytes()
+
+
+def test_the_tracers_float16_norms_equal_the_formats_conversion():
+    """The recorder converts norms to float16 in its kernel; it must store exactly what
+    paths.format.stored_norms stores (rounding, saturation, subnormals, NaN)."""
+    from pxr_layers.paths.format import stored_norms
+    from pxr_layers.trace.recorder import EventNorms
+
+    rng = np.random.default_rng(7)
+    values = np.concatenate([
+        rng.uniform(0, 1, 4000), 10.0 ** rng.uniform(-12, 8, 4000),  # every float16 range and beyond
+        [0.0, 5.96e-8, 2.98e-8, 6.1e-5, 6.0e-5, 65504.0, 65519.9, 65520.0, 1e30, np.inf, np.nan, 1.0009765625],
+        np.nextafter(np.float32(2.0 ** -14), 0, dtype=np.float32) * np.ones(3),
+    ]).astype(np.float32)
+    values = np.concatenate([values, values * np.float32(1 + 2**-11), -values[:100]])
+    count = len(values) - len(values) % 3
+    norms = EventNorms()
+    parent, table, _ = norms.reserve(count // 3)
+    parent[:count // 3] = -1
+    table[:count // 3] = values[:count].reshape(-1, 3)
+    norms.size = count // 3
+    ours = norms.first_events(np.arange(count // 3), 1)[:, 0]
+    reference = stored_norms(table[:count // 3, None, :])[:, 0]
+    same = (ours.view(np.uint16) == reference.view(np.uint16)) | (np.isnan(ours) & np.isnan(reference))
+    assert same.all(), values[:count].reshape(-1, 3)[~same.all(axis=1)][:5]

@@ -10,7 +10,7 @@ pair of a surface, or a light. Its id packs the four:
     subject ∈ [0, S) surface pairs of ``EventVocabulary``, [S, S + lights) lights
 
 so that the tracer carries a path's history as one integer: its node in a prefix tree
-of event ids (``PathClassTrie``), whose nodes are the path classes.
+of event ids (``trace/recorder.py``'s ``ClassTrie``), whose nodes are the path classes.
 """
 
 from __future__ import annotations
@@ -25,7 +25,12 @@ CAMERA, REFLECT, TRANSMIT, VOLUME, LIGHT, OBJECT, BACKGROUND = range(7)
 NO_SCATTER = 4  # the scatter code of events that do not scatter (C, L, O, B); others index SCATTERINGS
 LOBE_NAMES = ("diffuse", "specular", "coat", "glass")  # the renderer's lobes (trace/bsdf.py ids)
 NO_LOBE = 4
-_EVENT_BITS = 32
+
+
+def event_id(event_type, scatter, lobe, subject, subject_count):
+    """The id of one event (the packing above); plain arithmetic, so that numpy arrays and
+    the tracer's compiled kernels (scalars) share it."""
+    return ((event_type * 5 + scatter) * 5 + lobe) * subject_count + subject
 
 
 @dataclass(frozen=True)
@@ -65,8 +70,8 @@ class EventVocabulary:
     def ids(self, event_type, scatter, lobe, subject) -> np.ndarray:
         """Event ids of (n,) or scalar fields; surface subjects in [0, S), lights offset
         by ``light_subject``."""
-        head = (np.asarray(event_type, np.int64) * 5 + np.asarray(scatter, np.int64)) * 5 + np.asarray(lobe, np.int64)
-        return head * self.subject_count + np.asarray(subject, np.int64)
+        return event_id(np.asarray(event_type, np.int64), np.asarray(scatter, np.int64), np.asarray(lobe, np.int64),
+                        np.asarray(subject, np.int64), self.subject_count)
 
     def light_subject(self, light) -> np.ndarray:
         return np.asarray(light, np.int64) + len(self.surface_objects)
@@ -99,55 +104,3 @@ def path_text(events: tuple[Event, ...], all_labels: bool = False) -> str:
         return sorted(event.labels) if all_labels or not event.name else [event.name]
 
     return " ".join(e.type + e.scatter + "".join(f"'{label}'" for label in labels(e)) for e in events)
-
-
-class PathClassTrie:
-    """Prefix tree of event ids: every distinct event sequence (path class) is one node.
-
-    Node 0 is the camera (the empty sequence after C). A path carries its node; ``extend``
-    moves many paths one event further at once, with sorted arrays instead of a Python
-    dictionary. Node numbers depend only on the sequence of ``extend`` calls, so a batch
-    traced the same way numbers its classes the same way.
-    """
-
-    def __init__(self) -> None:
-        self.parent = np.full(1, -1, np.int64)
-        self.event = np.zeros(1, np.int64)
-        self._pairs = np.zeros(0, np.int64)  # sorted parent << 32 | event of every edge
-        self._children = np.zeros(0, np.int64)  # the child of each pair
-
-    def __len__(self) -> int:
-        return len(self.parent)
-
-    def extend(self, node: np.ndarray, event: np.ndarray) -> np.ndarray:
-        """Children of node (n,) by event id (n,), created as needed -> (n,) int64."""
-        if not len(node):
-            return np.zeros(0, np.int64)
-        pairs = (np.asarray(node, np.int64) << _EVENT_BITS) | np.asarray(event, np.int64)
-        unique, inverse = np.unique(pairs, return_inverse=True)
-        position = np.minimum(np.searchsorted(self._pairs, unique), max(len(self._pairs) - 1, 0))
-        found = self._pairs[position] == unique if len(self._pairs) else np.zeros(len(unique), bool)
-        children = np.empty(len(unique), np.int64)
-        children[found] = self._children[position[found]]
-        new = unique[~found]
-        if len(new):
-            ids = np.arange(len(self.parent), len(self.parent) + len(new))
-            children[~found] = ids
-            self.parent = np.concatenate([self.parent, new >> _EVENT_BITS])
-            self.event = np.concatenate([self.event, new & ((1 << _EVENT_BITS) - 1)])
-            at = np.searchsorted(self._pairs, new)
-            self._pairs = np.insert(self._pairs, at, new)
-            self._children = np.insert(self._children, at, ids)
-        return children[inverse.reshape(-1)]
-
-    def sequences(self, nodes: np.ndarray) -> list[tuple[int, ...]]:
-        """The event ids from the first event after the camera to each of `nodes`."""
-        chains = []
-        current = np.asarray(nodes, np.int64)
-        while (current > 0).any():
-            chains.append(np.where(current > 0, self.event[current], -1))
-            current = np.where(current > 0, self.parent[np.maximum(current, 0)], 0)
-        if not chains:
-            return [() for _ in range(len(current))]
-        table = np.stack(chains[::-1], axis=1)  # (nodes, depth), left-padded with −1
-        return [tuple(event for event in row if event >= 0) for row in table.tolist()]

@@ -22,6 +22,7 @@ Straight pass-through (cut-outs) and light events apply no operator: their norms
 from __future__ import annotations
 
 import hashlib
+import math
 import threading
 import weakref
 from collections import OrderedDict
@@ -38,6 +39,7 @@ from ..covariance import (
 from ..covariance.texture_spectrum import TextureSpectrum
 from ..scene import FLOAT, SceneData, TextureInput
 from . import bsdf
+from .compiled import inline, kernel
 from .vectors import dot
 from .world import World
 
@@ -125,11 +127,26 @@ class BounceNorms:
             surfaces.texture[lanes] = texture_norm(texture_to_tangent(block_uv, jacobian))
 
 
+@inline
+def reflectance(lobes, lane, lobe):
+    """R of `lobe` taken at the hit whose lobe row is lobes[lane] (bsdf.py)."""
+    if lobe == bsdf.DIFFUSE:
+        return 0.0
+    alpha = lobes[lane, bsdf.ALPHA] if lobe == bsdf.SPECULAR else lobes[lane, bsdf.COAT_ALPHA]
+    if lobe == bsdf.GLASS or alpha < bsdf.SINGULAR_ALPHA:
+        return SINGULAR_REFLECTANCE
+    return 1.0 / (2.0 * math.pi * alpha)
+
+
 def lobe_reflectance(lobes: np.ndarray, lobe: np.ndarray) -> np.ndarray:
     """R (n,) float32 of the lobes `lobe` (n,) ids taken at hits with lobe rows (n,
     LOBE_FIELDS) (bsdf.py)."""
-    alpha = np.where(lobe == bsdf.SPECULAR, lobes[:, bsdf.ALPHA], lobes[:, bsdf.COAT_ALPHA])
-    glossy = 1.0 / (2.0 * np.pi * np.maximum(alpha, bsdf.SINGULAR_ALPHA))
-    singular = (lobe == bsdf.GLASS) | (alpha < bsdf.SINGULAR_ALPHA)
-    reflectance = np.where(singular, SINGULAR_REFLECTANCE, glossy)
-    return np.where(lobe == bsdf.DIFFUSE, 0.0, reflectance).astype(FLOAT)
+    out = np.empty(len(lobe), FLOAT)
+    _reflectance_kernel(lobes, np.asarray(lobe, np.int64), out)
+    return out
+
+
+@kernel
+def _reflectance_kernel(lobes, lobe, out):
+    for lane in range(len(lobe)):
+        out[lane] = reflectance(lobes, lane, lobe[lane])

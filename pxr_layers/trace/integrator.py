@@ -110,13 +110,13 @@ class Integrator:
         # ray cone of a camera ray: radians per pixel (the film window's width over its pixels)
         self.pixel_angle = np.float32(2 * camera.half_width / self.width)
 
-    def observers(self, first_pixel: int, pixel_count: int) -> tuple[list[Observer], FirstBounceNorms | None,
-                                                                     PathRecorder | None]:
+    def observers(self, first_pixel: int, pixel_count: int, paths: int
+                  ) -> tuple[list[Observer], FirstBounceNorms | None, PathRecorder | None]:
         """A batch's observers: the first-bounce norms with covariance, the recorder with
         an index."""
         first_bounce = FirstBounceNorms(first_pixel, pixel_count) if self.bounce_norms else None
-        recorder = (PathRecorder(self.vocabulary, self.triangle_subject, self.world.triangle_light,
-                                 self.settings.norm_bounces if self.bounce_norms else 0)
+        recorder = (PathRecorder(self.vocabulary, self.triangle_subject,
+                                 self.settings.norm_bounces if self.bounce_norms else 0, paths)
                     if self.settings.record_paths else None)
         return [o for o in (first_bounce, recorder) if o is not None], first_bounce, recorder
 
@@ -128,7 +128,7 @@ class Integrator:
         first_pixel = first_path // spp
         pixel_count = (stop_path - 1) // spp - first_pixel + 1
         film = BatchFilm(first_pixel, pixel_count)
-        observers, first_bounce, recorder = self.observers(first_pixel, pixel_count)
+        observers, first_bounce, recorder = self.observers(first_pixel, pixel_count, stop_path - first_path)
         queue = camera_rays(self.camera, self.key, (self.width, self.height), spp, first_path, stop_path)
         rays = 0
 

@@ -18,10 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..paths import events
+from ..paths import format as fmt
 from ..paths.events import EventVocabulary
 from ..scene import FLOAT
 from . import bsdf
-from .bounce_norms import lobe_reflectance
+from .bounce_norms import lobe_reflectance, reflectance
 from .compiled import inline, kernel
 from .stages.queues import PathQueue, ShadowQueue, Splats, SurfaceQueue
 from .stages.scatter import Scattering
@@ -66,90 +67,163 @@ class Observer:
 
 
 class PathRecorder(Observer):
-    """Keeps every contribution of one batch with its path class and event norms."""
+    """Keeps every contribution of one batch with its path class and event norms; each
+    stage's results are recorded by one compiled kernel."""
 
-    def __init__(self, vocabulary: EventVocabulary, triangle_subject: np.ndarray, triangle_light: np.ndarray,
-                 slots: int):
-        self.vocabulary = vocabulary
+    def __init__(self, vocabulary: EventVocabulary, triangle_subject: np.ndarray, slots: int, paths: int):
         self.triangle_subject = triangle_subject  # (t,) int64 surface subject of each triangle
-        self.triangle_light = triangle_light
+        self.subject_count = vocabulary.subject_count
+        self.light_offset = len(vocabulary.surface_objects)  # light L's subject: light_offset + L
         self.slots = slots
-        self.classes = ClassTrie()
-        self.norms = EventNorms()
-        self._records: list[tuple[np.ndarray, ...]] = []
+        # Sized for a batch of `paths` paths (about 1.5 records and 4 events per path): they
+        # grow when a batch needs more.
+        self.classes = ClassTrie(paths)
+        self.norms = EventNorms(4 * paths)
+        self.records = RecordBuffer(2 * paths)
 
     def wants_norms(self, step: int) -> bool:
         return self.slots > 0
-
-    def _surface_event(self, triangle, event_type, scatter, lobe) -> np.ndarray:
-        return self.vocabulary.ids(event_type, scatter, lobe, np.take(self.triangle_subject, triangle))
-
-    def _light_event(self, light: np.ndarray, triangle: np.ndarray) -> np.ndarray:
-        """L for a light (or its shape), O for an emissive surface's triangle."""
-        light_event = self.vocabulary.ids(events.LIGHT, events.NO_SCATTER, events.NO_LOBE,
-                                          self.vocabulary.light_subject(np.maximum(light, 0)))
-        if (light >= 0).all():
-            return light_event
-        surface = self._surface_event(np.maximum(triangle, 0), events.OBJECT, events.NO_SCATTER, events.NO_LOBE)
-        return np.where(light >= 0, light_event, surface)
-
-    def _record(self, queue: PathQueue, lanes: np.ndarray, rgb: np.ndarray, node: np.ndarray, row: np.ndarray):
-        self._records.append((queue.pixel[lanes], queue.sample[lanes], rgb.astype(FLOAT, copy=False), node, row))
 
     def escaped(self, queue: PathQueue, splats: Splats) -> None:
         self.emitted(queue, splats)
 
     def emitted(self, queue: PathQueue, splats: Splats) -> None:
-        if not len(splats):
-            return
-        node = self.classes.extend(queue.node[splats.lane], self._light_event(splats.light, splats.triangle))
-        self._record(queue, splats.lane, splats.rgb, node, queue.row[splats.lane])
+        trie, records = self.classes.reserve(len(splats)), self.records.reserve(len(splats))
+        self.classes.size, self.records.count = _record_emitted(
+            splats.lane, splats.light, splats.triangle, splats.rgb, queue.pixel, queue.sample, queue.node, queue.row,
+            self.triangle_subject, self.subject_count, self.light_offset, *trie, *records)
 
     def lit(self, queue: PathQueue, surfaces: SurfaceQueue, shadows: ShadowQueue) -> None:
-        shadows = shadows.take(np.flatnonzero(shadows.visible))
-        if not len(shadows):
-            return
-        light_event = self._light_event(shadows.light, shadows.triangle)  # the same for every lobe
-        for lobe in bsdf.GLOSSY_LOBES:
-            rgb = shadows.radiance[:, lobe]
-            active = np.flatnonzero((rgb != 0).any(axis=1))
-            if not len(active):
-                continue
-            lanes = shadows.lane[active]
-            scatter = bsdf.SCATTER_DIFFUSE if lobe == bsdf.DIFFUSE else bsdf.SCATTER_GLOSSY
-            surface = self._surface_event(surfaces.triangle[lanes], events.REFLECT, scatter, lobe)
-            node = self.classes.extend(self.classes.extend(queue.node[lanes], surface), light_event[active])
-            row = queue.row[lanes]
-            if self.slots:
-                reflectance = lobe_reflectance(surfaces.lobes[lanes], np.full(len(lanes), lobe, np.int8))
-                row = self.norms.append(row, surfaces.curvature[lanes], surfaces.texture[lanes], reflectance)
-            self._record(queue, lanes, rgb[active], node, row)
+        most = 3 * len(shadows)  # a record (and two classes) per glossy lobe
+        trie, records = self.classes.reserve(2 * most), self.records.reserve(most)
+        norms = self.norms.reserve(most)
+        self.classes.size, self.norms.size, self.records.count = _record_lit(
+            shadows.lane, shadows.light, shadows.triangle, shadows.radiance, shadows.visible, surfaces.triangle,
+            surfaces.lobes, surfaces.curvature, surfaces.texture, queue.pixel, queue.sample, queue.node, queue.row,
+            self.triangle_subject, self.subject_count, self.light_offset, self.slots > 0, *trie, *norms, *records)
 
     def scattered(self, queue: PathQueue, surfaces: SurfaceQueue, scattering: Scattering, step: int) -> None:
         """Append this vertex's event to every continuing path: its sampled lobe, or a
         straight pass (no operator, norms 0) for cut-outs."""
-        lanes = np.flatnonzero(scattering.scattered | surfaces.cut)
-        if not len(lanes):
-            return
-        passes = surfaces.cut[lanes]
-        lobe = np.where(passes, events.NO_LOBE, scattering.lobe[lanes])
-        event_type = np.where(passes | scattering.transmit[lanes], events.TRANSMIT, events.REFLECT)
-        event = self._surface_event(surfaces.triangle[lanes], event_type, scattering.scatter[lanes], lobe)
-        queue.node[lanes] = self.classes.extend(queue.node[lanes], event)
-        if self.slots:
-            reflectance = np.where(passes, 0.0, lobe_reflectance(surfaces.lobes[lanes], scattering.lobe[lanes]))
-            queue.row[lanes] = self.norms.append(queue.row[lanes], np.where(passes, 0.0, surfaces.curvature[lanes]),
-                                                 np.where(passes, 0.0, surfaces.texture[lanes]), reflectance)
+        trie, norms = self.classes.reserve(len(queue)), self.norms.reserve(len(queue))
+        self.classes.size, self.norms.size = _record_scattered(
+            scattering.scattered, surfaces.cut, scattering.lobe, scattering.scatter, scattering.transmit,
+            surfaces.triangle, surfaces.lobes, surfaces.curvature, surfaces.texture, queue.node, queue.row,
+            self.triangle_subject, self.subject_count, self.slots > 0, *trie, *norms)
 
     def result(self) -> Contributions:
-        slots = self.slots
-        if not self._records:
-            return Contributions(np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros((0, 3), FLOAT),
-                                 np.zeros(0, np.int64), np.zeros((0, slots, 3), FLOAT), [])
-        pixel, sample, rgb, node, row = (np.concatenate(column) for column in zip(*self._records))
+        """The batch's contributions; norms already as the index stores them (float16)."""
+        pixel, sample, rgb, node, row = self.records.arrays()
         nodes, path_class = np.unique(node, return_inverse=True)
-        norms = self.norms.first_events(row, slots)
+        norms = self.norms.first_events(row, self.slots)
         return Contributions(pixel, sample, rgb, path_class.reshape(-1), norms, self.classes.sequences(nodes))
+
+
+@inline
+def _child(keys, children, parent, event, size, node, event_id):
+    """The trie child of `node` by `event_id`, created if new: (child, new size)."""
+    key = (node << _EVENT_BITS) | event_id
+    mask = len(keys) - 1
+    slot = _slot(key, mask)
+    while True:
+        found = keys[slot]
+        if found == key:
+            return children[slot], size
+        if found == -1:
+            keys[slot], children[slot] = key, size
+            parent[size], event[size] = node, event_id
+            return size, size + 1
+        slot = (slot + 1) & mask
+
+
+@inline
+def _surface_event(triangle_subject, subject_count, event_type, scatter, lobe, triangle):
+    return _event_id(event_type, scatter, lobe, triangle_subject[triangle], subject_count)
+
+
+@inline
+def _emitter_event(triangle_subject, subject_count, light_offset, light, triangle):
+    """L for a light (or its shape), O for an emissive surface's triangle."""
+    if light >= 0:
+        return _event_id(events.LIGHT, events.NO_SCATTER, events.NO_LOBE, light_offset + light, subject_count)
+    return _surface_event(triangle_subject, subject_count, events.OBJECT, events.NO_SCATTER, events.NO_LOBE, triangle)
+
+
+@inline
+def _add_record(r_pixel, r_sample, r_rgb, r_node, r_row, count, pixel, sample, r, g, b, node, row):
+    r_pixel[count], r_sample[count], r_node[count], r_row[count] = pixel, sample, node, row
+    r_rgb[count, 0], r_rgb[count, 1], r_rgb[count, 2] = r, g, b
+    return count + 1
+
+
+@inline
+def _add_norms(n_parent, n_values, n_size, parent, curvature, texture, reflectance_norm):
+    n_parent[n_size] = parent
+    n_values[n_size, 0], n_values[n_size, 1], n_values[n_size, 2] = curvature, texture, reflectance_norm
+    return n_size + 1
+
+
+@kernel
+def _record_emitted(lane, light, triangle, rgb, pixel, sample, node, row, triangle_subject, subject_count,
+                    light_offset, keys, children, parent, event, size, r_pixel, r_sample, r_rgb, r_node, r_row, count):
+    for entry in range(len(lane)):
+        path = lane[entry]
+        event_id = _emitter_event(triangle_subject, subject_count, light_offset, light[entry], triangle[entry])
+        child, size = _child(keys, children, parent, event, size, node[path], event_id)
+        count = _add_record(r_pixel, r_sample, r_rgb, r_node, r_row, count, pixel[path], sample[path], rgb[entry, 0],
+                            rgb[entry, 1], rgb[entry, 2], child, row[path])
+    return size, count
+
+
+@kernel
+def _record_lit(lane, light, triangle, radiance, visible, surface_triangle, lobes, curvature, texture, pixel, sample,
+                node, row, triangle_subject, subject_count, light_offset, with_norms, keys, children, parent, event,
+                size, n_parent, n_values, n_size, r_pixel, r_sample, r_rgb, r_node, r_row, count):
+    for entry in range(len(lane)):
+        if not visible[entry]:
+            continue
+        path = lane[entry]
+        light_event = _emitter_event(triangle_subject, subject_count, light_offset, light[entry], triangle[entry])
+        for lobe in range(3):  # the glossy lobes
+            r, g, b = radiance[entry, lobe, 0], radiance[entry, lobe, 1], radiance[entry, lobe, 2]
+            if r == 0 and g == 0 and b == 0:
+                continue
+            scatter = bsdf.SCATTER_DIFFUSE if lobe == bsdf.DIFFUSE else bsdf.SCATTER_GLOSSY
+            surface_event = _surface_event(triangle_subject, subject_count, events.REFLECT, scatter, lobe,
+                                           surface_triangle[path])
+            child, size = _child(keys, children, parent, event, size, node[path], surface_event)
+            child, size = _child(keys, children, parent, event, size, child, light_event)
+            norms_row = row[path]
+            if with_norms:
+                norms_row = n_size
+                n_size = _add_norms(n_parent, n_values, n_size, row[path], curvature[path], texture[path],
+                                    reflectance(lobes, path, lobe))
+            count = _add_record(r_pixel, r_sample, r_rgb, r_node, r_row, count, pixel[path], sample[path], r, g, b,
+                                child, norms_row)
+    return size, n_size, count
+
+
+@kernel
+def _record_scattered(scattered, cut, lobe, scatter, transmit, triangle, lobes, curvature, texture, node, row,
+                      triangle_subject, subject_count, with_norms, keys, children, parent, event, size, n_parent,
+                      n_values, n_size):
+    for path in range(len(node)):
+        passes = cut[path]
+        if not (passes or scattered[path]):
+            continue
+        event_type = events.TRANSMIT if passes or transmit[path] else events.REFLECT
+        path_lobe = events.NO_LOBE if passes else np.int64(lobe[path])
+        event_id = _surface_event(triangle_subject, subject_count, event_type, scatter[path], path_lobe,
+                                  triangle[path])
+        node[path], size = _child(keys, children, parent, event, size, node[path], event_id)
+        if with_norms:
+            if passes:
+                n_size = _add_norms(n_parent, n_values, n_size, row[path], 0.0, 0.0, 0.0)
+            else:
+                n_size = _add_norms(n_parent, n_values, n_size, row[path], curvature[path], texture[path],
+                                    reflectance(lobes, path, lobe[path]))
+            row[path] = n_size - 1
+    return size, n_size
 
 
 class FirstBounceNorms(Observer):
@@ -178,38 +252,36 @@ class FirstBounceNorms(Observer):
 class ClassTrie:
     """Prefix tree of event ids: every distinct event sequence (path class) is one node.
 
-    Node 0 is the camera (the empty sequence after C). ``extend`` moves many paths one
-    event further at once through a compiled open-addressing table of (parent, event)
-    edges. New nodes are numbered in the order lanes first ask for them, so a batch traced
-    the same way numbers its classes the same way.
+    Node 0 is the camera (the empty sequence after C). Kernels move paths one event further
+    through an open-addressing table of (parent, event) edges (``_child``). New nodes are
+    numbered in the order lanes first ask for them, so a batch traced the same way numbers
+    its classes the same way.
     """
 
-    def __init__(self) -> None:
-        self.parent = np.full(64, -1, np.int64)
-        self.event = np.zeros(64, np.int64)
+    def __init__(self, capacity: int = 64) -> None:
+        self.parent = np.full(capacity, -1, np.int64)
+        self.event = np.zeros(capacity, np.int64)
         self.size = 1
-        self._keys = np.full(256, -1, np.int64)  # parent << 32 | event, −1 = empty
-        self._children = np.zeros(256, np.int64)
+        slots = 1 << max(8, int(2 * capacity - 1).bit_length())  # a power of two ≥ 2 × capacity
+        self._keys = np.full(slots, -1, np.int64)  # parent << 32 | event, −1 = empty
+        self._children = np.zeros(slots, np.int64)
 
     def __len__(self) -> int:
         return self.size
 
-    def extend(self, node: np.ndarray, event: np.ndarray) -> np.ndarray:
-        """Children of node (n,) by event id (n,), created as needed -> (n,) int64."""
-        needed = self.size + len(node)
+    def reserve(self, extra: int) -> tuple:
+        """Room for `extra` more nodes; the arrays a kernel's ``_child`` takes, and size."""
+        needed = self.size + extra
         if needed > len(self.parent):
             capacity = max(needed, 2 * len(self.parent))
             self.parent = np.concatenate([self.parent, np.full(capacity - len(self.parent), -1, np.int64)])
             self.event = np.concatenate([self.event, np.zeros(capacity - len(self.event), np.int64)])
-        if 2 * needed > len(self._keys):
+        if 2 * needed > len(self._keys):  # load factor at most one half
             capacity = len(self._keys)
             while capacity < 2 * needed:
                 capacity *= 2
             self._keys, self._children = _rehashed(self._keys, self._children, capacity)
-        children = np.empty(len(node), np.int64)
-        self.size = _extend_kernel(self._keys, self._children, self.parent, self.event, self.size,
-                                   np.asarray(node, np.int64), np.asarray(event, np.int64), children)
-        return children
+        return self._keys, self._children, self.parent, self.event, self.size
 
     def sequences(self, nodes: np.ndarray) -> list[tuple[int, ...]]:
         """The event ids from the first event after the camera to each of `nodes`."""
@@ -225,34 +297,13 @@ class ClassTrie:
 
 
 _EVENT_BITS = 32
+_event_id = inline(events.event_id)
 _HASH = np.uint64(0x9E3779B97F4A7C15)
 
 
 @inline
 def _slot(key, mask):
     return np.int64((np.uint64(key) * _HASH) >> np.uint64(40)) & mask
-
-
-@kernel
-def _extend_kernel(keys, children, parent, event, size, node, event_in, out):
-    mask = len(keys) - 1
-    for lane in range(len(node)):
-        key = (node[lane] << _EVENT_BITS) | event_in[lane]
-        slot = _slot(key, mask)
-        while True:
-            found = keys[slot]
-            if found == key:
-                out[lane] = children[slot]
-                break
-            if found == -1:
-                keys[slot] = key
-                children[slot] = size
-                parent[size], event[size] = node[lane], event_in[lane]
-                out[lane] = size
-                size += 1
-                break
-            slot = (slot + 1) & mask
-    return size
 
 
 def _rehashed(keys: np.ndarray, children: np.ndarray, capacity: int) -> tuple[np.ndarray, np.ndarray]:
@@ -279,35 +330,61 @@ class EventNorms:
     event: a path keeps one row number instead of N norms, and a record's N slots are
     gathered once, when the batch ends."""
 
-    def __init__(self) -> None:
-        self.parent = np.zeros(1024, np.int64)
-        self.values = np.zeros((1024, 3), FLOAT)
+    def __init__(self, capacity: int = 1024) -> None:
+        self.parent = np.empty(capacity, np.int64)
+        self.values = np.empty((capacity, 3), FLOAT)
         self.size = 0
 
-    def append(self, parent: np.ndarray, curvature, texture, reflectance) -> np.ndarray:
-        """New rows after `parent` (k,) rows; C, T, R (k,). Returns their ids."""
-        count = len(parent)
-        if self.size + count > len(self.parent):
-            capacity = max(self.size + count, 2 * len(self.parent))
-            self.parent = np.resize(self.parent, capacity)
-            self.values = np.resize(self.values, (capacity, 3))
-        rows = slice(self.size, self.size + count)
-        self.parent[rows] = parent
-        self.values[rows, 0], self.values[rows, 1], self.values[rows, 2] = curvature, texture, reflectance
-        self.size += count
-        return np.arange(rows.start, rows.stop, dtype=np.int64)
+    def reserve(self, extra: int) -> tuple:
+        """Room for `extra` more rows; the arrays a kernel's ``_add_norms`` takes, and size."""
+        if self.size + extra > len(self.parent):
+            capacity = max(self.size + extra, 2 * len(self.parent))
+            self.parent = _grown(self.parent, capacity)
+            self.values = _grown(self.values, capacity)
+        return self.parent, self.values, self.size
 
     def first_events(self, rows: np.ndarray, slots: int) -> np.ndarray:
-        """(r, slots, 3) norms of events 1..slots of the paths ending at `rows` (zeros past
-        a path's last event)."""
-        out = np.zeros((len(rows), slots, 3), FLOAT)
+        """(r, slots, 3) float16 norms of events 1..slots of the paths ending at `rows`
+        (zeros past a path's last event), as the index stores them (paths/format.py
+        ``stored_norms``: saturated at the largest float16)."""
+        out = np.zeros((len(rows), slots, 3), np.uint16)
         if slots:
-            _first_events_kernel(self.parent, self.values, rows, out)
-        return out
+            _first_events_kernel(self.parent, self.values.view(np.uint32), rows, out)
+        return out.view(fmt.NORM_DTYPE)
+
+
+class RecordBuffer:
+    """The records of a batch: pixel, sample, rgb (float32 × 3), class node, norms row."""
+
+    def __init__(self, capacity: int = 1024) -> None:
+        self.pixel = np.empty(capacity, np.int64)
+        self.sample = np.empty(capacity, np.int32)
+        self.rgb = np.empty((capacity, 3), FLOAT)
+        self.node = np.empty(capacity, np.int64)
+        self.row = np.empty(capacity, np.int64)
+        self.count = 0
+
+    def reserve(self, extra: int) -> tuple:
+        """Room for `extra` more records; the arrays a kernel's ``_add_record`` takes, and
+        the count."""
+        if self.count + extra > len(self.pixel):
+            capacity = max(self.count + extra, 2 * len(self.pixel))
+            for name in ("pixel", "sample", "rgb", "node", "row"):
+                setattr(self, name, _grown(getattr(self, name), capacity))
+        return self.pixel, self.sample, self.rgb, self.node, self.row, self.count
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        return tuple(getattr(self, name)[:self.count] for name in ("pixel", "sample", "rgb", "node", "row"))
+
+
+def _grown(array: np.ndarray, capacity: int) -> np.ndarray:
+    grown = np.empty((capacity,) + array.shape[1:], array.dtype)
+    grown[:len(array)] = array
+    return grown
 
 
 @kernel
-def _first_events_kernel(parent, values, rows, out):
+def _first_events_kernel(parent, value_bits, rows, out):
     slots = out.shape[1]
     for record in range(len(rows)):
         depth = 0
@@ -319,8 +396,42 @@ def _first_events_kernel(parent, values, rows, out):
         position = depth - 1  # the last event's slot
         while row >= 0:
             if position < slots:
-                out[record, position, 0] = values[row, 0]
-                out[record, position, 1] = values[row, 1]
-                out[record, position, 2] = values[row, 2]
+                for norm in range(3):
+                    out[record, position, norm] = _half_bits(value_bits[row, norm])
             position -= 1
             row = parent[row]
+
+
+_F16_MAX_BITS = 0x7BFF
+
+
+@inline
+def _half_bits(bits):
+    """The float16 bits of the float32 whose bits are `bits` (uint32), rounded to nearest
+    even and saturated at the largest float16 (±65504), as ``stored_norms`` stores norms;
+    NaN stays NaN. (numpy's float16 cast costs more than the whole gather.)"""
+    bits = np.int64(bits)
+    sign = (bits >> 16) & 0x8000
+    exponent = (bits >> 23) & 0xFF
+    mantissa = bits & 0x7FFFFF
+    if exponent == 0xFF:
+        return np.uint16(sign | (0x7E00 if mantissa else _F16_MAX_BITS))
+    half_exponent = exponent - 127 + 15
+    if half_exponent >= 31:
+        return np.uint16(sign | _F16_MAX_BITS)
+    if half_exponent <= 0:  # a float16 subnormal, or zero
+        if half_exponent < -10:
+            return np.uint16(sign)
+        mantissa |= 0x800000
+        shift = 14 - half_exponent
+        half = mantissa >> shift
+        remainder = mantissa & ((1 << shift) - 1)
+        halfway = 1 << (shift - 1)
+        if remainder > halfway or (remainder == halfway and half & 1):
+            half += 1
+        return np.uint16(sign | half)
+    half = (half_exponent << 10) | (mantissa >> 13)
+    remainder = mantissa & 0x1FFF
+    if remainder > 0x1000 or (remainder == 0x1000 and half & 1):
+        half += 1  # may carry into the exponent: still the right rounding
+    return np.uint16(sign | min(half, _F16_MAX_BITS))
