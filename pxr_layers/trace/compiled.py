@@ -16,11 +16,14 @@ writes, scratch space included (:func:`scratch`).
 The cache lives in ``$PXR_LAYERS_CACHE_DIR`` if set, else numba's own ``$NUMBA_CACHE_DIR``,
 else ``$XDG_CACHE_HOME/pxr-layers/numba`` (``~/.cache/pxr-layers/numba``): never beside the
 installed sources, so a read-only install works. An unwritable cache folder falls back to
-one under the system's temporary directory.
+one under the system's temporary directory. Inside it, each version of the tracer's
+sources gets its own subfolder (a hash of them): numba checks only a kernel's own file,
+so a kernel whose inlined helpers changed in another file would otherwise load stale.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import tempfile
@@ -40,7 +43,7 @@ def cache_dir() -> Path:
     if not chosen:
         base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
         chosen = Path(base) / "pxr-layers" / "numba"
-    path = Path(chosen)
+    path = Path(chosen) / _sources_digest()
     try:
         path.mkdir(parents=True, exist_ok=True)
         probe = tempfile.NamedTemporaryFile(dir=path, prefix=".probe")
@@ -51,6 +54,16 @@ def cache_dir() -> Path:
         fallback.mkdir(parents=True, exist_ok=True)
         path = fallback
     return path
+
+
+def _sources_digest() -> str:
+    """A short hash of the compiled code's sources: trace/ and the event packing it inlines."""
+    package = Path(__file__).resolve().parent
+    digest = hashlib.blake2b(digest_size=8)
+    for source in sorted([*package.rglob("*.py"), package.parent / "paths" / "events.py"]):
+        digest.update(source.read_bytes())
+    digest.update(numba.__version__.encode())
+    return digest.hexdigest()
 
 
 # numba reads the folder when a cached function is declared: set it before any kernel is.
