@@ -1,4 +1,5 @@
-"""Primary rays of a UsdGeom pinhole camera, with UsdRender's aperture conform policies."""
+"""A UsdGeom pinhole camera with UsdRender's aperture conform policies (its rays are cast by
+stages/camera.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,6 @@ import numpy as np
 
 from ..errors import RenderSettingsError
 from ..scene import FLOAT, RenderSpec
-from .vectors import normalize, transform_rows
 
 
 @dataclass(frozen=True)
@@ -58,15 +58,3 @@ class PinholeCamera:
             offset_y=camera.vertical_aperture_offset / focal,
             t_max=float(camera.clipping[1]),
         )
-
-    def rays(self, film_x: np.ndarray, film_y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World rays through film positions in [0, 1]² (x right, y down from the top row).
-
-        Returns origins (3, n) and unit directions (3, n), float32.
-        """
-        x = (2.0 * film_x - 1.0) * self.half_width + self.offset_x
-        y = (1.0 - 2.0 * film_y) * self.half_height + self.offset_y
-        local = np.stack([x, y, -np.ones_like(x)]).astype(FLOAT)
-        direction = normalize(transform_rows(self.world_from_camera, local))
-        origins = np.repeat(self.position.astype(FLOAT)[:, None], len(x), axis=1)
-        return origins, direction.astype(FLOAT)

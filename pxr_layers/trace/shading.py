@@ -79,7 +79,6 @@ class MaterialTable:
             input_ints=np.array(input_ints, np.int32).reshape(-1, 7),
             input_floats=np.array(input_floats, np.float32).reshape(-1, 8), texels=texels, texture_info=info)
         # (materials,) bool, without the light-shape row
-        self.cutout = constants[:-1, OPACITY_THRESHOLD] > 0
         self.emissive = (constants[:-1, EMISSIVE:EMISSIVE + 3].max(axis=1) > 0) | (slot_input[:-1, EMISSIVE_SLOT] >= 0)
 
 

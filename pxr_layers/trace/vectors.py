@@ -11,7 +11,6 @@ import math
 
 import numpy as np
 
-from ..scene import FLOAT
 from .compiled import inline
 
 LUMINANCE_WEIGHTS = (0.2126, 0.7152, 0.0722)  # Rec.709
@@ -23,24 +22,9 @@ def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def length(a: np.ndarray) -> np.ndarray:
-    """Per-lane Euclidean norm: (3, n) -> (n,)."""
-    return np.sqrt(dot(a, a))
-
-
-def normalize(a: np.ndarray, floor: float = 1e-30) -> np.ndarray:
-    """Lanes scaled to unit length (lanes shorter than `floor` stay ~0)."""
-    return a / np.maximum(length(a), floor)
-
-
 def luminance(rgb: np.ndarray) -> np.ndarray:
     """Rec.709 luminance: (3, ...) -> (...)."""
     return rgb[0] * _LR + rgb[1] * _LG + rgb[2] * _LB
-
-
-def transform_rows(matrix: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """matrix (3, 3) @ vectors (3, n) -> (3, n) float32."""
-    return (matrix.astype(FLOAT) @ a).astype(FLOAT, copy=False)
 
 
 # -- per-lane helpers of kernels (scalars in, scalars out)
