@@ -16,6 +16,7 @@ import zstandard
 from ..errors import OutputError
 from . import format as fmt
 from .events import EventVocabulary
+from .trie import ClassTrie
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +51,8 @@ class PathIndexWriter:
         self._contributions = 0
         self.buffer_records = buffer_records
         self.chunk_records = chunk_records
-        self._class_ids: dict[tuple[int, ...], int] = {}
+        self._classes = ClassTrie()  # every class of the index, merged batch by batch
+        self._node_class = np.zeros(0, np.int64)  # the class id of each trie node, −1 = none yet
         self._class_keys: list[tuple[int, ...]] = []  # per class, its event ids after the camera
         self._class_records = np.zeros(0, np.int64)  # (classes,) records so far
         self._class_rgb = np.zeros((0, 3))  # (classes, 3) float64 summed rgb
@@ -76,7 +78,7 @@ class PathIndexWriter:
         (float16, taken as they are); the arrays are kept, not copied, until the next flush."""
         if records is None or not len(records.pixel):
             return
-        class_id = self._global_classes(records.path_class, records.sequences)
+        class_id = self._global_classes(records)
         if records.norms.shape[1:] != (self.norm_slots, 3):
             raise ValueError(f"records carry norms of shape {records.norms.shape[1:]}, the index expects "
                              f"({self.norm_slots}, 3)")
@@ -87,17 +89,21 @@ class PathIndexWriter:
         if self._buffered >= self.buffer_records:
             self._flush()
 
-    def _global_classes(self, path_class: np.ndarray, sequences: list[tuple[int, ...]]) -> np.ndarray:
+    def _global_classes(self, records) -> np.ndarray:
         """The batch's classes as global class ids (new classes numbered in the order of
-        the batch's list, which the tracer makes deterministic)."""
-        ids = np.empty(len(sequences), np.int64)
-        for index, sequence in enumerate(sequences):
-            class_id = self._class_ids.get(sequence)
-            if class_id is None:
-                class_id = self._class_ids[sequence] = len(self._class_keys)
-                self._class_keys.append(sequence)
-            ids[index] = class_id
-        return ids[path_class]
+        the batch's list, which the tracer makes deterministic). The batch's class trie is
+        merged into the index's, so only new classes have their event sequence built."""
+        nodes = self._classes.merge(records.trie_parent, records.trie_event)[records.class_nodes]
+        if len(self._node_class) < len(self._classes):
+            self._node_class = np.concatenate([self._node_class, np.full(len(self._classes) - len(self._node_class)
+                                                                         + len(self._classes), -1, np.int64)])
+        ids = self._node_class[nodes]
+        new = np.flatnonzero(ids < 0)
+        if len(new):
+            ids[new] = np.arange(len(self._class_keys), len(self._class_keys) + len(new))
+            self._node_class[nodes[new]] = ids[new]
+            self._class_keys.extend(self._classes.sequences(nodes[new]))
+        return ids[records.path_class]
 
     def _flush(self) -> None:
         if not self._buffer:

@@ -39,7 +39,7 @@ from ..covariance import (
 from ..covariance.texture_spectrum import TextureSpectrum
 from ..scene import FLOAT, SceneData, TextureInput
 from . import bsdf
-from .compiled import inline, kernel
+from ..compiled import inline, kernel
 from .vectors import dot
 from .world import World
 

@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from .compiled import inline
+from ..compiled import inline
 from .vectors import luminance_of, normalized
 
 DIFFUSE, SPECULAR, COAT, GLASS = range(4)

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..scene import FLOAT, SceneData
 from . import shading, textures
-from .compiled import inline, kernel, scratch
+from ..compiled import inline, kernel, scratch
 from .shading import MaterialArrays, MaterialTable
 from .vectors import basis, luminance, normalized
 from .world import GeometryArrays, World

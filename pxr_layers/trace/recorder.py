@@ -6,7 +6,7 @@ The integrator hands every observer each stage's results (``escaped``, ``emitted
 branch on what is recorded.
 
 ``PathRecorder`` owns the event vocabulary's ids, the prefix tree of path classes
-(``ClassTrie``, compiled) and the per-event covariance norms (``EventNorms``): a path
+(``paths/trie.py``, compiled) and the per-event covariance norms (``EventNorms``): a path
 carries its class as one trie node and its norms as one row linked to its previous
 event's, both kept in the PathQueue's ``node`` and ``row`` columns.
 """
@@ -20,10 +20,12 @@ import numpy as np
 from ..paths import events
 from ..paths import format as fmt
 from ..paths.events import EventVocabulary
+from ..paths.trie import ClassTrie, class_sequences
+from ..paths.trie import child as trie_child
 from ..scene import FLOAT
 from . import bsdf
 from .bounce_norms import lobe_reflectance, reflectance
-from .compiled import inline, kernel
+from ..compiled import inline, kernel
 from .stages.queues import PathQueue, ShadowQueue, Splats, SurfaceQueue
 from .stages.scatter import Scattering
 
@@ -33,9 +35,13 @@ class Contributions:
     """Every contribution of a batch, in the order the tracer made them.
 
     pixel  : (r,) int64; sample : (r,) int32; rgb : (r, 3) float32 (what the film adds)
-    path_class : (r,) int64 index into ``sequences``
-    norms  : (r, N, 3) float32 C, T, R of events 1..N after the camera (0 past the end)
-    sequences : the batch's path classes, each its event ids after the camera (paths/events.py)
+    path_class : (r,) int64 index into ``class_nodes``
+    norms  : (r, N, 3) float16 C, T, R of events 1..N after the camera (0 past the end),
+             as the index stores them
+    class_nodes : (k,) int64 each class's node in the batch's trie, whose nodes are
+             trie_parent, trie_event (m,) int64 (node 0 the camera; a parent's number is
+             below its children's): plain arrays, so a writer merges them without
+             building the event sequences of classes it already knows
     """
 
     pixel: np.ndarray
@@ -43,7 +49,14 @@ class Contributions:
     rgb: np.ndarray
     path_class: np.ndarray
     norms: np.ndarray
-    sequences: list[tuple[int, ...]]
+    class_nodes: np.ndarray
+    trie_parent: np.ndarray
+    trie_event: np.ndarray
+
+    @property
+    def sequences(self) -> list[tuple[int, ...]]:
+        """Each class's event ids after the camera (paths/events.py)."""
+        return class_sequences(self.trie_parent, self.trie_event, self.class_nodes)
 
 
 class Observer:
@@ -116,24 +129,12 @@ class PathRecorder(Observer):
         pixel, sample, rgb, node, row = self.records.arrays()
         nodes, path_class = np.unique(node, return_inverse=True)
         norms = self.norms.first_events(row, self.slots)
-        return Contributions(pixel, sample, rgb, path_class.reshape(-1), norms, self.classes.sequences(nodes))
+        trie = self.classes
+        return Contributions(pixel, sample, rgb, path_class.reshape(-1), norms, nodes, trie.parent[:trie.size].copy(),
+                             trie.event[:trie.size].copy())
 
 
-@inline
-def _child(keys, children, parent, event, size, node, event_id):
-    """The trie child of `node` by `event_id`, created if new: (child, new size)."""
-    key = (node << _EVENT_BITS) | event_id
-    mask = len(keys) - 1
-    slot = _slot(key, mask)
-    while True:
-        found = keys[slot]
-        if found == key:
-            return children[slot], size
-        if found == -1:
-            keys[slot], children[slot] = key, size
-            parent[size], event[size] = node, event_id
-            return size, size + 1
-        slot = (slot + 1) & mask
+_event_id = inline(events.event_id)
 
 
 @inline
@@ -169,7 +170,7 @@ def _record_emitted(lane, light, triangle, rgb, pixel, sample, node, row, triang
     for entry in range(len(lane)):
         path = lane[entry]
         event_id = _emitter_event(triangle_subject, subject_count, light_offset, light[entry], triangle[entry])
-        child, size = _child(keys, children, parent, event, size, node[path], event_id)
+        child, size = trie_child(keys, children, parent, event, size, node[path], event_id)
         count = _add_record(r_pixel, r_sample, r_rgb, r_node, r_row, count, pixel[path], sample[path], rgb[entry, 0],
                             rgb[entry, 1], rgb[entry, 2], child, row[path])
     return size, count
@@ -191,8 +192,8 @@ def _record_lit(lane, light, triangle, radiance, visible, surface_triangle, lobe
             scatter = bsdf.SCATTER_DIFFUSE if lobe == bsdf.DIFFUSE else bsdf.SCATTER_GLOSSY
             surface_event = _surface_event(triangle_subject, subject_count, events.REFLECT, scatter, lobe,
                                            surface_triangle[path])
-            child, size = _child(keys, children, parent, event, size, node[path], surface_event)
-            child, size = _child(keys, children, parent, event, size, child, light_event)
+            child, size = trie_child(keys, children, parent, event, size, node[path], surface_event)
+            child, size = trie_child(keys, children, parent, event, size, child, light_event)
             norms_row = row[path]
             if with_norms:
                 norms_row = n_size
@@ -215,7 +216,7 @@ def _record_scattered(scattered, cut, lobe, scatter, transmit, triangle, lobes, 
         path_lobe = events.NO_LOBE if passes else np.int64(lobe[path])
         event_id = _surface_event(triangle_subject, subject_count, event_type, scatter[path], path_lobe,
                                   triangle[path])
-        node[path], size = _child(keys, children, parent, event, size, node[path], event_id)
+        node[path], size = trie_child(keys, children, parent, event, size, node[path], event_id)
         if with_norms:
             if passes:
                 n_size = _add_norms(n_parent, n_values, n_size, row[path], 0.0, 0.0, 0.0)
@@ -247,82 +248,6 @@ class FirstBounceNorms(Observer):
         for norm, values in enumerate((surfaces.curvature[lanes], surfaces.texture[lanes], reflectance)):
             self.sums[:, norm] += np.bincount(where, weights=values, minlength=len(self.count))
         self.count += np.bincount(where, minlength=len(self.count))
-
-
-class ClassTrie:
-    """Prefix tree of event ids: every distinct event sequence (path class) is one node.
-
-    Node 0 is the camera (the empty sequence after C). Kernels move paths one event further
-    through an open-addressing table of (parent, event) edges (``_child``). New nodes are
-    numbered in the order lanes first ask for them, so a batch traced the same way numbers
-    its classes the same way.
-    """
-
-    def __init__(self, capacity: int = 64) -> None:
-        self.parent = np.full(capacity, -1, np.int64)
-        self.event = np.zeros(capacity, np.int64)
-        self.size = 1
-        slots = 1 << max(8, int(2 * capacity - 1).bit_length())  # a power of two ≥ 2 × capacity
-        self._keys = np.full(slots, -1, np.int64)  # parent << 32 | event, −1 = empty
-        self._children = np.zeros(slots, np.int64)
-
-    def __len__(self) -> int:
-        return self.size
-
-    def reserve(self, extra: int) -> tuple:
-        """Room for `extra` more nodes; the arrays a kernel's ``_child`` takes, and size."""
-        needed = self.size + extra
-        if needed > len(self.parent):
-            capacity = max(needed, 2 * len(self.parent))
-            self.parent = np.concatenate([self.parent, np.full(capacity - len(self.parent), -1, np.int64)])
-            self.event = np.concatenate([self.event, np.zeros(capacity - len(self.event), np.int64)])
-        if 2 * needed > len(self._keys):  # load factor at most one half
-            capacity = len(self._keys)
-            while capacity < 2 * needed:
-                capacity *= 2
-            self._keys, self._children = _rehashed(self._keys, self._children, capacity)
-        return self._keys, self._children, self.parent, self.event, self.size
-
-    def sequences(self, nodes: np.ndarray) -> list[tuple[int, ...]]:
-        """The event ids from the first event after the camera to each of `nodes`."""
-        chains = []
-        current = np.asarray(nodes, np.int64)
-        while (current > 0).any():  # one level of all chains at a time
-            chains.append(np.where(current > 0, self.event[current], -1))
-            current = np.where(current > 0, self.parent[np.maximum(current, 0)], 0)
-        if not chains:
-            return [() for _ in range(len(current))]
-        table = np.stack(chains[::-1], axis=1)  # (nodes, depth), left-padded with −1
-        return [tuple(event for event in row if event >= 0) for row in table.tolist()]
-
-
-_EVENT_BITS = 32
-_event_id = inline(events.event_id)
-_HASH = np.uint64(0x9E3779B97F4A7C15)
-
-
-@inline
-def _slot(key, mask):
-    return np.int64((np.uint64(key) * _HASH) >> np.uint64(40)) & mask
-
-
-def _rehashed(keys: np.ndarray, children: np.ndarray, capacity: int) -> tuple[np.ndarray, np.ndarray]:
-    new_keys, new_children = np.full(capacity, -1, np.int64), np.zeros(capacity, np.int64)
-    _rehash_kernel(keys, children, new_keys, new_children)
-    return new_keys, new_children
-
-
-@kernel
-def _rehash_kernel(keys, children, new_keys, new_children):
-    mask = len(new_keys) - 1
-    for old in range(len(keys)):
-        key = keys[old]
-        if key == -1:
-            continue
-        slot = _slot(key, mask)
-        while new_keys[slot] != -1:
-            slot = (slot + 1) & mask
-        new_keys[slot], new_children[slot] = key, children[old]
 
 
 class EventNorms:

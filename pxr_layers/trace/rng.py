@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .compiled import inline
+from ..compiled import inline
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _PIXEL_STEP = np.uint64(0xD1B54A32D192ED03)

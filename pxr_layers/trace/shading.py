@@ -18,7 +18,7 @@ import numpy as np
 
 from ..scene import Material, SceneData, TextureInput
 from . import textures
-from .compiled import inline
+from ..compiled import inline
 
 # Columns of a material row; the slots (inputs a texture may drive) in the same order.
 DIFFUSE, EMISSIVE, SPECULAR = 0, 3, 6  # 3 columns each

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .compiled import inline
+from ..compiled import inline
 
 WRAP_MODES = ("repeat", "mirror", "clamp", "black")  # the codes kernels receive
 OFFSET, WIDTH, HEIGHT, CHANNELS = range(4)

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .compiled import inline
+from ..compiled import inline
 
 LUMINANCE_WEIGHTS = (0.2126, 0.7152, 0.0722)  # Rec.709
 _LR, _LG, _LB = LUMINANCE_WEIGHTS

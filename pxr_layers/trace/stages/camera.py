@@ -8,7 +8,7 @@ import numpy as np
 
 from .. import rng
 from ..camera import PinholeCamera
-from ..compiled import kernel
+from ...compiled import kernel
 from .queues import PathQueue
 
 

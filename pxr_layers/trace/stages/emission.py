@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..bsdf import power_heuristic
-from ..compiled import kernel, scratch
+from ...compiled import kernel, scratch
 from ..lights import LightArrays, emitted, triangle_pdf
 from ..shading import MaterialArrays, interpolate_st
 from ..world import GeometryArrays

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..bsdf import power_heuristic
-from ..compiled import inline, kernel
+from ...compiled import inline, kernel
 from ..lights import LightArrays, dome_pdf, dome_radiance
 from .queues import Hits, PathQueue, Splats, trimmed
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from .. import bsdf, lights as light_sampling, rng
-from ..compiled import kernel, scratch
+from ...compiled import kernel, scratch
 from ..embree import RayCaster
 from ..lights import LightArrays
 from ..shading import MaterialArrays

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import rng
-from ..compiled import kernel
+from ...compiled import kernel
 from .queues import PathQueue, SurfaceQueue
 from .scatter import Scattering
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import bsdf, rng
-from ..compiled import kernel
+from ...compiled import kernel
 from ..vectors import to_world
 from .queues import PathQueue, SurfaceQueue
 

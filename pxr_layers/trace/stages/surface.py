@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import bsdf, shading
-from ..compiled import kernel, scratch
+from ...compiled import kernel, scratch
 from ..shading import MaterialArrays
 from ..vectors import basis, normalized
 from ..world import GeometryArrays
