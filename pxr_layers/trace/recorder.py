@@ -127,10 +127,14 @@ class PathRecorder(Observer):
     def result(self) -> Contributions:
         """The batch's contributions; norms already as the index stores them (float16)."""
         pixel, sample, rgb, node, row = self.records.arrays()
-        nodes, path_class = np.unique(node, return_inverse=True)
-        norms = self.norms.first_events(row, self.slots)
         trie = self.classes
-        return Contributions(pixel, sample, rgb, path_class.reshape(-1), norms, nodes, trie.parent[:trie.size].copy(),
+        # np.unique(node, return_inverse=True), compiled (it would hold the GIL to sort)
+        class_of_node = np.empty(trie.size, np.int64)
+        path_class = np.empty(len(node), np.int64)
+        classes = _dense_classes(node, class_of_node, path_class)
+        nodes = np.flatnonzero(class_of_node >= 0)[:classes]
+        norms = self.norms.first_events(row, self.slots)
+        return Contributions(pixel, sample, rgb, path_class, norms, nodes, trie.parent[:trie.size].copy(),
                              trie.event[:trie.size].copy())
 
 
@@ -162,6 +166,23 @@ def _add_norms(n_parent, n_values, n_size, parent, curvature, texture, reflectan
     n_parent[n_size] = parent
     n_values[n_size, 0], n_values[n_size, 1], n_values[n_size, 2] = curvature, texture, reflectance_norm
     return n_size + 1
+
+
+@kernel
+def _dense_classes(node, class_of_node, path_class):
+    """Number the trie nodes that records use 0, 1, ... in node order (class_of_node, −1
+    for the others) and give each record its number (path_class); returns the count."""
+    class_of_node[:] = -1
+    for record in range(len(node)):
+        class_of_node[node[record]] = 0
+    classes = 0
+    for trie_node in range(len(class_of_node)):
+        if class_of_node[trie_node] == 0:
+            class_of_node[trie_node] = classes
+            classes += 1
+    for record in range(len(node)):
+        path_class[record] = class_of_node[node[record]]
+    return classes
 
 
 @kernel
