@@ -220,22 +220,14 @@ def _sensor(mi, spec, spp: int) -> dict:
         raise SystemExit(f"bench_vs_mitsuba: {camera.projection} cameras are not mapped")
     if camera.horizontal_aperture_offset or camera.vertical_aperture_offset:
         raise SystemExit("bench_vs_mitsuba: aperture offsets are not mapped")
+    from pxr_layers.trace.camera import PinholeCamera
+
     width, height = spec.resolution
-    h_aperture, v_aperture = camera.horizontal_aperture, camera.vertical_aperture
-    image_aspect = width * spec.pixel_aspect_ratio / height
-    aperture_aspect = h_aperture / v_aperture
-    policy = spec.aspect_ratio_conform_policy
-    if policy == "adjustApertureWidth" or (policy == "expandAperture" and image_aspect > aperture_aspect) or (
-            policy == "cropAperture" and image_aspect < aperture_aspect):
-        h_aperture = v_aperture * image_aspect
-    elif policy in ("adjustApertureHeight", "expandAperture", "cropAperture"):
-        v_aperture = h_aperture / image_aspect
-    if abs((h_aperture / v_aperture) / (width / height) - 1) > 1e-6:
+    pinhole = PinholeCamera.from_spec(spec)  # the film window after the conform policy
+    if abs((pinhole.half_width / pinhole.half_height) / (width / height) - 1) > 1e-6:
         raise SystemExit("bench_vs_mitsuba: non-square pixels (adjustPixelAspectRatio) are not mapped")
-    matrix = np.asarray(camera.world_from_camera, np.float64)
-    axes = matrix[:3, :3] / np.linalg.norm(matrix[:3, :3], axis=0, keepdims=True)
-    origin = matrix[:3, 3]
-    fov_x = np.degrees(2 * np.arctan(h_aperture / 2 / camera.focal_length))
+    axes, origin = pinhole.world_from_camera, pinhole.position
+    fov_x = np.degrees(2 * np.arctan(pinhole.half_width))
     return {
         "type": "perspective",
         "fov": float(fov_x),
