@@ -40,9 +40,10 @@ import numpy as np
 
 from ..errors import RenderSettingsError
 from ..scene import FLOAT
-from .integrator import MAX_PASS_THROUGH, T_INFINITY, Integrator
+from .integrator import MAX_PASS_THROUGH, Integrator
 from .stages.camera import camera_rays
 from .stages.intersect import intersect
+from .stages.queues import T_INFINITY
 from .stages.surface import surface
 
 log = logging.getLogger(__name__)

@@ -36,16 +36,13 @@ from .stages.emission import emission
 from .stages.escaped import escaped
 from .stages.film import BatchFilm
 from .stages.intersect import intersect
-from .stages.next_event import T_INFINITY, cast_shadows, light_samples
+from .stages.next_event import cast_shadows, light_samples
 from .stages.roulette import survivors
 from .stages.scatter import scatter
 from .stages.surface import surface
 from .world import GeometryArrays, World
 
 MAX_PASS_THROUGH = 16  # cut-out surfaces a path may cross on top of max_depth bounces
-
-__all__ = ["BatchResult", "Contributions", "Integrator", "MAX_PASS_THROUGH", "T_INFINITY", "TraceSettings"]
-
 
 @dataclass(frozen=True)
 class TraceSettings:

@@ -14,9 +14,7 @@ from ..lights import LightArrays
 from ..shading import MaterialArrays
 from ..vectors import to_local
 from ..world import GeometryArrays
-from .queues import PathQueue, ShadowQueue, SurfaceQueue, trimmed
-
-T_INFINITY = np.float32(1e30)
+from .queues import T_INFINITY, PathQueue, ShadowQueue, SurfaceQueue, trimmed
 
 
 def light_samples(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: float, geometry: GeometryArrays,

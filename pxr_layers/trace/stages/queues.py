@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+T_INFINITY = np.float32(1e30)  # the t_max of rays that go on until they hit something
+
 
 class _Queue:
     def take(self, lanes: np.ndarray):

@@ -10,7 +10,7 @@ import numpy as np
 from .. import bsdf, rng
 from ...compiled import kernel
 from ..vectors import to_world
-from .queues import PathQueue, SurfaceQueue
+from .queues import T_INFINITY, PathQueue, SurfaceQueue
 
 
 @dataclass
@@ -42,7 +42,7 @@ def _scatter_kernel(key, position, facing, frame, wo, lobes, cut, scatters, dime
                     throughput, previous_pdf, previous_singular, depth, t_max, lobe_out, scatter_out, transmit_out,
                     scattered_out):
     for lane in range(len(key)):
-        t_max[lane] = 1e30
+        t_max[lane] = T_INFINITY
         nx, ny, nz = facing[lane, 0], facing[lane, 1], facing[lane, 2]
         if cut[lane]:  # straight on, from just behind the surface: not a bounce
             origin[lane, 0] = position[lane, 0] - nx * epsilon
