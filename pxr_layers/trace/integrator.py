@@ -8,8 +8,8 @@ through the stages together, as lane-major queues compacted after each bounce
     surfaces) → surface (cut-out, shading frame, lobes) → next event (light sample, shadow
     ray, tentative radiance) → scatter (BSDF sampling) → roulette → next bounce
 
-and every contribution goes to the batch's film. Observers (recorder.py: the path index,
-the first-bounce covariance pictures) are handed each stage's results.
+and every stage's results go to the batch's observers (stages/observer.py): its film,
+and with covariance or an index the first-bounce pictures and the path recorder.
 
 Emission found by BSDF sampling and by light sampling is combined with the power
 heuristic, per lobe (see bsdf.py). ``max_depth`` counts scattering events: with
@@ -29,13 +29,14 @@ from .bounce_norms import BounceNorms
 from .camera import PinholeCamera
 from .embree import RayCaster
 from .lights import LightSampler
-from .recorder import Contributions, FirstBounceNorms, Observer, PathRecorder
+from .recorder import Contributions, FirstBounceNorms, PathRecorder
 from .shading import MaterialTable
 from .stages.camera import camera_rays
 from .stages.emission import emission
 from .stages.escaped import escaped
 from .stages.film import BatchFilm
 from .stages.intersect import intersect
+from .stages.observer import Observer
 from .stages.next_event import cast_shadows, light_samples
 from .stages.roulette import survivors
 from .stages.scatter import scatter
@@ -108,14 +109,14 @@ class Integrator:
         self.pixel_angle = np.float32(2 * camera.half_width / self.width)
 
     def observers(self, first_pixel: int, pixel_count: int, paths: int
-                  ) -> tuple[list[Observer], FirstBounceNorms | None, PathRecorder | None]:
-        """A batch's observers: the first-bounce norms with covariance, the recorder with
-        an index."""
+                  ) -> tuple[BatchFilm, FirstBounceNorms | None, PathRecorder | None]:
+        """A batch's observers: its film, the first-bounce norms with covariance, the
+        recorder with an index."""
         first_bounce = FirstBounceNorms(first_pixel, pixel_count) if self.bounce_norms else None
         recorder = (PathRecorder(self.vocabulary, self.triangle_subject,
                                  self.settings.norm_bounces if self.bounce_norms else 0, paths)
                     if self.settings.record_paths else None)
-        return [o for o in (first_bounce, recorder) if o is not None], first_bounce, recorder
+        return BatchFilm(first_pixel, pixel_count), first_bounce, recorder
 
     def trace(self, first_path: int, stop_path: int) -> BatchResult:
         """Trace paths [first_path, stop_path) to completion."""
@@ -124,8 +125,8 @@ class Integrator:
         spp = settings.spp
         first_pixel = first_path // spp
         pixel_count = (stop_path - 1) // spp - first_pixel + 1
-        film = BatchFilm(first_pixel, pixel_count)
-        observers, first_bounce, recorder = self.observers(first_pixel, pixel_count, stop_path - first_path)
+        film, first_bounce, recorder = self.observers(first_pixel, pixel_count, stop_path - first_path)
+        observers: list[Observer] = [o for o in (film, first_bounce, recorder) if o is not None]
         queue = camera_rays(self.camera, self.key, (self.width, self.height), spp, first_path, stop_path)
         rays = 0
 
@@ -139,13 +140,11 @@ class Integrator:
                 film.add_coverage(queue, hit)
             if lights.has_infinite_lights:
                 splats = escaped(queue, hits, light_arrays)
-                film.add_splats(queue, splats)
                 for observer in observers:
                     observer.escaped(queue, splats)
             if not hit.any():
                 break  # every path escaped (always, in a world of sky alone: no triangle to index)
             splats = emission(queue, hits, lights.triangle_emits, geometry, materials, light_arrays)
-            film.add_splats(queue, splats)
             for observer in observers:
                 observer.emitted(queue, splats)
 
@@ -164,7 +163,6 @@ class Integrator:
                 shadows = light_samples(queue, surfaces, step, self.epsilon, geometry, materials, light_arrays)
                 rays += len(shadows)
                 cast_shadows(self.caster, shadows)
-                film.add_lit(queue, shadows)
                 for observer in observers:
                     observer.lit(queue, surfaces, shadows)
 

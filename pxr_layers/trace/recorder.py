@@ -1,9 +1,5 @@
-"""Observers of the integrator's stages: the path index's recorder and the first-bounce
-covariance pictures.
-
-The integrator hands every observer each stage's results (``escaped``, ``emitted``, ``lit``,
-``scattered``); an observer that is not there costs nothing, and the integrator has no
-branch on what is recorded.
+"""Observers of the integrator's stages (stages/observer.py) that watch paths: the path
+index's recorder and the first-bounce covariance pictures.
 
 ``PathRecorder`` owns the event vocabulary's ids, the prefix tree of path classes
 (``paths/trie.py``, compiled) and the per-event covariance norms (``EventNorms``): a path
@@ -26,6 +22,7 @@ from ..scene import FLOAT
 from . import bsdf
 from .bounce_norms import lobe_reflectance, reflectance
 from ..compiled import inline, kernel
+from .stages.observer import Observer
 from .stages.queues import PathQueue, ShadowQueue, Splats, SurfaceQueue
 from .stages.scatter import Scattering
 
@@ -57,26 +54,6 @@ class Contributions:
     def sequences(self) -> list[tuple[int, ...]]:
         """Each class's event ids after the camera (paths/events.py)."""
         return class_sequences(self.trie_parent, self.trie_event, self.class_nodes)
-
-
-class Observer:
-    """Does nothing with any stage's results; subclasses pick what they watch."""
-
-    def wants_norms(self, step: int) -> bool:
-        """Whether the surfaces of bounce `step` need their covariance norms C and T."""
-        return False
-
-    def escaped(self, queue: PathQueue, splats: Splats) -> None:
-        pass
-
-    def emitted(self, queue: PathQueue, splats: Splats) -> None:
-        pass
-
-    def lit(self, queue: PathQueue, surfaces: SurfaceQueue, shadows: ShadowQueue) -> None:
-        """Light samples, with their visibility (called before ``scattered`` at the same vertex)."""
-
-    def scattered(self, queue: PathQueue, surfaces: SurfaceQueue, scattering: Scattering, step: int) -> None:
-        pass
 
 
 class PathRecorder(Observer):

@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from ...compiled import kernel
-from .queues import PathQueue, ShadowQueue, Splats
+from .observer import Observer
+from .queues import PathQueue, ShadowQueue, Splats, SurfaceQueue
 
 
-class BatchFilm:
+class BatchFilm(Observer):
     """Pixel sums of the contiguous pixel range [first_pixel, first_pixel + pixel_count).
 
     rgb (k, 3) float64 sums of contributions (not yet divided by spp); alpha (k,) float64
@@ -20,10 +21,13 @@ class BatchFilm:
         self.rgb = np.zeros((pixel_count, 3))
         self.alpha = np.zeros(pixel_count)
 
-    def add_splats(self, queue: PathQueue, splats: Splats) -> None:
+    def escaped(self, queue: PathQueue, splats: Splats) -> None:
         _add_kernel(queue.pixel, splats.lane, splats.rgb, self.first_pixel, self.rgb)
 
-    def add_lit(self, queue: PathQueue, shadows: ShadowQueue) -> None:
+    def emitted(self, queue: PathQueue, splats: Splats) -> None:
+        _add_kernel(queue.pixel, splats.lane, splats.rgb, self.first_pixel, self.rgb)
+
+    def lit(self, queue: PathQueue, surfaces: SurfaceQueue, shadows: ShadowQueue) -> None:
         """The contributions of visible light samples, every lobe's."""
         _add_lobes_kernel(queue.pixel, shadows.lane, shadows.radiance, shadows.visible, self.first_pixel, self.rgb)
 
