@@ -94,9 +94,9 @@ class PathIndexWriter:
         the batch's list, which the tracer makes deterministic). The batch's class trie is
         merged into the index's, so only new classes have their event sequence built."""
         nodes = self._classes.merge(records.trie_parent, records.trie_event)[records.class_nodes]
-        if len(self._node_class) < len(self._classes):
-            self._node_class = np.concatenate([self._node_class, np.full(len(self._classes) - len(self._node_class)
-                                                                         + len(self._classes), -1, np.int64)])
+        if len(self._node_class) < len(self._classes):  # grown to twice the nodes: amortised
+            self._node_class = np.concatenate([self._node_class,
+                                               np.full(2 * len(self._classes) - len(self._node_class), -1, np.int64)])
         ids = self._node_class[nodes]
         new = np.flatnonzero(ids < 0)
         if len(new):

@@ -163,7 +163,7 @@ class LightSampler:
         emitter_triangles = np.flatnonzero(self.triangle_emits).astype(np.int32)
         light_radiance = np.array([light.radiance for light in scene.lights], FLOAT).reshape(-1, 3)
 
-        sources: list[tuple[int, object, float]] = []
+        sources: list[tuple[int, int, float]] = []  # (kind, index among its kind, power)
         scene_area = np.pi * world.radius**2
         triangle_cdf = np.ones(1)
         triangle_probability = np.zeros(world.triangle_count, FLOAT)
@@ -176,7 +176,7 @@ class LightSampler:
             if len(power):
                 triangle_cdf = _cumulative(power)
                 triangle_probability[emitter_triangles] = power / power.sum()
-                sources.append((AREA, None, float(power.sum())))
+                sources.append((AREA, 0, float(power.sum())))
         self.distant: list[DistantLight] = []
         self.domes: list[DomeDistribution] = []
         for index, light in enumerate(scene.lights):
@@ -186,30 +186,29 @@ class LightSampler:
                 half_angle = np.radians(np.clip(light.angle, 0.0, 360.0) / 2)
                 distant = DistantLight(index, (toward / np.linalg.norm(toward)).astype(FLOAT),
                                        np.asarray(light.radiance, FLOAT), float(np.cos(half_angle)))
+                sources.append((DISTANT, len(self.distant), float(luminance(distant.irradiance)) * scene_area))
                 self.distant.append(distant)
-                sources.append((DISTANT, distant, float(luminance(distant.irradiance)) * scene_area))
             elif light.kind == "dome":
                 orthonormal = rotation / np.linalg.norm(rotation, axis=0, keepdims=True)
                 pixels = None if light.texture is None else scene.textures[light.texture].pixels
                 dome = DomeDistribution(index, light.radiance, pixels, orthonormal.T)
+                sources.append((DOME, len(self.domes), dome.mean_luminance * np.pi * scene_area))
                 self.domes.append(dome)
-                sources.append((DOME, dome, dome.mean_luminance * np.pi * scene_area))
         sources = [source for source in sources if source[2] > 0]
         self.has_lights = bool(sources)
         self.has_infinite_lights = bool(self.domes or any(not d.is_delta for d in self.distant))
         power = np.array([source[2] for source in sources] or [1.0])
         probability = power / power.sum()
-        probability_of = {id(obj): p for (_, obj, _), p in zip(sources, probability)}
-        area_probability = sum(p for (kind, _, _), p in zip(sources, probability) if kind == AREA)
-        items = {AREA: [None], DISTANT: self.distant, DOME: self.domes}
-        dome_textures = [dome.pixels for dome in self.domes if dome.pixels is not None]
+        probability_of = {(kind, item): p for (kind, item, _), p in zip(sources, probability)}
+        dome_textures: list[np.ndarray] = []
+        texture_of = []  # each dome's texture in the atlas, −1: none
+        for dome in self.domes:
+            texture_of.append(-1 if dome.pixels is None else len(dome_textures))
+            if dome.pixels is not None:
+                dome_textures.append(dome.pixels)
         texels, texture_info = textures.pack(dome_textures)
         rows = np.array([dome.shape[0] for dome in self.domes], np.int64)
         cols = np.array([dome.shape[1] for dome in self.domes], np.int64)
-        texture_of, next_texture = [], 0
-        for dome in self.domes:
-            texture_of.append(-1 if dome.pixels is None else next_texture)
-            next_texture += dome.pixels is not None
 
         def flat(values: list[np.ndarray]) -> np.ndarray:
             return np.concatenate([np.ravel(v) for v in values]) if values else np.zeros(0)
@@ -219,28 +218,27 @@ class LightSampler:
             emitter_triangles=emitter_triangles,
             triangle_cdf=triangle_cdf,
             triangle_probability=triangle_probability,
-            area_probability=np.array([area_probability], np.float64),
+            area_probability=np.array([probability_of.get((AREA, 0), 0.0)], np.float64),
             distant_direction=np.array([d.direction for d in self.distant], np.float64).reshape(-1, 3),
             distant_radiance=np.array([d.radiance for d in self.distant], np.float64).reshape(-1, 3),
             distant_cos_max=np.array([d.cos_max for d in self.distant], np.float64),
             distant_light=np.array([d.light_index for d in self.distant], np.int64),
-            distant_probability=np.array([probability_of.get(id(d), 0.0) for d in self.distant], np.float64),
+            distant_probability=np.array([probability_of.get((DISTANT, item), 0.0) for item in range(len(self.distant))],
+                                         np.float64),
             dome_radiance=np.array([d.radiance for d in self.domes], np.float64).reshape(-1, 3),
             dome_rotation=np.array([d.light_from_world for d in self.domes], np.float64).reshape(-1, 3, 3),
             dome_texture=np.array(texture_of, np.int64),
             dome_rows=rows, dome_columns=cols,
-            dome_cell_offset=np.concatenate([[0], np.cumsum(rows * cols)[:-1]]).astype(np.int64) if len(rows)
-            else np.zeros(0, np.int64),
-            dome_row_offset=np.concatenate([[0], np.cumsum(rows)[:-1]]).astype(np.int64) if len(rows)
-            else np.zeros(0, np.int64),
+            dome_cell_offset=np.cumsum(rows * cols) - rows * cols,  # where each dome's cells start
+            dome_row_offset=np.cumsum(rows) - rows,
             dome_light=np.array([d.light_index for d in self.domes], np.int64),
-            dome_probability=np.array([probability_of.get(id(d), 0.0) for d in self.domes], np.float64),
+            dome_probability=np.array([probability_of.get((DOME, item), 0.0) for item in range(len(self.domes))],
+                                      np.float64),
             dome_cell_probability=flat([d.cell_probability for d in self.domes]),
             dome_column_cdf=flat([d.column_cdf for d in self.domes]),
             dome_row_cdf=flat([d.row_cdf for d in self.domes]),
             source_kind=np.array([kind for kind, _, _ in sources] or [AREA], np.int64),
-            source_item=np.array([items[kind].index(obj) if kind != AREA else 0 for kind, obj, _ in sources] or [0],
-                                 np.int64),
+            source_item=np.array([item for _, item, _ in sources] or [0], np.int64),
             source_cdf=_cumulative(power),
             texels=texels, texture_info=texture_info,
         )
