@@ -12,6 +12,10 @@ import numpy as np
 
 from ..compiled import inline, kernel
 
+_EVENT_BITS = 32  # an edge's key: parent << 32 | event
+_HASH = np.uint64(0x9E3779B97F4A7C15)
+
+
 class ClassTrie:
     """Prefix tree of event ids: every distinct event sequence (path class) is one node.
 
@@ -81,13 +85,10 @@ def _merge_kernel(keys, children, parent, event, size, other_parent, other_event
     return size
 
 
-_EVENT_BITS = 32
-_HASH = np.uint64(0x9E3779B97F4A7C15)
-
-
 @inline
 def _slot(key, mask):
-    return np.int64((np.uint64(key) * _HASH) >> np.uint64(40)) & mask
+    """Fibonacci hashing: the high bits of key · 2⁶⁴/φ (44 of them, for tables of any size)."""
+    return np.int64((np.uint64(key) * _HASH) >> np.uint64(20)) & mask
 
 
 def _rehashed(keys: np.ndarray, children: np.ndarray, capacity: int) -> tuple[np.ndarray, np.ndarray]:
