@@ -14,7 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import RenderSettingsError
-from ..scene import FLOAT, INDEX, Light, SceneData
+from ..scene import FLOAT, INDEX, Light, Mesh, SceneData
 from .curvature import triangle_curvatures
 
 NOT_A_LIGHT = -1
@@ -109,60 +109,30 @@ def geometry_arrays(world: World) -> GeometryArrays:
                           world.triangle_material, world.triangle_light)
 
 
-@dataclass(frozen=True)
-class _Piece:
-    """One mesh or light shape on its way into the World (see scene.Mesh for the arrays)."""
-
-    points: np.ndarray
-    triangles: np.ndarray
-    normal_values: np.ndarray | None
-    normal_indices: np.ndarray | None
-    uvs: np.ndarray | None
-    triangle_material: np.ndarray
-    light: int
-
-
 def build_world(scene: SceneData) -> World:
     """Concatenate every mesh and area-light shape of `scene` into one World.
 
     The per-triangle tables are filled chunk by chunk (CHUNK_TRIANGLES): temporaries the size
     of the whole scene would cost more in fresh pages than in arithmetic.
     """
-    pieces: list[_Piece] = []
-    names: list[str] = []
-    paths: list[str] = []
-    instances: list[int] = []
-    for mesh in scene.meshes:
-        if len(mesh.triangles) == 0:
-            continue
-        pieces.append(_Piece(mesh.points, mesh.triangles, mesh.normal_values, mesh.normal_indices, mesh.uvs,
-                             mesh.triangle_material, NOT_A_LIGHT))
-        names.append(mesh.name)
-        paths.append(mesh.path)
-        instances.append(mesh.instance)
+    # every mesh and light shape as a Mesh, with the light it is the shape of (NOT_A_LIGHT)
+    pieces: list[tuple[Mesh, int]] = [(mesh, NOT_A_LIGHT) for mesh in scene.meshes if len(mesh.triangles)]
     for light_index, light in enumerate(scene.lights):
         shape = light_shape(light)
-        if shape is None:
-            continue
-        points, triangles = shape
-        materials = np.full(len(triangles), -1, dtype=INDEX)
-        pieces.append(_Piece(points, triangles, None, None, None, materials, light_index))
-        names.append(light.name)
-        paths.append(light.path)
-        instances.append(-1)
+        if shape is not None:
+            points, triangles = shape
+            pieces.append((Mesh(light.name, light.path, points, triangles, None, None, None,
+                                np.full(len(triangles), -1, dtype=INDEX)), light_index))
     if not pieces and not scene.lights:
         raise RenderSettingsError(f"{scene.stage_path}: nothing to render (no geometry and no lights)")
     if not pieces:
         # A sky alone (dome or distant lights, no geometry): every camera ray escapes. One empty
         # piece keeps every table below well formed, with zero rows.
-        pieces.append(_Piece(np.zeros((0, 3), FLOAT), np.zeros((0, 3), INDEX), None, None, None, np.zeros(0, INDEX),
-                             NOT_A_LIGHT))
-        names.append("")
-        paths.append("")
-        instances.append(-1)
+        pieces.append((Mesh("", "", np.zeros((0, 3), FLOAT), np.zeros((0, 3), INDEX), None, None, None,
+                            np.zeros(0, INDEX)), NOT_A_LIGHT))
 
-    vertex_count = sum(len(piece.points) for piece in pieces)
-    count = sum(len(piece.triangles) for piece in pieces)
+    vertex_count = sum(len(piece.points) for piece, _ in pieces)
+    count = sum(len(piece.triangles) for piece, _ in pieces)
     all_vertices = np.empty((vertex_count, 3), FLOAT)
     all_triangles = np.empty((count, 3), INDEX)
     geometric_normal = np.empty((3, count), FLOAT)
@@ -174,14 +144,14 @@ def build_world(scene: SceneData) -> World:
     triangle_material = np.empty(count, INDEX)
     triangle_light = np.empty(count, INDEX)
     vertex_offset = triangle_offset = 0
-    for object_index, piece in enumerate(pieces):
+    for object_index, (piece, light_index) in enumerate(pieces):
         points = np.asarray(piece.points, dtype=FLOAT)
         all_vertices[vertex_offset:vertex_offset + len(points)] = points
         size = len(piece.triangles)
         own = slice(triangle_offset, triangle_offset + size)
         triangle_object[own] = object_index
         triangle_material[own] = piece.triangle_material
-        triangle_light[own] = piece.light
+        triangle_light[own] = light_index
         # Gathers one component at a time (contiguous (n,) rows in, contiguous rows out) fill
         # the component-major tables without a transposed copy.
         point_components = _components(points)
@@ -227,9 +197,9 @@ def build_world(scene: SceneData) -> World:
         triangle_object=triangle_object,
         triangle_material=triangle_material,
         triangle_light=triangle_light,
-        object_names=tuple(names),
-        object_paths=tuple(paths),
-        object_instance=np.asarray(instances, dtype=INDEX),
+        object_names=tuple(piece.name for piece, _ in pieces),
+        object_paths=tuple(piece.path for piece, _ in pieces),
+        object_instance=np.asarray([piece.instance for piece, _ in pieces], dtype=INDEX),
         center=center.astype(np.float64),
         radius=float(np.linalg.norm(high - low) / 2) or 1.0,
     )
