@@ -88,10 +88,6 @@ class DistantLight:
         return self.cos_max >= 1.0
 
     @property
-    def solid_angle(self) -> float:
-        return 2 * np.pi * (1 - self.cos_max)
-
-    @property
     def irradiance(self) -> np.ndarray:
         """Irradiance on a surface facing the light (3,)."""
         if self.is_delta:
@@ -298,6 +294,13 @@ def emitted(triangle, s, t, cos_toward_viewer, triangle_material, triangle_light
 
 
 @inline
+def cone_pdf(probability, cos_max):
+    """Solid-angle density of a distant light's cone (sampled uniformly), with its source
+    probability."""
+    return probability / (2 * math.pi * (1 - cos_max))
+
+
+@inline
 def triangle_pdf(triangle, distance, cos_light, area_probability, triangle_probability, area):
     """Solid-angle density with which NEE picks a point seen at `distance` on `triangle`
     under |cos_light|."""
@@ -423,7 +426,7 @@ def sample(lights, geometry, materials, px, py, pz, u0, u1, u2, u3, scratch):
         cx, sx = sin_theta * math.cos(phi), sin_theta * math.sin(phi)
         dx, dy, dz = (tx * cx + bx * sx + ax * cos_theta, ty * cx + by * sx + ay * cos_theta,
                       tz * cx + bz * sx + az * cos_theta)
-        pdf = probability / (2 * math.pi * (1 - cos_max))
+        pdf = cone_pdf(probability, cos_max)
         return dx, dy, dz, math.inf, r, g, b, pdf, light, -1
     dx, dy, dz = dome_sample(lights, item, u1, u2)
     r, g, b = dome_radiance(lights, item, dx, dy, dz)

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..bsdf import power_heuristic
 from ...compiled import inline, kernel
-from ..lights import LightArrays, dome_pdf, dome_radiance
+from ..lights import LightArrays, cone_pdf, dome_pdf, dome_radiance
 from .queues import Hits, PathQueue, Splats, trimmed
 
 
@@ -43,7 +43,7 @@ def _escaped_kernel(triangle, direction, throughput, previous_pdf, previous_sing
             axis = lights.distant_direction[item]
             if x * axis[0] + y * axis[1] + z * axis[2] < cos_max:
                 continue
-            density = lights.distant_probability[item] / (2 * np.pi * (1 - cos_max))
+            density = cone_pdf(lights.distant_probability[item], cos_max)
             weight = 1.0 if previous_singular[lane] else power_heuristic(previous_pdf[lane], density)
             radiance = lights.distant_radiance[item]
             count = _splat(lane, lights.distant_light[item], radiance[0] * weight, radiance[1] * weight,
