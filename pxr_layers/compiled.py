@@ -57,10 +57,12 @@ def cache_dir() -> Path:
 
 
 def _sources_digest() -> str:
-    """A short hash of the compiled code's sources: trace/, paths/ and this module."""
+    """A short hash of the compiled code's sources: trace/, paths/, shader_nodes.py and this
+    module."""
     package = Path(__file__).resolve().parent
     digest = hashlib.blake2b(digest_size=8)
-    for source in sorted([*(package / "trace").rglob("*.py"), *(package / "paths").glob("*.py"), Path(__file__)]):
+    for source in sorted([*(package / "trace").rglob("*.py"), *(package / "paths").glob("*.py"),
+                          package / "shader_nodes.py", Path(__file__)]):
         digest.update(source.read_bytes())
     digest.update(numba.__version__.encode())
     return digest.hexdigest()

@@ -17,17 +17,17 @@ Conventions (hold for every field below):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, Mapping
 
 import numpy as np
 
 from .recipe.model import Recipe
 from .request import DEFAULT_RESOLUTION
+from .shader_nodes import ShaderNode, WrapMode  # noqa: F401 (WrapMode: part of the plain data)
 
 FLOAT = np.float32
 INDEX = np.int32
 
-WrapMode = Literal["repeat", "mirror", "clamp", "black"]
 
 
 @dataclass(frozen=True)
@@ -43,31 +43,28 @@ class TextureImage:
     pixels: np.ndarray
 
 
-@dataclass(frozen=True)
-class TextureInput:
-    """A material input driven by a UsdUVTexture.
-
-    value(st) = texel(st)[channels] * scale[channels] + bias[channels], sampled bilinearly.
-    ``channels`` picks the texture output the input connects to: (0, 1, 2) for ``rgb``,
-    (0,) for ``r``, (3,) for ``a`` (an image with fewer channels than asked for is
-    expanded by the reader: grey → rgb, alpha = 1).
-    """
-
-    texture: int  # index into SceneData.textures
-    channels: tuple[int, ...]
-    scale: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
-    bias: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
-    wrap_s: WrapMode = "repeat"
-    wrap_t: WrapMode = "repeat"
-
-
-Color = tuple[float, float, float] | TextureInput
-Scalar = float | TextureInput
+Color = tuple[float, float, float] | ShaderNode
+Scalar = float | ShaderNode
 
 
 @dataclass(frozen=True)
 class Material:
-    """A UsdPreviewSurface with the spec's fallbacks for anything not authored."""
+    """A surface as the tracer's lobes see it: UsdPreviewSurface's inputs (with the spec's
+    fallbacks for anything not authored) and what MaterialX looks add to them.
+
+    Any input typed Color or Scalar is a constant or a ShaderNode tree evaluated per
+    shading point (shader_nodes.py: components 0–2 of a colour, 0 of a scalar).
+
+    opacity       presence: below opacity_threshold the surface is cut out; with
+                  opacity_threshold 0, a fraction 1 − opacity of the light passes straight
+                  through (alpha blending, as Storm and the UsdPreviewSurface spec's
+                  "translucent" read it; no refraction).
+    normal        tangent-space shading normal (x along ∂P/∂s, y along ∂P/∂t, z the
+                  interpolated normal), unnormalised; None: the interpolated normal.
+    transmission  the fraction of the non-metallic base that is a smooth dielectric of
+                  ``ior`` (refraction, tinted by transmission_color) instead of diffuse;
+                  thin_walled: the dielectric is a thin sheet (no bending).
+    """
 
     name: str
     path: str
@@ -82,6 +79,10 @@ class Material:
     opacity_threshold: float = 0.0
     clearcoat: Scalar = 0.0
     clearcoat_roughness: Scalar = 0.01
+    normal: ShaderNode | None = None
+    transmission: Scalar = 0.0
+    transmission_color: Color = (1.0, 1.0, 1.0)
+    thin_walled: bool = False
 
 
 DEFAULT_MATERIAL_PATH = "<default>"
@@ -103,6 +104,8 @@ class Mesh:
     uvs               : (t, 3, 2) float32 st per triangle corner (the primvar the bound
                         material reads), or None
     triangle_material : (t,) int32 index into SceneData.materials (GeomSubsets resolved)
+    primvars          : name → (t, 3, w) float32 values per triangle corner of the primvars
+                        its materials' primvar readers read (w = 1–4 components)
     instance          : for a point-instanced gprim, N, its instance's position in the
                         innermost UsdGeom.PointInstancer's arrays (the ``instance_<N>`` of
                         its path); -1 for a gprim that is not point-instanced. Native
@@ -121,6 +124,7 @@ class Mesh:
     uvs: np.ndarray | None
     triangle_material: np.ndarray
     instance: int = -1
+    primvars: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def normals(self) -> np.ndarray | None:

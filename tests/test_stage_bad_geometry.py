@@ -23,7 +23,9 @@ from pxr_layers.stage.draw_modes import (
     author_draw_mode_cards,
     cards_pass_models,
 )
-from pxr_layers.scene import TextureInput
+from pxr_layers.shader_nodes import ShaderNode
+
+from test_stage_materials import texture_input
 from pxr_layers.stage.implicit import is_implicit, tessellate, unusable_dimension
 from pxr_layers.stage.materials import MaterialLibrary
 from pxr_layers.stage.placement import place_surface
@@ -629,8 +631,8 @@ def test_asset_cards_read_as_textured_materials_by_the_reader(draw_modes_asset):
         resolved = materials.resolve(materials.bound_material(subset.GetPrim()), None)
         material = materials.materials[resolved.index]
         assert resolved.uv_primvar == "st"
-        assert isinstance(material.diffuse_color, TextureInput)
-        assert isinstance(material.opacity, TextureInput) and material.opacity.channels == (3,)
+        assert isinstance(material.diffuse_color, ShaderNode)
+        assert texture_input(material.opacity, 1).channels == (3,)
         assert material.opacity_threshold == pytest.approx(0.1)
     assert context.diagnostics.finish() == ()
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import os
 
 import numpy as np
@@ -9,7 +11,8 @@ import OpenImageIO as oiio
 import pytest
 from pxr import Sdf, Usd, UsdGeom, UsdRender, UsdShade, Vt
 
-from pxr_layers.scene import DEFAULT_MATERIAL_PATH, Material, TextureInput
+from pxr_layers.scene import DEFAULT_MATERIAL_PATH, Material
+from pxr_layers.shader_nodes import ShaderNode
 from pxr_layers.stage import load_stage
 
 QUAD = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]
@@ -17,6 +20,34 @@ STRIP_POINTS = [(0, 0, 0), (1, 0, 0), (2, 0, 0), (0, 1, 0), (1, 1, 0), (2, 1, 0)
 STRIP_INDICES = [0, 1, 4, 3, 1, 2, 5, 4]
 FLOAT = Sdf.ValueTypeNames.Float
 COLOR = Sdf.ValueTypeNames.Color3f
+
+
+@dataclass(frozen=True)
+class TextureInput:
+    """What a UsdUVTexture-driven input's tree is made of (see texture_input)."""
+
+    texture: int
+    channels: tuple[int, ...]
+    scale: tuple[float, ...]
+    bias: tuple[float, ...]
+    wrap_s: str
+    wrap_t: str
+
+
+def texture_input(value, width: int) -> TextureInput:
+    """Unpack the tree stage/materials.py builds for a UsdUVTexture output feeding an input
+    of `width` components: swizzles of (texel · scale + bias)."""
+    assert isinstance(value, ShaderNode), value
+    picked = (0, 1, 2, 3)  # component k of the input = component picked[k] of `node`
+    node = value
+    while node.op == "swizzle":
+        picked = tuple(int(node.values[c]) if c >= 0 else c for c in picked)
+        node = node.inputs[0]
+    assert node.op == "add" and node.inputs[0].op == "multiply", node
+    texel = node.inputs[0].inputs[0]
+    assert texel.op == "texture" and len(texel.tiles) == 1
+    return TextureInput(texel.tiles[0][1], picked[:width], node.inputs[0].inputs[1].values, node.inputs[1].values,
+                        *texel.wrap)
 
 
 def new_stage(tmp_path) -> Usd.Stage:
@@ -232,13 +263,13 @@ def test_unbound_meshes_get_a_default_material_tinted_by_display_color(tmp_path)
         assert ((mesh.triangle_material >= 0) & (mesh.triangle_material < 2)).all()
 
 
-def test_materials_without_preview_surface_warn_once_and_use_the_default(tmp_path):
+def test_renderer_specific_materials_warn_once_and_use_the_default(tmp_path):
     stage = new_stage(tmp_path)
-    for name in ("mtlx_a", "mtlx_b"):
+    for name in ("ri_a", "ri_b"):
         material = UsdShade.Material.Define(stage, f"/Looks/{name}")
         shader = UsdShade.Shader.Define(stage, f"/Looks/{name}/Surface")
-        shader.CreateIdAttr("ND_standard_surface_surfaceshader")
-        material.CreateSurfaceOutput("mtlx").ConnectToSource(
+        shader.CreateIdAttr("PxrSurface")
+        material.CreateSurfaceOutput("ri").ConnectToSource(
             shader.CreateOutput("out", Sdf.ValueTypeNames.Token)
         )
         mesh = quad(stage, f"/{name}")
@@ -249,7 +280,7 @@ def test_materials_without_preview_surface_warn_once_and_use_the_default(tmp_pat
     assert material_of(scene).diffuse_color == (0.0, 0.0, 1.0)
     warnings = [w for w in scene.warnings if "UsdPreviewSurface" in w]
     assert len(warnings) == 1
-    assert "/Looks/mtlx_a" in warnings[0] and "/Looks/mtlx_b" in warnings[0]
+    assert "/Looks/ri_a" in warnings[0] and "/Looks/ri_b" in warnings[0]
 
 
 # --- UsdUVTexture -------------------------------------------------------------------------
@@ -270,8 +301,8 @@ def test_8bit_png_is_decoded_as_srgb_by_auto_and_kept_by_raw(tmp_path):
          textured_material(stage, "/Looks/srgb", "colour.png", sourceColorSpace="sRGB"))
     scene, _ = load(stage)
     by_mesh = {mesh.path: scene.materials[mesh.triangle_material[0]] for mesh in scene.meshes}
-    auto, raw, srgb = (by_mesh[p].diffuse_color for p in ("/auto", "/raw", "/srgb"))
-    assert isinstance(auto, TextureInput) and auto.channels == (0, 1, 2)
+    auto, raw, srgb = (texture_input(by_mesh[p].diffuse_color, 3) for p in ("/auto", "/raw", "/srgb"))
+    assert auto.channels == (0, 1, 2)
     assert auto.texture == srgb.texture != raw.texture  # one image per file + colour space
     assert len(scene.textures) == 2
     stored = PNG_VALUES.astype(np.float64) / 255.0
@@ -315,8 +346,8 @@ def test_srgb_decoding_leaves_alpha_alone(tmp_path):
     bind(quad(stage), textured_material(stage, "/Looks/m", "rgba.png", target="opacity",
                                         output="a", target_type=FLOAT))
     scene, _ = load(stage)
-    opacity = material_of(scene).opacity
-    assert isinstance(opacity, TextureInput) and opacity.channels == (3,)
+    opacity = texture_input(material_of(scene).opacity, 1)
+    assert opacity.channels == (3,)
     pixels = scene.textures[opacity.texture].pixels
     assert pixels[0, 0, 3] == pytest.approx(128 / 255, abs=1e-6)  # alpha as stored
     assert pixels[0, 0, 0] == pytest.approx(srgb_eotf(128 / 255), abs=1e-6)  # not premultiplied
@@ -333,9 +364,9 @@ def test_float_exr_is_raw_and_grey_images_expand_to_rgb(tmp_path):
          textured_material(stage, "/Looks/grey", "grey.png"))
     scene, _ = load(stage)
     by_mesh = {mesh.path: scene.materials[mesh.triangle_material[0]] for mesh in scene.meshes}
-    hdr = scene.textures[by_mesh["/hdr"].diffuse_color.texture].pixels
+    hdr = scene.textures[texture_input(by_mesh["/hdr"].diffuse_color, 3).texture].pixels
     np.testing.assert_allclose(hdr[0, 0], [0.5, 2.0, -1.0, 1.0])
-    grey_pixels = scene.textures[by_mesh["/grey"].diffuse_color.texture].pixels
+    grey_pixels = scene.textures[texture_input(by_mesh["/grey"].diffuse_color, 3).texture].pixels
     # one channel is not a colour image: auto keeps it raw
     np.testing.assert_allclose(grey_pixels[0, 0], [200 / 255] * 3 + [1.0], atol=1e-6)
 
@@ -355,21 +386,21 @@ def test_scale_bias_channels_and_wrap_modes(tmp_path):
         stage, "/Looks/grey_colour", "data.exr", output="b", target_type=FLOAT))
     scene, _ = load(stage)
     by_mesh = {mesh.path: scene.materials[mesh.triangle_material[0]] for mesh in scene.meshes}
-    explicit = by_mesh["/explicit"].roughness
+    explicit = texture_input(by_mesh["/explicit"].roughness, 1)
     assert explicit.channels == (1,)
     assert explicit.scale == (2, 3, 4, 5) and explicit.bias == pytest.approx((0.1, 0.2, 0.3, 0.4))
     assert (explicit.wrap_s, explicit.wrap_t) == ("mirror", "black")
-    from_file = by_mesh["/metadata"].metallic
+    from_file = texture_input(by_mesh["/metadata"].metallic, 1)
     assert from_file.channels == (0,)
     assert (from_file.wrap_s, from_file.wrap_t) == ("clamp", "mirror")  # useMetadata
-    assert by_mesh["/grey_colour"].diffuse_color.channels == (2, 2, 2)
+    assert texture_input(by_mesh["/grey_colour"].diffuse_color, 3).channels == (2, 2, 2)
 
 
 def test_useMetadata_without_metadata_repeats(tmp_path):
     write_image(tmp_path / "plain.png", PNG_VALUES, oiio.UINT8)
     stage = new_stage(tmp_path)
     bind(quad(stage), textured_material(stage, "/Looks/m", "plain.png"))
-    diffuse = material_of(load(stage)[0]).diffuse_color
+    diffuse = texture_input(material_of(load(stage)[0]).diffuse_color, 3)
     assert (diffuse.wrap_s, diffuse.wrap_t) == ("repeat", "repeat")
 
 

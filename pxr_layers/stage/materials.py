@@ -1,32 +1,42 @@
-"""Material binding and UsdPreviewSurface networks → scene.Material.
+"""Material binding, UsdPreviewSurface networks and MaterialX looks → scene.Material.
 
-Only the universal render context is read (``outputs:surface``): that is where USD puts
-the portable UsdPreviewSurface, while ``outputs:mtlx:surface`` and friends need a MaterialX
-or renderer-specific shading system this tracer does not have. Inputs follow connections
-through NodeGraphs and interface inputs (``GetValueProducingAttributes``); an input driven
-by a UsdUVTexture becomes a scene.TextureInput.
+A UsdPreviewSurface on the universal render context (``outputs:surface``) is read here: its
+inputs follow connections through NodeGraphs and interface inputs
+(``GetValueProducingAttributes``) into shader_nodes trees — UsdUVTexture (scale, bias,
+fallback, wrap modes, colour space, ``<UDIM>`` tiles), UsdTransform2d, and
+UsdPrimvarReader_float/float2/float3/float4/int into any input. MaterialX looks, bound
+through UsdShade prims with MaterialX ids or referenced as ``.mtlx`` documents, are read by
+materialx.py. Anything else renders with the default material, after one note.
 """
 
 from __future__ import annotations
 
+import glob
+import math
+import os
+import re
 from dataclasses import dataclass, replace
 from typing import Literal
 
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
-from pxr_layers.scene import DEFAULT_MATERIAL_PATH, Material, TextureInput
+from pxr_layers import shader_nodes as nodes
+from pxr_layers.scene import DEFAULT_MATERIAL_PATH, Material
+from pxr_layers.shader_nodes import ShaderNode
 
 from .context import ReadContext
+from .materialx import MaterialXReader
 from .textures import TextureLibrary, anchored_asset_path
 
-InputKind = Literal["color", "scalar", "float", "bool"]
+InputKind = Literal["color", "scalar", "float", "bool", "normal"]
 
 
 @dataclass(frozen=True)
 class _PreviewInput:
-    """A UsdPreviewSurface input, the Material field it fills and its spec fallback.
+    """A UsdPreviewSurface input, the Material field it fills and its kind.
 
-    kind : "color"/"scalar" may be textured; "float"/"bool" are constants in scene.Material.
+    kind : "color"/"scalar"/"normal" may be driven by a network; "float"/"bool" are
+           constants in scene.Material.
     """
 
     usd_name: str
@@ -47,21 +57,36 @@ _PREVIEW_INPUTS = (
     _PreviewInput("opacityThreshold", "opacity_threshold", "float"),
     _PreviewInput("clearcoat", "clearcoat", "scalar"),
     _PreviewInput("clearcoatRoughness", "clearcoat_roughness", "scalar"),
+    _PreviewInput("normal", "normal", "normal"),
 )
-# UsdPreviewSurface inputs the tracer has no use for; connecting them gets one warning.
-_IGNORED_PREVIEW_INPUTS = ("normal", "displacement", "occlusion")
+# UsdPreviewSurface inputs the tracer has no use for. Occlusion is baked ambient occlusion,
+# which a path tracer computes itself: it is ignored silently. Displacement gets one note.
+_NOTED_PREVIEW_INPUTS = ("displacement",)
 
 _OUTPUT_CHANNELS = {"rgb": (0, 1, 2), "r": (0,), "g": (1,), "b": (2,), "a": (3,)}
 _WRAP_TOKENS = ("black", "clamp", "repeat", "mirror")
 _DEFAULT_UV_PRIMVAR = "st"
+_UDIM = "<UDIM>"
+_FLAT_NORMAL = (0.0, 0.0, 1.0, 0.0)
 
 
 @dataclass(frozen=True)
 class ResolvedMaterial:
-    """A material's index in SceneData.materials and the uv primvar its textures read."""
+    """A material's index in SceneData.materials, the uv primvar its textures read (the
+    mesh's ``texcoord``) and the other primvars its primvar readers read."""
 
     index: int
     uv_primvar: str | None
+    primvars: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class DocumentMaterial:
+    """A binding target composed from a ``.mtlx`` document (usd-core cannot compose it)."""
+
+    path: str  # the binding target's prim path
+    document: str  # absolute .mtlx path
+    name: str  # the document's surfacematerial
 
 
 class MaterialLibrary:
@@ -73,12 +98,13 @@ class MaterialLibrary:
         self.materials: list[Material] = []
         self._context = context
         self._textures = textures
+        self._materialx = MaterialXReader(context, textures)
         self._purposes = binding_purposes
-        # Material prim path → converted material, or None when it has no UsdPreviewSurface.
+        # Material prim path → converted material, or None when it has no supported surface.
         self._by_path: dict[str, ResolvedMaterial | None] = {}
         self._defaults: dict[tuple[float, float, float] | None, int] = {}
 
-    def bound_material(self, prim: Usd.Prim) -> UsdShade.Material | None:
+    def bound_material(self, prim: Usd.Prim) -> UsdShade.Material | DocumentMaterial | None:
         """The material bound to ``prim`` for the first binding purpose that has one."""
         binding = UsdShade.MaterialBindingAPI(prim)
         dangling = None
@@ -88,28 +114,32 @@ class MaterialLibrary:
                 return material
             if relationship and relationship.GetTargets():
                 dangling = relationship
-        if dangling is not None:
-            # A binding whose target is missing or not a Material (e.g. it lives in a
-            # reference that failed to load): the artist expects a look, not grey.
-            self._context.diagnostics.note(
-                "dangling-binding",
-                "material bindings to missing or non-Material prims (default material "
-                "used): {prims}",
-                f"{prim.GetPath()} -> {dangling.GetTargets()[0]}",
-            )
+        if dangling is None:
+            return None
+        target = dangling.GetTargets()[0]
+        referenced = self._materialx.referenced(target)
+        if referenced is not None:
+            return DocumentMaterial(str(target), *referenced)
+        # A binding whose target is missing or not a Material (e.g. it lives in a reference
+        # that failed to load): the artist expects a look, not grey.
+        self._context.diagnostics.note(
+            "dangling-binding",
+            "material bindings to missing or non-Material prims (default material used): {prims}",
+            f"{prim.GetPath()} -> {target}",
+        )
         return None
 
     def resolve(
         self,
-        material: UsdShade.Material | None,
+        material: UsdShade.Material | DocumentMaterial | None,
         display_color: tuple[float, float, float] | None,
     ) -> ResolvedMaterial:
         """Index of ``material``; the default material (tinted by ``display_color``) when it is
-        None or has no UsdPreviewSurface."""
+        None or has no surface this tracer reads."""
         if material is not None:
-            path = str(material.GetPath())
+            path = material.path if isinstance(material, DocumentMaterial) else str(material.GetPath())
             if path not in self._by_path:
-                self._by_path[path] = self._convert(material)
+                self._by_path[path] = self._convert(material, path)
             resolved = self._by_path[path]
             if resolved is not None:
                 return resolved
@@ -126,145 +156,224 @@ class MaterialLibrary:
             self.materials.append(material)
         return self._defaults[display_color]
 
-    def _convert(self, material: UsdShade.Material) -> ResolvedMaterial | None:
-        diagnostics = self._context.diagnostics
-        material_path = str(material.GetPath())
-        shader, _, _ = material.ComputeSurfaceSource(UsdShade.Tokens.universalRenderContext)
-        shader_id = shader.GetShaderId() if shader else None
-        if shader_id != "UsdPreviewSurface":
-            diagnostics.note(
-                "unsupported-material",
-                "materials without a UsdPreviewSurface on outputs:surface (MaterialX, "
-                "renderer-specific, ...) rendered with the default material: {prims}",
-                material_path,
-            )
-            return None
-
-        fields: dict[str, object] = {}
-        uv_primvars: list[str] = []
-        for spec in _PREVIEW_INPUTS:
-            value = self._read_input(shader, spec, uv_primvars)
-            if value is not None:
-                fields[spec.field] = value
-        for name in _IGNORED_PREVIEW_INPUTS:
-            shader_input = shader.GetInput(name)
-            if shader_input and shader_input.HasConnectedSource():
-                diagnostics.note(
-                    f"ignored-input-{name}",
-                    f"UsdPreviewSurface '{name}' connections are not supported and were "
-                    "ignored on: {prims}",
-                    str(shader.GetPath()),
+    def _convert(self, material: UsdShade.Material | DocumentMaterial, path: str) -> ResolvedMaterial | None:
+        if isinstance(material, DocumentMaterial):
+            look = self._materialx.from_document(material.document, material.name, path)
+            name = path.rsplit("/", 1)[-1]
+        else:
+            name = material.GetPrim().GetName()
+            shader, _, _ = material.ComputeSurfaceSource(UsdShade.Tokens.universalRenderContext)
+            if shader and shader.GetShaderId() == "UsdPreviewSurface":
+                return self._add(name, path, *self._preview_surface(shader, path))
+            look = self._materialx.from_usd(material)
+            if look is None:
+                self._context.diagnostics.note(
+                    "unsupported-material",
+                    "materials without a UsdPreviewSurface or MaterialX surface (renderer-specific, "
+                    "...) rendered with the default material: {prims}",
+                    path,
                 )
-        unique_primvars = list(dict.fromkeys(uv_primvars))
-        if len(unique_primvars) > 1:
-            diagnostics.note(
+        if look is None:
+            return None
+        return self._add(name, path, look.fields, list(look.uv_primvars), look.primvars)
+
+    def _add(self, name: str, path: str, fields: dict, uv_primvars: list[str],
+             primvars: tuple[str, ...]) -> ResolvedMaterial:
+        unique_uvs = list(dict.fromkeys(uv_primvars))
+        if len(unique_uvs) > 1:
+            self._context.diagnostics.note(
                 "several-uv-sets",
-                "materials whose textures read several uv primvars (the first is used for "
-                "all): {prims}",
-                f"{material_path} ({', '.join(unique_primvars)})",
+                "materials whose textures read several uv primvars (the first is used for all): {prims}",
+                f"{path} ({', '.join(unique_uvs)})",
             )
         index = len(self.materials)
-        self.materials.append(
-            Material(name=material.GetPrim().GetName(), path=material_path, **fields)
-        )
-        return ResolvedMaterial(index, unique_primvars[0] if unique_primvars else None)
+        self.materials.append(Material(name=name, path=path, **fields))
+        return ResolvedMaterial(index, unique_uvs[0] if unique_uvs else None, tuple(dict.fromkeys(primvars)))
 
-    def _read_input(self, shader: UsdShade.Shader, spec: _PreviewInput, uv_primvars: list[str]):
+    def _preview_surface(self, shader: UsdShade.Shader, material_path: str):
+        network = _Network(self._context, self._textures, material_path)
+        fields: dict[str, object] = {}
+        for spec in _PREVIEW_INPUTS:
+            value = network.input_value(shader, spec.usd_name, spec.kind)
+            if value is not None:
+                fields[spec.field] = value
+        for name in _NOTED_PREVIEW_INPUTS:
+            shader_input = shader.GetInput(name)
+            if shader_input and shader_input.HasConnectedSource():
+                self._context.diagnostics.note(
+                    f"ignored-input-{name}",
+                    f"UsdPreviewSurface '{name}' connections are not supported and were ignored on: {{prims}}",
+                    str(shader.GetPath()),
+                )
+        return fields, network.uv_primvars, tuple(network.primvars)
+
+
+class _Network:
+    """Reads one UsdPreviewSurface's upstream network into shader_nodes trees."""
+
+    def __init__(self, context: ReadContext, textures: TextureLibrary, material_path: str) -> None:
+        self._context = context
+        self._textures = textures
+        self._material_path = material_path
+        self.uv_primvars: list[str] = []  # texcoord primvars, in the order textures read them
+        self.primvars: list[str] = []  # primvars read by value
+
+    def input_value(self, shader: UsdShade.Shader, input_name: str, kind: InputKind):
         """The Material field value for one input, or None to keep the spec fallback."""
-        source = self._value_source(shader, spec.usd_name)
+        source = _value_source(shader, input_name, self._context.time)
         if source is None:
             return None
-        if isinstance(source, tuple):
-            source_shader, output_name = source
-            if spec.kind in ("color", "scalar") and source_shader.GetShaderId() == "UsdUVTexture":
-                return self._texture_input(source_shader, output_name, spec.kind, uv_primvars)
-            self._context.diagnostics.note(
-                "unsupported-connection",
-                "UsdPreviewSurface inputs connected to shaders other than UsdUVTexture "
-                "(or untexturable inputs) use their fallback value: {prims}",
-                f"{shader.GetPath()}.inputs:{spec.usd_name}",
-            )
+        if not isinstance(source, tuple):
+            return _constant(source, kind)
+        if kind not in ("color", "scalar", "normal"):
+            self._unsupported_connection(shader, input_name)
             return None
-        return _constant(source, spec.kind)
-
-    def _value_source(self, shader: UsdShade.Shader, input_name: str):
-        """What drives an input: (shader, output name) for a connection, a plain value,
-        or None when nothing is authored."""
-        attribute = _producing_attribute(shader, input_name)
-        if attribute is None:
+        tree = self._output(*source)
+        if tree is None:
+            self._unsupported_connection(shader, input_name)
             return None
-        base_name, attribute_type = UsdShade.Utils.GetBaseNameAndType(attribute.GetName())
-        if attribute_type == UsdShade.AttributeType.Output:
-            producer = attribute.GetPrim()
-            if producer.IsA(UsdShade.Shader):
-                return UsdShade.Shader(producer), base_name
-        return attribute.Get(self._context.time)
+        if kind == "scalar":
+            tree = nodes.swizzle(tree, (0,))
+        if tree.is_constant:
+            values = tree.values
+            if kind == "normal":
+                return None if values[:3] == _FLAT_NORMAL[:3] else tree
+            return values[:3] if kind == "color" else values[0]
+        return tree
 
-    def _texture_input(
-        self,
-        texture: UsdShade.Shader,
-        output_name: str,
-        kind: InputKind,
-        uv_primvars: list[str],
-    ) -> TextureInput | tuple[float, float, float] | float:
+    def _unsupported_connection(self, shader: UsdShade.Shader, input_name: str) -> None:
+        self._context.diagnostics.note(
+            "unsupported-connection",
+            "UsdPreviewSurface inputs connected to unsupported shaders (or untexturable inputs) "
+            "use their fallback value: {prims}",
+            f"{shader.GetPath()}.inputs:{input_name}",
+        )
+
+    def _output(self, shader: UsdShade.Shader, output_name: str) -> ShaderNode | None:
+        """The tree of one shader output (4 components; a scalar output in every component)."""
+        shader_id = shader.GetShaderId() or ""
+        if shader_id.startswith("UsdUVTexture"):
+            return self._texture(shader, output_name)
+        if shader_id.startswith("UsdPrimvarReader_"):
+            return self._primvar_reader(shader, shader_id)
+        if shader_id == "UsdTransform2d":
+            return self._transform2d(shader)
+        self._context.diagnostics.note(
+            f"unsupported-shader-{shader_id or 'unknown'}",
+            f"shaders '{shader_id or '(no info:id)'}' are not supported; the inputs they drive use "
+            "their fallback on: {prims}",
+            f"{self._material_path} ({shader.GetPath().name})",
+        )
+        return None
+
+    def _vector(self, shader: UsdShade.Shader, name: str, default: tuple[float, ...]) -> tuple[float, ...]:
+        value = _value_source(shader, name, self._context.time)
+        try:
+            components = tuple(float(component) for component in value)
+        except TypeError:
+            return default
+        return components if len(components) == len(default) else default
+
+    def _primvar_reader(self, reader: UsdShade.Shader, shader_id: str) -> ShaderNode:
+        width = {"float": 1, "float2": 2, "float3": 3, "normal": 3, "point": 3, "vector": 3, "float4": 4,
+                 "int": 1, "string": 0}.get(shader_id.split("_", 1)[1], 1)
+        raw_fallback = _value_source(reader, "fallback", self._context.time)
+        try:
+            fallback = tuple(float(component) for component in raw_fallback)
+        except TypeError:
+            fallback = (float(raw_fallback),) if isinstance(raw_fallback, (int, float)) else ()
+        fallback = (fallback + (0.0,) * 4)[:4]
+        varname = str(_value_source(reader, "varname", self._context.time) or "")
+        if not varname:
+            return nodes.constant(*fallback)
+        if width == 2 and (not self.uv_primvars or self.uv_primvars[0] == varname):
+            self.uv_primvars.append(varname)
+            return ShaderNode("texcoord")
+        self.primvars.append(varname)
+        tree = ShaderNode("primvar", name=varname, values=fallback)
+        return nodes.broadcast(tree) if width == 1 else tree
+
+    def _transform2d(self, transform: UsdShade.Shader) -> ShaderNode:
+        """UsdPreviewSurface's order: scale, then rotate (degrees, counter-clockwise), then
+        translate."""
+        upstream = _value_source(transform, "in", self._context.time)
+        source = self._output(*upstream) if isinstance(upstream, tuple) else None
+        if source is None:
+            source = nodes.constant(*self._vector(transform, "in", (0.0, 0.0)))
+        sx, sy = self._vector(transform, "scale", (1.0, 1.0))
+        tx, ty = self._vector(transform, "translation", (0.0, 0.0))
+        rotation = _value_source(transform, "rotation", self._context.time)
+        angle = math.radians(float(rotation)) if isinstance(rotation, (int, float)) else 0.0
+        cos, sin = math.cos(angle), math.sin(angle)
+        return nodes.node("affine2d", source, values=(sx * cos, -sy * sin, tx, sx * sin, sy * cos, ty))
+
+    def _uv(self, texture: UsdShade.Shader) -> ShaderNode:
+        upstream = _value_source(texture, "st", self._context.time)
+        if isinstance(upstream, tuple):
+            tree = self._output(*upstream)
+            if tree is not None:
+                return tree
+        elif upstream is not None:
+            return nodes.constant(*self._vector(texture, "st", (0.0, 0.0)))
+        # An unconnected st reads the default uv set, as Storm does.
+        if not self.uv_primvars:
+            self.uv_primvars.append(_DEFAULT_UV_PRIMVAR)
+        return ShaderNode("texcoord")
+
+    def _texture(self, texture: UsdShade.Shader, output_name: str) -> ShaderNode:
         diagnostics = self._context.diagnostics
         texture_path = str(texture.GetPath())
         channels = _OUTPUT_CHANNELS.get(output_name, (0, 1, 2))
-        if kind == "color" and len(channels) == 1:
-            channels = channels * 3  # a scalar output feeding a colour is grey
-        elif kind == "scalar":
-            channels = channels[:1]  # a colour output feeding a scalar gives its first channel
-        scale = _vector4(self._value_source(texture, "scale"), (1.0, 1.0, 1.0, 1.0))
-        bias = _vector4(self._value_source(texture, "bias"), (0.0, 0.0, 0.0, 0.0))
-        fallback = _vector4(self._value_source(texture, "fallback"), (0.0, 0.0, 0.0, 1.0))
-
-        uv_primvar = self._uv_primvar(texture)
-        if uv_primvar:
-            uv_primvars.append(uv_primvar)
-
-        loaded = None
+        scale = self._vector(texture, "scale", (1.0, 1.0, 1.0, 1.0))
+        bias = self._vector(texture, "bias", (0.0, 0.0, 0.0, 0.0))
+        fallback = self._vector(texture, "fallback", (0.0, 0.0, 0.0, 1.0))
+        uv = self._uv(texture)
+        tiles: list[tuple[int, int]] = []
+        wrap_modes = (None, None)
         file_attribute = _producing_attribute(texture, "file")
         asset = file_attribute.Get(self._context.time) if file_attribute else None
+        color_space = str(_value_source(texture, "sourceColorSpace", self._context.time) or "auto")
         if isinstance(asset, Sdf.AssetPath) and asset.path:
-            if "<UDIM>" in asset.path:
-                diagnostics.note(
-                    "udim",
-                    "UDIM textures are not supported; their fallback value is used: {prims}",
-                    texture_path,
-                )
+            if _UDIM in asset.path:
+                pattern = anchored_asset_path(file_attribute, asset, self._context.time)
+                for tile, path in udim_tiles(pattern):
+                    loaded = self._textures.load(path, color_space, texture_path)
+                    if loaded is not None:
+                        tiles.append((tile, loaded.index))
+                        wrap_modes = loaded.wrap_modes
+                if not tiles:
+                    diagnostics.warn(f"no UDIM tiles found for {pattern} (UsdUVTexture {texture_path}); "
+                                     "using its fallback value", once_key=f"texture:{pattern}")
             elif not asset.resolvedPath:
                 missing = anchored_asset_path(file_attribute, asset, self._context.time)
                 diagnostics.warn(
-                    f"texture file not found: {missing} (UsdUVTexture {texture_path}); "
-                    "using its fallback value",
+                    f"texture file not found: {missing} (UsdUVTexture {texture_path}); using its fallback value",
                     once_key=f"texture:{missing}",
                 )
             else:
-                color_space = self._value_source(texture, "sourceColorSpace") or "auto"
-                loaded = self._textures.load(asset.resolvedPath, str(color_space), texture_path)
+                loaded = self._textures.load(asset.resolvedPath, color_space, texture_path)
+                if loaded is not None:
+                    tiles.append((0, loaded.index))
+                    wrap_modes = loaded.wrap_modes
         else:
             diagnostics.note(
                 "texture-without-file",
                 "UsdUVTexture shaders without inputs:file use their fallback value: {prims}",
                 texture_path,
             )
-        if loaded is None:
-            # The fallback stands in for the texel, so scale and bias still apply to it.
-            values = tuple(fallback[c] * scale[c] + bias[c] for c in channels)
-            return values if kind == "color" else values[0]
-        wrap_s = self._wrap_mode(texture, "wrapS", loaded.wrap_modes[0])
-        wrap_t = self._wrap_mode(texture, "wrapT", loaded.wrap_modes[1])
-        return TextureInput(
-            texture=loaded.index,
-            channels=channels,
-            scale=scale,
-            bias=bias,
-            wrap_s=wrap_s,
-            wrap_t=wrap_t,
-        )
+        if tiles:
+            wrap = (self._wrap_mode(texture, "wrapS", wrap_modes[0]), self._wrap_mode(texture, "wrapT", wrap_modes[1]))
+            # A missing UDIM tile gives the fallback, which stands in for the texel.
+            texel = ShaderNode("texture", (uv,), values=fallback, tiles=tuple(tiles), wrap=wrap)
+        else:
+            texel = nodes.constant(*fallback)
+        value = nodes.node("add", nodes.node("multiply", texel, nodes.constant(*scale)), nodes.constant(*bias))
+        if len(channels) == 1:
+            return nodes.broadcast(nodes.swizzle(value, channels))
+        return nodes.swizzle(value, (*channels, -1))
 
     def _wrap_mode(self, texture: UsdShade.Shader, input_name: str, from_file):
-        token = str(self._value_source(texture, input_name) or "useMetadata")
+        token = str(_value_source(texture, input_name, self._context.time) or "useMetadata")
         if token in _WRAP_TOKENS:
             return token
         if token != "useMetadata":
@@ -275,29 +384,31 @@ class MaterialLibrary:
             )
         return from_file or "repeat"
 
-    def _uv_primvar(self, texture: UsdShade.Shader) -> str | None:
-        """The primvar name a UsdUVTexture's ``st`` reads through a UsdPrimvarReader_float2."""
-        source = self._value_source(texture, "st")
-        if isinstance(source, tuple):
-            reader, _ = source
-            reader_id = reader.GetShaderId() or ""
-            if reader_id == "UsdTransform2d":
-                self._context.diagnostics.note(
-                    "uv-transform",
-                    "UsdTransform2d nodes are not supported; texture coordinates are used "
-                    "untransformed on: {prims}",
-                    str(reader.GetPath()),
-                )
-                upstream = self._value_source(reader, "in")
-                if not isinstance(upstream, tuple):
-                    return _DEFAULT_UV_PRIMVAR
-                reader, _ = upstream
-                reader_id = reader.GetShaderId() or ""
-            if reader_id.startswith("UsdPrimvarReader"):
-                varname = self._value_source(reader, "varname")
-                if varname:
-                    return str(varname)
-        return _DEFAULT_UV_PRIMVAR
+
+def udim_tiles(pattern: str) -> list[tuple[int, str]]:
+    """(tile, file) of the UDIM tiles 1001–9999 on disk for a path containing <UDIM>."""
+    head, tail = pattern.split(_UDIM, 1)
+    found = []
+    for path in glob.glob(glob.escape(head) + "[1-9][0-9][0-9][0-9]" + glob.escape(tail)):
+        digits = path[len(head):len(head) + 4]
+        if re.fullmatch(r"\d{4}", digits) and int(digits) >= 1001 and os.path.isfile(path):
+            found.append((int(digits), path))
+    return sorted(found)
+
+
+def _value_source(shader: UsdShade.Shader, input_name: str, time: Usd.TimeCode):
+    """What drives an input: (shader, output name) for a connection, a plain value, or None
+    when nothing is authored."""
+    attribute = _producing_attribute(shader, input_name)
+    if attribute is None:
+        return None
+    base_name, attribute_type = UsdShade.Utils.GetBaseNameAndType(attribute.GetName())
+    if attribute_type == UsdShade.AttributeType.Output:
+        producer = attribute.GetPrim()
+        if producer.IsA(UsdShade.Shader):
+            return UsdShade.Shader(producer), base_name
+        return None
+    return attribute.Get(time)
 
 
 def _producing_attribute(shader: UsdShade.Shader, input_name: str) -> Usd.Attribute | None:
@@ -317,17 +428,12 @@ def _constant(value, kind: InputKind):
             return (red, green, blue)
         if kind == "bool":
             return bool(int(value))
+        if kind == "normal":
+            x, y, z = (float(component) for component in value)
+            return None if (x, y, z) == _FLAT_NORMAL[:3] else nodes.constant(x, y, z)
         return float(value)
     except (TypeError, ValueError):
         return None
-
-
-def _vector4(value, default: tuple[float, float, float, float]):
-    try:
-        components = tuple(float(component) for component in value)
-    except TypeError:
-        return default
-    return components if len(components) == 4 else default
 
 
 def display_color(prim: Usd.Prim, time: Usd.TimeCode) -> tuple[float, float, float] | None:

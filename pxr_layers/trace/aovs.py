@@ -40,7 +40,8 @@ import numpy as np
 
 from ..errors import RenderSettingsError
 from ..scene import FLOAT
-from .integrator import MAX_PASS_THROUGH, Integrator
+from .integrator import Integrator
+from .stages.queues import MAX_PASS_THROUGH
 from .stages.camera import camera_rays
 from .stages.intersect import intersect
 from .stages.queues import T_INFINITY
@@ -114,13 +115,13 @@ class _DataTracer:
         lanes = np.arange(n)
         # The closest surface that is not cut out: lanes crossing a cut-out go on from behind
         # it, as the integrator's paths do (stages.surface decides what is cut out).
-        for _ in range(MAX_PASS_THROUGH + 1):
+        for step in range(MAX_PASS_THROUGH + 1):
             hits = intersect(integrator.caster, queue)
             hit = np.flatnonzero(hits.triangle >= 0)
             queue, hits, lanes = queue.take(hit), hits.take(hit), lanes[hit]
             if not len(queue):
                 break
-            surfaces = surface(queue, hits, np.ones(len(queue), bool), integrator.geometry, integrator.materials.arrays,
+            surfaces = surface(queue, hits, np.ones(len(queue), bool), step, integrator.geometry, integrator.materials.arrays,
                                np.zeros(0, FLOAT), max_depth=0)
             seen = np.flatnonzero(~surfaces.cut)
             triangle[lanes[seen]] = hits.triangle[seen]

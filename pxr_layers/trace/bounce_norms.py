@@ -5,8 +5,9 @@ These are the norms of the covariance operators each bounce applies (COVARIANCE.
 
 * C = max(|k1|, |k2|), 1/m: the principal curvatures of the hit triangle (``World``);
   exactly 0 on planar geometry, 1/r on a sphere of radius r.
-* T = √λmax(T), cycles/m: the texture operator of the material's diffuseColor texture
-  (the albedo, which multiplies the reflected light), measured per tile and mip level
+* T = √λmax(T), cycles/m: the texture operator of the texture driving the material's
+  diffuseColor (the albedo, which multiplies the reflected light), looked up through its
+  uv transform (UsdTransform2d, MaterialX place2d/tiledimage), measured per tile and mip level
   (``covariance.texture_spectrum``), mapped from texture units to metres by the uv
   Jacobian of the triangle in the shading frame. Untextured materials give 0. The mip
   level follows a ray cone: the camera's pixel angle times the distance the path has
@@ -37,9 +38,10 @@ from ..covariance import (
     texture_to_tangent,
 )
 from ..covariance.texture_spectrum import TextureSpectrum
-from ..scene import FLOAT, SceneData, TextureInput
+from ..scene import FLOAT, SceneData
 from . import bsdf
 from ..compiled import inline, kernel
+from .shading import diffuse_texture
 from .vectors import dot
 from .world import World
 
@@ -96,9 +98,12 @@ class BounceNorms:
     def __init__(self, scene: SceneData, world: World):
         self.world = world
         self.curvature = curvature_norm(world.curvature_k1, world.curvature_k2).astype(FLOAT)
-        materials = scene.materials
-        textured = [m.diffuse_color.texture if isinstance(m.diffuse_color, TextureInput) else -1 for m in materials]
+        driving = [diffuse_texture(material) for material in scene.materials]
+        textured = [-1 if found is None else found[0] for found in driving]
         self.material_texture = np.array(textured + [-1], np.int64)  # the last entry: no material
+        # (m + 1, 2, 3) the affine map from the mesh's st to the texture's uv
+        self.material_uv = np.array([np.eye(3)[:2] if found is None else np.reshape(found[1], (2, 3))
+                                     for found in driving] + [np.eye(3)[:2]])
         used = sorted({index for index in textured if index >= 0})
         self.spectra = {index: texture_spectrum(scene.textures[index].pixels) for index in used}
 
@@ -108,22 +113,29 @@ class BounceNorms:
         if not self.spectra:
             return
         scattering = np.flatnonzero(surfaces.scatters)
-        texture_index = np.take(self.material_texture, np.take(self.world.triangle_material,
-                                                               surfaces.triangle[scattering]))
+        material = np.take(self.world.triangle_material, surfaces.triangle[scattering])
+        texture_index = np.take(self.material_texture, material)
         for index, spectrum in self.spectra.items():
-            lanes = scattering[texture_index == index]
+            chosen = texture_index == index
+            lanes = scattering[chosen]
             if not len(lanes):
                 continue
             tri = surfaces.triangle[lanes]
+            uv_map = self.material_uv[material[chosen]]  # (k, 2, 3): the texture's uv from st
             grad_s = np.take(self.world.gradient_s, tri, axis=1)
             grad_t = np.take(self.world.gradient_t, tri, axis=1)
+            # the gradients of the texture's own uv: A · ∇(s, t)
+            grad_s, grad_t = (uv_map[:, 0, 0] * grad_s + uv_map[:, 0, 1] * grad_t,
+                              uv_map[:, 1, 0] * grad_s + uv_map[:, 1, 1] * grad_t)
             tx, ty = surfaces.frame[lanes, 0].T, surfaces.frame[lanes, 1].T
-            # J = ∂(s, t)/∂(t̂x, t̂y), texture units per metre
+            # J = ∂(u, v)/∂(t̂x, t̂y), texture units per metre
             jacobian = np.stack([np.stack([dot(grad_s, tx), dot(grad_s, ty)], -1),
                                  np.stack([dot(grad_t, tx), dot(grad_t, ty)], -1)], -2).astype(np.float64)
             texels_per_metre = np.maximum(np.linalg.norm(grad_s, axis=0) * spectrum.width,
                                           np.linalg.norm(grad_t, axis=0) * spectrum.height)
-            block_uv = spectrum.lookup(surfaces.st[lanes].T, footprint[lanes] * texels_per_metre)
+            st = surfaces.st[lanes].astype(np.float64)
+            uv = np.einsum("kij,kj->ik", uv_map, np.concatenate([st, np.ones((len(st), 1))], axis=1))
+            block_uv = spectrum.lookup(uv, footprint[lanes] * texels_per_metre)
             surfaces.texture[lanes] = texture_norm(texture_to_tangent(block_uv, jacobian))
 
 

@@ -3,17 +3,23 @@
 All directions are in the local shading frame (z = shading normal turned toward the
 viewer), pointing away from the surface; ``wo`` is toward the previous vertex.
 
-    f = opacity · [ (1 − c·Fc(cos θo)) · (f_diffuse + f_specular) + c · f_coat ]
-        + (1 − opacity) · f_glass
+    f = (1 − c·Fc(cos θo)) · (f_diffuse + f_specular + f_glass) + c · f_coat
 
-* diffuse  (D): (1 − metallic) · (1 − Fs(cos θo)) · diffuseColor / π
+(opacity, a presence, is not a lobe: the surface stage lets a fraction 1 − opacity of the
+paths through unscattered.)
+
+* diffuse  (D): (1 − metallic) · (1 − transmission) · (1 − Fs(cos θo)) · diffuseColor / π
 * specular (G): GGX with α = roughness², Smith separable shadowing, Schlick Fresnel Fs
   with F0 = specularColor (specular workflow) or mix(((1 − ior)/(1 + ior))², diffuseColor,
   metallic) (metallic workflow). The spec's edge colour is white (F90 = 1), except that a
-  zero F0 turns the lobe off: that is how artists author a pure Lambertian surface.
+  zero F0 turns the lobe off: that is how artists author a pure Lambertian surface. Its
+  weight loses the transmitted part's dielectric share, (1 − (1 − metallic)·transmission),
+  since the glass lobe's exact Fresnel reflects for that part.
 * coat     (G): GGX with α = clearcoatRoughness², F0 = 0.04, weight c = clearcoat.
-* glass    (S): a smooth dielectric of the material's ior (reflection or refraction,
-  chosen by exact Fresnel) for the translucent part when opacityThreshold = 0.
+* glass    (S): (1 − metallic) · transmission: a smooth dielectric of the material's ior
+  (reflection or refraction, chosen by exact Fresnel; what is refracted is tinted by
+  transmissionColor); a thin-walled one transmits without bending (eta = 1 for the
+  direction, the ior's Fresnel kept).
 
 A GGX lobe with α below SINGULAR_ALPHA is a perfect mirror (S): GGX's peak is then too
 narrow to evaluate in float32 and no light sample could ever land in it.
@@ -33,6 +39,7 @@ import math
 import numpy as np
 
 from ..compiled import inline
+from . import shading
 from .vectors import luminance_of, normalized
 
 DIFFUSE, SPECULAR, COAT, GLASS = range(4)
@@ -47,16 +54,18 @@ SCATTER_DIFFUSE, SCATTER_GLOSSY, SCATTER_SINGULAR, SCATTER_STRAIGHT = range(4)
 
 # Columns of a lobe row.
 DIFFUSE_RGB = 0  # 3 columns: weight of the Lambertian term (f = diffuse / π)
-SPECULAR_WEIGHT = 3  # opacity · (1 − c·Fc)
+SPECULAR_WEIGHT = 3  # (1 − c·Fc) · (1 − (1 − metallic)·transmission)
 F0_RGB = 4  # 3 columns
 F90 = 7
 ALPHA = 8
-COAT_WEIGHT = 9  # opacity · c
+COAT_WEIGHT = 9  # c
 COAT_ALPHA = 10
-GLASS_WEIGHT = 11  # 1 − opacity
-ETA = 12  # n_inside / n_outside seen from wo's side
-PROBABILITY = 13  # 4 columns: lobe selection probabilities (sum to 1, or 0 = absorb)
-LOBE_FIELDS = 17
+GLASS_WEIGHT = 11  # (1 − c·Fc) · (1 − metallic) · transmission: reflection
+GLASS_RGB = 12  # 3 columns: GLASS_WEIGHT · transmissionColor: refraction
+ETA = 15  # n_inside / n_outside seen from wo's side, for Fresnel
+BEND = 16  # the eta refraction bends by: ETA, or 1 for a thin wall
+PROBABILITY = 17  # 4 columns: lobe selection probabilities (sum to 1, or 0 = absorb)
+LOBE_FIELDS = 21
 
 
 @inline
@@ -109,46 +118,55 @@ def ggx_eval(wox, woy, woz, wix, wiy, wiz, alpha, f0r, f0g, f0b, f90):
 
 
 @inline
-def prepare(lobes, lane, diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, roughness,
-            metallic, opacity, clearcoat, clearcoat_roughness, use_specular_workflow, ior, opacity_threshold,
-            cos_o, entering, scatters):
-    """Fill row `lane` of `lobes` from a hit's material inputs, for viewing cosine cos_o;
-    entering: wo is on the front side; a lane that may not scatter gets no lobe."""
-    metallic = min(max(metallic, 0.0), 1.0)
+def prepare(lobes, lane, inputs, cos_o, entering, scatters):
+    """Fill row `lane` of `lobes` from a hit's material inputs (shading.py columns), for
+    viewing cosine cos_o; entering: wo is on the front side; a lane that may not scatter
+    gets no lobe."""
+    diffuse_r, diffuse_g, diffuse_b = inputs[shading.DIFFUSE], inputs[shading.DIFFUSE + 1], inputs[shading.DIFFUSE + 2]
+    ior = inputs[shading.IOR]
+    metallic = min(max(inputs[shading.METALLIC], 0.0), 1.0)
+    transmission = (1.0 - metallic) * min(max(inputs[shading.TRANSMISSION], 0.0), 1.0)
     r0 = ((1.0 - ior) / (1.0 + ior)) ** 2
-    if use_specular_workflow:
-        f0r, f0g, f0b = specular_r, specular_g, specular_b
+    if inputs[shading.USE_SPECULAR_WORKFLOW] > 0:
+        f0r, f0g, f0b = inputs[shading.SPECULAR], inputs[shading.SPECULAR + 1], inputs[shading.SPECULAR + 2]
     else:
         f0r = r0 * (1.0 - metallic) + diffuse_r * metallic
         f0g = r0 * (1.0 - metallic) + diffuse_g * metallic
         f0b = r0 * (1.0 - metallic) + diffuse_b * metallic
     f90 = 1.0 if max(f0r, f0g, f0b) > 0 else 0.0
-    opacity = min(max(opacity, 0.0), 1.0)
-    clearcoat = min(max(clearcoat, 0.0), 1.0)
+    clearcoat = min(max(inputs[shading.CLEARCOAT], 0.0), 1.0)
     coat_fresnel = schlick(COAT_F0, 1.0, cos_o)
-    base = opacity * (1.0 - clearcoat * coat_fresnel)
+    base = 1.0 - clearcoat * coat_fresnel
     fr, fg, fb = schlick(f0r, f90, cos_o), schlick(f0g, f90, cos_o), schlick(f0b, f90, cos_o)
-    scale = base * (1.0 - metallic)
+    scale = base * (1.0 - metallic) - base * transmission
     dr = scale * (1.0 - fr) * max(diffuse_r, 0.0)
     dg = scale * (1.0 - fg) * max(diffuse_g, 0.0)
     db = scale * (1.0 - fb) * max(diffuse_b, 0.0)
-    glass = 0.0 if opacity_threshold > 0 else 1.0 - opacity
+    specular = base * (1.0 - transmission)
+    glass = base * transmission
+    gr = glass * max(inputs[shading.TRANSMISSION_COLOR], 0.0)
+    gg = glass * max(inputs[shading.TRANSMISSION_COLOR + 1], 0.0)
+    gb = glass * max(inputs[shading.TRANSMISSION_COLOR + 2], 0.0)
     w0 = luminance_of(dr, dg, db)
-    w1 = base * luminance_of(fr, fg, fb)
-    w2 = opacity * clearcoat * coat_fresnel
-    total = w0 + w1 + w2 + glass
+    w1 = specular * luminance_of(fr, fg, fb)
+    w2 = clearcoat * coat_fresnel
+    w3 = max(glass, luminance_of(gr, gg, gb))
+    total = w0 + w1 + w2 + w3
     norm = 1.0 / total if total > 0 and scatters else 0.0
     row = lobes[lane]
     row[0], row[1], row[2] = dr, dg, db
-    row[SPECULAR_WEIGHT] = base
+    row[SPECULAR_WEIGHT] = specular
     row[4], row[5], row[6] = f0r, f0g, f0b
     row[F90] = f90
-    row[ALPHA] = min(max(roughness, 0.0), 1.0) ** 2
-    row[COAT_WEIGHT] = opacity * clearcoat
-    row[COAT_ALPHA] = min(max(clearcoat_roughness, 0.0), 1.0) ** 2
+    row[ALPHA] = min(max(inputs[shading.ROUGHNESS], 0.0), 1.0) ** 2
+    row[COAT_WEIGHT] = clearcoat
+    row[COAT_ALPHA] = min(max(inputs[shading.CLEARCOAT_ROUGHNESS], 0.0), 1.0) ** 2
     row[GLASS_WEIGHT] = glass
+    row[GLASS_RGB], row[GLASS_RGB + 1], row[GLASS_RGB + 2] = gr, gg, gb
     row[ETA] = ior if entering else 1.0 / ior
-    row[13], row[14], row[15], row[16] = w0 * norm, w1 * norm, w2 * norm, glass * norm
+    row[BEND] = 1.0 if inputs[shading.THIN_WALLED] > 0 else row[ETA]
+    row[PROBABILITY], row[PROBABILITY + 1] = w0 * norm, w1 * norm
+    row[PROBABILITY + 2], row[PROBABILITY + 3] = w2 * norm, w3 * norm
 
 
 @inline
@@ -233,20 +251,18 @@ def sample(row, wox, woy, woz, u0, u1, u2):
         return (x, y, z, row[0] / p_diffuse, row[1] / p_diffuse, row[2] / p_diffuse, z * INV_PI * p_diffuse,
                 lobe, SCATTER_DIFFUSE, False, True)
     if lobe == GLASS:
-        eta = row[ETA]
-        fresnel = fresnel_dielectric(woz, eta)
+        fresnel = fresnel_dielectric(woz, row[ETA])
         if u1 < fresnel:
             x, y, z = -wox, -woy, woz
             scale = row[GLASS_WEIGHT] / p_glass
-            transmit = False
-        else:
-            cos_t = math.sqrt(max(1.0 - (1.0 - woz * woz) / (eta * eta), 0.0))
-            x, y, z = -wox / eta, -woy / eta, -woz / eta + woz / eta - cos_t
-            # Radiance crossing into a denser medium is compressed by 1/eta² (pbrt's BTDF scale).
-            scale = row[GLASS_WEIGHT] / (eta * eta) / p_glass
-            transmit = True
-        x, y, z = normalized(x, y, z, 1e-12)
-        return x, y, z, scale, scale, scale, 0.0, lobe, SCATTER_SINGULAR, transmit, True
+            return x, y, z, scale, scale, scale, 0.0, lobe, SCATTER_SINGULAR, False, True
+        eta = row[BEND]
+        cos_t = math.sqrt(max(1.0 - (1.0 - woz * woz) / (eta * eta), 0.0))
+        x, y, z = normalized(-wox / eta, -woy / eta, -woz / eta + woz / eta - cos_t, 1e-12)
+        # Radiance crossing into a denser medium is compressed by 1/eta² (pbrt's BTDF scale).
+        scale = 1.0 / (eta * eta) / p_glass
+        return (x, y, z, row[GLASS_RGB] * scale, row[GLASS_RGB + 1] * scale, row[GLASS_RGB + 2] * scale, 0.0, lobe,
+                SCATTER_SINGULAR, True, True)
     if lobe == SPECULAR:
         alpha, weight, probability = row[ALPHA], row[SPECULAR_WEIGHT], p_specular
         f0r, f0g, f0b, f90 = row[4], row[5], row[6], row[F90]

@@ -31,6 +31,7 @@ from .embree import RayCaster
 from .lights import LightSampler
 from .recorder import Contributions, FirstBounceNorms, PathRecorder
 from .shading import MaterialTable
+from .stages.queues import MAX_PASS_THROUGH
 from .stages.camera import camera_rays
 from .stages.emission import emission
 from .stages.escaped import escaped
@@ -43,7 +44,6 @@ from .stages.scatter import scatter
 from .stages.surface import surface
 from .world import GeometryArrays, World
 
-MAX_PASS_THROUGH = 16  # cut-out surfaces a path may cross on top of max_depth bounces
 
 @dataclass(frozen=True)
 class TraceSettings:
@@ -153,7 +153,7 @@ class Integrator:
             if not alive.any():
                 break
             wants_norms = any(observer.wants_norms(step) for observer in observers)
-            surfaces = surface(queue, hits, alive, geometry, materials,
+            surfaces = surface(queue, hits, alive, step, geometry, materials,
                                self.curvature if wants_norms else self.curvature[:0], settings.max_depth)
             if wants_norms and self.bounce_norms:
                 footprint = queue.travelled * self.pixel_angle / np.maximum(np.abs(surfaces.wo[:, 2]), 0.05)
@@ -162,7 +162,7 @@ class Integrator:
             if lights.has_lights:
                 shadows = light_samples(queue, surfaces, step, self.epsilon, geometry, materials, light_arrays)
                 rays += len(shadows)
-                cast_shadows(self.caster, shadows)
+                cast_shadows(self.caster, shadows, geometry, materials, self.materials.see_through, self.epsilon)
                 for observer in observers:
                     observer.lit(queue, surfaces, shadows)
 

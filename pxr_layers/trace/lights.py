@@ -244,21 +244,16 @@ def _centroid_emission(triangles: np.ndarray, geometry: GeometryArrays, material
                        light_radiance: np.ndarray) -> np.ndarray:
     """Radiance (e, 3) leaving emitting triangles at their centroids, toward their front."""
     out = np.zeros((len(triangles), 3), np.float64)
-    _centroid_emission_kernel(triangles, geometry.corner_uvs, geometry.triangle_material, geometry.triangle_light,
-                              light_radiance, materials.constants, materials.slot_input, materials.input_ints,
-                              materials.input_floats, materials.texels, materials.texture_info, scratch(3), out)
+    _centroid_emission_kernel(triangles, geometry, materials, light_radiance, scratch(shading.REGISTERS, 4),
+                              scratch(shading.MATERIAL_FIELDS), scratch(3), out)
     return out
 
 
 @kernel
-def _centroid_emission_kernel(triangles, corner_uvs, triangle_material, triangle_light, light_radiance, constants,
-                              slot_input, input_ints, input_floats, texels, texture_info, radiance, out):
+def _centroid_emission_kernel(triangles, geometry, materials, light_radiance, registers, inputs, radiance, out):
     third = 1.0 / 3.0
     for lane in range(len(triangles)):
-        triangle = triangles[lane]
-        s, t = shading.interpolate_st(corner_uvs, triangle, third, third)
-        emitted(triangle, s, t, 1.0, triangle_material, triangle_light, light_radiance, constants, slot_input,
-                input_ints, input_floats, texels, texture_info, radiance)
+        emitted(triangles[lane], third, third, 1.0, geometry, light_radiance, materials, registers, inputs, radiance)
         out[lane, 0], out[lane, 1], out[lane, 2] = radiance[0], radiance[1], radiance[2]
 
 
@@ -278,19 +273,20 @@ def pick(cdf, start, count, u):
 
 
 @inline
-def emitted(triangle, s, t, cos_toward_viewer, triangle_material, triangle_light, light_radiance, constants,
-            slot_input, input_ints, input_floats, texels, texture_info, out):
-    """Radiance leaving an emitting `triangle` at (s, t) toward a viewer under
+def emitted(triangle, u, v, cos_toward_viewer, geometry, light_radiance, materials, registers, inputs, out):
+    """Radiance leaving an emitting `triangle` at barycentrics (u, v) toward a viewer under
     cos_toward_viewer (from its geometric normal) into out (3,): light shapes emit on their
-    front only, emissive surfaces on both sides."""
-    light = triangle_light[triangle]
+    front only, emissive surfaces on both sides. registers, inputs: scratch of
+    shading.material_inputs."""
+    light = geometry.triangle_light[triangle]
     if light >= 0:
         front = 1.0 if cos_toward_viewer > 0 else 0.0
         out[0], out[1], out[2] = (light_radiance[light, 0] * front, light_radiance[light, 1] * front,
                                   light_radiance[light, 2] * front)
     else:
-        shading.emission(constants, slot_input, input_ints, input_floats, texels, texture_info,
-                         triangle_material[triangle], s, t, out)
+        shading.shade_point(materials, geometry, triangle, u, v, registers, inputs)
+        out[0], out[1], out[2] = (inputs[shading.EMISSIVE], inputs[shading.EMISSIVE + 1],
+                                  inputs[shading.EMISSIVE + 2])
 
 
 @inline
@@ -380,7 +376,7 @@ def dome_sample(lights, dome, u1, u2):
 
 
 @inline
-def sample(lights, geometry, materials, px, py, pz, u0, u1, u2, u3, scratch):
+def sample(lights, geometry, materials, px, py, pz, u0, u1, u2, u3, registers, inputs, scratch):
     """One light sample toward point (px, py, pz) from uniforms u0 (source), u1, u2
     (position), u3 (triangle). Returns (direction x, y, z unit toward the light; distance,
     metres, inf for distant and dome; radiance r, g, b arriving (irradiance for a delta
@@ -403,10 +399,7 @@ def sample(lights, geometry, materials, px, py, pz, u0, u1, u2, u3, scratch):
         dx, dy, dz = normalized(ox, oy, oz, 1e-12)
         normal = geometry.geometric_normal
         cos_light = -(normal[chosen, 0] * dx + normal[chosen, 1] * dy + normal[chosen, 2] * dz)
-        s, t = shading.interpolate_st(geometry.corner_uvs, chosen, bu, bv)
-        emitted(chosen, s, t, cos_light, geometry.triangle_material, geometry.triangle_light,
-                lights.light_radiance, materials.constants, materials.slot_input, materials.input_ints,
-                materials.input_floats, materials.texels, materials.texture_info, scratch)
+        emitted(chosen, bu, bv, cos_light, geometry, lights.light_radiance, materials, registers, inputs, scratch)
         pdf = triangle_pdf(chosen, distance, cos_light, lights.area_probability, lights.triangle_probability,
                            geometry.area)
         return (dx, dy, dz, distance, scratch[0], scratch[1], scratch[2], pdf, geometry.triangle_light[chosen],

@@ -64,7 +64,7 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
         raise RenderSettingsError(f"max depth must be 0 or more, got {settings.max_depth}")
     world = build_world(scene)
     geometry = geometry_arrays(world)
-    materials = MaterialTable(scene)
+    materials = MaterialTable(scene, world.primvar_columns)
     lights = LightSampler(scene, world, materials, geometry)
     if not lights.has_lights:
         log.warning("%s: no light emits anything: the image will be black", scene.stage_path)

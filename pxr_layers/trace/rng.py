@@ -24,8 +24,8 @@ _ONE = np.uint64(1)
 _TO_UNIT = np.float32(2.0**-24)
 
 CAMERA_DIMENSIONS = 2  # film jitter x, y
-STEP_DIMENSIONS = 8  # per bounce: lobe, direction ×2, light pick, light position ×3, roulette
-LOBE, DIRECTION, LIGHT_PICK, LIGHT_POSITION, ROULETTE = 0, 1, 3, 4, 7  # offsets within a step
+STEP_DIMENSIONS = 9  # per bounce: lobe, direction ×2, light pick, light position ×3, roulette, presence
+LOBE, DIRECTION, LIGHT_PICK, LIGHT_POSITION, ROULETTE, PRESENCE = 0, 1, 3, 4, 7, 8  # offsets within a step
 
 
 @inline

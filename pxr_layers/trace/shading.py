@@ -1,122 +1,258 @@
-"""UsdPreviewSurface inputs as tables for kernels, and their per-lane evaluation.
+"""Material inputs as tables for kernels, and their per-lane evaluation.
 
-``MaterialTable`` turns SceneData.materials into arrays (one row per material, plus a last
-row that index −1, the light shapes, reads and never shades): ``constants`` (m + 1,
-MATERIAL_FIELDS) float32 holds every input's constant value, ``slot_input`` (m + 1, SLOTS)
-int32 the texture input driving each slot (−1: none), and the texture inputs themselves
-are ``input_ints`` (k, 7) int32 (texture, channel count, channels ×3, wrap s, wrap t) and
-``input_floats`` (k, 8) float32 (scale ×4, bias ×4), with the textures packed in one atlas
-(textures.py). A texture input's value is ``texel[channels] · scale[channels] +
-bias[channels]``; a colour driven by one channel repeats it.
+``MaterialTable`` turns SceneData.materials into arrays, one row per material plus a last
+row that index −1 (the light shapes) reads and never shades:
+
+* ``constants`` (m + 1, MATERIAL_FIELDS) float32: every input's constant value (columns
+  below; HAS_NORMAL is 1 where a normal map drives NORMAL).
+* Each material's ShaderNode trees (shader_nodes.py) compiled into one **program**, shared
+  subtrees computed once: ``program`` (k, 8) int32 instructions (op, out, a, b, c, d,
+  parameter offset, extra) over a register file of 4-vectors, ``parameters`` (p,) float32,
+  ``program_range`` (m + 1, 2) int64 [start, end) per material, and ``stores`` (s, 3)
+  int32 (column, register, width) in ``store_range`` (m + 1, 2): where the results go.
+  Sources: ``texcoord`` reads the mesh's st; ``primvar`` (b = column of
+  GeometryArrays.corner_primvars, c = width, its presence column after it; parameters =
+  fallback); ``texture`` (a = uv register, b, c = wrap codes s, t, d = tile count, extra =
+  first row of ``tiles`` (x, 2) int64 (tile, atlas texture), parameters = fallback).
+* The textures packed in one atlas (textures.py).
+
+``REGISTERS`` bounds a material's distinct nodes.
 """
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
 
-from ..scene import Material, SceneData, TextureInput
+from .. import shader_nodes
+from ..compiled import inline, kernel
+from ..scene import Material, SceneData
+from ..shader_nodes import ShaderNode
 from . import textures
-from ..compiled import inline
 
-# Columns of a material row; the slots (inputs a texture may drive) in the same order.
+# Columns of a material row.
 DIFFUSE, EMISSIVE, SPECULAR = 0, 3, 6  # 3 columns each
 ROUGHNESS, METALLIC, OPACITY, CLEARCOAT, CLEARCOAT_ROUGHNESS = 9, 10, 11, 12, 13
 IOR, OPACITY_THRESHOLD, USE_SPECULAR_WORKFLOW = 14, 15, 16
-MATERIAL_FIELDS = 17
-_SLOTS = (("diffuse_color", DIFFUSE, 3), ("emissive_color", EMISSIVE, 3), ("specular_color", SPECULAR, 3),
-          ("roughness", ROUGHNESS, 1), ("metallic", METALLIC, 1), ("opacity", OPACITY, 1),
-          ("clearcoat", CLEARCOAT, 1), ("clearcoat_roughness", CLEARCOAT_ROUGHNESS, 1))
-SLOT_COLUMN = np.array([column for _, column, _ in _SLOTS], np.int64)
-SLOT_WIDTH = np.array([width for _, _, width in _SLOTS], np.int64)
-SLOTS = len(_SLOTS)
-EMISSIVE_SLOT = 1
+NORMAL = 17  # 3 columns: tangent space
+TRANSMISSION, TRANSMISSION_COLOR = 20, 21  # 1 and 3 columns
+THIN_WALLED, HAS_NORMAL = 24, 25
+MATERIAL_FIELDS = 26
+# Material fields a tree may drive: (field, first column, width).
+_INPUTS = (("diffuse_color", DIFFUSE, 3), ("emissive_color", EMISSIVE, 3), ("specular_color", SPECULAR, 3),
+           ("roughness", ROUGHNESS, 1), ("metallic", METALLIC, 1), ("opacity", OPACITY, 1),
+           ("clearcoat", CLEARCOAT, 1), ("clearcoat_roughness", CLEARCOAT_ROUGHNESS, 1), ("normal", NORMAL, 3),
+           ("transmission", TRANSMISSION, 1), ("transmission_color", TRANSMISSION_COLOR, 3))
+REGISTERS = 256
+_INSTRUCTION = 8
 
 
 class MaterialArrays(NamedTuple):
     """What kernels read of the materials (see the module docstring)."""
 
     constants: np.ndarray
-    slot_input: np.ndarray
-    textured: np.ndarray  # (m + 1,) bool: some slot is textured
-    input_ints: np.ndarray
-    input_floats: np.ndarray
+    program: np.ndarray
+    parameters: np.ndarray
+    program_range: np.ndarray
+    stores: np.ndarray
+    store_range: np.ndarray
+    tiles: np.ndarray
     texels: np.ndarray
     texture_info: np.ndarray
 
 
 class MaterialTable:
-    """Every material's inputs as arrays, for kernels (``arrays``)."""
+    """Every material's inputs as arrays, for kernels (``arrays``).
 
-    def __init__(self, scene: SceneData):
+    primvar_columns : GeometryArrays' primvar columns, name → (offset, width); a primvar
+                      no mesh carries reads its fallback.
+    """
+
+    def __init__(self, scene: SceneData, primvar_columns: dict[str, tuple[int, int]] | None = None):
         materials = scene.materials or (Material(name="default", path="<default>"),)
+        compiler = _Compiler(scene, primvar_columns or {})
         rows = len(materials) + 1
         constants = np.zeros((rows, MATERIAL_FIELDS), np.float32)
-        slot_input = np.full((rows, SLOTS), -1, np.int32)
-        input_ints: list[list[int]] = []
-        input_floats: list[list[float]] = []
-        used_textures: dict[int, int] = {}
+        program_range = np.zeros((rows, 2), np.int64)
+        store_range = np.zeros((rows, 2), np.int64)
+        emissive = np.zeros(len(materials), bool)
         for index, material in enumerate(materials):
-            for slot, (name, column, width) in enumerate(_SLOTS):
+            program_range[index, 0], store_range[index, 0] = len(compiler.program), len(compiler.stores)
+            trees = {}
+            for name, column, width in _INPUTS:
                 value = getattr(material, name)
-                if isinstance(value, TextureInput):
-                    atlas_index = used_textures.setdefault(value.texture, len(used_textures))
-                    channels = list(value.channels)[:3]
-                    input_ints.append([atlas_index, len(channels), *(channels + [0, 0, 0])[:3],
-                                       textures.wrap_code(value.wrap_s), textures.wrap_code(value.wrap_t)])
-                    input_floats.append([*value.scale, *value.bias])
-                    slot_input[index, slot] = len(input_ints) - 1
-                else:
+                if isinstance(value, ShaderNode):
+                    trees[column, width] = value
+                elif value is not None:
                     constants[index, column:column + width] = value
+            compiler.material(material.path, trees)
+            program_range[index, 1], store_range[index, 1] = len(compiler.program), len(compiler.stores)
             constants[index, IOR] = material.ior
             constants[index, OPACITY_THRESHOLD] = material.opacity_threshold
             constants[index, USE_SPECULAR_WORKFLOW] = float(material.use_specular_workflow)
-        images = [scene.textures[texture].pixels for texture in used_textures]
-        texels, info = textures.pack(images)
+            constants[index, THIN_WALLED] = float(material.thin_walled)
+            constants[index, HAS_NORMAL] = float(isinstance(material.normal, ShaderNode))
+            emissive[index] = (isinstance(material.emissive_color, ShaderNode)
+                               or max(material.emissive_color) > 0)
+        program_range[-1] = store_range[-1] = len(compiler.program), len(compiler.stores)
+        constants[-1, OPACITY] = 1.0  # light shapes block shadow rays
+        # Whether any material lets light through (presence below 1 somewhere).
+        self.see_through = any(isinstance(material.opacity, ShaderNode) or material.opacity < 1
+                               for material in materials)
+        texels, info = textures.pack([scene.textures[texture].pixels for texture in compiler.atlas])
         self.arrays = MaterialArrays(
-            constants=constants, slot_input=slot_input, textured=(slot_input >= 0).any(axis=1),
-            input_ints=np.array(input_ints, np.int32).reshape(-1, 7),
-            input_floats=np.array(input_floats, np.float32).reshape(-1, 8), texels=texels, texture_info=info)
-        # (materials,) bool, without the light-shape row
-        self.emissive = (constants[:-1, EMISSIVE:EMISSIVE + 3].max(axis=1) > 0) | (slot_input[:-1, EMISSIVE_SLOT] >= 0)
+            constants=constants, program=np.array(compiler.program, np.int32).reshape(-1, _INSTRUCTION),
+            parameters=np.array(compiler.parameters + [0.0], np.float32), program_range=program_range,
+            stores=np.array(compiler.stores, np.int32).reshape(-1, 3), store_range=store_range,
+            tiles=np.array(compiler.tiles, np.int64).reshape(-1, 2), texels=texels, texture_info=info)
+        self.emissive = emissive  # (materials,) bool, without the light-shape row
+
+
+class _Compiler:
+    """Appends materials' trees to one program (see the module docstring)."""
+
+    def __init__(self, scene: SceneData, primvar_columns: dict[str, tuple[int, int]]):
+        self.program: list[list[int]] = []
+        self.parameters: list[float] = []
+        self.stores: list[list[int]] = []
+        self.tiles: list[list[int]] = []
+        self.atlas: dict[int, int] = {}  # SceneData.textures index → atlas index
+        self._scene = scene
+        self._primvar_columns = primvar_columns
+
+    def material(self, path: str, trees: dict[tuple[int, int], ShaderNode]) -> None:
+        registers: dict[ShaderNode, int] = {}  # equal subtrees share one register
+        for (column, width), tree in trees.items():
+            for current in tree.walk():
+                if current not in registers:
+                    if len(registers) == REGISTERS:
+                        raise ValueError(f"material {path}: its shading networks have more than {REGISTERS} "
+                                         "distinct nodes")
+                    registers[current] = len(registers)
+                    self._instruction(current, registers)
+            self.stores.append([column, registers[tree], width])
+
+    def _parameters(self, values: tuple[float, ...]) -> int:
+        offset = len(self.parameters)
+        self.parameters.extend(values)
+        self.parameters.extend([0.0] * (shader_nodes.PARAMETERS - len(values)))
+        return offset
+
+    def _instruction(self, current: ShaderNode, registers: dict[ShaderNode, int]) -> None:
+        inputs = [registers[child] for child in current.inputs]
+        inputs += [registers[current]] * (shader_nodes.MAX_INPUTS - len(inputs))  # unused: any valid register
+        row = [shader_nodes.OP_CODE[current.op], registers[current], *inputs, self._parameters(current.values), 0]
+        if current.op == "primvar":
+            offset, width = self._primvar_columns.get(current.name, (-1, 0))
+            row[3], row[4] = offset, width
+        elif current.op == "texture":
+            row[3], row[4] = textures.wrap_code(current.wrap[0]), textures.wrap_code(current.wrap[1])
+            row[5], row[7] = len(current.tiles), len(self.tiles)
+            for tile, texture in current.tiles:
+                self.tiles.append([tile, self.atlas.setdefault(texture, len(self.atlas))])
+        self.program.append(row)
+
+
+def diffuse_texture(material: Material):
+    """(SceneData.textures index, affine2d (6,) of its uv or None) of the first texture
+    driving diffuse_color through a texcoord, for the covariance T operator; None when
+    none does."""
+    tree = material.diffuse_color
+    if not isinstance(tree, ShaderNode):
+        return None
+    for current in tree.walk():
+        if current.op == "texture" and len(current.tiles) == 1:
+            transform = _uv_transform(current.inputs[0])
+            if transform is not None:
+                return current.tiles[0][1], transform
+    return None
+
+
+
+def _uv_transform(uv: ShaderNode):
+    """The affine map (6,) from the mesh's st to `uv`, or None when uv is not one."""
+    matrix = np.eye(3)
+    while uv.op == "affine2d":
+        step = np.array([uv.values[0:3], uv.values[3:6], (0.0, 0.0, 1.0)])
+        matrix = matrix @ step
+        uv = uv.inputs[0]
+    if uv.op != "texcoord":
+        return None
+    return tuple(matrix[:2].reshape(-1))
+
+
+# -- per-lane functions of kernels
+
+@inline
+def _texture_value(materials, row, registers, out):
+    """registers[out] ← the texture instruction `row`'s lookup."""
+    program, ro = materials.program, registers[out]
+    s, t = registers[program[row, 2], 0], registers[program[row, 2], 1]
+    count, first = program[row, 5], program[row, 7]
+    texture = -1
+    if count == 1 and materials.tiles[first, 0] == 0:
+        texture = materials.tiles[first, 1]
+    elif math.isfinite(s) and math.isfinite(t):
+        column, line = math.floor(s), math.floor(t)
+        tile = 1001 + column + 10 * line
+        for k in range(count):
+            if materials.tiles[first + k, 0] == tile:
+                texture = materials.tiles[first + k, 1]
+        s, t = s - column, t - line
+    if texture < 0:
+        offset = program[row, 6]
+        for k in range(4):
+            ro[k] = materials.parameters[offset + k]
+        return
+    i00, i10, i01, i11, fx, fy = textures.footprint(materials.texture_info, texture, s, t, program[row, 3],
+                                                    program[row, 4])
+    channels = materials.texture_info[texture, textures.CHANNELS]
+    for k in range(4):
+        ro[k] = textures.blend(materials.texels, i00, i10, i01, i11, fx, fy, min(k, channels - 1))
 
 
 @inline
-def _input_value(input_ints, input_floats, texels, texture_info, item, s, t, out, column, width):
-    """Write texture input `item` at (s, t) into out[column:column + width]."""
-    texture, count = input_ints[item, 0], input_ints[item, 1]
-    i00, i10, i01, i11, fx, fy = textures.footprint(texture_info, texture, s, t, input_ints[item, 5],
-                                                    input_ints[item, 6])
-    for k in range(width):
-        channel = input_ints[item, 2 + min(k, count - 1)]
-        texel = textures.blend(texels, i00, i10, i01, i11, fx, fy, channel)
-        out[column + k] = texel * input_floats[item, channel] + input_floats[item, 4 + channel]
+def _primvar_value(materials, row, corner_primvars, triangle, u, v, registers, out):
+    """registers[out] ← the primvar instruction `row`'s value at barycentrics (u, v)."""
+    program, ro = materials.program, registers[out]
+    column, width, offset = program[row, 3], program[row, 4], program[row, 6]
+    w = 1.0 - u - v
+    present = column >= 0 and (w * corner_primvars[triangle, 0, column + width]
+                               + u * corner_primvars[triangle, 1, column + width]
+                               + v * corner_primvars[triangle, 2, column + width]) > 0.5
+    for k in range(4):
+        if present and k < width:
+            ro[k] = (w * corner_primvars[triangle, 0, column + k] + u * corner_primvars[triangle, 1, column + k]
+                     + v * corner_primvars[triangle, 2, column + k])
+        else:
+            ro[k] = materials.parameters[offset + k]
 
 
 @inline
-def material_inputs(constants, slot_input, textured, input_ints, input_floats, texels, texture_info, material,
-                    s, t, out):
-    """Every input of `material` at texture coordinates (s, t) into out (MATERIAL_FIELDS,)."""
+def material_inputs(materials, material, s, t, corner_primvars, triangle, u, v, registers, out):
+    """Every input of `material` at a shading point — texture coordinates (s, t),
+    barycentrics (u, v) of `triangle` — into out (MATERIAL_FIELDS,); registers:
+    (REGISTERS, 4) float32 scratch."""
     for column in range(MATERIAL_FIELDS):
-        out[column] = constants[material, column]
-    if textured[material]:
-        for slot in range(SLOTS):
-            item = slot_input[material, slot]
-            if item >= 0:
-                _input_value(input_ints, input_floats, texels, texture_info, item, s, t, out, SLOT_COLUMN[slot],
-                             SLOT_WIDTH[slot])
-
-
-@inline
-def emission(constants, slot_input, input_ints, input_floats, texels, texture_info, material, s, t, out):
-    """emissiveColor of `material` at (s, t) into out (3,)."""
-    item = slot_input[material, EMISSIVE_SLOT]
-    if item >= 0:
-        _input_value(input_ints, input_floats, texels, texture_info, item, s, t, out, 0, 3)
-    else:
-        out[0], out[1], out[2] = (constants[material, EMISSIVE], constants[material, EMISSIVE + 1],
-                                  constants[material, EMISSIVE + 2])
+        out[column] = materials.constants[material, column]
+    program = materials.program
+    for row in range(materials.program_range[material, 0], materials.program_range[material, 1]):
+        op, target = program[row, 0], program[row, 1]
+        if op == shader_nodes.TEXCOORD:
+            registers[target, 0], registers[target, 1], registers[target, 2], registers[target, 3] = s, t, 0.0, 1.0
+        elif op == shader_nodes.TEXTURE:
+            _texture_value(materials, row, registers, target)
+        elif op == shader_nodes.PRIMVAR:
+            _primvar_value(materials, row, corner_primvars, triangle, u, v, registers, target)
+        else:
+            shader_nodes.apply(op, registers, target, program[row, 2], program[row, 3], program[row, 4],
+                               program[row, 5], materials.parameters, program[row, 6])
+    for store in range(materials.store_range[material, 0], materials.store_range[material, 1]):
+        column, register, width = materials.stores[store, 0], materials.stores[store, 1], materials.stores[store, 2]
+        for k in range(width):
+            out[column + k] = registers[register, k]
 
 
 @inline
@@ -134,3 +270,30 @@ def interpolate_st(corner_uvs, triangle, u, v):
     w = 1.0 - u - v
     return (w * corner_uvs[triangle, 0, 0] + u * corner_uvs[triangle, 1, 0] + v * corner_uvs[triangle, 2, 0],
             w * corner_uvs[triangle, 0, 1] + u * corner_uvs[triangle, 1, 1] + v * corner_uvs[triangle, 2, 1])
+
+
+@inline
+def shade_point(materials, geometry, triangle, u, v, registers, inputs):
+    """material_inputs of `triangle`'s material at barycentrics (u, v); returns (s, t)."""
+    s, t = interpolate_st(geometry.corner_uvs, triangle, u, v)
+    material_inputs(materials, geometry.triangle_material[triangle], s, t, geometry.corner_primvars, triangle, u, v,
+                    registers, inputs)
+    return s, t
+
+
+def inputs_at(arrays: MaterialArrays, material: int, st: np.ndarray) -> np.ndarray:
+    """Every input (n, MATERIAL_FIELDS) float32 of `material` at texture coordinates st
+    (n, 2), on a mesh without primvars (readers give their fallbacks): the shading kernels'
+    own evaluation, for checks and tools."""
+    st = np.ascontiguousarray(st, np.float32).reshape(-1, 2)
+    out = np.empty((len(st), MATERIAL_FIELDS), np.float32)
+    _inputs_at_kernel(arrays, material, st, np.zeros((1, 3, 0), np.float32), np.empty((REGISTERS, 4), np.float32),
+                      out)
+    return out
+
+
+@kernel
+def _inputs_at_kernel(materials, material, st, corner_primvars, registers, out):
+    for lane in range(len(st)):
+        material_inputs(materials, material, st[lane, 0], st[lane, 1], corner_primvars, 0, 0.0, 0.0, registers,
+                        out[lane])

@@ -7,7 +7,8 @@ import numpy as np
 from ..bsdf import power_heuristic
 from ...compiled import kernel, scratch
 from ..lights import LightArrays, emitted, triangle_pdf
-from ..shading import MaterialArrays, interpolate_st
+from .. import shading
+from ..shading import MaterialArrays
 from ..world import GeometryArrays
 from .queues import Hits, PathQueue, Splats, trimmed
 
@@ -21,13 +22,13 @@ def emission(queue: PathQueue, hits: Hits, triangle_emits: np.ndarray, geometry:
                     np.empty(capacity, np.int32), np.empty(capacity, np.int32))
     count = _emission_kernel(hits.triangle, hits.u, hits.v, hits.t, triangle_emits, queue.direction,
                              queue.throughput, queue.previous_pdf, queue.previous_singular, geometry, materials,
-                             lights, scratch(3), splats.lane, splats.rgb, splats.light, splats.triangle)
+                             lights, scratch(shading.REGISTERS, 4), scratch(shading.MATERIAL_FIELDS), scratch(3), splats.lane, splats.rgb, splats.light, splats.triangle)
     return trimmed(splats, count)
 
 
 @kernel
 def _emission_kernel(triangle, bary_u, bary_v, t_hit, triangle_emits, direction, throughput, previous_pdf,
-                     previous_singular, geometry, materials, lights, radiance, lane_out, rgb_out, light_out, triangle_out):
+                     previous_singular, geometry, materials, lights, registers, inputs, radiance, lane_out, rgb_out, light_out, triangle_out):
     count = 0
     normal = geometry.geometric_normal
     for lane in range(len(triangle)):
@@ -36,10 +37,8 @@ def _emission_kernel(triangle, bary_u, bary_v, t_hit, triangle_emits, direction,
             continue
         cos_emitter = -(normal[tri, 0] * direction[lane, 0] + normal[tri, 1] * direction[lane, 1]
                         + normal[tri, 2] * direction[lane, 2])
-        s, t = interpolate_st(geometry.corner_uvs, tri, bary_u[lane], bary_v[lane])
-        emitted(tri, s, t, cos_emitter, geometry.triangle_material, geometry.triangle_light, lights.light_radiance,
-                materials.constants, materials.slot_input, materials.input_ints, materials.input_floats,
-                materials.texels, materials.texture_info, radiance)
+        emitted(tri, bary_u[lane], bary_v[lane], cos_emitter, geometry, lights.light_radiance, materials, registers,
+                inputs, radiance)
         if previous_singular[lane]:
             weight = 1.0
         else:

@@ -7,14 +7,14 @@ import math
 
 import numpy as np
 
-from .. import bsdf, lights as light_sampling, rng
+from .. import bsdf, lights as light_sampling, rng, shading
 from ...compiled import kernel, scratch
 from ..embree import RayCaster
 from ..lights import LightArrays
 from ..shading import MaterialArrays
 from ..vectors import to_local
 from ..world import GeometryArrays
-from .queues import T_INFINITY, PathQueue, ShadowQueue, SurfaceQueue, trimmed
+from .queues import MAX_PASS_THROUGH, T_INFINITY, PathQueue, ShadowQueue, SurfaceQueue, trimmed
 
 
 def light_samples(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: float, geometry: GeometryArrays,
@@ -29,20 +29,65 @@ def light_samples(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: 
                           triangle=np.empty(n, np.int32), visible=np.zeros(n, bool))
     count = _light_sample_kernel(queue.key, queue.throughput, surfaces.position, surfaces.facing, surfaces.frame,
                                  surfaces.wo, surfaces.lobes, surfaces.scatters, rng.step_dimension(step), epsilon,
-                                 geometry, materials, lights, scratch(3, 3), scratch(3), scratch(3), shadows.lane, shadows.origin, shadows.direction,
+                                 geometry, materials, lights, scratch(3, 3), scratch(3), scratch(3),
+                                 scratch(shading.REGISTERS, 4), scratch(shading.MATERIAL_FIELDS), shadows.lane, shadows.origin, shadows.direction,
                                  shadows.t_max, shadows.radiance, shadows.light, shadows.triangle)
     return trimmed(shadows, count)
 
 
-def cast_shadows(caster: RayCaster, shadows: ShadowQueue) -> None:
-    """Set ``shadows.visible``: which shadow rays reach their light."""
-    if len(shadows):
-        shadows.visible = ~caster.occluded(shadows.origin, shadows.direction, shadows.t_max)
+def cast_shadows(caster: RayCaster, shadows: ShadowQueue, geometry: GeometryArrays, materials: MaterialArrays,
+                 see_through: bool, epsilon: float) -> None:
+    """Set ``shadows.visible``: which shadow rays reach their light. With `see_through`
+    materials in the scene, a blocked ray is followed through the surfaces it crosses (up
+    to MAX_PASS_THROUGH of them): a cut-out passes it whole, a partly present surface
+    (opacity without threshold) passes a fraction 1 − opacity, which scales its radiance —
+    the expected value of the camera paths' random choice, without its noise."""
+    if not len(shadows):
+        return
+    blocked = caster.occluded(shadows.origin, shadows.direction, shadows.t_max)
+    shadows.visible = ~blocked
+    if not see_through or not blocked.any():
+        return
+    lanes = np.flatnonzero(blocked)
+    origin, direction = shadows.origin[lanes], shadows.direction[lanes]
+    t_left = shadows.t_max[lanes].copy()
+    transmittance = np.ones(len(lanes), np.float32)
+    for _ in range(MAX_PASS_THROUGH):
+        triangle, u, v, t = caster.intersect(origin, direction, t_left)
+        crossed = triangle < 0
+        shadows.visible[lanes[crossed]] = True
+        shadows.radiance[lanes[crossed]] *= transmittance[crossed, None, None]
+        fraction = np.empty(len(lanes), np.float32)
+        _presence_kernel(triangle, u, v, geometry, materials, scratch(shading.REGISTERS, 4),
+                         scratch(shading.MATERIAL_FIELDS), fraction)
+        going = np.flatnonzero(~crossed & (fraction > 0))
+        if not len(going):
+            return
+        step = t[going] + np.float32(epsilon)
+        lanes, direction, transmittance = lanes[going], direction[going], transmittance[going] * fraction[going]
+        origin = origin[going] + direction * step[:, None]
+        t_left = t_left[going] - step
+
+
+@kernel
+def _presence_kernel(triangle, bary_u, bary_v, geometry, materials, registers, inputs, fraction_out):
+    """The fraction of light each hit lets through (0 where there is no hit)."""
+    for lane in range(len(triangle)):
+        tri = triangle[lane]
+        if tri < 0:
+            fraction_out[lane] = 0.0
+            continue
+        shading.shade_point(materials, geometry, tri, bary_u[lane], bary_v[lane], registers, inputs)
+        opacity, threshold = inputs[shading.OPACITY], inputs[shading.OPACITY_THRESHOLD]
+        if threshold > 0:
+            fraction_out[lane] = 1.0 if opacity < threshold else 0.0
+        else:
+            fraction_out[lane] = 1.0 - min(max(opacity, 0.0), 1.0)
 
 
 @kernel
 def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, scatters, dimension, epsilon, geometry,
-                         materials, lights, f, lobe_pdf, radiance, lane_out, origin_out, direction_out, t_max_out, radiance_out, light_out,
+                         materials, lights, f, lobe_pdf, radiance, registers, inputs, lane_out, origin_out, direction_out, t_max_out, radiance_out, light_out,
                          triangle_out):
     count = 0
     for lane in range(len(key)):
@@ -55,7 +100,7 @@ def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, sc
         u3 = rng.uniform(stream, dimension + rng.LIGHT_POSITION + 2)
         px, py, pz = position[lane, 0], position[lane, 1], position[lane, 2]
         dx, dy, dz, distance, r, g, b, pdf, light, triangle = light_sampling.sample(
-            lights, geometry, materials, px, py, pz, u0, u1, u2, u3, radiance)
+            lights, geometry, materials, px, py, pz, u0, u1, u2, u3, registers, inputs, radiance)
         nx, ny, nz = facing[lane, 0], facing[lane, 1], facing[lane, 2]
         if not pdf > 0 or dx * nx + dy * ny + dz * nz <= 0 or max(r, g, b) <= 0:
             continue

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+MAX_PASS_THROUGH = 16  # see-through surfaces a path or shadow ray may cross on top of its bounces
 T_INFINITY = np.float32(1e30)  # the t_max of rays that go on until they hit something
 
 

@@ -5,24 +5,26 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import bsdf, shading
-from ...compiled import kernel, scratch
+from .. import bsdf, rng, shading
+from ...compiled import inline, kernel, scratch
 from ..shading import MaterialArrays
 from ..vectors import basis, normalized
 from ..world import GeometryArrays
 from .queues import Hits, PathQueue, SurfaceQueue
 
 
-def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, geometry: GeometryArrays, materials: MaterialArrays,
-            curvature: np.ndarray, max_depth: int) -> SurfaceQueue:
+def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry: GeometryArrays,
+            materials: MaterialArrays, curvature: np.ndarray, max_depth: int) -> SurfaceQueue:
     """The shading points of `queue`'s hits, for the lanes `alive` (n,) bool marks: those
     that hit a surface that is not a light (lights absorb what reaches them).
 
-    A hit whose material's opacity is below its opacityThreshold is cut out: the path
-    passes straight through it. The shading normal is turned to the viewer's side of the
-    geometric normal (and replaced by it where it would face away from the viewer).
-    Paths at `max_depth` get no lobe. curvature: (t,) float32 C per triangle, or (0,) for
-    none (C = 0). Also adds the hit distance to ``queue.travelled``.
+    Presence: a hit whose material's opacity is below its opacityThreshold is cut out, and
+    with opacityThreshold 0 a fraction 1 − opacity of the paths is (chosen at random): the
+    path passes straight through. The shading normal is the interpolated normal, perturbed
+    by the material's tangent-space normal (tangents ∂P/∂s, ∂P/∂t of the triangle), turned
+    to the viewer's side of the geometric normal (and replaced by it where it would face
+    away from the viewer). Paths at `max_depth` get no lobe. curvature: (t,) float32 C per
+    triangle, or (0,) for none (C = 0). Also adds the hit distance to ``queue.travelled``.
     """
     n = len(queue)
     out = SurfaceQueue(
@@ -30,17 +32,60 @@ def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, geometry: GeometryA
         frame=np.empty((n, 3, 3), np.float32), wo=np.empty((n, 3), np.float32),
         lobes=bsdf.lobe_rows(n), cut=np.empty(n, bool), scatters=np.empty(n, bool), triangle=hits.triangle,
         st=np.empty((n, 2), np.float32), curvature=np.zeros(n, np.float32), texture=np.zeros(n, np.float32))
-    _surface_kernel(alive, hits.triangle, hits.u, hits.v, hits.t, queue.direction, queue.depth, queue.travelled, max_depth,
-                    geometry, materials, curvature, scratch(3), scratch(3), scratch(shading.MATERIAL_FIELDS),
+    _surface_kernel(alive, queue.key, rng.step_dimension(step) + rng.PRESENCE, hits.triangle, hits.u, hits.v, hits.t,
+                    queue.direction, queue.depth, queue.travelled, max_depth, geometry, materials, curvature,
+                    scratch(3), scratch(3), scratch(shading.REGISTERS, 4), scratch(shading.MATERIAL_FIELDS),
                     out.position, out.facing, out.frame, out.wo, out.lobes, out.cut, out.scatters, out.st,
                     out.curvature)
     return out
 
 
+@inline
+def passes(inputs, u):
+    """Whether a path (or shadow ray, for random number u) passes through a hit with
+    material inputs `inputs`: cut out below opacityThreshold, or, without a threshold,
+    with probability 1 − opacity."""
+    opacity, threshold = inputs[shading.OPACITY], inputs[shading.OPACITY_THRESHOLD]
+    if threshold > 0:
+        return opacity < threshold
+    return opacity < 1 and u >= opacity
+
+
+@inline
+def mapped_normal(geometry, triangle, inputs, nx, ny, nz):
+    """The unit normal (nx, ny, nz) perturbed by the tangent-space normal inputs[NORMAL:+3]
+    in the frame (∂P/∂s, ∂P/∂t, n) of `triangle`, Gram–Schmidt orthonormalised (one
+    tangent frame per triangle); unchanged where the uvs are degenerate."""
+    corners, uvs = geometry.corner_positions, geometry.corner_uvs
+    e1x = corners[triangle, 1, 0] - corners[triangle, 0, 0]
+    e1y = corners[triangle, 1, 1] - corners[triangle, 0, 1]
+    e1z = corners[triangle, 1, 2] - corners[triangle, 0, 2]
+    e2x = corners[triangle, 2, 0] - corners[triangle, 0, 0]
+    e2y = corners[triangle, 2, 1] - corners[triangle, 0, 1]
+    e2z = corners[triangle, 2, 2] - corners[triangle, 0, 2]
+    ds1, dt1 = uvs[triangle, 1, 0] - uvs[triangle, 0, 0], uvs[triangle, 1, 1] - uvs[triangle, 0, 1]
+    ds2, dt2 = uvs[triangle, 2, 0] - uvs[triangle, 0, 0], uvs[triangle, 2, 1] - uvs[triangle, 0, 1]
+    det = ds1 * dt2 - ds2 * dt1
+    if not abs(det) > 1e-20:
+        return nx, ny, nz
+    tx, ty, tz = (e1x * dt2 - e2x * dt1) / det, (e1y * dt2 - e2y * dt1) / det, (e1z * dt2 - e2z * dt1) / det
+    bx, by, bz = (e2x * ds1 - e1x * ds2) / det, (e2y * ds1 - e1y * ds2) / det, (e2z * ds1 - e1z * ds2) / det
+    along = tx * nx + ty * ny + tz * nz
+    tx, ty, tz = normalized(tx - along * nx, ty - along * ny, tz - along * nz, 1e-30)
+    cx, cy, cz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx  # n × t
+    if cx * bx + cy * by + cz * bz < 0:  # mirrored uvs: the bitangent runs the other way
+        cx, cy, cz = -cx, -cy, -cz
+    x, y, z = inputs[shading.NORMAL], inputs[shading.NORMAL + 1], inputs[shading.NORMAL + 2]
+    mx, my, mz = normalized(x * tx + y * cx + z * nx, x * ty + y * cy + z * ny, x * tz + y * cz + z * nz, 1e-30)
+    if not (mx * mx + my * my + mz * mz) > 0.5:
+        return nx, ny, nz
+    return mx, my, mz
+
+
 @kernel
-def _surface_kernel(alive, triangle, bary_u, bary_v, t_hit, direction, depth, travelled, max_depth, geometry, materials,
-                    curvature, point, normal, inputs, position_out, facing_out, frame_out, wo_out, lobes_out, cut_out, scatters_out, st_out,
-                    curvature_out):
+def _surface_kernel(alive, key, presence_dimension, triangle, bary_u, bary_v, t_hit, direction, depth, travelled,
+                    max_depth, geometry, materials, curvature, point, normal, registers, inputs, position_out,
+                    facing_out, frame_out, wo_out, lobes_out, cut_out, scatters_out, st_out, curvature_out):
     has_curvature = len(curvature) > 0
     for lane in range(len(triangle)):
         if not alive[lane]:
@@ -52,20 +97,17 @@ def _surface_kernel(alive, triangle, bary_u, bary_v, t_hit, direction, depth, tr
         travelled[lane] += t_hit[lane]
         shading.interpolate3(geometry.corner_positions, tri, u, v, point)
         shading.interpolate3(geometry.corner_normals, tri, u, v, normal)
-        s, t = shading.interpolate_st(geometry.corner_uvs, tri, u, v)
+        s, t = shading.shade_point(materials, geometry, tri, u, v, registers, inputs)
         gx, gy, gz = geometry.geometric_normal[tri, 0], geometry.geometric_normal[tri, 1], geometry.geometric_normal[tri, 2]
         wx, wy, wz = -direction[lane, 0], -direction[lane, 1], -direction[lane, 2]
         cos_geometric = gx * wx + gy * wy + gz * wz
-        material = geometry.triangle_material[tri]
-        shading.material_inputs(materials.constants, materials.slot_input, materials.textured, materials.input_ints,
-                                materials.input_floats, materials.texels, materials.texture_info, material, s, t,
-                                inputs)
-        threshold = inputs[shading.OPACITY_THRESHOLD]
-        cut = threshold > 0 and inputs[shading.OPACITY] < threshold
+        cut = passes(inputs, rng.uniform(key[lane], presence_dimension))
         scatters = not cut and depth[lane] < max_depth
+        nx, ny, nz = normalized(normal[0], normal[1], normal[2], 1e-12)
+        if inputs[shading.HAS_NORMAL] > 0:
+            nx, ny, nz = mapped_normal(geometry, tri, inputs, nx, ny, nz)
         if cos_geometric < 0:
             gx, gy, gz = -gx, -gy, -gz
-        nx, ny, nz = normalized(normal[0], normal[1], normal[2], 1e-12)
         if nx * gx + ny * gy + nz * gz < 0:
             nx, ny, nz = -nx, -ny, -nz
         if nx * wx + ny * wy + nz * wz <= 1e-4:
@@ -77,12 +119,7 @@ def _surface_kernel(alive, triangle, bary_u, bary_v, t_hit, direction, depth, tr
         frame[2, 0], frame[2, 1], frame[2, 2] = nx, ny, nz
         ox, oy, oz = tx * wx + ty * wy + tz * wz, bx * wx + by * wy + bz * wz, nx * wx + ny * wy + nz * wz
         wo_out[lane, 0], wo_out[lane, 1], wo_out[lane, 2] = ox, oy, oz
-        bsdf.prepare(lobes_out, lane, inputs[shading.DIFFUSE], inputs[shading.DIFFUSE + 1],
-                     inputs[shading.DIFFUSE + 2], inputs[shading.SPECULAR], inputs[shading.SPECULAR + 1],
-                     inputs[shading.SPECULAR + 2], inputs[shading.ROUGHNESS], inputs[shading.METALLIC],
-                     inputs[shading.OPACITY], inputs[shading.CLEARCOAT], inputs[shading.CLEARCOAT_ROUGHNESS],
-                     inputs[shading.USE_SPECULAR_WORKFLOW] > 0, inputs[shading.IOR], threshold, oz,
-                     cos_geometric > 0, scatters)
+        bsdf.prepare(lobes_out, lane, inputs, oz, cos_geometric > 0, scatters)
         position_out[lane, 0], position_out[lane, 1], position_out[lane, 2] = point[0], point[1], point[2]
         facing_out[lane, 0], facing_out[lane, 1], facing_out[lane, 2] = gx, gy, gz
         cut_out[lane], scatters_out[lane] = cut, scatters
