@@ -15,13 +15,16 @@ and shared by every placement of it (instances, and prims that read the same opi
 * the degenerate-triangle test: |e1 × e2| / (longest edge)² does not change under a
   similarity (rotation, mirror, uniform scale), so for those placements the object-space
   test holds; other placements test their world-space triangles;
-* the int32 and float32 arrays a scene.Mesh shares (triangles, normal indices, uvs), read-only.
+* the int32 and float32 arrays a scene.Mesh shares (triangles, normal indices, uvs,
+  primvars), read-only. Constant and uniform primvars stay the broadcast views the reader
+  made (:func:`_select_corners`): a constant one costs its placements no per-corner memory.
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import Mapping
 
 import numpy as np
 
@@ -59,12 +62,14 @@ class _Layout:
     normal_indices : (k, 3) int32 or None
     uvs            : (k, 3, 2) float32 or None
     kept           : (k,) int64 the surface triangles kept, or None for all of them
+    primvars       : name → (k, 3, w) float32 (stride-0 views stay views: _select_corners)
     """
 
     triangles: np.ndarray
     normal_indices: np.ndarray | None
     uvs: np.ndarray | None
     kept: np.ndarray | None
+    primvars: Mapping[str, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,7 +116,8 @@ class PreparedSurface:
             normal_indices = triangles  # one normal per point: the same array
         else:
             normal_indices = corners(self.normal_indices, INDEX)
-        return _Layout(triangles, normal_indices, corners(surface.uvs, FLOAT), kept)
+        primvars = {name: _select_corners(values, kept, mirrored) for name, values in surface.primvars.items()}
+        return _Layout(triangles, normal_indices, corners(surface.uvs, FLOAT), kept, primvars)
 
 
 def prepare_surface(surface: LocalSurface) -> PreparedSurface:
@@ -159,6 +165,7 @@ def place_surface(
     similarity = _is_similarity(linear)
     layout = prepared.layout(mirrored, drop_degenerate=similarity)
     triangles, normal_indices, uvs = layout.triangles, layout.normal_indices, layout.uvs
+    primvars = layout.primvars
     if layout.kept is not None:
         triangle_material = triangle_material[layout.kept]
     if similarity:
@@ -171,6 +178,7 @@ def place_surface(
             triangles, triangle_material = triangles[keep], triangle_material[keep]
             normal_indices = None if normal_indices is None else normal_indices[keep]
             uvs = None if uvs is None else uvs[keep]
+            primvars = {name: _select_corners(values, np.flatnonzero(keep), False) for name, values in primvars.items()}
     if dropped:
         diagnostics.note(
             "degenerate-triangles",
@@ -197,6 +205,7 @@ def place_surface(
         uvs=uvs,
         triangle_material=np.ascontiguousarray(triangle_material, dtype=INDEX),
         instance=int(instance),
+        primvars=primvars,
     )
 
 
@@ -253,6 +262,33 @@ def _triangle_geometry(points: np.ndarray, triangles: np.ndarray) -> tuple[np.nd
 
 def _squared_length(vectors: np.ndarray) -> np.ndarray:
     return vectors[0] * vectors[0] + vectors[1] * vectors[1] + vectors[2] * vectors[2]
+
+
+def _select_corners(values: np.ndarray, rows: np.ndarray | None, mirrored: bool) -> np.ndarray:
+    """(k, 3, w) float32 read-only: the triangles ``rows`` (None: all) of (t, 3, w) per-corner
+    ``values``, corners 1 and 2 swapped when ``mirrored``.
+
+    Values equal at a triangle's corners (stride 0 over the corners: uniform and constant
+    primvars) come back as such a view again, built from the rows' one value each, or from
+    the one value of them all (stride 0 over the triangles too), which np.take would write out
+    at every corner; swapping equal corners changes nothing.
+    """
+    count = len(values) if rows is None else len(rows)
+    width = values.shape[2]
+    if values.strides[1] == 0:
+        if values.strides[0] == 0 or len(values) == 0:
+            value = np.asarray(values[:1, 0], dtype=FLOAT)  # (1, w) or (0, w)
+            return np.broadcast_to(value[:, None, :], (count, 3, width))
+        per_triangle = values[:, 0] if rows is None else np.take(values[:, 0], rows, axis=0)
+        per_triangle = np.ascontiguousarray(per_triangle, dtype=FLOAT)
+        return np.broadcast_to(per_triangle[:, None, :], (count, 3, width))
+    if rows is None and not mirrored and values.dtype == FLOAT and not values.flags.writeable:
+        return values  # the surface's own read-only array, shared as it is
+    if rows is not None:
+        values = np.take(values, rows, axis=0)
+    if mirrored:
+        values = values[:, _MIRRORED]
+    return _read_only(np.array(values, dtype=FLOAT))  # a copy: the caller's array stays as it was
 
 
 def _read_only(array: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ from .lights import read_light
 from .materials import MaterialLibrary, ResolvedMaterial, display_color
 from .placement import PreparedSurface, place_surface, prepare_surface
 from .skinning import SkinnedPoser
-from .surfaces import LocalSurface, mesh_opinions, read_mesh
+from .surfaces import LocalSurface, find_primvar, mesh_opinions, read_mesh, with_constant_primvars
 from .transforms import column_matrix
 from .textures import TextureLibrary
 from .walk import GprimPlacement, walk_stage
@@ -95,9 +95,10 @@ class _MeshBuilder:
         self._materials = materials
         self._subdiv_level = subdiv_level
         self._poser = SkinnedPoser(context.stage, context.time, context.diagnostics, xform_cache=context.xform_cache)
-        # (prototype prim path, uv primvar) → surface, and mesh_opinions key → (surface, the
-        # path it was read under, the notes of its read).
-        self._surfaces: dict[tuple[str, str], PreparedSurface] = {}
+        # (prototype prim path, uv primvar, material primvars, where they are found: see
+        # _primvar_owners) → surface, and mesh_opinions key → (surface, the path it was read
+        # under, the notes of its read).
+        self._surfaces: dict[tuple, PreparedSurface] = {}
         self._by_opinions: dict[tuple, tuple[PreparedSurface, str, list[tuple]]] = {}
 
     def build(self, placement: GprimPlacement) -> Mesh | None:
@@ -114,12 +115,19 @@ class _MeshBuilder:
             ),
             _DEFAULT_UV_PRIMVAR,
         )
+        # What the primvar readers of the mesh's materials read, in one order whatever the
+        # order of the materials (the surface cache's key).
+        primvars = tuple(sorted({
+            name for resolved in [mesh_material, *(m for _, m in subset_materials)] for name in resolved.primvars
+        }))
         world_from_local = placement.world_from_local
         posed = self._poser.posed(prim) if prim.IsA(UsdGeom.Mesh) else None
         if posed is None:
-            surface = self._surface(prim, uv_primvar)
+            surface = self._surface(prim, uv_primvar, primvars)
         else:
-            surface = prepare_surface(self._read_mesh(prim, uv_primvar, posed.points, context.diagnostics))
+            surface = prepare_surface(
+                self._read_mesh(prim, uv_primvar, primvars, posed.points, context.diagnostics)
+            )
             # The skinned points sit in the skeleton's space: replace the prim's own world
             # transform by it (and keep a point instance's placement of the prim, if any).
             prim_world = column_matrix(context.xform_cache.GetLocalToWorldTransform(prim))
@@ -144,11 +152,16 @@ class _MeshBuilder:
         )
 
     def _read_mesh(
-        self, prim: Usd.Prim, uv_primvar: str, points: np.ndarray | None, diagnostics: Diagnostics
+        self,
+        prim: Usd.Prim,
+        uv_primvar: str,
+        primvars: tuple[str, ...],
+        points: np.ndarray | None,
+        diagnostics: Diagnostics,
     ) -> LocalSurface:
         context = self._context
         return read_mesh(prim, context.time, uv_primvar, diagnostics, context.file,
-                         subdiv_level=self._subdiv_level, points=points)
+                         subdiv_level=self._subdiv_level, points=points, primvars=primvars)
 
     def _subset_materials(
         self, prim: Usd.Prim, color: tuple[float, float, float] | None
@@ -164,16 +177,19 @@ class _MeshBuilder:
             subsets.append((faces, self._materials.resolve(material, color)))
         return subsets
 
-    def _surface(self, prim: Usd.Prim, uv_primvar: str) -> PreparedSurface:
+    def _surface(self, prim: Usd.Prim, uv_primvar: str, primvars: tuple[str, ...]) -> PreparedSurface:
         source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
-        key = (str(source.GetPath()), uv_primvar)
+        key = (str(source.GetPath()), uv_primvar, primvars, _primvar_owners(prim, primvars))
         if key in self._surfaces:
             return self._surfaces[key]
         context = self._context
         if not prim.IsA(UsdGeom.Mesh):
-            surface = prepare_surface(tessellate(prim, context.time))
+            shape = tessellate(prim, context.time)
+            if primvars:
+                shape = with_constant_primvars(shape, prim, context.time, primvars, context.diagnostics)
+            surface = prepare_surface(shape)
         else:
-            opinions = mesh_opinions(prim, context.time, uv_primvar)
+            opinions = mesh_opinions(prim, context.time, uv_primvar, primvars)
             path = str(prim.GetPath())
             if opinions in self._by_opinions:
                 surface, read_path, notes = self._by_opinions[opinions]
@@ -183,11 +199,27 @@ class _MeshBuilder:
                     context.diagnostics.note(kind, template, noted, count)
             else:
                 recorder = _NoteRecorder(context.diagnostics)
-                surface = prepare_surface(self._read_mesh(prim, uv_primvar, None, recorder))
+                surface = prepare_surface(self._read_mesh(prim, uv_primvar, primvars, None, recorder))
                 if opinions is not None:
                     self._by_opinions[opinions] = (surface, path, recorder.notes)
         self._surfaces[key] = surface
         return surface
+
+
+def _primvar_owners(prim: Usd.Prim, primvars: tuple[str, ...]) -> tuple[str, ...]:
+    """For each primvar, the path of the prim it is found on (surfaces.find_primvar; "" when
+    missing), in prototype terms inside a native instance's prototype: the instances of a
+    prototype share a surface only when they also inherit their constant primvars from the
+    same prims (a displayColor on each instance's root gives each its own)."""
+    owners = []
+    for name in primvars:
+        primvar = find_primvar(prim, name)
+        if primvar is None:
+            owners.append("")
+            continue
+        owner = primvar.GetAttr().GetPrim()
+        owners.append(str((owner.GetPrimInPrototype() if owner.IsInstanceProxy() else owner).GetPath()))
+    return tuple(owners)
 
 
 class _NoteRecorder:

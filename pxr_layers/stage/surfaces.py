@@ -5,6 +5,10 @@ refined to the requested level with :mod:`.subdivision` (OpenSubdiv's rules, lim
 limit normals) and their quads split in two; as the UsdGeom schema says, their authored
 normals are ignored.
 
+Besides the uv primvar, :func:`read_mesh` reads the primvars materials' primvar readers name
+(any interpolation, 1–4 components) per triangle corner; constant ones (inherited from
+ancestors too) cost no per-corner memory: :func:`constant_primvar` explains.
+
 The result, :class:`LocalSurface`, is still in the gprim's own space and stage units; it is
 computed once per distinct surface (a prototype, or prims that read the same opinions: see
 :func:`mesh_opinions`) and placed in the world (possibly many times) by :mod:`.placement`.
@@ -12,7 +16,8 @@ computed once per distinct surface (a prototype, or prims that read the same opi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
+from typing import Mapping
 
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom
@@ -41,6 +46,12 @@ class LocalSurface:
     triangle_face : (t,) int64 index of the authored face each triangle comes from
                     (GeomSubsets select faces), also for refined subdivision surfaces
     face_count    : number of authored faces
+    primvars      : name (without ``primvars:``) → (t, 3, w) float32 values per corner,
+                    w = 1–4 components, of the primvars asked for that the gprim has
+                    (or inherits: constant ones); read-only. Constant primvars are
+                    ``np.broadcast_to`` views of one value (strides 0, 0, 4), uniform ones
+                    views of one row per triangle (stride 0 over the corners): see
+                    :func:`constant_primvar`
     """
 
     points: np.ndarray
@@ -50,6 +61,7 @@ class LocalSurface:
     uvs: np.ndarray | None
     triangle_face: np.ndarray
     face_count: int
+    primvars: Mapping[str, np.ndarray] = field(default_factory=dict)
 
 
 def _as_array(value, width: int, dtype=np.float64) -> np.ndarray:
@@ -69,7 +81,7 @@ def affordable_subdiv_level(face_count: int, asked: int) -> int:
 
 
 # Every attribute read_mesh reads (their metadata too: interpolation, elementSize), but the
-# uv primvar and its indices, whose name mesh_opinions is given.
+# uv primvar and the material primvars and their indices, whose names mesh_opinions is given.
 _SURFACE_ATTRIBUTES = (
     "points", "faceVertexCounts", "faceVertexIndices", "holeIndices", "orientation",
     "subdivisionScheme", "normals", "primvars:normals", "primvars:normals:indices",
@@ -78,15 +90,27 @@ _SURFACE_ATTRIBUTES = (
 )
 
 
-def mesh_opinions(prim: Usd.Prim, time: Usd.TimeCode, uv_primvar: str) -> tuple | None:
+def mesh_opinions(
+    prim: Usd.Prim, time: Usd.TimeCode, uv_primvar: str, primvars: tuple[str, ...] = ()
+) -> tuple | None:
     """Where the values read_mesh reads come from: for each attribute, the (layer, spec path)
     of every opinion on it. Two meshes with equal keys read the same surface (prims that
     reference one asset, as the OpenChessSet's Black and White pieces do). None when a value
     might vary in time: the same specs then give different values under different layer
-    offsets."""
+    offsets.
+
+    primvars : the material primvars read_mesh is asked for; a constant one inherited from an
+               ancestor counts with the ancestor's opinions (the same asset under two
+               differently coloured parents does not share a surface)
+    """
+    attributes = [prim.GetAttribute(name) for name in (
+        *_SURFACE_ATTRIBUTES, f"primvars:{uv_primvar}", f"primvars:{uv_primvar}:indices"
+    )]
+    for name in primvars:
+        primvar = find_primvar(prim, name)
+        attributes += [primvar.GetAttr(), primvar.GetIndicesAttr()] if primvar else [None, None]
     key = []
-    for name in (*_SURFACE_ATTRIBUTES, f"primvars:{uv_primvar}", f"primvars:{uv_primvar}:indices"):
-        attribute = prim.GetAttribute(name)
+    for attribute in attributes:
         if not attribute:
             key.append(())
             continue
@@ -95,6 +119,14 @@ def mesh_opinions(prim: Usd.Prim, time: Usd.TimeCode, uv_primvar: str) -> tuple 
         stack = attribute.GetPropertyStack(time)
         key.append(tuple((spec.layer.identifier, spec.path) for spec in stack))
     return tuple(key)
+
+
+def find_primvar(prim: Usd.Prim, name: str) -> UsdGeom.Primvar | None:
+    """The primvar ``name`` (without ``primvars:``) that applies to ``prim``: its own when it
+    has a value, else a constant one of its nearest ancestor that has one (constant primvars
+    inherit down namespace); None when neither."""
+    primvar = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(name)
+    return primvar if primvar and primvar.HasAuthoredValue() else None
 
 
 def read_mesh(
@@ -106,8 +138,10 @@ def read_mesh(
     *,
     subdiv_level: int,
     points: np.ndarray | None = None,
+    primvars: tuple[str, ...] = (),
 ) -> LocalSurface:
-    """Triangulate a UsdGeom.Mesh with its normals and the ``uv_primvar`` primvar.
+    """Triangulate a UsdGeom.Mesh with its normals, the ``uv_primvar`` primvar and the
+    ``primvars`` its materials read.
 
     subdiv_level : refinement level of subdivision meshes, lowered for dense ones (see
                    MAX_REFINED_FACES); 0 (or ``subdivisionScheme = none``) fan-triangulates
@@ -115,6 +149,10 @@ def read_mesh(
     points       : (v, 3) object-space points (stage units) replacing the authored ones,
                    e.g. skinned (the authored normals, of the rest pose, are then replaced by
                    smooth normals of these points); None reads ``points`` at ``time``
+    primvars     : names (without ``primvars:``) of primvars to read into
+                   LocalSurface.primvars, of any interpolation, indexed or not, found with
+                   inheritance (find_primvar); missing ones are left out, ones of another type
+                   than 1–4 numbers or with too few values are left out with a note
 
     Faces with fewer than 3 vertices and faces listed in ``holeIndices`` produce no
     triangles. Raises StageError on NaN/infinite points or inconsistent topology.
@@ -143,7 +181,7 @@ def read_mesh(
         # UsdGeom: normals are ignored on subdivision surfaces; a wrong type is still reported.
         _authored_normals(mesh, time, diagnostics, path)
         return _subdivision_surface(
-            mesh, time, uv_primvar, diagnostics, path, points, counts, indices, scheme,
+            mesh, time, uv_primvar, primvars, diagnostics, path, points, counts, indices, scheme,
             subdiv_level,
         )
 
@@ -193,6 +231,7 @@ def read_mesh(
         uvs=uvs,
         triangle_face=triangle_face,
         face_count=face_count,
+        primvars=_polygon_primvars(prim, time, primvars, topology, diagnostics, path),
     )
 
 
@@ -403,6 +442,167 @@ def _expand(
     return np.take(values, topology.triangles, axis=0)
 
 
+# --- material primvars ------------------------------------------------------------------------
+
+# Components of a material primvar by the scalar type of its value: bool and integer values
+# are read as floats, quaternions, matrices, strings and the like are not read.
+_PRIMVAR_WIDTHS = {
+    **dict.fromkeys(("bool", "uchar", "int", "uint", "int64", "uint64", "half", "float", "double"), 1),
+    **dict.fromkeys(("int2", "half2", "float2", "double2", "texCoord2h", "texCoord2f", "texCoord2d"), 2),
+    **dict.fromkeys(
+        ("int3", "half3", "float3", "double3")
+        + tuple(f"{role}3{precision}" for role in ("color", "normal", "point", "vector", "texCoord")
+                for precision in "hfd"),
+        3,
+    ),
+    **dict.fromkeys(("int4", "half4", "float4", "double4", "color4h", "color4f", "color4d"), 4),
+}
+_MAX_PRIMVAR_WIDTH = 4
+
+
+def constant_primvar(value, triangle_count: int, dtype=np.float32) -> np.ndarray:
+    """(t, 3, w) float32 (or ``dtype``) read-only view of one w-component value at every corner.
+
+    It costs w floats, not 3·t·w: ``np.broadcast_to`` gives strides (0, 0, 4). Slices stay
+    such views; np.take and fancy indexing would write every corner out, which is why
+    placement selects the rows of stride-0 arrays through their one row or value.
+    """
+    value = np.ascontiguousarray(value, dtype=dtype).reshape(-1)
+    return np.broadcast_to(value, (triangle_count, 3, len(value)))
+
+
+def _uniform_primvar(per_triangle: np.ndarray, dtype=np.float32) -> np.ndarray:
+    """(t, 3, w) read-only view of (t, w) values, one per triangle (corner stride 0)."""
+    per_triangle = np.ascontiguousarray(per_triangle, dtype=dtype)
+    return np.broadcast_to(per_triangle[:, None, :], (len(per_triangle), 3, per_triangle.shape[1]))
+
+
+def _primvar_array(
+    value, primvar: UsdGeom.Primvar, diagnostics: Diagnostics, path: str
+) -> np.ndarray | None:
+    """(n, w) float64 elements of a material primvar's ``value`` (an array, or one element
+    for a non-array primvar), w = 1–4 from its type and elementSize; None, noted, for
+    other types."""
+    type_name = primvar.GetTypeName()
+    width = _PRIMVAR_WIDTHS.get(str(type_name.scalarType))
+    element_size = primvar.GetElementSize()
+    if width is not None and element_size > 1:
+        # elementSize groups that many values per element: only scalars make vectors of it.
+        width = width * element_size if width == 1 else None
+    array = np.asarray(value)
+    if (
+        width is None
+        or width > _MAX_PRIMVAR_WIDTH
+        or array.dtype.kind not in "biuf"
+        or array.size % width
+        or (not type_name.isArray and array.size != width)
+    ):
+        _note_bad_type(diagnostics, path, primvar.GetName(), value)
+        return None
+    return array.astype(np.float64).reshape(-1, width)
+
+
+def _corner_values(
+    values: np.ndarray,
+    interpolation: str,
+    triangle_face: np.ndarray,
+    corners: np.ndarray,
+    triangles: np.ndarray,
+    dtype=np.float32,
+) -> np.ndarray:
+    """(t, 3, w) float32 (or ``dtype``) values per triangle corner of a primvar with enough
+    ``values``.
+
+    values        : (n, w): one (constant), per face (uniform), per ``triangles`` index
+                    (vertex, varying) or per ``corners`` index (faceVarying)
+    triangle_face : (t,) face of each triangle, indexing uniform values
+    corners       : (t, 3) indices of faceVarying values
+    triangles     : (t, 3) indices of vertex and varying values
+    Constant and uniform primvars come back as read-only views (constant_primvar).
+    """
+    if interpolation == UsdGeom.Tokens.constant:
+        return constant_primvar(values[0], len(triangles), dtype)
+    if interpolation == UsdGeom.Tokens.uniform:
+        return _uniform_primvar(np.take(values, triangle_face, axis=0), dtype)
+    index = corners if interpolation == UsdGeom.Tokens.faceVarying else triangles
+    return np.take(values.astype(dtype, copy=False), index, axis=0)
+
+
+def _read_only(primvars: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``primvars`` with every array made read-only (the views already are)."""
+    for values in primvars.values():
+        values.flags.writeable = False
+    return primvars
+
+
+def _polygon_primvars(
+    prim: Usd.Prim,
+    time: Usd.TimeCode,
+    names: tuple[str, ...],
+    topology: _Topology,
+    diagnostics: Diagnostics,
+    path: str,
+) -> dict[str, np.ndarray]:
+    """name → (t, 3, w) float32 per corner of a polygon mesh, for those of ``names`` it has
+    (see read_mesh)."""
+    result = {}
+    for name in names:
+        primvar = find_primvar(prim, name)
+        if primvar is None:
+            continue
+        raw = primvar.ComputeFlattened(time)
+        values = None if raw is None else _primvar_array(raw, primvar, diagnostics, path)
+        if values is None:
+            continue
+        interpolation = primvar.GetInterpolation()
+        expected = _expected_count(
+            interpolation, topology.point_count, topology.face_count, topology.corner_count
+        )
+        if expected is None or len(values) < expected:
+            _note_too_few(diagnostics, path, name, len(values), interpolation)
+            continue
+        result[name] = _corner_values(
+            values, interpolation, topology.triangle_face, topology.corners, topology.triangles
+        )
+    return _read_only(result)
+
+
+def with_constant_primvars(
+    surface: LocalSurface,
+    prim: Usd.Prim,
+    time: Usd.TimeCode,
+    names: tuple[str, ...],
+    diagnostics: Diagnostics,
+) -> LocalSurface:
+    """``surface`` (an implicit gprim's tessellation) with those of the primvars ``names``
+    that are constant on ``prim`` or inherited from its ancestors; other interpolations mean
+    nothing on a shape with no authored faces or points, and are left out with a note."""
+    path = str(prim.GetPath())
+    primvars = {}
+    for name in names:
+        primvar = find_primvar(prim, name)
+        if primvar is None:
+            continue
+        interpolation = primvar.GetInterpolation()
+        if interpolation != UsdGeom.Tokens.constant:
+            diagnostics.note(
+                "implicit-primvar",
+                "primvars that are not constant were ignored on implicit shapes (a cube, a "
+                "sphere, ... has no authored faces or points to vary over): {prims}",
+                f"{path} ({name}: {interpolation})",
+            )
+            continue
+        raw = primvar.ComputeFlattened(time)
+        values = None if raw is None else _primvar_array(raw, primvar, diagnostics, path)
+        if values is None:
+            continue
+        if len(values) < 1:
+            _note_too_few(diagnostics, path, name, 0, interpolation)
+            continue
+        primvars[name] = constant_primvar(values[0], len(surface.triangles))
+    return replace(surface, primvars=primvars)
+
+
 # --- subdivision surfaces ---------------------------------------------------------------------
 
 # The two triangles of a refined quad, in its corners: the winding of the quad.
@@ -411,11 +611,11 @@ _TRIANGLE = np.array([[0, 1, 2]], dtype=np.int64)
 
 
 @dataclass(frozen=True)
-class _SubdivisionUvs:
-    """The uv primvar of a subdivision mesh, ready for subdivision.refine."""
+class _SubdivisionPrimvar:
+    """A primvar of a subdivision mesh, ready for subdivision.refine."""
 
     interpolation: str
-    values: np.ndarray  # (n, 2): per point, per face, per corner (or indexed), or one
+    values: np.ndarray  # (n, w) float64: per point, per face, per corner (or indexed), or one
     indices: np.ndarray | None  # (c,) faceVarying indices in refinement corner order
 
 
@@ -423,6 +623,7 @@ def _subdivision_surface(
     mesh: UsdGeom.Mesh,
     time: Usd.TimeCode,
     uv_primvar: str,
+    primvar_names: tuple[str, ...],
     diagnostics: Diagnostics,
     path: str,
     points: np.ndarray,
@@ -431,7 +632,13 @@ def _subdivision_surface(
     scheme: str,
     level: int,
 ) -> LocalSurface:
-    """Refine a subdivision mesh ``level`` times to its limit surface and triangulate it."""
+    """Refine a subdivision mesh ``level`` times to its limit surface and triangulate it.
+
+    The uv primvar and the material primvars ``primvar_names`` go through the refinement
+    together: vertex ones limited like the points, varying ones linearly, faceVarying ones
+    as channels of their own (seams where their indices differ); uniform ones follow each
+    refined triangle's authored face, constant ones are broadcast.
+    """
     if scheme not in subdivision.SCHEMES:
         diagnostics.note(
             "subdivision-scheme",
@@ -444,9 +651,37 @@ def _subdivision_surface(
         # Reversed faces are right-handed: the refinement and its normals see the front.
         corner_order = _reversed_face_corners(counts)
         indices = indices[corner_order]
-    uvs = _subdivision_uvs(mesh, time, uv_primvar, counts, corner_order, len(points),
-                           diagnostics, path)
-    interpolation = None if uvs is None else uvs.interpolation
+
+    def prepared(primvar: UsdGeom.Primvar | None, width: int | None) -> _SubdivisionPrimvar | None:
+        if primvar is None:
+            return None
+        return _subdivision_primvar(primvar, time, width, counts, corner_order, len(points),
+                                    diagnostics, path)
+
+    # The uv primvar under the key None, then the material primvars by name.
+    uv = UsdGeom.PrimvarsAPI(mesh).GetPrimvar(uv_primvar)
+    channels: dict[str | None, _SubdivisionPrimvar] = {}
+    for key, primvar, width in [
+        (None, uv if uv and uv.HasAuthoredValue() else None, 2),
+        *((name, find_primvar(mesh.GetPrim(), name), None) for name in primvar_names),
+    ]:
+        channel = prepared(primvar, width)
+        if channel is not None:
+            channels[key] = channel
+
+    # Vertex and varying channels side by side as columns; each faceVarying one on its own.
+    column_start: dict[str | None, int] = {}
+    vertex_columns: list[np.ndarray] = []
+    varying_columns: list[np.ndarray] = []
+    face_varying: list[subdivision.FaceVaryingPrimvar] = []
+    for key, channel in channels.items():
+        if channel.interpolation == UsdGeom.Tokens.faceVarying:
+            column_start[key] = len(face_varying)
+            face_varying.append(subdivision.FaceVaryingPrimvar(channel.values, channel.indices))
+        elif channel.interpolation in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
+            columns = vertex_columns if channel.interpolation == UsdGeom.Tokens.vertex else varying_columns
+            column_start[key] = sum(block.shape[1] for block in columns)
+            columns.append(channel.values)
     refined = subdivision.refine(
         points,
         counts,
@@ -454,13 +689,9 @@ def _subdivision_surface(
         level,
         scheme=scheme,
         tags=_subdivision_tags(mesh, time, diagnostics, path),
-        vertex_data=uvs.values if interpolation == UsdGeom.Tokens.vertex else None,
-        varying_data=uvs.values if interpolation == UsdGeom.Tokens.varying else None,
-        face_varying=(
-            [subdivision.FaceVaryingPrimvar(uvs.values, uvs.indices)]
-            if interpolation == UsdGeom.Tokens.faceVarying
-            else []
-        ),
+        vertex_data=np.hstack(vertex_columns) if vertex_columns else None,
+        varying_data=np.hstack(varying_columns) if varying_columns else None,
+        face_varying=face_varying,
     )
     for warning in refined.warnings:
         diagnostics.note(
@@ -475,25 +706,30 @@ def _subdivision_surface(
     triangle_corners = (face_corner[:, None, None] + split[None]).reshape(-1, 3)
     triangles = refined.faces.reshape(-1)[triangle_corners]
     triangle_face = np.repeat(refined.face_origin, len(split))
-    triangle_uvs = None
-    if interpolation == UsdGeom.Tokens.faceVarying:
-        triangle_uvs = np.take(refined.face_varying[0].reshape(-1, 2), triangle_corners, axis=0)
-    elif interpolation == UsdGeom.Tokens.vertex:
-        triangle_uvs = np.take(refined.vertex_data, triangles, axis=0)
-    elif interpolation == UsdGeom.Tokens.varying:
-        triangle_uvs = np.take(refined.varying_data, triangles, axis=0)
-    elif interpolation == UsdGeom.Tokens.uniform:
-        triangle_uvs = np.repeat(uvs.values[triangle_face][:, None, :], 3, axis=1)
-    elif interpolation == UsdGeom.Tokens.constant:
-        triangle_uvs = np.broadcast_to(uvs.values[0], (len(triangles), 3, 2)).copy()
+
+    per_corner: dict[str | None, np.ndarray] = {}  # float32, but the uvs' float64
+    for key, channel in channels.items():
+        interpolation, values = channel.interpolation, channel.values
+        width = values.shape[1]
+        if interpolation == UsdGeom.Tokens.faceVarying:
+            values = refined.face_varying[column_start[key]].reshape(-1, width)
+        elif interpolation in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
+            data = refined.vertex_data if interpolation == UsdGeom.Tokens.vertex else refined.varying_data
+            start = column_start[key]
+            values = data[:, start:start + width]
+        per_corner[key] = _corner_values(values, interpolation, triangle_face, triangle_corners,
+                                         triangles, np.float32 if key is not None else np.float64)
+    uvs = per_corner.pop(None, None)
     return LocalSurface(
         points=refined.points,
         triangles=triangles,
         normals=np.take(refined.normals.reshape(-1, 3), triangle_corners, axis=0),
         smooth=True,
-        uvs=triangle_uvs,
+        # (t, 3, 2) of its own, as ever: constant and uniform uvs written out
+        uvs=uvs if uvs is None or uvs.flags.writeable else np.array(uvs),
         triangle_face=triangle_face,
         face_count=len(counts),
+        primvars=_read_only(per_corner),
     )
 
 
@@ -553,30 +789,36 @@ def _subdivision_tags(
     )
 
 
-def _subdivision_uvs(
-    mesh: UsdGeom.Mesh,
+def _subdivision_primvar(
+    primvar: UsdGeom.Primvar,
     time: Usd.TimeCode,
-    uv_primvar: str,
+    width: int | None,
     counts: np.ndarray,
     corner_order: np.ndarray | None,
     point_count: int,
     diagnostics: Diagnostics,
     path: str,
-) -> _SubdivisionUvs | None:
-    """The uv primvar for refinement: faceVarying keeps its indices (seams are where they
-    differ), per corner values follow ``corner_order`` (left-handed faces reversed)."""
-    primvar = UsdGeom.PrimvarsAPI(mesh).GetPrimvar(uv_primvar)
-    if not (primvar and primvar.HasAuthoredValue()):
-        return None
+) -> _SubdivisionPrimvar | None:
+    """A primvar for refinement: faceVarying keeps its indices (seams are where they differ),
+    per corner values follow ``corner_order`` (left-handed faces reversed). None, noted, when
+    its values do not fit.
+
+    width : 2 for the uv primvar (an array of 2-vectors of reals, nothing else); None for a
+            material primvar, whose type gives its 1–4 components
+    """
     interpolation = primvar.GetInterpolation()
     corner_count = int(counts.sum())
     indexed = interpolation == UsdGeom.Tokens.faceVarying and primvar.IsIndexed()
     raw = primvar.Get(time) if indexed else primvar.ComputeFlattened(time)
     if raw is None:
         return None
-    values = _vector_array(raw, 2)
+    if width is None:
+        values = _primvar_array(raw, primvar, diagnostics, path)
+    else:
+        values = _vector_array(raw, width)
+        if values is None:
+            _note_bad_type(diagnostics, path, primvar.GetName(), raw)
     if values is None:
-        _note_bad_type(diagnostics, path, primvar.GetName(), raw)
         return None
     name = primvar.GetPrimvarName()
     if indexed:
@@ -590,7 +832,7 @@ def _subdivision_uvs(
         indices = indices[:corner_count]
         if corner_order is not None:
             indices = indices[corner_order]
-        return _SubdivisionUvs(interpolation, values, indices)
+        return _SubdivisionPrimvar(interpolation, values, indices)
     expected = _expected_count(interpolation, point_count, len(counts), corner_count)
     if expected is None or len(values) < expected:
         _note_too_few(diagnostics, path, name, len(values), interpolation)
@@ -598,4 +840,4 @@ def _subdivision_uvs(
     values = values[:expected]
     if interpolation == UsdGeom.Tokens.faceVarying and corner_order is not None:
         values = values[corner_order]
-    return _SubdivisionUvs(interpolation, values, None)
+    return _SubdivisionPrimvar(interpolation, values, None)

@@ -4,6 +4,9 @@ Meshes come first, then the tessellated shapes of the area lights (rect, disk, s
 cylinder), so a ray that reaches a light hits real geometry and the same triangles are
 sampled for next-event estimation. Light triangles are wound so that their geometric
 normal points the way the light emits.
+
+Material primvars (scene.Mesh.primvars) become columns of one scene-wide table,
+``corner_primvars``: :func:`primvar_columns` lays them out.
 """
 
 from __future__ import annotations
@@ -36,6 +39,14 @@ class World:
     corner_normals   : (3 corners, 3, t) float32 unit shading normals (flat where none
                        authored)
     corner_uvs       : (3 corners, 2, t) float32 (zeros where none authored)
+    corner_primvars  : (3 corners, P, t) float32 material primvar values per corner, in the
+                       primvars' own units (colours linear RGB as authored), P = 0 when no
+                       material reads one; columns per primvar_columns
+    primvar_columns  : primvar name → (offset, width): its w components are columns
+                       offset .. offset + w − 1 of corner_primvars (a mesh with fewer
+                       components has zeros after its own), and column offset + w is its
+                       presence: 1.0 on the triangles of meshes that have the primvar, 0.0 on
+                       the others and on light shapes (the reader's fallback applies there)
     curvature_k1, curvature_k2 : (t,) float32 principal curvatures, 1/m, k1 ≥ k2, from
                        the shading normals (see curvature.py; 0 on flat geometry)
     principal_direction : (3, t) float32 unit direction of k1
@@ -62,6 +73,8 @@ class World:
     corner_positions: np.ndarray
     corner_normals: np.ndarray
     corner_uvs: np.ndarray
+    corner_primvars: np.ndarray
+    primvar_columns: dict[str, tuple[int, int]]
     curvature_k1: np.ndarray
     curvature_k2: np.ndarray
     principal_direction: np.ndarray
@@ -89,6 +102,9 @@ class GeometryArrays(NamedTuple):
     corner_uvs       : (t, 3 corners, 2) float32
     geometric_normal : (t, 3) float32
     area, triangle_material, triangle_light : (t,) as in World
+    corner_primvars  : (t, 3 corners, P) float32, World.corner_primvars triangle-major (columns
+                       and presence per World.primvar_columns); (t, 3, 0) when P = 0, so that
+                       kernels see the same array type either way
     """
 
     corner_positions: np.ndarray
@@ -98,6 +114,7 @@ class GeometryArrays(NamedTuple):
     area: np.ndarray
     triangle_material: np.ndarray
     triangle_light: np.ndarray
+    corner_primvars: np.ndarray
 
 
 def geometry_arrays(world: World) -> GeometryArrays:
@@ -106,7 +123,21 @@ def geometry_arrays(world: World) -> GeometryArrays:
 
     return GeometryArrays(triangle_major(world.corner_positions), triangle_major(world.corner_normals),
                           triangle_major(world.corner_uvs), triangle_major(world.geometric_normal), world.area,
-                          world.triangle_material, world.triangle_light)
+                          world.triangle_material, world.triangle_light, triangle_major(world.corner_primvars))
+
+
+def primvar_columns(meshes) -> dict[str, tuple[int, int]]:
+    """name → (offset, width) of every primvar of ``meshes`` (scene.Mesh) in corner_primvars:
+    names in sorted order, each its largest width over the meshes plus one presence column."""
+    widths: dict[str, int] = {}
+    for mesh in meshes:
+        for name, values in mesh.primvars.items():
+            widths[name] = max(widths.get(name, 0), values.shape[2])
+    columns, offset = {}, 0
+    for name in sorted(widths):
+        columns[name] = (offset, widths[name])
+        offset += widths[name] + 1
+    return columns
 
 
 def build_world(scene: SceneData) -> World:
@@ -140,6 +171,9 @@ def build_world(scene: SceneData) -> World:
     corner_positions = np.empty((3, 3, count), FLOAT)
     corner_normals = np.empty((3, 3, count), FLOAT)
     corner_uvs = np.empty((3, 2, count), FLOAT)
+    columns = primvar_columns(piece for piece, _ in pieces)
+    column_count = sum(width + 1 for _, width in columns.values())
+    corner_primvars = np.zeros((3, column_count, count), FLOAT)  # absent: values and presence 0
     triangle_object = np.empty(count, INDEX)
     triangle_material = np.empty(count, INDEX)
     triangle_light = np.empty(count, INDEX)
@@ -174,6 +208,12 @@ def build_world(scene: SceneData) -> World:
                 corner_uvs[:, :, out] = 0.0
             else:
                 corner_uvs[:, :, out] = np.moveaxis(piece.uvs[rows], 0, -1)
+            for name, values in piece.primvars.items():
+                offset, width = columns[name]
+                own_width = values.shape[2]
+                # (n, 3, w) → (3, w, n); slices of broadcast (constant) values stay views
+                corner_primvars[:, offset:offset + own_width, out] = np.transpose(values[rows], (1, 2, 0))
+                corner_primvars[:, offset + width, out] = 1.0
         vertex_offset += len(points)
         triangle_offset += size
 
@@ -189,6 +229,8 @@ def build_world(scene: SceneData) -> World:
         corner_positions=corner_positions,
         corner_normals=corner_normals,
         corner_uvs=corner_uvs,
+        corner_primvars=corner_primvars,
+        primvar_columns=columns,
         curvature_k1=k1,
         curvature_k2=k2,
         principal_direction=principal_direction,
