@@ -11,10 +11,7 @@ materialx.py. Anything else renders with the default material, after one note.
 
 from __future__ import annotations
 
-import glob
 import math
-import os
-import re
 from dataclasses import dataclass, replace
 from typing import Literal
 
@@ -26,7 +23,7 @@ from pxr_layers.shader_nodes import ShaderNode
 
 from .context import ReadContext
 from .materialx import MaterialXReader
-from .textures import TextureLibrary, anchored_asset_path
+from .textures import UDIM, TextureLibrary, anchored_asset_path, udim_tiles
 
 InputKind = Literal["color", "scalar", "float", "bool", "normal"]
 
@@ -66,7 +63,6 @@ _NOTED_PREVIEW_INPUTS = ("displacement",)
 _OUTPUT_CHANNELS = {"rgb": (0, 1, 2), "r": (0,), "g": (1,), "b": (2,), "a": (3,)}
 _WRAP_TOKENS = ("black", "clamp", "repeat", "mirror")
 _DEFAULT_UV_PRIMVAR = "st"
-_UDIM = "<UDIM>"
 _FLAT_NORMAL = (0.0, 0.0, 1.0, 0.0)
 
 
@@ -334,7 +330,7 @@ class _Network:
         asset = file_attribute.Get(self._context.time) if file_attribute else None
         color_space = str(_value_source(texture, "sourceColorSpace", self._context.time) or "auto")
         if isinstance(asset, Sdf.AssetPath) and asset.path:
-            if _UDIM in asset.path:
+            if UDIM in asset.path:
                 pattern = anchored_asset_path(file_attribute, asset, self._context.time)
                 for tile, path in udim_tiles(pattern):
                     loaded = self._textures.load(path, color_space, texture_path)
@@ -383,17 +379,6 @@ class _Network:
                 str(texture.GetPath()),
             )
         return from_file or "repeat"
-
-
-def udim_tiles(pattern: str) -> list[tuple[int, str]]:
-    """(tile, file) of the UDIM tiles 1001–9999 on disk for a path containing <UDIM>."""
-    head, tail = pattern.split(_UDIM, 1)
-    found = []
-    for path in glob.glob(glob.escape(head) + "[1-9][0-9][0-9][0-9]" + glob.escape(tail)):
-        digits = path[len(head):len(head) + 4]
-        if re.fullmatch(r"\d{4}", digits) and int(digits) >= 1001 and os.path.isfile(path):
-            found.append((int(digits), path))
-    return sorted(found)
 
 
 def _value_source(shader: UsdShade.Shader, input_name: str, time: Usd.TimeCode):

@@ -27,56 +27,10 @@ Image colour spaces: ``srgb_texture`` → sRGB, ``lin_rec709``/``raw``/none → 
 else raw with a note; only colour-typed images (color3/color4) are colour-managed, as in
 MaterialX. Address modes periodic/clamp/mirror/constant → repeat/clamp/mirror/black.
 
-Surface shaders. Fields are stored as plain tuples/floats whenever they fold to constants.
-
-standard_surface, through MaterialX's ``ND_standard_surface_to_UsdPreviewSurface``:
-
-    =========================  ======================================================
-    base · base_color          diffuse_color, mixed toward subsurface_color by
-                               subsurface and tinted by mix(1, coat_color, coat)
-    metalness                  metallic
-    specular_roughness         roughness
-    specular_IOR               ior (a constant; a connected ior is noted, 1.5 used)
-    coat · mean(coat_color)    clearcoat;  coat_roughness → clearcoat_roughness
-    emission · emission_color  emissive_color (tinted by the coat like the base)
-    mean(opacity)              opacity
-    transmission               transmission (not in the translation: read directly)
-    transmission_color         transmission_color;  thin_walled → thin_walled
-    normal ← normalmap         normal: the normalmap's tangent-space (in·2 − 1) with x, y
-                               times ``scale``; any other normal source is noted, ignored
-    ignored                    specular, specular_color (the metallic workflow's fixed
-                               F0), diffuse_roughness, sheen*, subsurface radius/scale,
-                               thin_film*, specular/coat anisotropy and rotation,
-                               coat_IOR, coat_normal, coat_affect_*, transmission depth/
-                               scatter/dispersion/extra_roughness, tangent
-    =========================  ======================================================
-
-open_pbr_surface, through MaterialX's ``ND_open_pbr_surface_to_standard_surface`` and then
-the standard_surface translation above (every ``X_out`` feeds standard_surface's ``X``):
-base_weight · base_color (darkened under the coat by coat_darkening) → diffuse_color;
-base_metalness → metallic; specular_roughness, mixed toward coat_roughness by coat_weight →
-roughness; specular_ior → ior; coat_weight · mean(coat_color) → clearcoat; coat_roughness;
-transmission_weight/transmission_color → transmission/transmission_color;
-geometry_opacity → opacity; geometry_thin_walled → thin_walled; geometry_normal ← normalmap
-→ normal. emission_luminance · emission_color → emissive_color unscaled: OpenPBR gives
-emission in nits and MaterialX's translation passes it through as standard_surface's
-``emission``; the tracer reads emissive_color as radiance on UsdLux's scale (nits), so no
-/1000 is applied. Ignored: specular_weight/color, fuzz (sheen), subsurface radius,
-thin_film, anisotropy, coat_ior, transmission depth/scatter/dispersion, base diffuse
-roughness.
-
-gltf_pbr, by hand: base_color → diffuse_color; metallic; roughness; normal ← normalmap;
-emissive · emissive_strength → emissive_color; clearcoat, clearcoat_roughness;
-transmission, tinted by base_color (KHR_materials_transmission) → transmission_color;
-thickness 0 → thin_walled (glTF without a volume is thin); ior; alpha_mode OPAQUE →
-opacity 1, MASK → opacity alpha with opacity_threshold alpha_cutoff, BLEND → opacity alpha.
-Ignored: occlusion, specular/specular_color, sheen, iridescence, anisotropy, attenuation,
-dispersion.
-
-UsdPreviewSurface (MaterialX's): inputs 1:1 (diffuseColor, emissiveColor, useSpecularWorkflow,
-specularColor, metallic, roughness, clearcoat, clearcoatRoughness, opacity,
-opacityThreshold, ior); normal as authored is the tangent-space normal (MaterialX's graph
-feeds normal·0.5 + 0.5 to a normalmap); displacement and occlusion are ignored.
+Surface shaders (standard_surface and OpenPBR through MaterialX's own translation graphs,
+gltf_pbr by hand, MaterialX's UsdPreviewSurface 1:1) become Material fields as docs/materials.md
+tabulates parameter by parameter. Fields are stored as plain tuples/floats whenever they fold
+to constants.
 
 Primvars: texcoord index 0, and the first vector2 geompropvalue, read the mesh's texcoord
 (``uv_primvars``, "st" for texcoord); other indices ("st1", …) and other geompropvalues and
@@ -97,7 +51,7 @@ from pxr import Sdf, Usd, UsdShade
 from pxr_layers.shader_nodes import ShaderNode, broadcast, constant, node, swizzle
 
 from .context import ReadContext
-from .textures import TextureLibrary, anchored_asset_path
+from .textures import UDIM, TextureLibrary, anchored_asset_path, udim_tiles
 
 MAX_DEPTH = 128
 """Nested node evaluations before a graph counts as runaway (cyclic). Each level costs a
@@ -555,10 +509,6 @@ def _image(ev: _Evaluator, element, out_type, output, frame, uv: ShaderNode | No
     filename, port = ev.string(element, "file", frame)
     if not filename or port is None:
         return default
-    if "<udim>" in filename.lower():  # TextureLibrary has no UDIM loading yet
-        ev.note("udim", "MaterialX UDIM textures are not read yet; their default values were used on: {prims}",
-                element.getName())
-        return default
     if uv is None:
         uv = ev.input(element, "texcoord", frame)
     color_space = "raw"
@@ -569,14 +519,26 @@ def _image(ev: _Evaluator, element, out_type, output, frame, uv: ShaderNode | No
         elif space not in ("", "lin_rec709", "raw"):
             ev.note(f"mtlx-color-space-{space}", f"MaterialX textures in colour space '{space}' were read "
                     "as raw (not converted) on: {prims}", element.getName())
-    loaded = ev.reader.textures.load(ev.reader.texture_path(filename, port), color_space, ev.material_path)
-    if loaded is None:
+    path = ev.reader.texture_path(filename, port)
+    if UDIM in path:
+        files = udim_tiles(path)
+        if not files:
+            ev.reader.context.diagnostics.warn(f"no UDIM tiles found for {path} (MaterialX image {ev.material_path} "
+                                               f"{element.getName()}); using its default value",
+                                               once_key=f"texture:{path}")
+    else:
+        files = [(0, path)]
+    tiles = []
+    for tile, file in files:
+        loaded = ev.reader.textures.load(file, color_space, ev.material_path)
+        if loaded is not None:
+            tiles.append((tile, loaded.index))
+    if not tiles:
         return default
     wrap = tuple(_WRAP.get(ev.string(element, name, frame)[0] or "periodic", "repeat")
                  for name in ("uaddressmode", "vaddressmode"))
     fallback = default.values if default.is_constant else (0.0, 0.0, 0.0, 0.0)
-    lookup = ShaderNode("texture", (uv,), values=tuple(float(v) for v in fallback), tiles=((0, loaded.index),),
-                        wrap=wrap)
+    lookup = ShaderNode("texture", (uv,), values=tuple(float(v) for v in fallback), tiles=tuple(tiles), wrap=wrap)
     return swizzle(lookup, tuple(range(_COMPONENTS.get(out_type, 3))))
 
 

@@ -19,8 +19,10 @@ arrays, shared by the scenes of those frames.
 from __future__ import annotations
 
 import dataclasses
+import glob
 import logging
 import os
+import re
 import tempfile
 import threading
 from dataclasses import dataclass, field
@@ -37,6 +39,7 @@ from .diagnostics import Diagnostics
 logger = logging.getLogger(__name__)
 
 ColorSpace = Literal["raw", "sRGB"]
+UDIM = "<UDIM>"  # the tile token of a texture path (Mari's convention, as USD and MaterialX use it)
 
 # OIIO's "wrapmodes" metadata ("s,t") uses RenderMan words; scene.py uses UsdUVTexture's.
 _OIIO_WRAP: dict[str, WrapMode] = {
@@ -133,6 +136,17 @@ def srgb_to_linear(values: np.ndarray) -> np.ndarray:
     # np.maximum keeps the power's base positive so negative inputs cannot produce NaN.
     curved = ((np.maximum(values, 0.04045) + 0.055) / 1.055) ** 2.4
     return np.where(values <= 0.04045, values / 12.92, curved).astype(FLOAT)
+
+
+def udim_tiles(pattern: str) -> list[tuple[int, str]]:
+    """(tile, file) of the UDIM tiles 1001–9999 on disk for a path containing <UDIM>."""
+    head, tail = pattern.split(UDIM, 1)
+    found = []
+    for path in glob.glob(glob.escape(head) + "[1-9][0-9][0-9][0-9]" + glob.escape(tail)):
+        digits = path[len(head):len(head) + 4]
+        if re.fullmatch(r"\d{4}", digits) and int(digits) >= 1001 and os.path.isfile(path):
+            found.append((int(digits), path))
+    return sorted(found)
 
 
 class TextureLibrary:

@@ -154,7 +154,8 @@ class Integrator:
                 break
             wants_norms = any(observer.wants_norms(step) for observer in observers)
             surfaces = surface(queue, hits, alive, step, geometry, materials,
-                               self.curvature if wants_norms else self.curvature[:0], settings.max_depth)
+                               self.curvature if wants_norms else self.curvature[:0], settings.max_depth,
+                               self.key, spp)
             if wants_norms and self.bounce_norms:
                 footprint = queue.travelled * self.pixel_angle / np.maximum(np.abs(surfaces.wo[:, 2]), 0.05)
                 self.bounce_norms.texture(surfaces, footprint)

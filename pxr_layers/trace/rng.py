@@ -10,6 +10,8 @@ wraps, as intended).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..compiled import inline
@@ -60,6 +62,17 @@ def uniform(key, dimension):
     """A float32 in [0, 1) (24 bits) for `dimension` of the stream `key`."""
     bits = mix64(key + (np.uint64(dimension) + _ONE) * _GOLDEN)
     return np.float32(bits >> _S40) * _TO_UNIT
+
+
+@inline
+def stratified(key, pixel, sample, spp, dimension):
+    """A float32 in [0, 1) for `dimension` of a pixel's sample `sample` out of `spp`, in the
+    sample's own stratum [sample, sample + 1)/spp, all strata shifted by one random offset
+    per pixel: a pixel's spp values cover [0, 1) evenly (a rotated lattice), so a choice
+    made with them splits the pixel's samples in exact proportion."""
+    offset = uniform(path_key(key, pixel, np.uint64(0xFFFFFFFF)), dimension)
+    value = (sample + offset) / spp
+    return np.float32(value - math.floor(value))
 
 
 def step_dimension(step: int) -> int:

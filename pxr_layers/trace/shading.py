@@ -256,6 +256,17 @@ def material_inputs(materials, material, s, t, corner_primvars, triangle, u, v, 
 
 
 @inline
+def pass_fraction(inputs):
+    """The fraction of paths (and of shadow-ray light) that passes through a hit whose
+    material inputs are `inputs`: all below opacityThreshold (cut out) and none above it;
+    without a threshold, 1 − opacity (presence)."""
+    opacity, threshold = inputs[OPACITY], inputs[OPACITY_THRESHOLD]
+    if threshold > 0:
+        return 1.0 if opacity < threshold else 0.0
+    return 1.0 - min(max(opacity, 0.0), 1.0)
+
+
+@inline
 def interpolate3(corners, triangle, u, v, out):
     """(1 − u − v)·c0 + u·c1 + v·c2 of `triangle`'s corners (t, 3 corners, 3) into out (3,)."""
     w = 1.0 - u - v

@@ -78,11 +78,7 @@ def _presence_kernel(triangle, bary_u, bary_v, geometry, materials, registers, i
             fraction_out[lane] = 0.0
             continue
         shading.shade_point(materials, geometry, tri, bary_u[lane], bary_v[lane], registers, inputs)
-        opacity, threshold = inputs[shading.OPACITY], inputs[shading.OPACITY_THRESHOLD]
-        if threshold > 0:
-            fraction_out[lane] = 1.0 if opacity < threshold else 0.0
-        else:
-            fraction_out[lane] = 1.0 - min(max(opacity, 0.0), 1.0)
+        fraction_out[lane] = shading.pass_fraction(inputs)
 
 
 @kernel

@@ -14,13 +14,16 @@ from .queues import Hits, PathQueue, SurfaceQueue
 
 
 def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry: GeometryArrays,
-            materials: MaterialArrays, curvature: np.ndarray, max_depth: int) -> SurfaceQueue:
+            materials: MaterialArrays, curvature: np.ndarray, max_depth: int, frame_key: np.uint64 = np.uint64(0),
+            spp: int = 0) -> SurfaceQueue:
     """The shading points of `queue`'s hits, for the lanes `alive` (n,) bool marks: those
     that hit a surface that is not a light (lights absorb what reaches them).
 
     Presence: a hit whose material's opacity is below its opacityThreshold is cut out, and
     with opacityThreshold 0 a fraction 1 − opacity of the paths is (chosen at random): the
-    path passes straight through. The shading normal is the interpolated normal, perturbed
+    path passes straight through. At step 0 with `spp`, that choice is stratified over each
+    pixel's samples (rng.stratified, keyed by `frame_key`), so a half-present surface seen
+    by the camera passes exactly half of them; later choices are independent. The shading normal is the interpolated normal, perturbed
     by the material's tangent-space normal (tangents ∂P/∂s, ∂P/∂t of the triangle), turned
     to the viewer's side of the geometric normal (and replaced by it where it would face
     away from the viewer). Paths at `max_depth` get no lobe. curvature: (t,) float32 C per
@@ -32,23 +35,13 @@ def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry
         frame=np.empty((n, 3, 3), np.float32), wo=np.empty((n, 3), np.float32),
         lobes=bsdf.lobe_rows(n), cut=np.empty(n, bool), scatters=np.empty(n, bool), triangle=hits.triangle,
         st=np.empty((n, 2), np.float32), curvature=np.zeros(n, np.float32), texture=np.zeros(n, np.float32))
-    _surface_kernel(alive, queue.key, rng.step_dimension(step) + rng.PRESENCE, hits.triangle, hits.u, hits.v, hits.t,
+    _surface_kernel(alive, queue.key, queue.pixel, queue.sample, frame_key, spp if step == 0 else 0,
+                    rng.step_dimension(step) + rng.PRESENCE, hits.triangle, hits.u, hits.v, hits.t,
                     queue.direction, queue.depth, queue.travelled, max_depth, geometry, materials, curvature,
                     scratch(3), scratch(3), scratch(shading.REGISTERS, 4), scratch(shading.MATERIAL_FIELDS),
                     out.position, out.facing, out.frame, out.wo, out.lobes, out.cut, out.scatters, out.st,
                     out.curvature)
     return out
-
-
-@inline
-def passes(inputs, u):
-    """Whether a path (or shadow ray, for random number u) passes through a hit with
-    material inputs `inputs`: cut out below opacityThreshold, or, without a threshold,
-    with probability 1 − opacity."""
-    opacity, threshold = inputs[shading.OPACITY], inputs[shading.OPACITY_THRESHOLD]
-    if threshold > 0:
-        return opacity < threshold
-    return opacity < 1 and u >= opacity
 
 
 @inline
@@ -83,7 +76,7 @@ def mapped_normal(geometry, triangle, inputs, nx, ny, nz):
 
 
 @kernel
-def _surface_kernel(alive, key, presence_dimension, triangle, bary_u, bary_v, t_hit, direction, depth, travelled,
+def _surface_kernel(alive, key, pixel, sample, frame_key, spp, presence_dimension, triangle, bary_u, bary_v, t_hit, direction, depth, travelled,
                     max_depth, geometry, materials, curvature, point, normal, registers, inputs, position_out,
                     facing_out, frame_out, wo_out, lobes_out, cut_out, scatters_out, st_out, curvature_out):
     has_curvature = len(curvature) > 0
@@ -101,7 +94,11 @@ def _surface_kernel(alive, key, presence_dimension, triangle, bary_u, bary_v, t_
         gx, gy, gz = geometry.geometric_normal[tri, 0], geometry.geometric_normal[tri, 1], geometry.geometric_normal[tri, 2]
         wx, wy, wz = -direction[lane, 0], -direction[lane, 1], -direction[lane, 2]
         cos_geometric = gx * wx + gy * wy + gz * wz
-        cut = passes(inputs, rng.uniform(key[lane], presence_dimension))
+        if spp > 0:
+            u_presence = rng.stratified(frame_key, pixel[lane], sample[lane], spp, presence_dimension)
+        else:
+            u_presence = rng.uniform(key[lane], presence_dimension)
+        cut = u_presence < shading.pass_fraction(inputs)
         scatters = not cut and depth[lane] < max_depth
         nx, ny, nz = normalized(normal[0], normal[1], normal[2], 1e-12)
         if inputs[shading.HAS_NORMAL] > 0:
