@@ -34,7 +34,9 @@ INDEX = np.int32
 class TextureImage:
     """A decoded image.
 
-    pixels : (h, w, c) float32, linear values (``sourceColorSpace`` already applied);
+    pixels : (h, w, c) float32, linear values (``sourceColorSpace`` already applied), the
+             file's channels: c = 1 grey, 2 grey + alpha, 3 RGB, 4 RGBA (lookups read
+             grey as rgb and a missing alpha as 1, as UsdUVTexture expands them);
              row 0 is the **top** row of the file, so UsdUVTexture's st = (0, 0) is
              ``pixels[h - 1, 0]``.
     """

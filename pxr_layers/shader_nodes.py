@@ -18,7 +18,7 @@ primvar        primvar ``name`` per shading point (interpolated), components pas
 texture        bilinear lookup of the image ``tiles`` at ``inputs[0]`` (s, t); ``tiles`` is
                ((0, texture),) for a plain image or ((tile, texture), ...) for UDIM tiles
                (tile = 1001 + ⌊s⌋ + 10·⌊t⌋, looked up at the fractional s, t). ``wrap`` is
-               (s, t). Texels are RGBA (stage/textures.py expands them); a missing UDIM
+               (s, t). Texels read as RGBA (grey is rgb, a missing alpha 1); a missing UDIM
                tile gives ``values`` (4), the fallback
 add, subtract, multiply, min, max          a ∘ b
 divide         a / b, 0 where b = 0

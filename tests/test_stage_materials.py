@@ -14,6 +14,7 @@ from pxr import Sdf, Usd, UsdGeom, UsdRender, UsdShade, Vt
 from pxr_layers.scene import DEFAULT_MATERIAL_PATH, Material
 from pxr_layers.shader_nodes import ShaderNode
 from pxr_layers.stage import load_stage
+from pxr_layers.trace.shading import MaterialTable, inputs_at
 
 QUAD = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]
 STRIP_POINTS = [(0, 0, 0), (1, 0, 0), (2, 0, 0), (0, 1, 0), (1, 1, 0), (2, 1, 0)]
@@ -36,18 +37,21 @@ class TextureInput:
 
 def texture_input(value, width: int) -> TextureInput:
     """Unpack the tree stage/materials.py builds for a UsdUVTexture output feeding an input
-    of `width` components: swizzles of (texel · scale + bias)."""
+    of `width` components: swizzles of (texel · scale + bias), without a scale of 1 or a
+    bias of 0."""
     assert isinstance(value, ShaderNode), value
     picked = (0, 1, 2, 3)  # component k of the input = component picked[k] of `node`
     node = value
     while node.op == "swizzle":
         picked = tuple(int(node.values[c]) if c >= 0 else c for c in picked)
         node = node.inputs[0]
-    assert node.op == "add" and node.inputs[0].op == "multiply", node
-    texel = node.inputs[0].inputs[0]
-    assert texel.op == "texture" and len(texel.tiles) == 1
-    return TextureInput(texel.tiles[0][1], picked[:width], node.inputs[0].inputs[1].values, node.inputs[1].values,
-                        *texel.wrap)
+    scale, bias = (1.0,) * 4, (0.0,) * 4  # identities are left out of the tree
+    if node.op == "add":
+        node, bias = node.inputs[0], node.inputs[1].values
+    if node.op == "multiply":
+        node, scale = node.inputs[0], node.inputs[1].values
+    assert node.op == "texture" and len(node.tiles) == 1, node
+    return TextureInput(node.tiles[0][1], picked[:width], scale, bias, *node.wrap)
 
 
 def new_stage(tmp_path) -> Usd.Stage:
@@ -307,11 +311,10 @@ def test_8bit_png_is_decoded_as_srgb_by_auto_and_kept_by_raw(tmp_path):
     assert len(scene.textures) == 2
     stored = PNG_VALUES.astype(np.float64) / 255.0
     decoded = scene.textures[auto.texture]
-    assert decoded.path == png and decoded.pixels.shape == (2, 2, 4)
+    assert decoded.path == png and decoded.pixels.shape == (2, 2, 3)  # the file's channels, no alpha added
     assert decoded.pixels.dtype == np.float32
-    np.testing.assert_allclose(decoded.pixels[:, :, :3], srgb_eotf(stored), atol=1e-6)
-    np.testing.assert_allclose(scene.textures[raw.texture].pixels[:, :, :3], stored, atol=1e-6)
-    np.testing.assert_allclose(decoded.pixels[:, :, 3], 1.0)
+    np.testing.assert_allclose(decoded.pixels, srgb_eotf(stored), atol=1e-6)
+    np.testing.assert_allclose(scene.textures[raw.texture].pixels, stored, atol=1e-6)
     # row 0 is the top row of the file
     np.testing.assert_allclose(scene.textures[raw.texture].pixels[0, 1, 0], 1.0)
 
@@ -365,10 +368,13 @@ def test_float_exr_is_raw_and_grey_images_expand_to_rgb(tmp_path):
     scene, _ = load(stage)
     by_mesh = {mesh.path: scene.materials[mesh.triangle_material[0]] for mesh in scene.meshes}
     hdr = scene.textures[texture_input(by_mesh["/hdr"].diffuse_color, 3).texture].pixels
-    np.testing.assert_allclose(hdr[0, 0], [0.5, 2.0, -1.0, 1.0])
+    np.testing.assert_allclose(hdr[0, 0], [0.5, 2.0, -1.0])
     grey_pixels = scene.textures[texture_input(by_mesh["/grey"].diffuse_color, 3).texture].pixels
-    # one channel is not a colour image: auto keeps it raw
-    np.testing.assert_allclose(grey_pixels[0, 0], [200 / 255] * 3 + [1.0], atol=1e-6)
+    # one channel is not a colour image: auto keeps it raw, and stores it as one channel
+    np.testing.assert_allclose(grey_pixels[0, 0], [200 / 255], atol=1e-6)
+    table = MaterialTable(scene).arrays  # ... which lookups read as grey rgb, alpha 1
+    grey_index = next(i for i, m in enumerate(scene.materials) if m.path == "/Looks/grey")
+    np.testing.assert_allclose(inputs_at(table, grey_index, [[0.5, 0.5]])[0, :3], [200 / 255] * 3, atol=1e-6)
 
 
 def test_scale_bias_channels_and_wrap_modes(tmp_path):

@@ -52,16 +52,9 @@ def decode_plain_file(path: str) -> np.ndarray:
     return np.asarray(pixels, dtype=FLOAT).reshape(spec.height, spec.width, spec.nchannels)
 
 
-def as_raw_rgba(stored: np.ndarray) -> np.ndarray:
-    """UsdUVTexture's channel expansion of raw values (textures.py documents the rule)."""
-    channels = stored.shape[2]
-    rgba = np.ones(stored.shape[:2] + (4,), dtype=FLOAT)
-    rgba[..., :3] = stored[..., :3] if channels >= 3 else stored[..., :1]
-    if channels == 2:
-        rgba[..., 3] = stored[..., 1]
-    elif channels >= 4:
-        rgba[..., 3] = stored[..., 3]
-    return rgba
+def as_raw(stored: np.ndarray) -> np.ndarray:
+    """Raw values as the library stores them: the file's channels, up to four (textures.py)."""
+    return np.asarray(stored[..., :4], dtype=FLOAT)
 
 
 def extracted(package: str, member: str, folder) -> str:
@@ -101,7 +94,7 @@ def test_package_members_decode_like_the_extracted_file(usdz_asset, tmp_path, pr
         image = library.images[loaded.index]
         assert image.path == member_path(usdz_asset, member)
         plain = extracted(usdz_asset, member, tmp_path / "extracted")
-        np.testing.assert_array_equal(image.pixels, as_raw_rgba(decode_plain_file(plain)))
+        np.testing.assert_array_equal(image.pixels, as_raw(decode_plain_file(plain)))
         # The whole decoding (colour space, wrap metadata) matches the plain file's too.
         from_plain = library.load(plain, "auto", "/Material/Texture")
         from_package = library.load(member_path(usdz_asset, member), "auto", "/Material/Texture")

@@ -64,9 +64,8 @@ class TextureSpectrum:
     def of_image(cls, pixels: np.ndarray) -> TextureSpectrum:
         """Measure T for every tile and level of `pixels` (h, w, c) float, row 0 = top."""
         image = np.asarray(pixels, dtype=np.float64)
-        channels = image.shape[2] if image.ndim == 3 else 1
-        if image.ndim == 3:
-            image = image[..., : min(channels, 3)].mean(axis=2)
+        if image.ndim == 3:  # the colour channels: RGB, or the grey of grey (+ alpha)
+            image = image[..., :3].mean(axis=2) if image.shape[2] >= 3 else image[..., 0]
         height, width = image.shape
         tile_h, tile_w = min(TILE, height), min(TILE, width)
         rows = _tile_starts(height, tile_h)

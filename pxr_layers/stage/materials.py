@@ -363,7 +363,11 @@ class _Network:
             texel = ShaderNode("texture", (uv,), values=fallback, tiles=tuple(tiles), wrap=wrap)
         else:
             texel = nodes.constant(*fallback)
-        value = nodes.node("add", nodes.node("multiply", texel, nodes.constant(*scale)), nodes.constant(*bias))
+        value = texel
+        if any(scale[c] != 1 for c in channels):  # the identities cost a step per shading point
+            value = nodes.node("multiply", value, nodes.constant(*scale))
+        if any(bias[c] != 0 for c in channels):
+            value = nodes.node("add", value, nodes.constant(*bias))
         if len(channels) == 1:
             return nodes.broadcast(nodes.swizzle(value, channels))
         return nodes.swizzle(value, (*channels, -1))

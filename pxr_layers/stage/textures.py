@@ -1,9 +1,10 @@
 """Decode textures once per (asset, colour space) with OpenImageIO.
 
-Pixels are stored linear, float32, (h, w, 4) with row 0 = the top row of the file, as
-scene.TextureImage documents. Channel expansion follows UsdUVTexture: one channel is grey
-(rgb = value, alpha = 1), two channels are grey + alpha, three get alpha = 1; channels past
-the fourth are dropped because no UsdUVTexture output can reach them.
+Pixels are stored linear, float32, (h, w, c) with row 0 = the top row of the file and the
+file's own channels (1 grey, 2 grey + alpha, 3 RGB, 4 RGBA), as scene.TextureImage
+documents: a grey roughness map costs one channel, not four. Lookups expand them as
+UsdUVTexture does (grey is rgb, a missing alpha is 1); channels past the fourth are dropped
+because no UsdUVTexture output can reach them.
 
 Textures arrive as resolved asset paths (Sdf.AssetPath.resolvedPath). A plain file on disk is
 opened by OIIO directly; anything else USD's asset resolver (Ar) resolved, a member of a
@@ -69,7 +70,7 @@ class _FileTexture:
     channels: int
     wrap_modes: tuple[WrapMode | None, WrapMode | None]
     decoded: _DecodedFile | None = None
-    images: dict[ColorSpace, np.ndarray] = field(default_factory=dict)  # (h, w, 4) read-only
+    images: dict[ColorSpace, np.ndarray] = field(default_factory=dict)  # (h, w, c) read-only
 
 
 _REMEMBERED: dict[tuple, _FileTexture] = {}
@@ -193,7 +194,7 @@ class TextureLibrary:
                     except OSError as error:
                         self._unreadable(path, user_prim, error)
                         return None
-                pixels = _expand_to_rgba(texture.decoded.pixels, color_space)
+                pixels = _linear(texture.decoded.pixels, color_space)
                 pixels.flags.writeable = False
                 texture.images[color_space] = pixels
             self._indices[key] = len(self.images)
@@ -293,22 +294,11 @@ def _read_file(path: str, name: str | None = None) -> _DecodedFile:
     )
 
 
-def _expand_to_rgba(pixels: np.ndarray, color_space: ColorSpace) -> np.ndarray:
-    """(h, w, c) stored values → (h, w, 4) linear float32; the EOTF never touches alpha."""
-    height, width, channels = pixels.shape
-    # One preallocated output written channel by channel: textures are large, and
-    # concatenating intermediate arrays doubles both the time and the peak memory.
-    rgba = np.empty((height, width, 4), dtype=FLOAT)
-    if channels >= 3:
-        rgba[:, :, :3] = pixels[:, :, :3]
-    else:
-        rgba[:, :, :3] = pixels[:, :, :1]
+def _linear(pixels: np.ndarray, color_space: ColorSpace) -> np.ndarray:
+    """(h, w, c) stored values → (h, w, min(c, 4)) linear float32; the EOTF never touches alpha."""
+    channels = min(pixels.shape[2], 4)
+    linear = np.array(pixels[:, :, :channels], dtype=FLOAT)  # a copy: the decoded file stays as stored
     if color_space == "sRGB":
-        rgba[:, :, :3] = srgb_to_linear(rgba[:, :, :3])
-    if channels == 2:
-        rgba[:, :, 3] = pixels[:, :, 1]
-    elif channels >= 4:
-        rgba[:, :, 3] = pixels[:, :, 3]
-    else:
-        rgba[:, :, 3] = 1.0
-    return rgba
+        colour = 3 if channels >= 3 else 1
+        linear[:, :, :colour] = srgb_to_linear(linear[:, :, :colour])
+    return linear

@@ -54,7 +54,7 @@ class DomeDistribution:
             lum = np.ones((rows, cols))
         else:
             rows, cols = min(rows, pixels.shape[0]), min(cols, pixels.shape[1])
-            lum = _block_mean(luminance(np.moveaxis(pixels[..., :3], -1, 0).astype(np.float64)), rows, cols)
+            lum = _block_mean(luminance(np.moveaxis(textures.rgb_view(pixels), -1, 0).astype(np.float64)), rows, cols)
         theta = (np.arange(rows) + 0.5) / rows * np.pi
         weights = np.maximum(lum, 0) * np.sin(theta)[:, None]
         weights += weights.mean() * 1e-3 + 1e-12  # every direction keeps a nonzero density
@@ -331,10 +331,10 @@ def dome_radiance(lights, dome, x, y, z):
     lx, ly, lz = dome_local(lights.dome_rotation, dome, x, y, z)
     s, t = _lat_long(lx, ly, lz)
     i00, i10, i01, i11, fx, fy = textures.footprint(lights.texture_info, texture, s, t, 0, 2)
-    texels = lights.texels
-    return (r * textures.blend(texels, i00, i10, i01, i11, fx, fy, 0),
-            g * textures.blend(texels, i00, i10, i01, i11, fx, fy, 1),
-            b * textures.blend(texels, i00, i10, i01, i11, fx, fy, 2))
+    texels, channels = lights.texels, lights.texture_info[texture, textures.CHANNELS]
+    return (r * textures.blend(texels, i00, i10, i01, i11, fx, fy, textures.rgba_channel(channels, 0)),
+            g * textures.blend(texels, i00, i10, i01, i11, fx, fy, textures.rgba_channel(channels, 1)),
+            b * textures.blend(texels, i00, i10, i01, i11, fx, fy, textures.rgba_channel(channels, 2)))
 
 
 @inline

@@ -101,7 +101,7 @@ class MaterialTable:
         # Whether any material lets light through (presence below 1 somewhere).
         self.see_through = any(isinstance(material.opacity, ShaderNode) or material.opacity < 1
                                for material in materials)
-        texels, info = textures.pack([scene.textures[texture].pixels for texture in compiler.atlas])
+        texels, info = textures.packed([scene.textures[texture].pixels for texture in compiler.atlas])
         self.arrays = MaterialArrays(
             constants=constants, program=np.array(compiler.program, np.int32).reshape(-1, _INSTRUCTION),
             parameters=np.array(compiler.parameters + [0.0], np.float32), program_range=program_range,
@@ -209,8 +209,11 @@ def _texture_value(materials, row, registers, out):
     i00, i10, i01, i11, fx, fy = textures.footprint(materials.texture_info, texture, s, t, program[row, 3],
                                                     program[row, 4])
     channels = materials.texture_info[texture, textures.CHANNELS]
-    for k in range(4):
-        ro[k] = textures.blend(materials.texels, i00, i10, i01, i11, fx, fy, min(k, channels - 1))
+    for k in range(channels):  # each stored channel once, then expanded to RGBA in place
+        ro[k] = textures.blend(materials.texels, i00, i10, i01, i11, fx, fy, k)
+    for k in range(3, -1, -1):  # descending: the channel a component reads is never above it
+        stored = textures.rgba_channel(channels, k)
+        ro[k] = 1.0 if stored < 0 else ro[stored]
 
 
 @inline
