@@ -168,9 +168,14 @@ def _plain_lambertian(material) -> str | None:
         values = value if isinstance(value, tuple) else (value,)
         return all(isinstance(v, (int, float)) for v in values)
 
-    for name in ("diffuse_color", "emissive_color", "metallic", "specular_color", "opacity", "clearcoat"):
+    for name in ("diffuse_color", "emissive_color", "metallic", "specular_color", "opacity", "clearcoat",
+                 "transmission"):
         if not constant(getattr(material, name)):
             return f"{name} is textured"
+    if material.normal is not None:
+        return "it has a normal map"
+    if material.transmission > 0:
+        return "it transmits"
     if max(material.emissive_color) > 0:
         return "it emits"
     if material.metallic > 0:

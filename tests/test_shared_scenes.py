@@ -29,7 +29,7 @@ GUIDE_DRAW_MODES = r"models in bounds or origin draw mode render nothing"
 MISSING_REFERENCE = r"composition errors, the rest of the stage renders.*_common/teapot\.usda"
 MISSING_TEXTURE = r"texture file not found: .*ground\.ACEScg\.exr"
 MISSING_NORMAL_MAP = r"texture file not found: .*AlphaBlendModeTest_image0_.*\.png"
-MISSING_BRASS = r"cannot read texture .*MaterialXTest/textures/brass_color\.jpg"
+MISSING_BRASS = r"texture file not found: .*MaterialXTest/textures/brass_color\.jpg"
 NO_TEXTURE_FILE = r"UsdUVTexture shaders without inputs:file"
 LIGHTS_ALONE = r"has no geometry that renders"
 
@@ -110,3 +110,51 @@ def test_every_usd_file_of_the_assets_is_rendered_or_used_by_a_rendered_stage(sh
     files = [path for suffix in ("usd", "usda", "usdc", "usdz") for path in shared_scenes.rglob(f"*.{suffix}")]
     left_out = sorted(str(path.relative_to(shared_scenes)) for path in files if path.resolve() not in used)
     assert not left_out, "add these stages to STAGES: " + ", ".join(left_out)
+
+
+def _looks(stage_path: Path, *variants: str):
+    """{mesh path: its first triangle's Material} of a stage read with variant selections."""
+    from pxr_layers.request import RenderRequest, VariantSelection
+    from pxr_layers.stage import load_stage
+
+    request = RenderRequest(stage=stage_path, variants=tuple(VariantSelection.parse(v) for v in variants))
+    scene, _ = load_stage(stage_path, request=request)
+    return scene, {mesh.path: scene.materials[mesh.triangle_material[0]] for mesh in scene.meshes}
+
+
+def _ops(value) -> set[str]:
+    from pxr_layers.shader_nodes import ShaderNode
+
+    return {node.op for node in value.walk()} if isinstance(value, ShaderNode) else set()
+
+
+def test_the_chess_set_wears_its_materialx_looks(shared_scenes: Path):
+    """Every piece and the board: a MaterialX standard_surface with textured base colour
+    (or transmission, the glass tops), roughness and a normal map; none falls back."""
+    scene, looks = _looks(shared_scenes / "usd-wg/full_assets/OpenChessSet/chess_set.usda")
+    assert looks and all(material.path.startswith("/ChessSet/") for material in looks.values())
+    for path, material in looks.items():
+        assert "texture" in _ops(material.roughness) and material.normal is not None, path
+        assert "texture" in _ops(material.diffuse_color) or material.transmission == 1.0, path
+    assert any(material.transmission == 1.0 for material in looks.values())
+
+
+def test_primvar_readers_colour_the_teapots_and_the_pyramids(shared_scenes: Path):
+    for relative in ("usd-wg/full_assets/Teapot/Teapot.usd",
+                     "usd-wg/full_assets/SubdivisionSurfaces/Creases_SpinningPyramids.usda"):
+        scene, looks = _looks(shared_scenes / relative)
+        read = [mesh for mesh in scene.meshes if "primvar" in _ops(scene.materials[mesh.triangle_material[0]].diffuse_color)]
+        assert read and all("displayColor" in mesh.primvars for mesh in read), relative
+
+
+def test_the_shader_ball_variants_wear_their_materialx_looks(shared_scenes: Path):
+    stage = shared_scenes / "StandardShaderBall/standard_shader_ball_scene.usda"
+    expected = {"mtlx_gold": lambda m: m.metallic == 1.0 and m.diffuse_color[0] > m.diffuse_color[2],
+                "mtlx_glass": lambda m: m.transmission == 1.0,
+                "mtlx_plastic": lambda m: m.metallic == 0.0 and m.transmission == 0.0}
+    for model in ("OpenPBRSurface", "standard_surface"):
+        for variant, check in expected.items():
+            _, looks = _looks(stage, f"/standard_shader_ball_scene:example_material={variant}",
+                              f"/standard_shader_ball_scene/materials/examples:material_model={model}")
+            ball = [m for path, m in looks.items() if path.endswith("material_surface")]
+            assert ball and ball[0].path.endswith(variant.removeprefix("mtlx_")) and check(ball[0]), (model, variant)

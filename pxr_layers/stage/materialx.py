@@ -46,7 +46,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import MaterialX as mx
-from pxr import Sdf, Usd, UsdShade
+from pxr import Ar, Sdf, Usd, UsdShade
 
 from pxr_layers.shader_nodes import ShaderNode, broadcast, constant, node, swizzle
 
@@ -526,6 +526,10 @@ def _image(ev: _Evaluator, element, out_type, output, frame, uv: ShaderNode | No
             ev.reader.context.diagnostics.warn(f"no UDIM tiles found for {path} (MaterialX image {ev.material_path} "
                                                f"{element.getName()}); using its default value",
                                                once_key=f"texture:{path}")
+    elif not os.path.isfile(path) and not Ar.IsPackageRelativePath(path):  # (a package member is no file)
+        ev.reader.context.diagnostics.warn(f"texture file not found: {path} (MaterialX image {ev.material_path} "
+                                           f"{element.getName()}); using its default value", once_key=f"texture:{path}")
+        files = []
     else:
         files = [(0, path)]
     tiles = []
