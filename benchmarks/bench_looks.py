@@ -1,6 +1,6 @@
 """Shading cost of MaterialX looks, measured side by side in one run.
 
-    python benchmarks/bench_looks.py [--resolution 480 270] [--spp 16] [--repeats 3] [--stage PATH]
+    python benchmarks/bench_looks.py [--resolution 480 270] [--spp 16] [--repeats 5] [--stage PATH]
 
 The OpenChessSet (../shared/scenes/usd-wg/full_assets/OpenChessSet/chess_set.usda: MaterialX
 standard_surface looks with base colour, roughness, metallic and normal maps, and glass) is
@@ -36,7 +36,7 @@ def main() -> int:
     parser.add_argument("--stage", type=Path, default=CHESS_SET)
     parser.add_argument("--resolution", type=int, nargs=2, default=(480, 270), metavar=("W", "H"))
     parser.add_argument("--spp", type=int, default=16)
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
     if not args.stage.exists():
         print(f"bench_looks: {args.stage} not found (../shared is needed)", file=sys.stderr)

@@ -74,7 +74,9 @@ numba.config.CACHE_DIR = str(cache_dir())
 _OPTIONS = dict(nogil=True, cache=True, error_model="numpy", _nrt=False)
 
 kernel = numba.njit(**_OPTIONS)
-"""A compiled loop over lanes, called from Python once per queue."""
+"""A compiled loop over lanes, called from Python once per queue; or a large per-lane
+routine that several kernels call instead of inlining (the material interpreter): without
+reference counting a call costs nanoseconds, and the routine is compiled once."""
 
 inline = numba.njit(**_OPTIONS, inline="always")
 """A per-lane helper of kernels, inlined into them (no call, no reference counting)."""

@@ -22,15 +22,16 @@ texture        bilinear lookup of the image ``tiles`` at ``inputs[0]`` (s, t); `
                tile gives ``values`` (4), the fallback
 add, subtract, multiply, min, max          a ∘ b
 divide         a / b, 0 where b = 0
-power          aᵇ, 0 where a < 0 (MaterialX leaves it undefined)
+power          aᵇ for a > 0; for a ≤ 0, 1 where b = 0 and 0 elsewhere (MaterialX leaves it undefined)
 modulo         a − b·⌊a/b⌋ (MaterialX's), 0 where b = 0
-absval, floor, ceil, sqrt (of max(a, 0)), sin, cos                     f(a)
+absval, floor, ceil, sqrt (of max(a, 0)), sin, cos                     f(a) (floor, ceil: ±inf, NaN kept)
 mix            inputs (bg, fg, m): bg + (fg − bg)·m
 clamp          inputs (in, low, high)
 dotproduct     Σ a·b over the first ``values[0]`` components, in every component
-normalize      a / |a| over the first three components (a 4th is kept)
+normalize      a / |a| over the first three components, the 4th kept (vector2/3, the normals
+               and directions shading uses)
 swizzle        component k = a[values[k]], or 0 where values[k] = −1, 1 where it is −2
-combine        (inputs[0][0], inputs[1][0], inputs[2][0], inputs[3][0]); missing inputs 0
+combine        (inputs[0][0], inputs[1][0], inputs[2][0], inputs[3][0]) (node() pads with 0)
 affine2d       (m0·a0 + m1·a1 + m2, m3·a0 + m4·a1 + m5, a2, a3) with m = ``values`` (6)
 ifgreater, ifgreatereq, ifequal            inputs (v1, v2, in1, in2): in1 if v1[0] ∘ v2[0] else in2
 =============  ===========================================================================
@@ -83,7 +84,7 @@ class ShaderNode:
     def __post_init__(self) -> None:
         if self.op not in _ARITY:
             raise ValueError(f"unknown shader node operation {self.op!r}")
-        if self.op != "combine" and len(self.inputs) != _ARITY[self.op]:
+        if len(self.inputs) != _ARITY[self.op]:
             raise ValueError(f"{self.op} takes {_ARITY[self.op]} inputs, not {len(self.inputs)}")
 
     @property
@@ -115,7 +116,10 @@ def constant(*values: float) -> ShaderNode:
 
 
 def node(op: str, *inputs: ShaderNode, values: tuple[float, ...] = ()) -> ShaderNode:
-    """The operation `op` on `inputs`, folded into a constant when every input is one."""
+    """The operation `op` on `inputs`, folded into a constant when every input is one; a
+    combine of fewer than four inputs gets constant 0 for the rest."""
+    if op == "combine":
+        inputs = inputs + (constant(),) * (MAX_INPUTS - len(inputs))
     built = ShaderNode(op, tuple(inputs), tuple(float(value) for value in values))
     if op in _SOURCES or not all(child.is_constant for child in inputs):
         return built
@@ -141,7 +145,7 @@ def broadcast(source: ShaderNode) -> ShaderNode:
     return swizzle(source, (0, 0, 0, 0))
 
 
-@inline
+@inline  # into trace/shading.material_inputs, which is compiled once and called
 def apply(op, registers, out, a, b, c, d, parameters, offset):
     """registers[out] ← operation `op` (a code of OPS, not a source) of registers a, b, c, d,
     with its ``values`` at parameters[offset:]."""
@@ -174,16 +178,17 @@ def apply(op, registers, out, a, b, c, d, parameters, offset):
             ro[k] = ra[k] ** rb[k] if ra[k] > 0 else (1.0 if rb[k] == 0 else 0.0)
     elif op == MODULO:
         for k in range(4):
-            ro[k] = ra[k] - rb[k] * math.floor(ra[k] / rb[k]) if rb[k] != 0 else 0.0
+            quotient = ra[k] / rb[k] if rb[k] != 0 else 0.0
+            ro[k] = ra[k] - rb[k] * math.floor(quotient) if math.isfinite(quotient) and rb[k] != 0 else 0.0
     elif op == ABSVAL:
         for k in range(4):
             ro[k] = abs(ra[k])
     elif op == FLOOR:
         for k in range(4):
-            ro[k] = math.floor(ra[k])
+            ro[k] = math.floor(ra[k]) if math.isfinite(ra[k]) else ra[k]
     elif op == CEIL:
         for k in range(4):
-            ro[k] = math.ceil(ra[k])
+            ro[k] = math.ceil(ra[k]) if math.isfinite(ra[k]) else ra[k]
     elif op == SQRT:
         for k in range(4):
             ro[k] = math.sqrt(max(ra[k], 0.0))

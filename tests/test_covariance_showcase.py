@@ -183,3 +183,52 @@ def test_texture_spectra_are_remembered_by_content_across_frames():
     shared = image.copy()
     shared.flags.writeable = False  # as the stage reader's textures: hashed once, then known by identity
     assert texture_spectrum(shared) is first and texture_spectrum(shared) is first
+
+
+def test_the_texture_norm_follows_the_uv_transform_of_the_texture(showcase, shipped_scene, tmp_path):
+    """T reads the texture that drives diffuseColor through its UsdTransform2d: scaling the
+    panel's st by 2 packs the 5 cycles/m stripes of its left quarter into 10 cycles/m."""
+    from pxr_layers.stage import load_stage
+
+    scaled = tmp_path / "scaled.usda"
+    scaled.write_text(f"""#usda 1.0
+(
+    defaultPrim = "World"
+    metersPerUnit = 1
+    upAxis = "Y"
+    subLayers = [@{shipped_scene("showcase.usda")}@]
+)
+over "World"
+{{
+over "Materials"
+{{
+over "checkerTexture"
+{{
+    def Shader "twice"
+    {{
+        uniform token info:id = "UsdTransform2d"
+        float2 inputs:in.connect = </World/Materials/checkerTexture/stReader.outputs:result>
+        float2 inputs:scale = (2, 2)
+        float2 outputs:result
+    }}
+    over "diffuseTexture"
+    {{
+        float2 inputs:st.connect = </World/Materials/checkerTexture/twice.outputs:result>
+    }}
+}}
+}}
+}}
+""")
+    scene, spec = load_stage(scaled)
+    batches = []
+    result = render(scene, dataclasses.replace(spec, resolution=RESOLUTION), SETTINGS, threads=2,
+                    show_progress=False, on_batch=batches.append)
+    medians = []
+    for events in (showcase[1], first_events(batches, result.vocabulary)):
+        on_panel = (events.lobe != "") & (events.obj == "texturedPanel")
+        columns = events.pixel[on_panel] % RESOLUTION[0]
+        left_edge, right_edge = columns.min(), columns.max()
+        left_quarter = np.abs(columns - (left_edge + (right_edge - left_edge) / 8)) <= (right_edge - left_edge) / 24
+        assert left_quarter.sum() > 20
+        medians.append(np.median(events.norms[on_panel, 1][left_quarter]))
+    assert medians[1] / medians[0] == pytest.approx(2.0, rel=0.15)

@@ -79,3 +79,10 @@ def test_a_malformed_node_is_refused():
     with pytest.raises(ValueError, match="takes 2 inputs"):
         sn.ShaderNode("add", (TEXCOORD,))
     assert math.isfinite(sn.node("sqrt", sn.constant(-4)).values[0])
+
+
+def test_a_combine_of_two_gives_zero_in_the_other_components_in_every_lane():
+    s, t = sn.swizzle(TEXCOORD, (0,)), sn.swizzle(TEXCOORD, (1,))
+    tree = sn.node("normalize", sn.node("combine", s, t))
+    st = np.array([[0.6, 0.8], [0.0, 3.0], [0.6, 0.8]], np.float32)
+    np.testing.assert_allclose(evaluate(tree, st), [[0.6, 0.8, 0.0], [0.0, 1.0, 0.0], [0.6, 0.8, 0.0]], atol=1e-6)

@@ -33,6 +33,7 @@ AUTO_CAMERA_FOCAL_LENGTH_MM = 35.0
 AUTO_CAMERA_APERTURE_MM = (36.0, 24.0)
 _FRAMING_MARGIN = 1.05
 
+DEFAULT_UV_SET = "st"  # the texture coordinates a texture reads when nothing names them (USD's convention)
 DEFAULT_DOME_INTENSITY = 0.5
 DEFAULT_KEY_INTENSITY = 3.0
 DEFAULT_KEY_ANGLE_DEGREES = 2.0

@@ -22,48 +22,19 @@ from pxr_layers.scene import DEFAULT_MATERIAL_PATH, Material
 from pxr_layers.shader_nodes import ShaderNode
 
 from .context import ReadContext
-from .materialx import MaterialXReader
-from .textures import UDIM, TextureLibrary, anchored_asset_path, udim_tiles
+from .defaults import DEFAULT_UV_SET
+from .materialx import PREVIEW_INPUTS, MaterialXReader, is_flat_normal
+from .textures import UDIM, TextureLibrary, anchored_asset_path
 
-InputKind = Literal["color", "scalar", "float", "bool", "normal"]
-
-
-@dataclass(frozen=True)
-class _PreviewInput:
-    """A UsdPreviewSurface input, the Material field it fills and its kind.
-
-    kind : "color"/"scalar"/"normal" may be driven by a network; "float"/"bool" are
-           constants in scene.Material.
-    """
-
-    usd_name: str
-    field: str
-    kind: InputKind
+InputKind = Literal["color", "scalar", "float", "bool", "normal"]  # PREVIEW_INPUTS' kinds
 
 
-# Fallbacks come from scene.Material's defaults, which are the UsdPreviewSurface spec's.
-_PREVIEW_INPUTS = (
-    _PreviewInput("diffuseColor", "diffuse_color", "color"),
-    _PreviewInput("emissiveColor", "emissive_color", "color"),
-    _PreviewInput("roughness", "roughness", "scalar"),
-    _PreviewInput("metallic", "metallic", "scalar"),
-    _PreviewInput("specularColor", "specular_color", "color"),
-    _PreviewInput("useSpecularWorkflow", "use_specular_workflow", "bool"),
-    _PreviewInput("ior", "ior", "float"),
-    _PreviewInput("opacity", "opacity", "scalar"),
-    _PreviewInput("opacityThreshold", "opacity_threshold", "float"),
-    _PreviewInput("clearcoat", "clearcoat", "scalar"),
-    _PreviewInput("clearcoatRoughness", "clearcoat_roughness", "scalar"),
-    _PreviewInput("normal", "normal", "normal"),
-)
 # UsdPreviewSurface inputs the tracer has no use for. Occlusion is baked ambient occlusion,
 # which a path tracer computes itself: it is ignored silently. Displacement gets one note.
 _NOTED_PREVIEW_INPUTS = ("displacement",)
 
 _OUTPUT_CHANNELS = {"rgb": (0, 1, 2), "r": (0,), "g": (1,), "b": (2,), "a": (3,)}
 _WRAP_TOKENS = ("black", "clamp", "repeat", "mirror")
-_DEFAULT_UV_PRIMVAR = "st"
-_FLAT_NORMAL = (0.0, 0.0, 1.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -178,8 +149,9 @@ class MaterialLibrary:
         unique_uvs = list(dict.fromkeys(uv_primvars))
         if len(unique_uvs) > 1:
             self._context.diagnostics.note(
-                "several-uv-sets",
-                "materials whose textures read several uv primvars (the first is used for all): {prims}",
+                "several-uv-sets-material",
+                "materials whose textures read several uv sets as texture coordinates (the first is used "
+                "for all): {prims}",
                 f"{path} ({', '.join(unique_uvs)})",
             )
         index = len(self.materials)
@@ -189,7 +161,7 @@ class MaterialLibrary:
     def _preview_surface(self, shader: UsdShade.Shader, material_path: str):
         network = _Network(self._context, self._textures, material_path)
         fields: dict[str, object] = {}
-        for spec in _PREVIEW_INPUTS:
+        for spec in PREVIEW_INPUTS:
             value = network.input_value(shader, spec.usd_name, spec.kind)
             if value is not None:
                 fields[spec.field] = value
@@ -233,7 +205,7 @@ class _Network:
         if tree.is_constant:
             values = tree.values
             if kind == "normal":
-                return None if values[:3] == _FLAT_NORMAL[:3] else tree
+                return None if is_flat_normal(tree) else tree
             return values[:3] if kind == "color" else values[0]
         return tree
 
@@ -313,7 +285,7 @@ class _Network:
             return nodes.constant(*self._vector(texture, "st", (0.0, 0.0)))
         # An unconnected st reads the default uv set, as Storm does.
         if not self.uv_primvars:
-            self.uv_primvars.append(_DEFAULT_UV_PRIMVAR)
+            self.uv_primvars.append(DEFAULT_UV_SET)
         return ShaderNode("texcoord")
 
     def _texture(self, texture: UsdShade.Shader, output_name: str) -> ShaderNode:
@@ -330,26 +302,18 @@ class _Network:
         asset = file_attribute.Get(self._context.time) if file_attribute else None
         color_space = str(_value_source(texture, "sourceColorSpace", self._context.time) or "auto")
         if isinstance(asset, Sdf.AssetPath) and asset.path:
+            resolved = asset.resolvedPath
             if UDIM in asset.path:
-                pattern = anchored_asset_path(file_attribute, asset, self._context.time)
-                for tile, path in udim_tiles(pattern):
-                    loaded = self._textures.load(path, color_space, texture_path)
-                    if loaded is not None:
-                        tiles.append((tile, loaded.index))
-                        wrap_modes = loaded.wrap_modes
-                if not tiles:
-                    diagnostics.warn(f"no UDIM tiles found for {pattern} (UsdUVTexture {texture_path}); "
-                                     "using its fallback value", once_key=f"texture:{pattern}")
-            elif not asset.resolvedPath:
+                resolved = anchored_asset_path(file_attribute, asset, self._context.time)
+            elif not resolved:
                 missing = anchored_asset_path(file_attribute, asset, self._context.time)
                 diagnostics.warn(
                     f"texture file not found: {missing} (UsdUVTexture {texture_path}); using its fallback value",
                     once_key=f"texture:{missing}",
                 )
-            else:
-                loaded = self._textures.load(asset.resolvedPath, color_space, texture_path)
-                if loaded is not None:
-                    tiles.append((0, loaded.index))
+            if resolved:
+                for tile, loaded in self._textures.load_tiles(resolved, color_space, texture_path):
+                    tiles.append((tile, loaded.index))
                     wrap_modes = loaded.wrap_modes
         else:
             diagnostics.note(
@@ -418,8 +382,8 @@ def _constant(value, kind: InputKind):
         if kind == "bool":
             return bool(int(value))
         if kind == "normal":
-            x, y, z = (float(component) for component in value)
-            return None if (x, y, z) == _FLAT_NORMAL[:3] else nodes.constant(x, y, z)
+            tree = nodes.constant(*(float(component) for component in value))
+            return None if is_flat_normal(tree) else tree
         return float(value)
     except (TypeError, ValueError):
         return None

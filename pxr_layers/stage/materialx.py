@@ -48,10 +48,44 @@ from typing import Callable
 import MaterialX as mx
 from pxr import Ar, Sdf, Usd, UsdShade
 
+from pxr_layers.scene import Material
 from pxr_layers.shader_nodes import ShaderNode, broadcast, constant, node, swizzle
 
 from .context import ReadContext
-from .textures import UDIM, TextureLibrary, anchored_asset_path, udim_tiles
+from .defaults import DEFAULT_UV_SET
+from .textures import UDIM, TextureLibrary, anchored_asset_path
+
+@dataclass(frozen=True)
+class PreviewInput:
+    """A UsdPreviewSurface input, the Material field it fills and its kind: "color",
+    "scalar" and "normal" may vary over the surface; "float" and "bool" are constants."""
+
+    usd_name: str
+    field: str
+    kind: str
+
+
+# Fallbacks come from scene.Material's defaults, which are the UsdPreviewSurface spec's.
+PREVIEW_INPUTS = (
+    PreviewInput("diffuseColor", "diffuse_color", "color"),
+    PreviewInput("emissiveColor", "emissive_color", "color"),
+    PreviewInput("roughness", "roughness", "scalar"),
+    PreviewInput("metallic", "metallic", "scalar"),
+    PreviewInput("specularColor", "specular_color", "color"),
+    PreviewInput("useSpecularWorkflow", "use_specular_workflow", "bool"),
+    PreviewInput("ior", "ior", "float"),
+    PreviewInput("opacity", "opacity", "scalar"),
+    PreviewInput("opacityThreshold", "opacity_threshold", "float"),
+    PreviewInput("clearcoat", "clearcoat", "scalar"),
+    PreviewInput("clearcoatRoughness", "clearcoat_roughness", "scalar"),
+    PreviewInput("normal", "normal", "normal"),
+)
+
+
+def is_flat_normal(value: ShaderNode) -> bool:
+    """Whether a tangent-space normal is the constant (0, 0, 1): no perturbation."""
+    return value.is_constant and value.values[:3] == (0.0, 0.0, 1.0)
+
 
 MAX_DEPTH = 128
 """Nested node evaluations before a graph counts as runaway (cyclic). Each level costs a
@@ -218,7 +252,7 @@ class _Evaluator:
 
     def _geomprop(self, name: str) -> ShaderNode:
         if name == "UV0":
-            return self.uv("st")
+            return self.uv(DEFAULT_UV_SET)
         vector = {"Nworld": (0, 0, 1), "Nobject": (0, 0, 1), "Tworld": (1, 0, 0), "Tobject": (1, 0, 0),
                   "Bworld": (0, 1, 0), "Bobject": (0, 1, 0)}.get(name, (0, 0, 0))
         return constant(*vector)
@@ -470,7 +504,7 @@ def _rotate2d(ev, element, out_type, output, frame):
 
 def _texcoord(ev, element, out_type, output, frame):
     index = ev.integer(element, "index", frame)
-    return ev.uv("st") if index == 0 else ev.primvar(f"st{index}", (0.0, 0.0, 0.0, 0.0))
+    return ev.uv(DEFAULT_UV_SET) if index == 0 else ev.primvar(f"{DEFAULT_UV_SET}{index}", (0.0, 0.0, 0.0, 0.0))
 
 
 def _geompropvalue(ev, element, out_type, output, frame):
@@ -520,23 +554,13 @@ def _image(ev: _Evaluator, element, out_type, output, frame, uv: ShaderNode | No
             ev.note(f"mtlx-color-space-{space}", f"MaterialX textures in colour space '{space}' were read "
                     "as raw (not converted) on: {prims}", element.getName())
     path = ev.reader.texture_path(filename, port)
-    if UDIM in path:
-        files = udim_tiles(path)
-        if not files:
-            ev.reader.context.diagnostics.warn(f"no UDIM tiles found for {path} (MaterialX image {ev.material_path} "
-                                               f"{element.getName()}); using its default value",
-                                               once_key=f"texture:{path}")
-    elif not os.path.isfile(path) and not Ar.IsPackageRelativePath(path):  # (a package member is no file)
+    tiles = []
+    if UDIM not in path and not os.path.isfile(path) and not Ar.IsPackageRelativePath(path):  # (a member is no file)
         ev.reader.context.diagnostics.warn(f"texture file not found: {path} (MaterialX image {ev.material_path} "
                                            f"{element.getName()}); using its default value", once_key=f"texture:{path}")
-        files = []
     else:
-        files = [(0, path)]
-    tiles = []
-    for tile, file in files:
-        loaded = ev.reader.textures.load(file, color_space, ev.material_path)
-        if loaded is not None:
-            tiles.append((tile, loaded.index))
+        user = f"{ev.material_path} ({element.getName()})"
+        tiles = [(tile, loaded.index) for tile, loaded in ev.reader.textures.load_tiles(path, color_space, user)]
     if not tiles:
         return default
     wrap = tuple(_WRAP.get(ev.string(element, name, frame)[0] or "periodic", "repeat")
@@ -800,24 +824,20 @@ class MaterialXReader:
         return fields
 
     def _preview(self, ev: _Evaluator, surface, frame) -> dict[str, object]:
-        def get(name):
-            return ev.input(surface, name, frame)
-
-        normal = get("normal")
-        return {
-            "diffuse_color": _field_color(get("diffuseColor")),
-            "emissive_color": _field_color(get("emissiveColor")),
-            "use_specular_workflow": bool(self._uniform(ev, get("useSpecularWorkflow"), "useSpecularWorkflow", 0)),
-            "specular_color": _field_color(get("specularColor")),
-            "metallic": _field_scalar(get("metallic")),
-            "roughness": _field_scalar(get("roughness")),
-            "clearcoat": _field_scalar(get("clearcoat")),
-            "clearcoat_roughness": _field_scalar(get("clearcoatRoughness")),
-            "opacity": _field_scalar(get("opacity")),
-            "opacity_threshold": self._uniform(ev, get("opacityThreshold"), "opacityThreshold", 0.0),
-            "ior": self._uniform(ev, get("ior"), "ior", 1.5),
-            "normal": None if normal.is_constant and normal.values[:3] == (0.0, 0.0, 1.0) else normal,
-        }
+        fields: dict[str, object] = {}
+        for spec in PREVIEW_INPUTS:
+            value = ev.input(surface, spec.usd_name, frame)
+            if spec.kind == "color":
+                fields[spec.field] = _field_color(value)
+            elif spec.kind == "scalar":
+                fields[spec.field] = _field_scalar(value)
+            elif spec.kind == "normal":
+                fields[spec.field] = None if is_flat_normal(value) else value
+            else:
+                default = getattr(Material, spec.field)
+                uniform = self._uniform(ev, value, spec.usd_name, float(default))
+                fields[spec.field] = bool(uniform) if spec.kind == "bool" else uniform
+        return fields
 
     def _uniform(self, ev: _Evaluator, value: ShaderNode, name: str, default: float) -> float:
         """A field the tracer takes as one number: the constant, or ``default`` with a note."""
@@ -839,7 +859,7 @@ class MaterialXReader:
             return None
         if source[0] == "node" and source[1].getCategory() == "normalmap":
             tangent = normalmap_tangent(ev, source[1], source[3])
-            return None if tangent.is_constant and tangent.values[:3] == (0.0, 0.0, 1.0) else tangent
+            return None if is_flat_normal(tangent) else tangent
         ev.note("mtlx-normal", "MaterialX surface normals not made by a normalmap node were ignored on: {prims}",
                 name)
         return None

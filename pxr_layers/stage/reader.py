@@ -11,6 +11,7 @@ from pxr import Usd, UsdGeom, UsdShade
 from pxr_layers.scene import INDEX, Mesh, SceneData
 
 from .context import ReadContext
+from .defaults import DEFAULT_UV_SET
 from .diagnostics import Diagnostics
 from .draw_modes import author_draw_mode_cards
 from .implicit import tessellate
@@ -25,7 +26,6 @@ from .walk import GprimPlacement, walk_stage
 
 logger = logging.getLogger(__name__)
 
-_DEFAULT_UV_PRIMVAR = "st"
 
 
 def read_scene(
@@ -107,14 +107,16 @@ class _MeshBuilder:
         color = display_color(prim, context.time)
         mesh_material = self._materials.resolve(self._materials.bound_material(prim), color)
         subset_materials = self._subset_materials(prim, color)
-        uv_primvar = next(
-            (
-                resolved.uv_primvar
-                for resolved in [mesh_material, *(m for _, m in subset_materials)]
-                if resolved.uv_primvar
-            ),
-            _DEFAULT_UV_PRIMVAR,
-        )
+        uv_sets = list(dict.fromkeys(resolved.uv_primvar for resolved in [mesh_material, *(m for _, m in subset_materials)]
+                                     if resolved.uv_primvar))
+        uv_primvar = uv_sets[0] if uv_sets else DEFAULT_UV_SET
+        if len(uv_sets) > 1:
+            context.diagnostics.note(
+                "several-uv-sets",
+                "meshes whose materials read several uv sets as texture coordinates (the first is used for "
+                "all): {prims}",
+                f"{prim.GetPath()} ({', '.join(uv_sets)})",
+            )
         # What the primvar readers of the mesh's materials read, in one order whatever the
         # order of the materials (the surface cache's key).
         primvars = tuple(sorted({

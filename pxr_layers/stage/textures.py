@@ -23,7 +23,6 @@ import dataclasses
 import glob
 import logging
 import os
-import re
 import tempfile
 import threading
 from dataclasses import dataclass, field
@@ -144,9 +143,9 @@ def udim_tiles(pattern: str) -> list[tuple[int, str]]:
     head, tail = pattern.split(UDIM, 1)
     found = []
     for path in glob.glob(glob.escape(head) + "[1-9][0-9][0-9][0-9]" + glob.escape(tail)):
-        digits = path[len(head):len(head) + 4]
-        if re.fullmatch(r"\d{4}", digits) and int(digits) >= 1001 and os.path.isfile(path):
-            found.append((int(digits), path))
+        tile = int(path[len(head):len(head) + 4])  # four digits: the glob says so
+        if tile >= 1001 and os.path.isfile(path):
+            found.append((tile, path))
     return sorted(found)
 
 
@@ -200,6 +199,20 @@ class TextureLibrary:
             self._indices[key] = len(self.images)
             self.images.append(TextureImage(path=path, pixels=texture.images[color_space]))
         return LoadedTexture(self._indices[key], texture.wrap_modes)
+
+    def load_tiles(self, path: str, source_color_space: str, user: str) -> list[tuple[int, LoadedTexture]]:
+        """[(tile, texture)] of a texture path: ((0, texture),) for a plain file, every UDIM
+        tile on disk for a path with <UDIM> (udim_tiles); after a warning naming `user`
+        (the prim or node reading it), an empty list when there is nothing to read."""
+        if UDIM not in path:
+            loaded = self.load(path, source_color_space, user)
+            return [] if loaded is None else [(0, loaded)]
+        tiles = [(tile, self.load(file, source_color_space, user)) for tile, file in udim_tiles(path)]
+        tiles = [(tile, loaded) for tile, loaded in tiles if loaded is not None]
+        if not tiles:
+            self._diagnostics.warn(f"no UDIM tiles found for {path} (used by {user}); using its fallback value",
+                                   once_key=f"texture:{path}")
+        return tiles
 
     def remember(self) -> None:
         """Keep this read's images for the next read in the process (replacing the last)."""

@@ -7,7 +7,8 @@ what Hydra Storm and most production renderers do for id and depth AOVs: an id m
 exact integer (the average of ids 3 and 7 is not object 5) and a depth at a silhouette
 must be the foreground's or the background's, never a blend of both. Surfaces cut out by
 their material (opacity below opacityThreshold) are passed through, as the integrator
-does, so the AOVs show what the beauty shows.
+does, so the AOVs show what the beauty shows; a partly present one (opacity without a
+threshold) is seen where it is at least half present, in every pixel alike.
 
 Every array is float32 with row 0 the top row of the image, like RenderResult.rgba:
 
@@ -94,7 +95,7 @@ def render_data_aovs(
 
 
 class _DataTracer:
-    """What every batch shares (read-only): camera frame, cut-out materials."""
+    """What every batch shares (read-only): camera frame, see-through materials."""
 
     def __init__(self, integrator: Integrator):
         self.integrator = integrator
@@ -121,8 +122,9 @@ class _DataTracer:
             queue, hits, lanes = queue.take(hit), hits.take(hit), lanes[hit]
             if not len(queue):
                 break
+            # a fixed presence choice (spp −1): one ray per pixel must not make the data noisy
             surfaces = surface(queue, hits, np.ones(len(queue), bool), step, integrator.geometry, integrator.materials.arrays,
-                               np.zeros(0, FLOAT), max_depth=0)
+                               np.zeros(0, FLOAT), max_depth=0, spp=-1)
             seen = np.flatnonzero(~surfaces.cut)
             triangle[lanes[seen]] = hits.triangle[seen]
             distance[lanes[seen]] = queue.travelled[seen]

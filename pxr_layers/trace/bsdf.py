@@ -47,6 +47,7 @@ LOBE_COUNT = 4
 GLOSSY_LOBES = (DIFFUSE, SPECULAR, COAT)  # the lobes a light sample can land in
 SINGULAR_ALPHA = 1e-4
 COAT_F0 = 0.04
+MIN_IOR = 1e-3  # an ior of 0 or below is no medium: it would make F0 and eta infinite
 INV_PI = 1 / math.pi
 
 # LPE scattering of an event, as int8 codes into lpe.events.SCATTERINGS.
@@ -123,7 +124,7 @@ def prepare(lobes, lane, inputs, cos_o, entering, scatters):
     viewing cosine cos_o; entering: wo is on the front side; a lane that may not scatter
     gets no lobe."""
     diffuse_r, diffuse_g, diffuse_b = inputs[shading.DIFFUSE], inputs[shading.DIFFUSE + 1], inputs[shading.DIFFUSE + 2]
-    ior = inputs[shading.IOR]
+    ior = max(inputs[shading.IOR], MIN_IOR)
     metallic = min(max(inputs[shading.METALLIC], 0.0), 1.0)
     transmission = (1.0 - metallic) * min(max(inputs[shading.TRANSMISSION], 0.0), 1.0)
     r0 = ((1.0 - ior) / (1.0 + ior)) ** 2
@@ -163,8 +164,9 @@ def prepare(lobes, lane, inputs, cos_o, entering, scatters):
     row[COAT_ALPHA] = min(max(inputs[shading.CLEARCOAT_ROUGHNESS], 0.0), 1.0) ** 2
     row[GLASS_WEIGHT] = glass
     row[GLASS_RGB], row[GLASS_RGB + 1], row[GLASS_RGB + 2] = gr, gg, gb
-    row[ETA] = ior if entering else 1.0 / ior
-    row[BEND] = 1.0 if inputs[shading.THIN_WALLED] > 0 else row[ETA]
+    thin = inputs[shading.THIN_WALLED] > 0
+    row[ETA] = ior if entering or thin else 1.0 / ior  # a thin sheet is entered from either side
+    row[BEND] = 1.0 if thin else row[ETA]
     row[PROBABILITY], row[PROBABILITY + 1] = w0 * norm, w1 * norm
     row[PROBABILITY + 2], row[PROBABILITY + 3] = w2 * norm, w3 * norm
 

@@ -276,7 +276,8 @@ def pick(cdf, start, count, u):
 def emitted(triangle, u, v, cos_toward_viewer, geometry, light_radiance, materials, registers, inputs, out):
     """Radiance leaving an emitting `triangle` at barycentrics (u, v) toward a viewer under
     cos_toward_viewer (from its geometric normal) into out (3,): light shapes emit on their
-    front only, emissive surfaces on both sides. registers, inputs: scratch of
+    front only, emissive surfaces on both sides, in proportion to their presence (the
+    fraction of paths that do not pass through them). registers, inputs: scratch of
     shading.material_inputs."""
     light = geometry.triangle_light[triangle]
     if light >= 0:
@@ -285,8 +286,9 @@ def emitted(triangle, u, v, cos_toward_viewer, geometry, light_radiance, materia
                                   light_radiance[light, 2] * front)
     else:
         shading.shade_point(materials, geometry, triangle, u, v, registers, inputs)
-        out[0], out[1], out[2] = (inputs[shading.EMISSIVE], inputs[shading.EMISSIVE + 1],
-                                  inputs[shading.EMISSIVE + 2])
+        present = 1.0 - shading.pass_fraction(inputs)  # what passes through does not emit
+        out[0], out[1], out[2] = (inputs[shading.EMISSIVE] * present, inputs[shading.EMISSIVE + 1] * present,
+                                  inputs[shading.EMISSIVE + 2] * present)
 
 
 @inline

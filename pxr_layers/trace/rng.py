@@ -10,8 +10,6 @@ wraps, as intended).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ..compiled import inline
@@ -66,13 +64,13 @@ def uniform(key, dimension):
 
 @inline
 def stratified(key, pixel, sample, spp, dimension):
-    """A float32 in [0, 1) for `dimension` of a pixel's sample `sample` out of `spp`, in the
-    sample's own stratum [sample, sample + 1)/spp, all strata shifted by one random offset
-    per pixel: a pixel's spp values cover [0, 1) evenly (a rotated lattice), so a choice
-    made with them splits the pixel's samples in exact proportion."""
+    """A float32 in [0, 1) for `dimension` of a pixel's sample `sample` out of `spp`: in the
+    sample's own stratum [sample, sample + 1)/spp, at one random offset per pixel shared by
+    its strata. A pixel's spp values cover [0, 1) evenly, so a choice made with them splits
+    its samples in exact proportion. Unbiased over a pixel's spp samples together, which is
+    how they are always traced (batches and tiles hold whole pixels)."""
     offset = uniform(path_key(key, pixel, np.uint64(0xFFFFFFFF)), dimension)
-    value = (sample + offset) / spp
-    return np.float32(value - math.floor(value))
+    return np.float32(min((sample + offset) / spp, 1.0 - 2.0**-24))
 
 
 def step_dimension(step: int) -> int:

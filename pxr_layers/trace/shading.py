@@ -170,7 +170,6 @@ def diffuse_texture(material: Material):
     return None
 
 
-
 def _uv_transform(uv: ShaderNode):
     """The affine map (6,) from the mesh's st to `uv`, or None when uv is not one."""
     matrix = np.eye(3)
@@ -196,10 +195,11 @@ def _texture_value(materials, row, registers, out):
         texture = materials.tiles[first, 1]
     elif math.isfinite(s) and math.isfinite(t):
         column, line = math.floor(s), math.floor(t)
-        tile = 1001 + column + 10 * line
-        for k in range(count):
-            if materials.tiles[first + k, 0] == tile:
-                texture = materials.tiles[first + k, 1]
+        if 0 <= column < 10 and line >= 0:  # UDIM rows are ten tiles wide: no st aliases another tile
+            tile = 1001 + column + 10 * line
+            for k in range(count):
+                if materials.tiles[first + k, 0] == tile:
+                    texture = materials.tiles[first + k, 1]
         s, t = s - column, t - line
     if texture < 0:
         offset = program[row, 6]
@@ -233,7 +233,7 @@ def _primvar_value(materials, row, corner_primvars, triangle, u, v, registers, o
             ro[k] = materials.parameters[offset + k]
 
 
-@inline
+@kernel  # called, not inlined: the interpreter is compiled once, not into every kernel that shades
 def material_inputs(materials, material, s, t, corner_primvars, triangle, u, v, registers, out):
     """Every input of `material` at a shading point — texture coordinates (s, t),
     barycentrics (u, v) of `triangle` — into out (MATERIAL_FIELDS,); registers:

@@ -54,7 +54,14 @@ def packed(images: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     if frozen and images:  # a frame without textures leaves the last atlas for the next
         atlas[0].flags.writeable = atlas[1].flags.writeable = False
         _PACKED[:] = [(key, [weakref.ref(image) for image in images], atlas)]
+        for image in images:  # the atlas goes with the first of its images
+            weakref.finalize(image, _forget, key)
     return atlas
+
+
+def _forget(key: tuple) -> None:
+    if _PACKED and _PACKED[0][0] == key:
+        _PACKED.clear()
 
 
 def rgb_view(pixels: np.ndarray) -> np.ndarray:

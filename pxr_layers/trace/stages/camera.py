@@ -23,6 +23,7 @@ def camera_rays(camera: PinholeCamera, frame_key: np.uint64, resolution: tuple[i
         depth=np.zeros(count, np.int32), previous_pdf=np.zeros(count, np.float32),
         previous_singular=np.ones(count, bool),  # the camera: what it sees directly is not MIS'd
         throughput=np.ones((count, 3), np.float32), travelled=np.zeros(count, np.float32),
+        vertex_travelled=np.zeros(count, np.float32),
         origin=np.empty((count, 3), np.float32), direction=np.empty((count, 3), np.float32),
         t_max=np.full(count, camera.t_max, np.float32), node=np.zeros(count, np.int64),
         row=np.full(count, -1, np.int64))

@@ -20,14 +20,15 @@ def emission(queue: PathQueue, hits: Hits, triangle_emits: np.ndarray, geometry:
     capacity = len(queue)
     splats = Splats(np.empty(capacity, np.int64), np.empty((capacity, 3), np.float32),
                     np.empty(capacity, np.int32), np.empty(capacity, np.int32))
-    count = _emission_kernel(hits.triangle, hits.u, hits.v, hits.t, triangle_emits, queue.direction,
+    count = _emission_kernel(hits.triangle, hits.u, hits.v, hits.t, queue.travelled, queue.vertex_travelled,
+                             triangle_emits, queue.direction,
                              queue.throughput, queue.previous_pdf, queue.previous_singular, geometry, materials,
                              lights, scratch(shading.REGISTERS, 4), scratch(shading.MATERIAL_FIELDS), scratch(3), splats.lane, splats.rgb, splats.light, splats.triangle)
     return trimmed(splats, count)
 
 
 @kernel
-def _emission_kernel(triangle, bary_u, bary_v, t_hit, triangle_emits, direction, throughput, previous_pdf,
+def _emission_kernel(triangle, bary_u, bary_v, t_hit, travelled, vertex_travelled, triangle_emits, direction, throughput, previous_pdf,
                      previous_singular, geometry, materials, lights, registers, inputs, radiance, lane_out, rgb_out, light_out, triangle_out):
     count = 0
     normal = geometry.geometric_normal
@@ -42,7 +43,9 @@ def _emission_kernel(triangle, bary_u, bary_v, t_hit, triangle_emits, direction,
         if previous_singular[lane]:
             weight = 1.0
         else:
-            density = triangle_pdf(tri, t_hit[lane], cos_emitter, lights.area_probability,
+            # from the last scattering vertex, through any see-through surface crossed since
+            distance = travelled[lane] + t_hit[lane] - vertex_travelled[lane]
+            density = triangle_pdf(tri, distance, cos_emitter, lights.area_probability,
                                    lights.triangle_probability, geometry.area)
             weight = power_heuristic(previous_pdf[lane], density)
         r = throughput[lane, 0] * radiance[0] * weight

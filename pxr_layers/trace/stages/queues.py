@@ -32,7 +32,10 @@ class PathQueue(_Queue):
     pixel (n,) int64; sample (n,) int32; key (n,) uint64 random stream (rng.py)
     depth (n,) int32 scattering events so far; previous_pdf (n,) float32 density of the
     last scattering direction (MIS); previous_singular (n,) bool (camera or delta: no MIS)
-    throughput (n, 3) float32; travelled (n,) float32 metres from the camera (ray cones)
+    throughput (n, 3) float32; travelled (n,) float32 metres from the camera (ray cones);
+    vertex_travelled (n,) float32 its value at the path's last scattering vertex (0 at the
+    camera): the distance from that vertex is what light sampling's density measures, even
+    when the path has crossed see-through surfaces since
     origin, direction (n, 3) float32 (directions unit); t_max (n,) float32 metres
     node (n,) int64 the path's class so far, row (n,) int64 its last event's norms row:
     the PathRecorder's columns (0 and −1 when nothing is recorded)
@@ -46,6 +49,7 @@ class PathQueue(_Queue):
     previous_singular: np.ndarray
     throughput: np.ndarray
     travelled: np.ndarray
+    vertex_travelled: np.ndarray
     origin: np.ndarray
     direction: np.ndarray
     t_max: np.ndarray

@@ -27,20 +27,20 @@ class Scattering:
 
 def scatter(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: float) -> Scattering:
     """Sample every lane's continuation; updates `queue` in place (direction, origin,
-    throughput, previous_pdf, previous_singular, depth; t_max to infinity)."""
+    throughput, previous_pdf, previous_singular, depth, vertex_travelled; t_max to infinity)."""
     n = len(queue)
     out = Scattering(np.zeros(n, np.int8), np.zeros(n, np.int8), np.zeros(n, bool), np.zeros(n, bool))
     _scatter_kernel(queue.key, surfaces.position, surfaces.facing, surfaces.frame, surfaces.wo, surfaces.lobes,
                     surfaces.cut, surfaces.scatters, rng.step_dimension(step), epsilon, queue.origin, queue.direction,
-                    queue.throughput, queue.previous_pdf, queue.previous_singular, queue.depth, queue.t_max, out.lobe,
-                    out.scatter, out.transmit, out.scattered)
+                    queue.throughput, queue.previous_pdf, queue.previous_singular, queue.depth, queue.t_max,
+                    queue.travelled, queue.vertex_travelled, out.lobe, out.scatter, out.transmit, out.scattered)
     return out
 
 
 @kernel
 def _scatter_kernel(key, position, facing, frame, wo, lobes, cut, scatters, dimension, epsilon, origin, direction,
-                    throughput, previous_pdf, previous_singular, depth, t_max, lobe_out, scatter_out, transmit_out,
-                    scattered_out):
+                    throughput, previous_pdf, previous_singular, depth, t_max, travelled, vertex_travelled, lobe_out,
+                    scatter_out, transmit_out, scattered_out):
     for lane in range(len(key)):
         t_max[lane] = T_INFINITY
         nx, ny, nz = facing[lane, 0], facing[lane, 1], facing[lane, 2]
@@ -54,6 +54,7 @@ def _scatter_kernel(key, position, facing, frame, wo, lobes, cut, scatters, dime
         if not scatters[lane]:  # at max depth, or nothing hit: the path ends here
             continue
         depth[lane] += 1
+        vertex_travelled[lane] = travelled[lane]
         stream = key[lane]
         u0 = rng.uniform(stream, dimension + rng.LOBE)
         u1 = rng.uniform(stream, dimension + rng.DIRECTION)

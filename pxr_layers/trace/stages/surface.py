@@ -23,7 +23,8 @@ def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry
     with opacityThreshold 0 a fraction 1 − opacity of the paths is (chosen at random): the
     path passes straight through. At step 0 with `spp`, that choice is stratified over each
     pixel's samples (rng.stratified, keyed by `frame_key`), so a half-present surface seen
-    by the camera passes exactly half of them; later choices are independent. The shading normal is the interpolated normal, perturbed
+    by the camera passes exactly half of them; later choices are independent. spp −1 makes
+    the choice fixed (what is less than half present passes), for data passes. The shading normal is the interpolated normal, perturbed
     by the material's tangent-space normal (tangents ∂P/∂s, ∂P/∂t of the triangle), turned
     to the viewer's side of the geometric normal (and replaced by it where it would face
     away from the viewer). Paths at `max_depth` get no lobe. curvature: (t,) float32 C per
@@ -96,6 +97,8 @@ def _surface_kernel(alive, key, pixel, sample, frame_key, spp, presence_dimensio
         cos_geometric = gx * wx + gy * wy + gz * wz
         if spp > 0:
             u_presence = rng.stratified(frame_key, pixel[lane], sample[lane], spp, presence_dimension)
+        elif spp < 0:
+            u_presence = 0.5
         else:
             u_presence = rng.uniform(key[lane], presence_dimension)
         cut = u_presence < shading.pass_fraction(inputs)
