@@ -322,19 +322,7 @@ def test_textured_dome_follows_the_openexr_lat_long_orientation(tmp_path):
     np.testing.assert_allclose(results["back"], 0.0, atol=0.01)
 
 
-@pytest.mark.parametrize("threshold, max_depth", [(0.0, 12), (0.5, 0)])
-def test_clear_glass_and_cut_out_spheres_vanish_in_a_uniform_dome(tmp_path, threshold, max_depth):
-    """White furnace for transmission: a smooth dielectric sphere (opacity 0, ior 1.5)
-    neither absorbs nor emits, so under a uniform dome every pixel sees the dome's
-    radiance; a cut-out (opacity below opacityThreshold) is crossed straight, which is
-    not a bounce, so even max_depth 0 sees through it."""
-    looks = preview_surface(
-        "glass",
-        opacity=("float", "0"),
-        opacityThreshold=("float", str(threshold)),
-        ior=("float", "1.5"),
-    )
-    body = """
+GLASS_BALL_IN_UNIFORM_DOME = """
     def Sphere "ball" (prepend apiSchemas = ["MaterialBindingAPI"])
     {
         double radius = 1
@@ -345,10 +333,26 @@ def test_clear_glass_and_cut_out_spheres_vanish_in_a_uniform_dome(tmp_path, thre
         float inputs:intensity = 1
     }
 """
+
+
+@pytest.mark.parametrize("threshold, max_depth", [(0.0, 12), (0.5, 0)])
+def test_transparent_and_cut_out_spheres_vanish_in_a_uniform_dome(tmp_path, threshold, max_depth):
+    """A sphere of opacity 0 is not there: without a threshold every path passes straight
+    through it (presence 0), and a cut-out (opacity below opacityThreshold) is crossed
+    straight too. Neither is a bounce, so even max_depth 0 sees the dome's radiance through
+    it, and a compositor sees through it as well: alpha 0. (Refraction is MaterialX's
+    transmission: tests/test_looks.py.)"""
+    looks = preview_surface(
+        "glass",
+        opacity=("float", "0"),
+        opacityThreshold=("float", str(threshold)),
+        ior=("float", "1.5"),
+    )
+    body = GLASS_BALL_IN_UNIFORM_DOME
     camera = camera_prim(50, 20, translate=(0, 0, 4))
     path = write(tmp_path, "glass.usda", stage_text(body, looks, camera))
     rgb, result = mean_rgb(path, spp=16, max_depth=max_depth)
-    assert result.rgba[8, 8, 3] == 1.0  # the sphere fills the centre of the frame
+    assert result.rgba[8, 8, 3] == 0.0  # the sphere, in the centre of the frame, covers nothing
     np.testing.assert_allclose(rgb, 1.0, rtol=0.01)
 
 

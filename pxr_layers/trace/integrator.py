@@ -136,8 +136,6 @@ class Integrator:
             hits = intersect(self.caster, queue)
             rays += len(queue)
             hit = hits.triangle >= 0
-            if step == 0:
-                film.add_coverage(queue, hit)
             if lights.has_infinite_lights:
                 splats = escaped(queue, hits, light_arrays)
                 for observer in observers:
@@ -150,12 +148,16 @@ class Integrator:
 
             # Lights absorb what reaches them.
             alive = hit & (np.take(geometry.triangle_light, hits.triangle) < 0)
+            # Coverage (alpha): the first surface or light a camera ray reaches and does not pass through.
+            unscattered = queue.depth == 0
             if not alive.any():
+                film.add_coverage(queue, hit & unscattered)
                 break
             wants_norms = any(observer.wants_norms(step) for observer in observers)
             surfaces = surface(queue, hits, alive, step, geometry, materials,
                                self.curvature if wants_norms else self.curvature[:0], settings.max_depth,
                                self.key, spp)
+            film.add_coverage(queue, hit & unscattered & ~surfaces.cut)
             if wants_norms and self.bounce_norms:
                 footprint = queue.travelled * self.pixel_angle / np.maximum(np.abs(surfaces.wo[:, 2]), 0.05)
                 self.bounce_norms.texture(surfaces, footprint)

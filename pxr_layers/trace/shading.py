@@ -39,7 +39,8 @@ IOR, OPACITY_THRESHOLD, USE_SPECULAR_WORKFLOW = 14, 15, 16
 NORMAL = 17  # 3 columns: tangent space
 TRANSMISSION, TRANSMISSION_COLOR = 20, 21  # 1 and 3 columns
 THIN_WALLED, HAS_NORMAL = 24, 25
-MATERIAL_FIELDS = 26
+NORMAL_UV = 26  # 4 columns: ∂(s, t)/∂(u, v) row-major, of the uv the normal map is looked up at
+MATERIAL_FIELDS = 30
 # Material fields a tree may drive: (field, first column, width).
 _INPUTS = (("diffuse_color", DIFFUSE, 3), ("emissive_color", EMISSIVE, 3), ("specular_color", SPECULAR, 3),
            ("roughness", ROUGHNESS, 1), ("metallic", METALLIC, 1), ("opacity", OPACITY, 1),
@@ -94,6 +95,7 @@ class MaterialTable:
             constants[index, USE_SPECULAR_WORKFLOW] = float(material.use_specular_workflow)
             constants[index, THIN_WALLED] = float(material.thin_walled)
             constants[index, HAS_NORMAL] = float(isinstance(material.normal, ShaderNode))
+            constants[index, NORMAL_UV:NORMAL_UV + 4] = normal_uv_frame(material)
             emissive[index] = (isinstance(material.emissive_color, ShaderNode)
                                or max(material.emissive_color) > 0)
         program_range[-1] = store_range[-1] = len(compiler.program), len(compiler.stores)
@@ -168,6 +170,26 @@ def diffuse_texture(material: Material):
             if transform is not None:
                 return current.tiles[0][1], transform
     return None
+
+
+def normal_uv_frame(material: Material) -> np.ndarray:
+    """∂(s, t)/∂(u, v) (4,) row-major, the inverse of the linear part of the uv transform
+    through which the first texture of the normal map reads the mesh's st: the tangent
+    frame of the normal map is ∂P/∂(u, v) = ∂P/∂(s, t) · that. Identity when there is no
+    such transform (or it is singular)."""
+    identity = np.array([1.0, 0.0, 0.0, 1.0])
+    if not isinstance(material.normal, ShaderNode):
+        return identity
+    for current in material.normal.walk():
+        if current.op == "texture":
+            transform = _uv_transform(current.inputs[0])
+            if transform is None:
+                return identity
+            linear = np.array([transform[0:2], transform[3:5]])
+            if abs(np.linalg.det(linear)) < 1e-12:
+                return identity
+            return np.linalg.inv(linear).reshape(-1)
+    return identity
 
 
 def _uv_transform(uv: ShaderNode):

@@ -13,7 +13,8 @@ class BatchFilm(Observer):
     """Pixel sums of the contiguous pixel range [first_pixel, first_pixel + pixel_count).
 
     rgb (k, 3) float64 sums of contributions (not yet divided by spp); alpha (k,) float64
-    count of camera rays that hit geometry. Contributions are added in the order the
+    count of camera rays that reach geometry they do not pass through (a cut-out or a
+    passed-through part of a partly present surface covers nothing). Contributions are added in the order the
     stages make them, so a batch always sums the same way."""
 
     def __init__(self, first_pixel: int, pixel_count: int):

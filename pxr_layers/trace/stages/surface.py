@@ -48,8 +48,10 @@ def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry
 @inline
 def mapped_normal(geometry, triangle, inputs, nx, ny, nz):
     """The unit normal (nx, ny, nz) perturbed by the tangent-space normal inputs[NORMAL:+3]
-    in the frame (∂P/∂s, ∂P/∂t, n) of `triangle`, Gram–Schmidt orthonormalised (one
-    tangent frame per triangle); unchanged where the uvs are degenerate."""
+    in the frame (∂P/∂u, ∂P/∂v, n) of `triangle`, (u, v) the coordinates the normal map is
+    looked up at (inputs[NORMAL_UV:+4], through its uv transform), Gram–Schmidt
+    orthonormalised (one tangent frame per triangle); unchanged where the uvs are
+    degenerate."""
     corners, uvs = geometry.corner_positions, geometry.corner_uvs
     e1x = corners[triangle, 1, 0] - corners[triangle, 0, 0]
     e1y = corners[triangle, 1, 1] - corners[triangle, 0, 1]
@@ -62,8 +64,13 @@ def mapped_normal(geometry, triangle, inputs, nx, ny, nz):
     det = ds1 * dt2 - ds2 * dt1
     if not abs(det) > 1e-20:
         return nx, ny, nz
-    tx, ty, tz = (e1x * dt2 - e2x * dt1) / det, (e1y * dt2 - e2y * dt1) / det, (e1z * dt2 - e2z * dt1) / det
-    bx, by, bz = (e2x * ds1 - e1x * ds2) / det, (e2y * ds1 - e1y * ds2) / det, (e2z * ds1 - e1z * ds2) / det
+    sx, sy, sz = (e1x * dt2 - e2x * dt1) / det, (e1y * dt2 - e2y * dt1) / det, (e1z * dt2 - e2z * dt1) / det
+    qx, qy, qz = (e2x * ds1 - e1x * ds2) / det, (e2y * ds1 - e1y * ds2) / det, (e2z * ds1 - e1z * ds2) / det
+    # ∂P/∂(u, v) of the uv the normal map reads: ∂P/∂(s, t) · ∂(s, t)/∂(u, v)
+    m00, m01 = inputs[shading.NORMAL_UV], inputs[shading.NORMAL_UV + 1]
+    m10, m11 = inputs[shading.NORMAL_UV + 2], inputs[shading.NORMAL_UV + 3]
+    tx, ty, tz = sx * m00 + qx * m10, sy * m00 + qy * m10, sz * m00 + qz * m10
+    bx, by, bz = sx * m01 + qx * m11, sy * m01 + qy * m11, sz * m01 + qz * m11
     along = tx * nx + ty * ny + tz * nz
     tx, ty, tz = normalized(tx - along * nx, ty - along * ny, tz - along * nz, 1e-30)
     cx, cy, cz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx  # n × t
