@@ -203,10 +203,9 @@ class _Network:
         if kind == "scalar":
             tree = nodes.swizzle(tree, (0,))
         if tree.is_constant:
-            values = tree.values
             if kind == "normal":
                 return None if is_flat_normal(tree) else tree
-            return values[:3] if kind == "color" else values[0]
+            return tree.values[:3] if kind == "color" else tree.values[0]
         return tree
 
     def _unsupported_connection(self, shader: UsdShade.Shader, input_name: str) -> None:

@@ -21,14 +21,16 @@ def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry
 
     Presence: a hit whose material's opacity is below its opacityThreshold is cut out, and
     with opacityThreshold 0 a fraction 1 − opacity of the paths is (chosen at random): the
-    path passes straight through. At step 0 with `spp`, that choice is stratified over each
-    pixel's samples (rng.stratified, keyed by `frame_key`), so a half-present surface seen
-    by the camera passes exactly half of them; later choices are independent. spp −1 makes
-    the choice fixed (what is less than half present passes), for data passes. The shading normal is the interpolated normal, perturbed
-    by the material's tangent-space normal (tangents ∂P/∂s, ∂P/∂t of the triangle), turned
-    to the viewer's side of the geometric normal (and replaced by it where it would face
-    away from the viewer). Paths at `max_depth` get no lobe. curvature: (t,) float32 C per
-    triangle, or (0,) for none (C = 0). Also adds the hit distance to ``queue.travelled``.
+    path passes straight through. At step 0 with `spp` > 0, that choice is stratified over
+    each pixel's samples (rng.stratified, keyed by `frame_key`), so a half-present surface
+    seen by the camera passes exactly half of them; later choices are independent. spp −1
+    makes every choice fixed (what is less than half present passes), for data passes.
+
+    The shading normal is the interpolated normal, perturbed by the material's tangent-space
+    normal (mapped_normal), turned to the viewer's side of the geometric normal (and
+    replaced by it where it would face away from the viewer). Paths at `max_depth` get no
+    lobe. curvature: (t,) float32 C per triangle, or (0,) for none (C = 0). Also adds the
+    hit distance to ``queue.travelled``.
     """
     n = len(queue)
     out = SurfaceQueue(
@@ -36,7 +38,7 @@ def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry
         frame=np.empty((n, 3, 3), np.float32), wo=np.empty((n, 3), np.float32),
         lobes=bsdf.lobe_rows(n), cut=np.empty(n, bool), scatters=np.empty(n, bool), triangle=hits.triangle,
         st=np.empty((n, 2), np.float32), curvature=np.zeros(n, np.float32), texture=np.zeros(n, np.float32))
-    _surface_kernel(alive, queue.key, queue.pixel, queue.sample, frame_key, spp if step == 0 else 0,
+    _surface_kernel(alive, queue.key, queue.pixel, queue.sample, frame_key, spp if step == 0 or spp < 0 else 0,
                     rng.step_dimension(step) + rng.PRESENCE, hits.triangle, hits.u, hits.v, hits.t,
                     queue.direction, queue.depth, queue.travelled, max_depth, geometry, materials, curvature,
                     scratch(3), scratch(3), scratch(shading.REGISTERS, 4), scratch(shading.MATERIAL_FIELDS),
