@@ -1,4 +1,4 @@
-"""stage/: material binding, UsdPreviewSurface and UsdUVTexture → scene.Material/TextureInput."""
+"""stage/: material binding, UsdPreviewSurface and UsdUVTexture → scene.Material and its shader-node trees."""
 
 from __future__ import annotations
 
