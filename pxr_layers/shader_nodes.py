@@ -132,6 +132,15 @@ def node(op: str, *inputs: ShaderNode, values: tuple[float, ...] = ()) -> Shader
     return ShaderNode("constant", values=tuple(float(value) for value in registers[MAX_INPUTS]))
 
 
+def field_value(tree: ShaderNode, width: int):
+    """What a scene.Material field of `width` (1 scalar, 3 colour) holds for `tree`: its
+    constant value (a float, or a 3-tuple) when it folded to one, else the tree (whose
+    first `width` components are read)."""
+    if not tree.is_constant:
+        return tree
+    return tuple(tree.values[:3]) if width == 3 else tree.values[0]
+
+
 def swizzle(source: ShaderNode, channels: tuple[int, ...]) -> ShaderNode:
     """Components `channels` of `source` (−1: 0, −2: 1), padded with 0."""
     padded = tuple(channels[:4]) + (-1,) * (4 - len(channels[:4]))

@@ -24,6 +24,13 @@ def write_image(path, pixels):
     output.close()
 
 
+def write_udim_tiles(tmp_path):
+    """maps/paint.1001.exr of 0.25 grey and maps/paint.1002.exr of 0.75."""
+    (tmp_path / "maps").mkdir()
+    for tile, value in ((1001, 0.25), (1002, 0.75)):
+        write_image(tmp_path / "maps" / f"paint.{tile}.exr", np.full((2, 2, 3), value))
+
+
 def plane(material: str, extra: str = "", name: str = "floor", height: float = 0.0) -> str:
     """A 100 m square in the y = height plane, normal +y, st (0, 0)–(1, 1) with ∂P/∂s = +x,
     ∂P/∂t = −z."""
@@ -139,9 +146,7 @@ def test_a_90_degree_usd_transform2d_rotates_a_texture_exactly(tmp_path):
 
 def test_udim_tiles_land_on_their_uv_squares(tmp_path):
     """tile = 1001 + ⌊s⌋ + 10·⌊t⌋; each tile is looked up at the fractional st."""
-    (tmp_path / "maps").mkdir()
-    for tile, value in ((1001, 0.25), (1002, 0.75)):
-        write_image(tmp_path / "maps" / f"paint.{tile}.exr", np.full((2, 2, 3), value))
+    write_udim_tiles(tmp_path)
     look = textured_look("tiled", "./maps/paint.<UDIM>.exr", "diffuseColor",
                          '                float4 inputs:fallback = (1, 0, 1, 1)\n')
     path = write(tmp_path, "udim.usda", stage_text(plane("tiled") + sun(60), look))
@@ -265,9 +270,7 @@ def test_occlusion_is_read_and_ignored_without_a_warning(tmp_path):
 def test_materialx_udim_images_read_the_same_tiles(tmp_path):
     """A MaterialX image whose file has <UDIM> (flattened into UsdShade) picks tiles as
     UsdUVTexture does: base_color = the tile's texel (base 1)."""
-    (tmp_path / "maps").mkdir()
-    for tile, value in ((1001, 0.25), (1002, 0.75)):
-        write_image(tmp_path / "maps" / f"paint.{tile}.exr", np.full((2, 2, 3), value))
+    write_udim_tiles(tmp_path)
     look = f"""
         def Material "tiled"
         {{

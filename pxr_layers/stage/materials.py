@@ -200,13 +200,9 @@ class _Network:
         if tree is None:
             self._unsupported_connection(shader, input_name)
             return None
-        if kind == "scalar":
-            tree = nodes.swizzle(tree, (0,))
-        if tree.is_constant:
-            if kind == "normal":
-                return None if is_flat_normal(tree) else tree
-            return tree.values[:3] if kind == "color" else tree.values[0]
-        return tree
+        if kind == "normal":
+            return None if is_flat_normal(tree) else tree
+        return nodes.field_value(tree, 3 if kind == "color" else 1)  # a scalar reads component 0
 
     def _unsupported_connection(self, shader: UsdShade.Shader, input_name: str) -> None:
         self._context.diagnostics.note(

@@ -49,7 +49,7 @@ import MaterialX as mx
 from pxr import Ar, Sdf, Usd, UsdShade
 
 from pxr_layers.scene import Material
-from pxr_layers.shader_nodes import ShaderNode, broadcast, constant, node, swizzle
+from pxr_layers.shader_nodes import ShaderNode, broadcast, constant, field_value, node, swizzle
 
 from .context import ReadContext
 from .defaults import DEFAULT_UV_SET
@@ -142,14 +142,6 @@ def _parse(text: str, type_name: str) -> tuple[float, ...] | None:
         return tuple(float(part) for part in text.replace(",", " ").split())
     except ValueError:
         return None
-
-
-def _field_color(value: ShaderNode):
-    return tuple(value.values[:3]) if value.is_constant else value
-
-
-def _field_scalar(value: ShaderNode):
-    return value.values[0] if value.is_constant else value
 
 
 class _Evaluator:
@@ -780,16 +772,16 @@ class MaterialXReader:
             return value if value is not None else constant(0.0)
 
         return {
-            "diffuse_color": _field_color(out("diffuseColor_out")),
-            "emissive_color": _field_color(out("emissiveColor_out")),
-            "metallic": _field_scalar(out("metallic_out")),
-            "roughness": _field_scalar(out("roughness_out")),
-            "clearcoat": _field_scalar(out("clearcoat_out")),
-            "clearcoat_roughness": _field_scalar(out("clearcoatRoughness_out")),
-            "opacity": _field_scalar(out("opacity_out")),
+            "diffuse_color": field_value(out("diffuseColor_out"), 3),
+            "emissive_color": field_value(out("emissiveColor_out"), 3),
+            "metallic": field_value(out("metallic_out"), 1),
+            "roughness": field_value(out("roughness_out"), 1),
+            "clearcoat": field_value(out("clearcoat_out"), 1),
+            "clearcoat_roughness": field_value(out("clearcoatRoughness_out"), 1),
+            "opacity": field_value(out("opacity_out"), 1),
             "ior": self._uniform(ev, out("ior_out"), "ior", 1.5),
-            "transmission": _field_scalar(get("transmission")),
-            "transmission_color": _field_color(get("transmission_color")),
+            "transmission": field_value(get("transmission"), 1),
+            "transmission_color": field_value(get("transmission_color"), 3),
             "thin_walled": bool(self._uniform(ev, get("thin_walled"), "thin_walled", 0.0)),
         }
 
@@ -801,24 +793,24 @@ class MaterialXReader:
         emissive = node("multiply", get("emissive"), broadcast(get("emissive_strength")))
         transmission = get("transmission")
         fields = {
-            "diffuse_color": _field_color(base),
-            "metallic": _field_scalar(get("metallic")),
-            "roughness": _field_scalar(get("roughness")),
-            "emissive_color": _field_color(emissive),
-            "clearcoat": _field_scalar(get("clearcoat")),
-            "clearcoat_roughness": _field_scalar(get("clearcoat_roughness")),
-            "transmission": _field_scalar(transmission),
+            "diffuse_color": field_value(base, 3),
+            "metallic": field_value(get("metallic"), 1),
+            "roughness": field_value(get("roughness"), 1),
+            "emissive_color": field_value(emissive, 3),
+            "clearcoat": field_value(get("clearcoat"), 1),
+            "clearcoat_roughness": field_value(get("clearcoat_roughness"), 1),
+            "transmission": field_value(transmission, 1),
             "ior": self._uniform(ev, get("ior"), "ior", 1.5),
             "normal": self._normal(ev, surface, "normal", frame),
         }
         if not (transmission.is_constant and transmission.values[0] == 0.0):
-            fields["transmission_color"] = _field_color(base)
+            fields["transmission_color"] = field_value(base, 3)
             fields["thin_walled"] = self._uniform(ev, get("thickness"), "thickness", 0.0) == 0.0
         mode = ev.integer(surface, "alpha_mode", frame)
         if mode == 0:
             fields["opacity"] = 1.0
         else:
-            fields["opacity"] = _field_scalar(get("alpha"))
+            fields["opacity"] = field_value(get("alpha"), 1)
             fields["opacity_threshold"] = (self._uniform(ev, get("alpha_cutoff"), "alpha_cutoff", 0.5)
                                            if mode == 1 else 0.0)
         return fields
@@ -828,9 +820,9 @@ class MaterialXReader:
         for spec in PREVIEW_INPUTS:
             value = ev.input(surface, spec.usd_name, frame)
             if spec.kind == "color":
-                fields[spec.field] = _field_color(value)
+                fields[spec.field] = field_value(value, 3)
             elif spec.kind == "scalar":
-                fields[spec.field] = _field_scalar(value)
+                fields[spec.field] = field_value(value, 1)
             elif spec.kind == "normal":
                 fields[spec.field] = None if is_flat_normal(value) else value
             else:

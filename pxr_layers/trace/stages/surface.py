@@ -104,13 +104,16 @@ def _surface_kernel(alive, key, pixel, sample, frame_key, spp, presence_dimensio
         gx, gy, gz = geometry.geometric_normal[tri, 0], geometry.geometric_normal[tri, 1], geometry.geometric_normal[tri, 2]
         wx, wy, wz = -direction[lane, 0], -direction[lane, 1], -direction[lane, 2]
         cos_geometric = gx * wx + gy * wy + gz * wz
-        if spp > 0:
-            u_presence = rng.stratified(frame_key, pixel[lane], sample[lane], spp, presence_dimension)
-        elif spp < 0:
-            u_presence = 0.5
-        else:
-            u_presence = rng.uniform(key[lane], presence_dimension)
-        cut = u_presence < shading.pass_fraction(inputs)
+        passing = shading.pass_fraction(inputs)
+        cut = False
+        if passing > 0:  # a random number only where there is a choice (most surfaces are opaque)
+            if spp > 0:
+                u_presence = rng.stratified(frame_key, pixel[lane], sample[lane], spp, presence_dimension)
+            elif spp < 0:
+                u_presence = 0.5
+            else:
+                u_presence = rng.uniform(key[lane], presence_dimension)
+            cut = u_presence < passing
         scatters = not cut and depth[lane] < max_depth
         nx, ny, nz = normalized(normal[0], normal[1], normal[2], 1e-12)
         if inputs[shading.HAS_NORMAL] > 0:
