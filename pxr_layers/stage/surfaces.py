@@ -424,22 +424,25 @@ def _expand(
     path: str,
     name: str,
 ) -> np.ndarray | None:
-    """Any primvar interpolation → (t, 3, k) values per triangle corner."""
+    """Any primvar interpolation → (t, 3, k) writable values per triangle corner (None, noted,
+    with too few values)."""
+    if not _has_enough(values, interpolation, topology, diagnostics, path, name):
+        return None
+    corners = _corner_values(values, interpolation, topology.triangle_face, topology.corners, topology.triangles,
+                             dtype=values.dtype)
+    return corners if corners.flags.writeable else corners.copy()  # constant and uniform come as views
+
+
+def _has_enough(values: np.ndarray, interpolation: str, topology: _Topology, diagnostics: Diagnostics, path: str,
+                name: str) -> bool:
+    """Whether a primvar has the values its interpolation needs on this mesh (noted if not)."""
     expected = _expected_count(
         interpolation, topology.point_count, topology.face_count, topology.corner_count
     )
     if expected is None or len(values) < expected:
         _note_too_few(diagnostics, path, name, len(values), interpolation)
-        return None
-    triangle_count = len(topology.triangles)
-    if interpolation == UsdGeom.Tokens.constant:
-        return np.broadcast_to(values[0], (triangle_count, 3, values.shape[1])).copy()
-    if interpolation == UsdGeom.Tokens.uniform:
-        per_face = np.take(values, topology.triangle_face, axis=0)
-        return np.repeat(per_face[:, None, :], 3, axis=1)
-    if interpolation == UsdGeom.Tokens.faceVarying:
-        return np.take(values, topology.corners, axis=0)  # (fancy indexing of rows is slower)
-    return np.take(values, topology.triangles, axis=0)
+        return False
+    return True
 
 
 # --- material primvars ------------------------------------------------------------------------
@@ -555,11 +558,7 @@ def _polygon_primvars(
         if values is None:
             continue
         interpolation = primvar.GetInterpolation()
-        expected = _expected_count(
-            interpolation, topology.point_count, topology.face_count, topology.corner_count
-        )
-        if expected is None or len(values) < expected:
-            _note_too_few(diagnostics, path, name, len(values), interpolation)
+        if not _has_enough(values, interpolation, topology, diagnostics, path, name):
             continue
         result[name] = _corner_values(
             values, interpolation, topology.triangle_face, topology.corners, topology.triangles
