@@ -29,11 +29,23 @@ def shipped_scene():
 
 @pytest.fixture(scope="session")
 def shared_scenes() -> Path:
-    """``../shared/scenes``: the real third-party USD assets. Skips without it, unless
-    PXR_LAYERS_REQUIRE_SHARED is set (CI has it), where its absence fails."""
-    scenes = SHARED / "scenes"
-    if scenes.is_dir():
-        return scenes
+    """``../shared/scenes``: the real third-party USD assets (see _shared_folder)."""
+    return _shared_folder("scenes")
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """``../shared/data``: third-party test data, photometric files and UsdLux test stages
+    (see _shared_folder)."""
+    return _shared_folder("data")
+
+
+def _shared_folder(name: str) -> Path:
+    """``../shared/<name>``. Skips without it, unless PXR_LAYERS_REQUIRE_SHARED is set (CI
+    has it), where its absence fails."""
+    folder = SHARED / name
+    if folder.is_dir():
+        return folder
     if os.environ.get(REQUIRE_SHARED):
-        pytest.fail(f"{scenes} is missing and {REQUIRE_SHARED} is set")
-    pytest.skip(f"{scenes} is not here (the workplace's shared assets)")
+        pytest.fail(f"{folder} is missing and {REQUIRE_SHARED} is set")
+    pytest.skip(f"{folder} is not here (the workplace's shared assets)")
