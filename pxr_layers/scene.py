@@ -136,7 +136,55 @@ class Mesh:
         return np.take(self.normal_values, self.normal_indices, axis=0)
 
 
-LightKind = Literal["rect", "disk", "sphere", "cylinder", "distant", "dome"]
+LightKind = Literal["rect", "disk", "sphere", "cylinder", "distant", "dome", "point", "line"]
+
+
+@dataclass(frozen=True)
+class IesProfile:
+    """An IES LM-63 photometric profile (type C), as stage/ies.py reads it.
+
+    vertical   : (V,) float64 radians, ascending, 0 = the light's emission axis (−Z, "down"
+                 in IES terms) up to at most π
+    horizontal : (H,) float64 radians, ascending from 0 to 2π inclusive: the file's
+                 symmetries (one plane, a quadrant, a half) already unfolded, so
+                 candela[0] == candela[-1]
+    candela    : (H, V) float64 luminous intensity, the file's candela multiplier and ballast
+                 factor applied
+    power      : the profile's mean intensity (candela) over the sphere, or over the
+                 hemisphere when its vertical angles span no more than π/2 (+0.1 rad): the
+                 divisor ``shaping:ies:normalize`` applies (as hdEmbree, Karma and RenderMan do)
+    """
+
+    path: str
+    vertical: np.ndarray
+    horizontal: np.ndarray
+    candela: np.ndarray
+    power: float
+
+
+@dataclass(frozen=True)
+class LightShaping:
+    """UsdLuxShapingAPI of one light, with the UsdLux documentation's semantics (evaluated
+    in trace/lights.py). θ is the angle between the light's −Z axis and the emission
+    direction; the factors multiply the light's radiance:
+
+    cone      : 1 − smoothstep(θ; cone_angle · (1 − cone_softness), cone_angle), in radians
+                from the degrees here (softness 0: 1 up to cone_angle, 0 beyond)
+    focus     : lerp(|cos θ|^focus, focus_tint, 1) per channel, when focus > 0
+    ies       : the profile's intensity at (θ scaled by ies_angle_scale, φ), divided by its
+                power when ies_normalize
+
+    cone_softness is clamped to [0, 1] and a negative focus read as 0 by the reader. The
+    reader gives a light a LightShaping only when one of these changes its emission.
+    """
+
+    cone_angle: float = 180.0
+    cone_softness: float = 0.0
+    focus: float = 0.0
+    focus_tint: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    ies: IesProfile | None = None
+    ies_angle_scale: float = 0.0
+    ies_normalize: bool = False
 
 
 @dataclass(frozen=True)
@@ -152,8 +200,25 @@ class Light:
     radius           : disk / sphere / cylinder radius in local units
     length           : cylinder length along local X in local units
     angle            : distant light angular diameter in degrees
-    texture          : dome lat-long image (index into SceneData.textures), None = constant;
-                       the dome's orientation (``poleAxis``, up axis) is in world_from_light
+    texture          : index into SceneData.textures, None = constant: a dome's lat-long
+                       image (its orientation, ``poleAxis`` and up axis, in world_from_light),
+                       or a rect's colour map, whose top-left corner is at local (+X, +Y) and
+                       bottom-right at (−X, −Y) (UsdLux RectLight), so it reads unmirrored from
+                       the lit side
+    shaping          : ShapingAPI controls that change the emission, None = none
+    diffuse, specular: UsdLux's non-physical multipliers of the light's effect on diffuse and
+                       on every other (specular, coat, transmission) response
+    camera_visible   : whether camera rays see the light's shape (or a dome as background);
+                       reflections and everything else always see it
+    light_link       : indices into SceneData.meshes this light illuminates, None = every mesh
+                       (``collection:lightLink``); emissive surfaces are not linked
+    shadow_link      : indices into SceneData.meshes that block this light, None = every mesh
+                       and light shape (``collection:shadowLink``)
+
+    kind "point" is a SphereLight with ``treatAsPoint`` and "line" a CylinderLight with
+    ``treatAsLine``: collapsed to their centre or axis with the power of the shape they stand
+    for (radius, length as authored), so the hint changes noise, not brightness; they have no
+    shape to hit (never seen by camera or BSDF rays).
     """
 
     name: str
@@ -167,6 +232,12 @@ class Light:
     length: float = 1.0
     angle: float = 0.53
     texture: int | None = None
+    shaping: LightShaping | None = None
+    diffuse: float = 1.0
+    specular: float = 1.0
+    camera_visible: bool = True
+    light_link: tuple[int, ...] | None = None
+    shadow_link: tuple[int, ...] | None = None
 
 
 @dataclass(frozen=True)

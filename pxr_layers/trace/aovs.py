@@ -117,7 +117,8 @@ class _DataTracer:
         # The closest surface that is not cut out: lanes crossing a cut-out go on from behind
         # it, as the integrator's paths do (stages.surface decides what is cut out).
         for step in range(MAX_PASS_THROUGH + 1):
-            hits = intersect(integrator.caster, queue)
+            hits = intersect(integrator.caster, queue, integrator.geometry.triangle_light, integrator.hidden_lights,
+                             integrator.epsilon)
             hit = np.flatnonzero(hits.triangle >= 0)
             queue, hits, lanes = queue.take(hit), hits.take(hit), lanes[hit]
             if not len(queue):

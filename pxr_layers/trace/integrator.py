@@ -105,6 +105,8 @@ class Integrator:
         self.bounce_norms = bounce_norms if settings.norm_bounces > 0 else None
         self.curvature = self.bounce_norms.curvature if self.bounce_norms else np.zeros(0, np.float32)
         self.epsilon = float(np.float32(1e-5 * (world.radius + np.linalg.norm(world.center)) + 1e-7))
+        # the lights whose shapes camera rays pass (light shapes only: points and lines have none)
+        self.hidden_lights = ~lights.arrays.camera_visible
         # ray cone of a camera ray: radians per pixel (the film window's width over its pixels)
         self.pixel_angle = np.float32(2 * camera.half_width / self.width)
 
@@ -133,7 +135,7 @@ class Integrator:
         for step in range(settings.max_depth + MAX_PASS_THROUGH + 1):
             if not len(queue):
                 break
-            hits = intersect(self.caster, queue)
+            hits = intersect(self.caster, queue, geometry.triangle_light, self.hidden_lights, self.epsilon)
             rays += len(queue)
             hit = hits.triangle >= 0
             if lights.has_infinite_lights:
@@ -165,7 +167,8 @@ class Integrator:
             if lights.has_lights:
                 shadows = light_samples(queue, surfaces, step, self.epsilon, geometry, materials, light_arrays)
                 rays += len(shadows)
-                cast_shadows(self.caster, shadows, geometry, materials, self.materials.see_through, self.epsilon)
+                cast_shadows(self.caster, shadows, geometry, materials, light_arrays, self.materials.see_through,
+                             self.epsilon)
                 for observer in observers:
                     observer.lit(queue, surfaces, shadows)
 

@@ -63,6 +63,8 @@ class World:
     object_instance  : (objects,) int32 per object (object_names order): the instance
                        number N of a point-instanced mesh (scene.Mesh.instance), -1 for
                        other meshes and for lights
+    object_mesh      : (objects,) int32 per object: its index in SceneData.meshes, -1 for
+                       light shapes
     center, radius   : bounding sphere of all vertices (metres)
     """
 
@@ -86,6 +88,7 @@ class World:
     object_names: tuple[str, ...]
     object_paths: tuple[str, ...]
     object_instance: np.ndarray
+    object_mesh: np.ndarray
     center: np.ndarray
     radius: float
 
@@ -148,12 +151,14 @@ def build_world(scene: SceneData) -> World:
     """
     # every mesh and light shape as a Mesh, with the light it is the shape of (NOT_A_LIGHT)
     pieces: list[tuple[Mesh, int]] = [(mesh, NOT_A_LIGHT) for mesh in scene.meshes if len(mesh.triangles)]
+    object_mesh = [index for index, mesh in enumerate(scene.meshes) if len(mesh.triangles)]
     for light_index, light in enumerate(scene.lights):
         shape = light_shape(light)
         if shape is not None:
             points, triangles = shape
             pieces.append((Mesh(light.name, light.path, points, triangles, None, None, None,
                                 np.full(len(triangles), -1, dtype=INDEX)), light_index))
+            object_mesh.append(-1)
     if not pieces and not scene.lights:
         raise RenderSettingsError(f"{scene.stage_path}: nothing to render (no geometry and no lights)")
     if not pieces:
@@ -161,6 +166,7 @@ def build_world(scene: SceneData) -> World:
         # piece keeps every table below well formed, with zero rows.
         pieces.append((Mesh("", "", np.zeros((0, 3), FLOAT), np.zeros((0, 3), INDEX), None, None, None,
                             np.zeros(0, INDEX)), NOT_A_LIGHT))
+        object_mesh.append(-1)
 
     vertex_count = sum(len(piece.points) for piece, _ in pieces)
     count = sum(len(piece.triangles) for piece, _ in pieces)
@@ -242,6 +248,7 @@ def build_world(scene: SceneData) -> World:
         object_names=tuple(piece.name for piece, _ in pieces),
         object_paths=tuple(piece.path for piece, _ in pieces),
         object_instance=np.asarray([piece.instance for piece, _ in pieces], dtype=INDEX),
+        object_mesh=np.asarray(object_mesh, dtype=INDEX),
         center=center.astype(np.float64),
         radius=float(np.linalg.norm(high - low) / 2) or 1.0,
     )
@@ -311,7 +318,7 @@ def light_shape(light: Light) -> tuple[np.ndarray, np.ndarray] | None:
     """World-space triangles of an area light, wound so the normal is the emitting side.
 
     Returns (points (v, 3) float32 metres, triangles (t, 3) int32), or None for lights with
-    no shape (distant, dome).
+    no shape (distant, dome, and the point and line a treatAsPoint/treatAsLine light is).
     """
     if light.kind == "rect":
         w, h = light.width / 2, light.height / 2

@@ -22,6 +22,7 @@ def camera_rays(camera: PinholeCamera, frame_key: np.uint64, resolution: tuple[i
         pixel=np.empty(count, np.int64), sample=np.empty(count, np.int32), key=np.empty(count, np.uint64),
         depth=np.zeros(count, np.int32), previous_pdf=np.zeros(count, np.float32),
         previous_singular=np.ones(count, bool),  # the camera: what it sees directly is not MIS'd
+        previous_triangle=np.full(count, -1, np.int32), previous_lobe=np.full(count, -1, np.int8),
         throughput=np.ones((count, 3), np.float32), travelled=np.zeros(count, np.float32),
         vertex_travelled=np.zeros(count, np.float32),
         origin=np.empty((count, 3), np.float32), direction=np.empty((count, 3), np.float32),

@@ -12,7 +12,7 @@ from ...compiled import kernel, scratch
 from ..embree import RayCaster
 from ..lights import LightArrays
 from ..shading import MaterialArrays
-from ..vectors import to_local
+from ..vectors import normalized, to_local
 from ..world import GeometryArrays
 from .queues import MAX_PASS_THROUGH, T_INFINITY, PathQueue, ShadowQueue, SurfaceQueue, trimmed
 
@@ -20,15 +20,22 @@ from .queues import MAX_PASS_THROUGH, T_INFINITY, PathQueue, ShadowQueue, Surfac
 def light_samples(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: float, geometry: GeometryArrays,
                   materials: MaterialArrays, lights: LightArrays) -> ShadowQueue:
     """A light sample for every shading point that may scatter, with its shadow ray and
-    each lobe's MIS-weighted contribution if the ray is unoccluded. Samples that cannot
-    contribute (no density, behind the surface, black light or lobes) are left out."""
+    each lobe's MIS-weighted contribution if the ray is unoccluded (times the light's
+    diffuse or specular multiplier). Samples that cannot contribute (no density, behind the
+    surface, black light or lobes, a light not linked to the surface) are left out.
+
+    The shadow ray runs between the two offset ends: from the shading point lifted off its
+    surface to the light's point lifted off the light's surface toward it. Measuring t_max
+    from the unlifted point instead lets a ray that meets the light at a grazing angle hit
+    the light's own triangle before t_max (and lose the light)."""
     n = len(queue)
     shadows = ShadowQueue(lane=np.empty(n, np.int64), origin=np.empty((n, 3), np.float32),
                           direction=np.empty((n, 3), np.float32), t_max=np.empty(n, np.float32),
                           radiance=np.empty((n, 3, 3), np.float32), light=np.empty(n, np.int32),
                           triangle=np.empty(n, np.int32), visible=np.zeros(n, bool))
     count = _light_sample_kernel(queue.key, queue.throughput, surfaces.position, surfaces.facing, surfaces.frame,
-                                 surfaces.wo, surfaces.lobes, surfaces.scatters, rng.step_dimension(step), epsilon,
+                                 surfaces.wo, surfaces.lobes, surfaces.scatters, surfaces.triangle,
+                                 rng.step_dimension(step), epsilon,
                                  geometry, materials, lights, scratch(3, 3), scratch(3), scratch(3),
                                  scratch(shading.REGISTERS, 4), scratch(shading.MATERIAL_FIELDS), shadows.lane, shadows.origin, shadows.direction,
                                  shadows.t_max, shadows.radiance, shadows.light, shadows.triangle)
@@ -36,17 +43,18 @@ def light_samples(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: 
 
 
 def cast_shadows(caster: RayCaster, shadows: ShadowQueue, geometry: GeometryArrays, materials: MaterialArrays,
-                 see_through: bool, epsilon: float) -> None:
+                 lights: LightArrays, see_through: bool, epsilon: float) -> None:
     """Set ``shadows.visible``: which shadow rays reach their light. With `see_through`
-    materials in the scene, a blocked ray is followed through the surfaces it crosses (up
-    to MAX_PASS_THROUGH of them): a cut-out passes it whole, a partly present surface
+    materials in the scene, or lights whose shadows only some geometry casts, a blocked ray
+    is followed through the surfaces it crosses (up to MAX_PASS_THROUGH of them): geometry
+    outside the light's shadow link and cut-outs pass it whole, a partly present surface
     (opacity without threshold) passes a fraction 1 − opacity, which scales its radiance —
     the expected value of the camera paths' random choice, without its noise."""
     if not len(shadows):
         return
     blocked = caster.occluded(shadows.origin, shadows.direction, shadows.t_max)
     shadows.visible = ~blocked
-    if not see_through or not blocked.any():
+    if not (see_through or lights.sampled_only.any()) or not blocked.any():
         return
     lanes = np.flatnonzero(blocked)
     origin, direction = shadows.origin[lanes], shadows.direction[lanes]
@@ -58,8 +66,8 @@ def cast_shadows(caster: RayCaster, shadows: ShadowQueue, geometry: GeometryArra
         shadows.visible[lanes[crossed]] = True
         shadows.radiance[lanes[crossed]] *= transmittance[crossed, None, None]
         fraction = np.empty(len(lanes), np.float32)
-        _presence_kernel(triangle, u, v, geometry, materials, scratch(shading.REGISTERS, 4),
-                         scratch(shading.MATERIAL_FIELDS), fraction)
+        _presence_kernel(triangle, u, v, shadows.light[lanes], geometry, materials, lights,
+                         scratch(shading.REGISTERS, 4), scratch(shading.MATERIAL_FIELDS), fraction)
         going = np.flatnonzero(~crossed & (fraction > 0))
         if not len(going):
             return
@@ -70,11 +78,17 @@ def cast_shadows(caster: RayCaster, shadows: ShadowQueue, geometry: GeometryArra
 
 
 @kernel
-def _presence_kernel(triangle, bary_u, bary_v, geometry, materials, registers, inputs, fraction_out):
-    """The fraction of light each hit lets through (0 where there is no hit)."""
+def _presence_kernel(triangle, bary_u, bary_v, light, geometry, materials, lights, registers, inputs, fraction_out):
+    """The fraction of `light`'s light each hit lets through (0 where there is no hit)."""
     for lane in range(len(triangle)):
         tri = triangle[lane]
         if tri < 0:
+            fraction_out[lane] = 0.0
+            continue
+        if not light_sampling.blocks(lights, light[lane], tri):
+            fraction_out[lane] = 1.0
+            continue
+        if geometry.triangle_light[tri] >= 0:  # a light's shape: opaque
             fraction_out[lane] = 0.0
             continue
         shading.shade_point(materials, geometry, tri, bary_u[lane], bary_v[lane], registers, inputs)
@@ -82,9 +96,9 @@ def _presence_kernel(triangle, bary_u, bary_v, geometry, materials, registers, i
 
 
 @kernel
-def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, scatters, dimension, epsilon, geometry,
-                         materials, lights, f, lobe_pdf, radiance, registers, inputs, lane_out, origin_out, direction_out, t_max_out, radiance_out, light_out,
-                         triangle_out):
+def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, scatters, surface_triangle, dimension,
+                         epsilon, geometry, materials, lights, f, lobe_pdf, radiance, registers, inputs, lane_out,
+                         origin_out, direction_out, t_max_out, radiance_out, light_out, triangle_out):
     count = 0
     for lane in range(len(key)):
         if not scatters[lane]:
@@ -100,6 +114,8 @@ def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, sc
         nx, ny, nz = facing[lane, 0], facing[lane, 1], facing[lane, 2]
         if not pdf > 0 or dx * nx + dy * ny + dz * nz <= 0 or max(r, g, b) <= 0:
             continue
+        if not light_sampling.lit(lights, light, surface_triangle[lane]):
+            continue
         ix, iy, iz = to_local(frame, lane, dx, dy, dz)
         bsdf.evaluate(lobes[lane], wo[lane, 0], wo[lane, 1], wo[lane, 2], ix, iy, iz, f, lobe_pdf)
         if max(f[0, 0], f[0, 1], f[0, 2], f[1, 0], f[1, 1], f[1, 2], f[2, 0], f[2, 1], f[2, 2]) <= 0:
@@ -107,16 +123,29 @@ def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, sc
         delta = math.isinf(pdf)
         scale = abs(iz) / (1.0 if delta else pdf)
         br, bg, bb = throughput[lane, 0] * r * scale, throughput[lane, 1] * g * scale, throughput[lane, 2] * b * scale
+        alone = delta or (light >= 0 and lights.sampled_only[light])  # no BSDF sample finds it: no MIS
         for lobe in range(3):
-            weight = 1.0 if delta else bsdf.power_heuristic(pdf, lobe_pdf[lobe])
+            weight = 1.0 if alone else bsdf.power_heuristic(pdf, lobe_pdf[lobe])
+            weight *= light_sampling.response(lights, light, lobe)
             radiance_out[count, lobe, 0] = br * f[lobe, 0] * weight
             radiance_out[count, lobe, 1] = bg * f[lobe, 1] * weight
             radiance_out[count, lobe, 2] = bb * f[lobe, 2] * weight
         lane_out[count], light_out[count], triangle_out[count] = lane, light, triangle
-        origin_out[count, 0] = px + nx * epsilon
-        origin_out[count, 1] = py + ny * epsilon
-        origin_out[count, 2] = pz + nz * epsilon
-        direction_out[count, 0], direction_out[count, 1], direction_out[count, 2] = dx, dy, dz
-        t_max_out[count] = distance * (1 - 1e-4) - 2 * epsilon if math.isfinite(distance) else T_INFINITY
+        ox, oy, oz = px + nx * epsilon, py + ny * epsilon, pz + nz * epsilon
+        origin_out[count, 0], origin_out[count, 1], origin_out[count, 2] = ox, oy, oz
+        if math.isfinite(distance):
+            qx, qy, qz = px + dx * distance, py + dy * distance, pz + dz * distance
+            if triangle >= 0:  # lifted off the light's surface, on the side the ray arrives from
+                gx, gy, gz = (geometry.geometric_normal[triangle, 0], geometry.geometric_normal[triangle, 1],
+                              geometry.geometric_normal[triangle, 2])
+                side = epsilon if gx * dx + gy * dy + gz * dz < 0 else -epsilon
+                qx, qy, qz = qx + gx * side, qy + gy * side, qz + gz * side
+            sx, sy, sz = qx - ox, qy - oy, qz - oz
+            span = math.sqrt(sx * sx + sy * sy + sz * sz)
+            direction_out[count, 0], direction_out[count, 1], direction_out[count, 2] = normalized(sx, sy, sz, 1e-30)
+            t_max_out[count] = span * (1 - 1e-4)
+        else:
+            direction_out[count, 0], direction_out[count, 1], direction_out[count, 2] = dx, dy, dz
+            t_max_out[count] = T_INFINITY
         count += 1
     return count

@@ -32,6 +32,9 @@ class PathQueue(_Queue):
     pixel (n,) int64; sample (n,) int32; key (n,) uint64 random stream (rng.py)
     depth (n,) int32 scattering events so far; previous_pdf (n,) float32 density of the
     last scattering direction (MIS); previous_singular (n,) bool (camera or delta: no MIS)
+    previous_triangle (n,) int32 the surface of the last scattering vertex (−1: the
+    camera) and previous_lobe (n,) int8 the lobe it took (bsdf.py, −1: the camera), which
+    light linking and the lights' diffuse/specular multipliers read
     throughput (n, 3) float32; travelled (n,) float32 metres from the camera (ray cones);
     vertex_travelled (n,) float32 its value at the path's last scattering vertex (0 at the
     camera): the distance from that vertex is what light sampling's density measures, even
@@ -47,6 +50,8 @@ class PathQueue(_Queue):
     depth: np.ndarray
     previous_pdf: np.ndarray
     previous_singular: np.ndarray
+    previous_triangle: np.ndarray
+    previous_lobe: np.ndarray
     throughput: np.ndarray
     travelled: np.ndarray
     vertex_travelled: np.ndarray

@@ -27,20 +27,22 @@ class Scattering:
 
 def scatter(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: float) -> Scattering:
     """Sample every lane's continuation; updates `queue` in place (direction, origin,
-    throughput, previous_pdf, previous_singular, depth, vertex_travelled; t_max to infinity)."""
+    throughput, previous_pdf, previous_singular, previous_triangle, previous_lobe, depth,
+    vertex_travelled; t_max to infinity)."""
     n = len(queue)
     out = Scattering(np.zeros(n, np.int8), np.zeros(n, np.int8), np.zeros(n, bool), np.zeros(n, bool))
     _scatter_kernel(queue.key, surfaces.position, surfaces.facing, surfaces.frame, surfaces.wo, surfaces.lobes,
-                    surfaces.cut, surfaces.scatters, rng.step_dimension(step), epsilon, queue.origin, queue.direction,
-                    queue.throughput, queue.previous_pdf, queue.previous_singular, queue.depth, queue.t_max,
+                    surfaces.cut, surfaces.scatters, surfaces.triangle, rng.step_dimension(step), epsilon, queue.origin,
+                    queue.direction, queue.throughput, queue.previous_pdf, queue.previous_singular,
+                    queue.previous_triangle, queue.previous_lobe, queue.depth, queue.t_max,
                     queue.travelled, queue.vertex_travelled, out.lobe, out.scatter, out.transmit, out.scattered)
     return out
 
 
 @kernel
-def _scatter_kernel(key, position, facing, frame, wo, lobes, cut, scatters, dimension, epsilon, origin, direction,
-                    throughput, previous_pdf, previous_singular, depth, t_max, travelled, vertex_travelled, lobe_out,
-                    scatter_out, transmit_out, scattered_out):
+def _scatter_kernel(key, position, facing, frame, wo, lobes, cut, scatters, triangle, dimension, epsilon, origin,
+                    direction, throughput, previous_pdf, previous_singular, previous_triangle, previous_lobe, depth, t_max,
+                    travelled, vertex_travelled, lobe_out, scatter_out, transmit_out, scattered_out):
     for lane in range(len(key)):
         t_max[lane] = T_INFINITY
         nx, ny, nz = facing[lane, 0], facing[lane, 1], facing[lane, 2]
@@ -71,6 +73,7 @@ def _scatter_kernel(key, position, facing, frame, wo, lobes, cut, scatters, dime
         throughput[lane, 2] *= wb
         previous_pdf[lane] = pdf
         previous_singular[lane] = pdf == 0
+        previous_triangle[lane], previous_lobe[lane] = triangle[lane], lobe
         offset = -epsilon if transmit else epsilon
         origin[lane, 0] = position[lane, 0] + nx * offset
         origin[lane, 1] = position[lane, 1] + ny * offset
