@@ -11,6 +11,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 
 from pxr_layers.request import RenderRequest
 from pxr_layers.stage import load_stage
+from pxr_layers.stage.lights import blackbody_rgb
 
 
 def new_stage(tmp_path, *, up_axis=UsdGeom.Tokens.y, meters_per_unit=1.0) -> Usd.Stage:
@@ -52,11 +53,48 @@ def test_color_temperature_multiplies_the_blackbody_colour(tmp_path):
     light.CreateColorTemperatureAttr(3000.0)
     UsdLux.SphereLight.Define(stage, "/off").CreateColorTemperatureAttr(3000.0)  # not enabled
     lights = {light.name: light for light in load(stage).lights}
-    np.testing.assert_allclose(
-        lights["warm"].radiance, 3.0 * np.array(UsdLux.BlackbodyTemperatureAsRgb(3000.0)),
-        rtol=1e-6,
-    )
+    np.testing.assert_allclose(lights["warm"].radiance, 3.0 * blackbody_rgb(3000.0), rtol=1e-12)
     np.testing.assert_allclose(lights["off"].radiance, [1.0, 1.0, 1.0])
+
+
+# Linear Rec.709 (D65) → CIE XYZ, IEC 61966-2-1.
+XYZ_FROM_REC709 = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]])
+
+
+def kim_planckian_xy(kelvin: float) -> tuple[float, float]:
+    """The Planckian locus in CIE 1931 xy by Kim et al.'s cubic splines (2002), 1667–25000 K."""
+    t = kelvin
+    if t <= 4000.0:
+        x = -0.2661239e9 / t**3 - 0.2343589e6 / t**2 + 0.8776956e3 / t + 0.179910
+    else:
+        x = -3.0258469e9 / t**3 + 2.1070379e6 / t**2 + 0.2226347e3 / t + 0.240390
+    if t <= 2222.0:
+        y = -1.1063814 * x**3 - 1.34811020 * x**2 + 2.18555832 * x - 0.20219683
+    elif t <= 4000.0:
+        y = -0.9549476 * x**3 - 1.37418593 * x**2 + 2.09137015 * x - 0.16748867
+    else:
+        y = 3.0817580 * x**3 - 5.87338670 * x**2 + 3.75112997 * x - 0.37001483
+    return x, y
+
+
+@pytest.mark.parametrize("kelvin", [2000.0, 4250.0, 6500.0, 8750.0, 11000.0])
+def test_blackbody_lies_on_the_planckian_locus_with_luminance_one(kelvin):
+    rgb = blackbody_rgb(kelvin)
+    xyz = XYZ_FROM_REC709 @ rgb
+    assert xyz[1] == pytest.approx(1.0, abs=1e-4)
+    np.testing.assert_allclose(xyz[:2] / xyz.sum(), kim_planckian_xy(kelvin), atol=2e-3)
+
+
+def test_blackbody_agrees_with_usdlux_table_inside_the_rec709_gamut():
+    # Within 0.5 % of each channel, or of the luminance (1) for the small ones, up to the
+    # table's 10000 K clamp. Below ~1900 K the locus leaves the Rec.709 gamut, where the two
+    # approximations part (8 % at 1000 K) and the blue is clipped to 0.
+    for kelvin in np.arange(2000.0, 10001.0, 50.0):
+        table = np.array(UsdLux.BlackbodyTemperatureAsRgb(kelvin))
+        assert (abs(blackbody_rgb(kelvin) - table) <= 5e-3 * np.maximum(table, 1.0)).all(), kelvin
+    for kelvin in (1000.0, 1500.0):
+        rgb = blackbody_rgb(kelvin)
+        assert rgb.min() == 0.0 and rgb[0] > rgb[1] and rgb @ [0.2126, 0.7152, 0.0722] == pytest.approx(1.0, abs=1e-3)
 
 
 @pytest.mark.parametrize(
@@ -205,26 +243,43 @@ def test_dome_keeps_its_rotation_but_not_scale_or_translation(tmp_path):
     np.testing.assert_allclose(matrix[:3, 2], [1, 0, 0], atol=1e-12)  # +Z turned to +X
 
 
-def test_unsupported_lights_and_controls_warn_once_per_kind(tmp_path):
-    stage = new_stage(tmp_path)
-    mesh = UsdGeom.Mesh.Define(stage, "/glowing")
+def tri(stage: Usd.Stage, path: str) -> UsdGeom.Mesh:
+    mesh = UsdGeom.Mesh.Define(stage, path)
     mesh.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (0, 1, 0)])
     mesh.CreateFaceVertexCountsAttr([3])
     mesh.CreateFaceVertexIndicesAttr([0, 1, 2])
-    UsdLux.MeshLightAPI.Apply(mesh.GetPrim())
+    return mesh
+
+
+def test_unsupported_lights_warn_once_per_kind(tmp_path):
+    stage = new_stage(tmp_path)
+    UsdLux.MeshLightAPI.Apply(tri(stage, "/glowing").GetPrim())
     UsdLux.PortalLight.Define(stage, "/portal")
-    for name in ("a", "b"):
-        light = UsdLux.SphereLight.Define(stage, f"/{name}")
-        light.CreateTreatAsPointAttr(True)
-        UsdLux.ShapingAPI.Apply(light.GetPrim()).CreateShapingConeAngleAttr(30.0)
+    UsdLux.SphereLight.Define(stage, "/a")
     scene = load(stage)
     assert [mesh.path for mesh in scene.meshes] == ["/glowing"]  # still rendered as geometry
-    assert sorted(light.path for light in scene.lights) == ["/a", "/b"]
+    assert [light.path for light in scene.lights] == ["/a"]
     unsupported = [w for w in scene.warnings if "unsupported lights" in w]
     assert len(unsupported) == 1 and "/glowing" in unsupported[0] and "/portal" in unsupported[0]
-    shaping = [w for w in scene.warnings if "shaping" in w]
-    assert len(shaping) == 1 and "/a" in shaping[0] and "/b" in shaping[0]
-    assert len([w for w in scene.warnings if "treatAsPoint" in w]) == 1
+    assert len(scene.warnings) == 1
+
+
+def test_filters_shadow_controls_and_portals_warn_once_per_kind(tmp_path):
+    stage = new_stage(tmp_path)
+    tri(stage, "/ground")
+    UsdLux.LightFilter.Define(stage, "/filter")
+    for name in ("a", "b"):
+        light = UsdLux.SphereLight.Define(stage, f"/{name}")
+        light.GetFiltersRel().AddTarget("/filter")
+        UsdLux.ShadowAPI.Apply(light.GetPrim()).CreateShadowColorAttr(Gf.Vec3f(1, 0, 0))
+    UsdLux.ShadowAPI.Apply(UsdLux.SphereLight.Define(stage, "/defaults").GetPrim())  # nothing authored
+    UsdLux.DomeLight.Define(stage, "/sky").GetPortalsRel().AddTarget("/portal")
+    warnings = load(stage).warnings
+    assert len(warnings) == 3, warnings
+    for word in ("filters", "ShadowAPI"):
+        [warning] = [w for w in warnings if word in w]
+        assert "/a" in warning and "/b" in warning and "/defaults" not in warning
+    assert any("portals" in w and "/sky" in w for w in warnings)
 
 
 def test_invisible_lights_are_skipped(tmp_path):

@@ -2,9 +2,14 @@
 
 radiance = intensity · 2^exposure · color · blackbody(colorTemperature) / sizeFactor
 
-blackbody is UsdLux.BlackbodyTemperatureAsRgb as is. It is normalised to luminance 1, so
-6500 K gives (1.04, 0.98, 1.03) rather than the exact white the schema text promises; using
-USD's own function keeps renders consistent with other UsdLux renderers.
+blackbody(T) (:func:`blackbody_rgb`) is the Planckian locus as hdEmbree, UsdLux's reference
+renderer, computes it: Gf.Color's SetFromPlanckianLocus in linear Rec.709 (1000–15000 K,
+clamped beyond), divided by its Rec.709 luminance so that luminance is 1 (6500 K gives
+(1.04, 0.98, 1.04), not the exact white the schema text promises: the locus passes beside
+D65). Below about 1900 K the locus leaves the Rec.709 gamut and its blue goes negative; that
+is clipped to 0 before normalising (hdEmbree keeps it), since negative radiance would make
+negative pixels. UsdLux.BlackbodyTemperatureAsRgb is not used: it is a table clamped at
+10000 K (11000 K's blue comes out 5 % low).
 
 ``sizeFactor`` is 1 unless ``normalize`` is on. Then, following the UsdLux normalize docs:
 
@@ -14,6 +19,8 @@ USD's own function keeps renders consistent with other UsdLux renderers.
   which is how DCCs treat it. The cylinder emits from its side only (UsdLux: no end caps),
   so its area is 2πr·length. Non-uniform scale: exact for rect and disk, Thomsen's
   ellipsoid formula for the sphere, Ramanujan's ellipse perimeter for the cylinder.
+  ``treatAsPoint`` and ``treatAsLine`` (kinds "point" and "line") keep the sphere's and
+  cylinder's sizes and so their area: the hint changes how the light is sampled, not its power.
 * distant: π·sin²θ for θ = angle/2 ≤ π/2, (2 − sin²θ)·π beyond, 1 for angle 0.
 * dome: ignored.
 
@@ -24,18 +31,50 @@ rotation (they sit at infinity), composed with +90° about X when the dome's pol
 (DomeLight_1 with ``poleAxis`` "Z", or "scene" on a Z-up stage). The plain DomeLight is
 always Y-up, as its schema says. The tracer can therefore always read the lat-long image in
 the OpenEXR convention (+Y up, longitude 0 → +Z, longitude π/2 → +X) in the light's frame.
+
+Shaping (ShapingAPI, scene.LightShaping): the ``inputs:shaping:*`` values at the frame, so an
+applied ShapingAPI with nothing authored has the schema's fallbacks (a 90° cone); without it
+there is no shaping. A light gets a LightShaping only when it changes the emission: the cone
+when its smooth start cone_angle · (1 − softness) is below the widest angle the light emits
+at (90° for the one-sided rect and disk, 180° for the others), the focus when it is > 0 with a
+focusTint other than white, an IES profile (stage/ies.py) when its file is readable. Shaping
+does not apply to distant and dome lights: one warning when it would change them.
+
+Textures (``inputs:texture:file``): a dome's lat-long image and a rect's colour map, read
+raw when float and as sRGB when 8-bit (TextureLibrary's "auto"). An empty ``@@`` is no
+texture; a missing file is a warning and a constant light.
+
+Camera visibility (``camera_visible``): UsdLux has no attribute for it and says a light is
+seen (a directly visible light of intensity 1 gives pixel value 1). Stages written for
+particular renderers say otherwise with their attributes; the first of _CAMERA_VISIBILITY
+authored on the light wins: the renderer-neutral names first (``inputs:visibility:camera``,
+Omniverse's ``visibleInPrimaryRay``), then RenderMan's, Arnold's and Karma's (primvars are
+inherited from ancestors as constant primvars are). When authored ones disagree, the light
+is named in one warning.
+
+Linking: ``light_link`` and ``shadow_link`` are the meshes (indices into SceneData.meshes,
+tested by Mesh.path) that the light's ``collection:lightLink`` and ``collection:shadowLink``
+include, by the collection's own membership query (includeRoot, includes, excludes,
+expansionRule, membershipExpression); None when every mesh is. A point-instanced mesh's
+path is under its instancer (``<instancer>/instance_N/...``), so including the instancer or
+an ancestor includes its instances; its prototype's own path is not consulted. A native
+instance's meshes have their instance-proxy paths.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 
 import numpy as np
-from pxr import Sdf, Usd, UsdLux
+from pxr import Gf, Sdf, Usd, UsdLux
 
-from pxr_layers.scene import Light, LightKind
+from pxr_layers.errors import StageError
+from pxr_layers.scene import IesProfile, Light, LightKind, LightShaping
 
 from .context import ReadContext
+from .ies import read_ies
+from .surfaces import find_primvar
 from .textures import TextureLibrary, anchored_asset_path
 from .transforms import Z_UP_FROM_Y_UP, column_matrix, nearest_rotation, to_metres
 
@@ -51,14 +90,67 @@ SUPPORTED_LIGHT_TYPES = (
 # Exponent of Knud Thomsen's ellipsoid surface approximation (at most 1.06 % off, exact
 # for spheres).
 _THOMSEN_P = 1.6075
+_REC709 = Gf.ColorSpace(Gf.ColorSpaceNames.LinearRec709)
+# Rec.709 luminance weights (0.2126, 0.7152, 0.0722): the Y row of the colour space's
+# RGB → XYZ matrix, as hdEmbree takes them.
+_REC709_LUMINANCE = np.array(_REC709.GetRGBToXYZ().GetRow(1), dtype=np.float64)
+# The widest angle off the −Z axis at which a light emits (one-sided rect and disk: 90°);
+# 180° for the others.
+_ONE_SIDED_KINDS = ("rect", "disk")
+_UNSHAPED_KINDS = ("distant", "dome")
+
+
+def _karma_sees_primary(rule: object) -> bool:
+    """Whether Karma's ``rendervisibility`` rule shows an object to camera (primary) rays:
+    its ray-type patterns apply left to right, ``-x`` or ``^x`` removing and any other adding
+    (``*`` is every type); the set starts empty, or full when the first pattern removes."""
+    patterns = str(rule).replace(",", " ").split()
+    seen = bool(patterns) and patterns[0][0] in "-^"
+    for pattern in patterns:
+        if pattern.lstrip("-^+") in ("*", "primary"):
+            seen = pattern[0] not in "-^"
+    return seen
+
+
+# Where stages say whether the camera sees a light, strongest first, and how each value
+# reads: the renderer-neutral names, then RenderMan's, Arnold's (its visibility flag, then its
+# camera contribution weight: 0 hides) and Karma's (a ray-type rule, then its light-geometry
+# toggle).
+_CAMERA_VISIBILITY: tuple[tuple[str, Callable[[object], bool]], ...] = (
+    ("inputs:visibility:camera", bool),
+    ("visibleInPrimaryRay", bool),
+    ("primvars:ri:attributes:visibility:camera", bool),
+    ("primvars:arnold:visibility:camera", bool),
+    ("primvars:arnold:camera", bool),
+    ("primvars:karma:object:rendervisibility", _karma_sees_primary),
+    ("karma:light:renderlightgeo", bool),
+)
 
 
 def is_supported_light(prim: Usd.Prim) -> bool:
     return any(prim.IsA(schema) for schema in SUPPORTED_LIGHT_TYPES)
 
 
-def read_light(context: ReadContext, prim: Usd.Prim, textures: TextureLibrary) -> Light:
-    """Convert one supported UsdLux light prim (see :func:`is_supported_light`)."""
+def read_lights(
+    context: ReadContext, prims: Sequence[Usd.Prim], textures: TextureLibrary, mesh_paths: Sequence[str]
+) -> list[Light]:
+    """Convert the supported UsdLux light prims of one read (see :func:`is_supported_light`).
+
+    mesh_paths : the Mesh.path of each of SceneData.meshes, in order: what light_link and
+                 shadow_link index
+    """
+    profiles: dict[str, IesProfile | None] = {}  # resolved path → profile: each file parsed once
+    members = [Sdf.Path(path) for path in mesh_paths]
+    return [_read_light(context, prim, textures, profiles, members) for prim in prims]
+
+
+def _read_light(
+    context: ReadContext,
+    prim: Usd.Prim,
+    textures: TextureLibrary,
+    profiles: dict[str, IesProfile | None],
+    mesh_paths: Sequence[Sdf.Path],
+) -> Light:
     time = context.time
     light = UsdLux.LightAPI(prim)
     path = str(prim.GetPath())
@@ -71,8 +163,7 @@ def read_light(context: ReadContext, prim: Usd.Prim, textures: TextureLibrary) -
         * color
     )
     if light.GetEnableColorTemperatureAttr().Get(time):
-        temperature = float(light.GetColorTemperatureAttr().Get(time))
-        radiance = radiance * np.array(UsdLux.BlackbodyTemperatureAsRgb(temperature))
+        radiance = radiance * blackbody_rgb(float(light.GetColorTemperatureAttr().Get(time)))
     normalize = bool(light.GetNormalizeAttr().Get(time))
     _note_ignored_controls(context, prim, light)
 
@@ -84,7 +175,7 @@ def read_light(context: ReadContext, prim: Usd.Prim, textures: TextureLibrary) -
         rect = UsdLux.RectLight(prim)
         width = float(rect.GetWidthAttr().Get(time))
         height = float(rect.GetHeightAttr().Get(time))
-        fields.update(width=width, height=height)
+        fields.update(width=width, height=height, texture=_light_texture(context, prim, textures))
         size_factor = width * height * _parallelogram_area(linear)
     elif prim.IsA(UsdLux.DiskLight):
         kind = "disk"
@@ -92,13 +183,14 @@ def read_light(context: ReadContext, prim: Usd.Prim, textures: TextureLibrary) -
         fields.update(radius=radius)
         size_factor = math.pi * radius**2 * _parallelogram_area(linear)
     elif prim.IsA(UsdLux.SphereLight):
-        kind = "sphere"
-        radius = float(UsdLux.SphereLight(prim).GetRadiusAttr().Get(time))
+        sphere = UsdLux.SphereLight(prim)
+        kind = "point" if sphere.GetTreatAsPointAttr().Get(time) else "sphere"
+        radius = float(sphere.GetRadiusAttr().Get(time))
         fields.update(radius=radius)
         size_factor = _ellipsoid_area(radius * np.linalg.svd(linear, compute_uv=False))
     elif prim.IsA(UsdLux.CylinderLight):
-        kind = "cylinder"
         cylinder = UsdLux.CylinderLight(prim)
+        kind = "line" if cylinder.GetTreatAsLineAttr().Get(time) else "cylinder"
         radius = float(cylinder.GetRadiusAttr().Get(time))
         length = float(cylinder.GetLengthAttr().Get(time))
         fields.update(radius=radius, length=length)
@@ -111,7 +203,14 @@ def read_light(context: ReadContext, prim: Usd.Prim, textures: TextureLibrary) -
     else:
         kind = "dome"
         normalize = False  # UsdLux: the dome family ignores normalize
-        fields.update(texture=_dome_texture(context, prim, textures))
+        fields.update(texture=_light_texture(context, prim, textures))
+        texture_format = prim.GetAttribute("inputs:texture:format").Get(time)
+        if fields["texture"] is not None and texture_format not in (None, "automatic", "latlong"):
+            context.diagnostics.note(
+                "dome-format",
+                "dome textures are read as lat-long only (texture:format ignored): {prims}",
+                path,
+            )
         world_from_local = _dome_frame(context, prim, linear)
 
     if normalize:
@@ -131,8 +230,23 @@ def read_light(context: ReadContext, prim: Usd.Prim, textures: TextureLibrary) -
         kind=kind,
         world_from_light=world_from_local,
         radiance=radiance.astype(np.float64),
+        shaping=_shaping(context, prim, kind, profiles),
+        diffuse=float(light.GetDiffuseAttr().Get(time)),
+        specular=float(light.GetSpecularAttr().Get(time)),
+        camera_visible=_camera_visible(context, prim),
+        light_link=_members(light.GetLightLinkCollectionAPI(), mesh_paths),
+        shadow_link=_members(light.GetShadowLinkCollectionAPI(), mesh_paths),
         **fields,
     )
+
+
+def blackbody_rgb(kelvin: float) -> np.ndarray:
+    """(3,) float64 linear Rec.709 colour of a blackbody at ``kelvin``, of luminance 1 (see
+    the module docstring: hdEmbree's Planckian locus, out-of-gamut negatives clipped)."""
+    color = Gf.Color(_REC709)
+    color.SetFromPlanckianLocus(float(kelvin), 1.0)
+    rgb = np.maximum(np.array(color.GetRGB(), dtype=np.float64), 0.0)
+    return rgb / float(rgb @ _REC709_LUMINANCE)
 
 
 def distant_size_factor(angle_degrees: float) -> float:
@@ -183,78 +297,151 @@ def _dome_frame(context: ReadContext, prim: Usd.Prim, linear: np.ndarray) -> np.
     return world_from_dome @ Z_UP_FROM_Y_UP if pole_is_z else world_from_dome
 
 
-def _dome_texture(context: ReadContext, prim: Usd.Prim, textures: TextureLibrary) -> int | None:
-    attribute = prim.GetAttribute("inputs:texture:file")
-    asset = attribute.Get(context.time) if attribute else None
-    if not isinstance(asset, Sdf.AssetPath) or not asset.path:
+def _asset(prim: Usd.Prim, name: str, time: Usd.TimeCode) -> tuple[Usd.Attribute, Sdf.AssetPath] | None:
+    """The attribute ``name`` and the asset path it holds at ``time``; None when it holds
+    none or the empty ``@@`` (UsdLux's "no file", not an error)."""
+    attribute = prim.GetAttribute(name)
+    asset = attribute.Get(time) if attribute else None
+    return (attribute, asset) if isinstance(asset, Sdf.AssetPath) and asset.path else None
+
+
+def _resolved(context: ReadContext, prim: Usd.Prim, found: tuple[Usd.Attribute, Sdf.AssetPath], what: str,
+              consequence: str) -> str | None:
+    """The resolved path of an :func:`_asset`, or None after a warning (once per file) naming
+    where the file was looked for, the light, and the ``consequence``."""
+    attribute, asset = found
+    if asset.resolvedPath:
+        return asset.resolvedPath
+    missing = anchored_asset_path(attribute, asset, context.time)
+    context.diagnostics.warn(f"{what} not found: {missing} ({prim.GetPath()}); {consequence}",
+                             once_key=f"{what}:{missing}")
+    return None
+
+
+def _light_texture(context: ReadContext, prim: Usd.Prim, textures: TextureLibrary) -> int | None:
+    """The index in SceneData.textures of the light's ``inputs:texture:file``, or None."""
+    found = _asset(prim, "inputs:texture:file", context.time)
+    resolved = found and _resolved(context, prim, found, "light texture", "the light is a constant colour")
+    if not resolved:
         return None
-    path = str(prim.GetPath())
-    texture_format = prim.GetAttribute("inputs:texture:format").Get(context.time)
-    if texture_format not in (None, "automatic", "latlong"):
-        context.diagnostics.note(
-            "dome-format",
-            "dome textures are read as lat-long only (texture:format ignored): {prims}",
-            path,
-        )
-    if not asset.resolvedPath:
-        missing = anchored_asset_path(attribute, asset, context.time)
-        context.diagnostics.warn(
-            f"dome texture not found: {missing} ({path}); the dome is a constant colour",
-            once_key=f"texture:{missing}",
-        )
-        return None
-    # Dome images are HDR floats (read raw); an 8-bit one is sRGB-encoded like any LDR image.
-    loaded = textures.load(asset.resolvedPath, "auto", path)
+    # Light images are HDR floats (read raw); an 8-bit one is sRGB-encoded like any LDR image.
+    loaded = textures.load(resolved, "auto", str(prim.GetPath()))
     return None if loaded is None else loaded.index
+
+
+def _shaping(
+    context: ReadContext, prim: Usd.Prim, kind: LightKind, profiles: dict[str, IesProfile | None]
+) -> LightShaping | None:
+    """The light's ShapingAPI values that change its emission (see the module docstring)."""
+    time = context.time
+
+    def value(name: str, unset: object) -> object:
+        attribute = prim.GetAttribute(f"inputs:shaping:{name}")
+        got = attribute.Get(time) if attribute else None
+        return unset if got is None else got
+
+    # Unset (no ShapingAPI and nothing authored): no cone. Negative angles would invert the
+    # smooth step's edges; softness and focus are clamped as UsdLux says.
+    cone_angle = max(float(value("cone:angle", 180.0)), 0.0)
+    softness = min(max(float(value("cone:softness", 0.0)), 0.0), 1.0)
+    focus = max(float(value("focus", 0.0)), 0.0)
+    tint = tuple(float(channel) for channel in value("focusTint", (0.0, 0.0, 0.0)))
+    ies = _asset(prim, "inputs:shaping:ies:file", time)
+    widest = 90.0 if kind in _ONE_SIDED_KINDS else 180.0
+    # Below the smooth start the factor is 1 (softness 0: up to the cone angle itself).
+    has_cone = cone_angle * (1.0 - softness) < widest
+    has_focus = focus > 0.0 and tint != (1.0, 1.0, 1.0)
+    if kind in _UNSHAPED_KINDS:
+        if has_cone or has_focus or ies:
+            context.diagnostics.note(
+                "unshaped-kinds",
+                "light shaping (cone, focus, IES) does not apply to distant and dome lights, ignored on: {prims}",
+                str(prim.GetPath()),
+            )
+        return None
+    profile = _ies_profile(context, prim, ies, profiles) if ies else None
+    if not (has_cone or has_focus or profile):
+        return None
+    shaping: dict[str, object] = {}
+    if has_cone:
+        shaping.update(cone_angle=cone_angle, cone_softness=softness)
+    if has_focus:
+        shaping.update(focus=focus, focus_tint=tint)
+    if profile:
+        # A profile of no power is black whatever its normalisation: there is nothing to divide by.
+        normalize = bool(value("ies:normalize", False)) and profile.power > 0.0
+        shaping.update(ies=profile, ies_angle_scale=float(value("ies:angleScale", 0.0)), ies_normalize=normalize)
+    return LightShaping(**shaping)
+
+
+def _ies_profile(
+    context: ReadContext,
+    prim: Usd.Prim,
+    found: tuple[Usd.Attribute, Sdf.AssetPath],
+    profiles: dict[str, IesProfile | None],
+) -> IesProfile | None:
+    """The light's IES profile (parsed once per read), or None after a warning (once per file)."""
+    keeps = "the light keeps the rest of its shaping"
+    resolved = _resolved(context, prim, found, "IES profile", keeps)
+    if resolved is None:
+        return None
+    if resolved not in profiles:
+        path = str(prim.GetPath())
+        try:
+            profile, notes = read_ies(resolved)
+        except StageError as error:
+            context.diagnostics.warn(f"IES profile unusable ({path}; {keeps}): {error}", once_key=f"ies:{resolved}")
+            profile, notes = None, ()
+        for note in notes:
+            context.diagnostics.warn(f"IES profile {resolved} ({path}): {note}", once_key=f"ies note:{resolved}")
+        profiles[resolved] = profile
+    return profiles[resolved]
+
+
+def _camera_visible(context: ReadContext, prim: Usd.Prim) -> bool:
+    """Whether camera rays see the light (see the module docstring and _CAMERA_VISIBILITY)."""
+    authored = []
+    for name, reads in _CAMERA_VISIBILITY:
+        if name.startswith("primvars:"):
+            primvar = find_primvar(prim, name.removeprefix("primvars:"))
+            value = primvar.Get(context.time) if primvar else None
+        else:
+            attribute = prim.GetAttribute(name)
+            value = attribute.Get(context.time) if attribute and attribute.HasAuthoredValue() else None
+        if value is not None:
+            authored.append((name, value, reads(value)))
+    if not authored:
+        return True
+    if len({seen for _, _, seen in authored}) > 1:
+        values = ", ".join(f"{name} = {value!r}" for name, value, _ in authored)
+        context.diagnostics.note(
+            "camera-visibility",
+            "lights whose camera visibility attributes disagree (the first one listed is used): {prims}",
+            f"{prim.GetPath()} ({values})",
+        )
+    return authored[0][2]
+
+
+def _members(collection: Usd.CollectionAPI, mesh_paths: Sequence[Sdf.Path]) -> tuple[int, ...] | None:
+    """Indices of the meshes the collection includes; None when it includes every one."""
+    query = collection.ComputeMembershipQuery()
+    members = tuple(index for index, path in enumerate(mesh_paths) if query.IsPathIncluded(path))
+    return None if len(members) == len(mesh_paths) else members
 
 
 def _note_ignored_controls(context: ReadContext, prim: Usd.Prim, light: UsdLux.LightAPI) -> None:
     """One warning per kind of authored light control the tracer does not implement."""
-    time = context.time
     path = str(prim.GetPath())
     diagnostics = context.diagnostics
-
-    def authored(name: str) -> bool:
-        attribute = prim.GetAttribute(name)
-        return bool(attribute) and attribute.HasAuthoredValue()
-
-    # Applying ShapingAPI/ShadowAPI with untouched defaults changes nothing (Houdini does
-    # that on every light), so only authored values count.
-    if any(
-        authored(f"inputs:shaping:{name}")
-        for name in ("cone:angle", "cone:softness", "focus", "focusTint", "ies:file")
-    ):
-        diagnostics.note("shaping", "light shaping (cone, focus, IES) ignored on: {prims}", path)
     if light.GetFiltersRel().GetTargets():
         diagnostics.note("filters", "light filters ignored on: {prims}", path)
-    for name in ("diffuse", "specular"):
-        value = light.GetPrim().GetAttribute(f"inputs:{name}").Get(time)
-        if value is not None and float(value) != 1.0:
-            diagnostics.note(
-                "multipliers", "diffuse/specular light multipliers ignored on: {prims}", path
-            )
-    if prim.IsA(UsdLux.RectLight) and authored("inputs:texture:file"):
-        diagnostics.note("rect-texture", "RectLight textures ignored on: {prims}", path)
-    for hint in ("treatAsPoint", "treatAsLine"):
-        value = prim.GetAttribute(hint).Get(time) if prim.GetAttribute(hint) else None
-        if value:
-            diagnostics.note(
-                "treat-as", "treatAsPoint/treatAsLine ignored (the light keeps its size): {prims}",
-                path,
-            )
+    # Applying ShadowAPI with untouched defaults changes nothing (Houdini does that on every
+    # light), so only authored values count.
     if any(
-        authored(f"inputs:shadow:{name}")
+        prim.GetAttribute(f"inputs:shadow:{name}").HasAuthoredValue()
         for name in ("enable", "color", "distance", "falloff", "falloffGamma")
     ):
         diagnostics.note("shadow", "shadow controls (ShadowAPI) ignored on: {prims}", path)
-    for collection in (light.GetLightLinkCollectionAPI(), light.GetShadowLinkCollectionAPI()):
-        include_root = collection.GetIncludeRootAttr().Get()
-        if (
-            include_root is False
-            or collection.GetIncludesRel().GetTargets()
-            or collection.GetExcludesRel().GetTargets()
-        ):
-            diagnostics.note("linking", "light and shadow linking ignored on: {prims}", path)
     if prim.IsA(UsdLux.DomeLight) or prim.IsA(UsdLux.DomeLight_1):
         portals = prim.GetRelationship("portals")
         if portals and portals.GetTargets():

@@ -15,7 +15,7 @@ from .defaults import DEFAULT_UV_SET
 from .diagnostics import Diagnostics
 from .draw_modes import author_draw_mode_cards
 from .implicit import tessellate
-from .lights import read_light
+from .lights import read_lights
 from .materials import MaterialLibrary, ResolvedMaterial, display_color
 from .placement import PreparedSurface, place_surface, prepare_surface
 from .skinning import SkinnedPoser
@@ -54,7 +54,7 @@ def read_scene(
 
     builder = _MeshBuilder(context, materials, subdiv_level)
     meshes = [mesh for placement in contents.gprims if (mesh := builder.build(placement))]
-    lights = [read_light(context, prim, textures) for prim in contents.lights]
+    lights = read_lights(context, contents.lights, textures, [mesh.path for mesh in meshes])
     if not meshes:
         diagnostics.warn(f"{file} has no geometry that renders: the image holds its lights alone")
     logger.info(
