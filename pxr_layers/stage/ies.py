@@ -93,7 +93,7 @@ def parse_ies(text: str, path: str) -> tuple[IesProfile, tuple[str, ...]]:
     photometric_type = numbers.count("photometric type")
     if photometric_type != 1:
         kind = _PHOTOMETRIC_TYPES.get(photometric_type)
-        what = f"type {kind} ({photometric_type})" if kind else f"{photometric_type}, not 1, 2 or 3"
+        what = f"{kind} ({photometric_type})" if kind else f"{photometric_type}, not 1, 2 or 3"
         raise StageError(f"photometric type {what}: only type C (1) is supported", file=path)
     numbers.take(4, "header")  # units, width, length, height
     ballast = float(numbers.take(1, "header")[0])

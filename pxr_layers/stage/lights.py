@@ -98,6 +98,7 @@ _REC709_LUMINANCE = np.array(_REC709.GetRGBToXYZ().GetRow(1), dtype=np.float64)
 # 180° for the others.
 _ONE_SIDED_KINDS = ("rect", "disk")
 _UNSHAPED_KINDS = ("distant", "dome")
+_FLOAT32_ROUNDING = 4.0 * float(np.finfo(np.float32).eps)
 
 
 def _karma_sees_primary(rule: object) -> bool:
@@ -348,8 +349,10 @@ def _shaping(
     tint = tuple(float(channel) for channel in value("focusTint", (0.0, 0.0, 0.0)))
     ies = _asset(prim, "inputs:shaping:ies:file", time)
     widest = 90.0 if kind in _ONE_SIDED_KINDS else 180.0
-    # Below the smooth start the factor is 1 (softness 0: up to the cone angle itself).
-    has_cone = cone_angle * (1.0 - softness) < widest
+    # Below the smooth start the factor is 1 (softness 0: up to the cone angle itself). The
+    # values are float32: a start within their rounding of the widest angle is at it
+    # (100° softened by 0.1 starts at 90°).
+    has_cone = cone_angle * (1.0 - softness) < widest * (1.0 - _FLOAT32_ROUNDING)
     has_focus = focus > 0.0 and tint != (1.0, 1.0, 1.0)
     if kind in _UNSHAPED_KINDS:
         if has_cone or has_focus or ies:
