@@ -397,13 +397,14 @@ def test_shaping_on_distant_and_dome_lights_warns_only_when_it_would_change_them
     tri(stage, "/ground")
     shaped(stage, UsdLux.DistantLight, "/sun", cone_angle=180.0)  # as McUsd authors it: changes nothing
     shaped(stage, UsdLux.DomeLight, "/sky", cone_angle=180.0)
+    shaped(stage, UsdLux.DistantLight, "/houdini")  # the API applied, its 90° fallback cone not authored
     shaped(stage, UsdLux.DistantLight, "/narrow", cone_angle=30.0)
     shaped(stage, UsdLux.DomeLight_1, "/focused", cone_angle=180.0, focus=2.0)
     scene = load(stage)
     assert all(light.shaping is None for light in scene.lights)
     [warning] = scene.warnings
     assert "distant and dome" in warning and "/narrow" in warning and "/focused" in warning
-    assert "/sun" not in warning and "/sky" not in warning
+    assert "/sun" not in warning and "/sky" not in warning and "/houdini" not in warning
 
 
 # ---------------------------------------------------------------------------------------

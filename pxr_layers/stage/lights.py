@@ -38,7 +38,8 @@ there is no shaping. A light gets a LightShaping only when it changes the emissi
 when its smooth start cone_angle · (1 − softness) is below the widest angle the light emits
 at (90° for the one-sided rect and disk, 180° for the others), the focus when it is > 0 with a
 focusTint other than white, an IES profile (stage/ies.py) when its file is readable. Shaping
-does not apply to distant and dome lights: one warning when it would change them.
+does not apply to distant and dome lights: one warning when its authored values would change
+them (the fallbacks of an applied ShapingAPI alone do not count).
 
 Textures (``inputs:texture:file``): a dome's lat-long image and a rect's colour map, read
 raw when float and as sRGB when 8-bit (TextureLibrary's "auto"). An empty ``@@`` is no
@@ -335,10 +336,16 @@ def _shaping(
 ) -> LightShaping | None:
     """The light's ShapingAPI values that change its emission (see the module docstring)."""
     time = context.time
+    # On lights shaping does not apply to, only authored values say something was meant: the
+    # fallbacks of an applied ShapingAPI (a 90° cone) are nobody's intent there (the usd-wg
+    # normals asset applies it to distant lights and authors only pre-"inputs:" names).
+    authored_only = kind in _UNSHAPED_KINDS
 
     def value(name: str, unset: object) -> object:
         attribute = prim.GetAttribute(f"inputs:shaping:{name}")
-        got = attribute.Get(time) if attribute else None
+        if not attribute or (authored_only and not attribute.HasAuthoredValue()):
+            return unset
+        got = attribute.Get(time)
         return unset if got is None else got
 
     # Unset (no ShapingAPI and nothing authored): no cone. Negative angles would invert the
