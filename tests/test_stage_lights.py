@@ -438,6 +438,22 @@ def test_an_ies_profile_is_read_once_per_read_with_its_scale_and_normalisation(t
     assert scene.warnings == ()
 
 
+def test_an_ies_profile_inside_a_usdz_package_is_read_through_the_resolver(tmp_path):
+    write_ies(tmp_path / "spot.ies")
+    stage = new_stage(tmp_path)
+    tri(stage, "/ground")
+    shaped(stage, UsdLux.RectLight, "/key", ies_file=Sdf.AssetPath("spot.ies"))
+    stage.GetRootLayer().Save()
+    package = tmp_path / "shot.usdz"
+    writer = Sdf.ZipFileWriter.CreateNew(str(package))
+    for name in ("scene.usda", "spot.ies"):
+        writer.AddFile(str(tmp_path / name), name)
+    writer.Save()
+    (tmp_path / "spot.ies").unlink()
+    scene, _ = load_stage(str(package))
+    assert only_light(scene).shaping.ies.path == f"{package}[spot.ies]" and scene.warnings == ()
+
+
 def test_an_empty_ies_path_is_no_profile_and_no_warning(tmp_path):
     stage = new_stage(tmp_path)
     tri(stage, "/ground")

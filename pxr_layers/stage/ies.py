@@ -16,8 +16,9 @@ the horizontal angles; the candela values, one row of vertical values per horizo
 * Photometric type C only (1); types A and B (3 and 2) are errors.
 * Horizontal angles are unfolded to cover [0°, 360°] inclusive, by LM-63's symmetries: one
   angle: rotationally symmetric; 0–90: quadrant symmetric (mirrored about the 90° plane, then
-  about the 180° plane); 0–180: bilateral (mirrored about the 180° plane); 0–360 as is; 90–270:
-  that half, mirrored about the 90°–270° plane. Any other range is an error.
+  about the 180° plane); 0–180: bilateral (mirrored about the 180° plane); 0–360 as is (its
+  360° plane as given: LM-63 makes it the 0° plane again); 90–270: that half, mirrored about
+  the 90°–270° plane. Any other range is an error.
 * Vertical angles (0° = nadir, the light's −Z axis) are kept as given, ascending within
   [0°, 180°]: a file may cover 0–90, 90–180 or 0–180, and its intensity is 0 outside them.
 * ``power`` is hdEmbree's ``shaping:ies:normalize`` divisor (pxrIES.cpp, "matches Karma and

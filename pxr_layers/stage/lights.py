@@ -49,9 +49,10 @@ Camera visibility (``camera_visible``): UsdLux has no attribute for it and says 
 seen (a directly visible light of intensity 1 gives pixel value 1). Stages written for
 particular renderers say otherwise with their attributes; the first of _CAMERA_VISIBILITY
 authored on the light wins: the renderer-neutral names first (``inputs:visibility:camera``,
-Omniverse's ``visibleInPrimaryRay``), then RenderMan's, Arnold's and Karma's (primvars are
-inherited from ancestors as constant primvars are). When authored ones disagree, the light
-is named in one warning.
+Omniverse's ``visibleInPrimaryRay``), then RenderMan's, Arnold's and Karma's. 0 or false
+hides; Karma's ``rendervisibility`` is a ray-type rule (see _karma_sees_primary: "-primary"
+hides, "*" shows). The ``primvars:`` ones are inherited from ancestors as constant primvars
+are. When authored ones disagree, the light is named (with their values) in one warning.
 
 Linking: ``light_link`` and ``shadow_link`` are the meshes (indices into SceneData.meshes,
 tested by Mesh.path) that the light's ``collection:lightLink`` and ``collection:shadowLink``
@@ -95,10 +96,11 @@ _REC709 = Gf.ColorSpace(Gf.ColorSpaceNames.LinearRec709)
 # Rec.709 luminance weights (0.2126, 0.7152, 0.0722): the Y row of the colour space's
 # RGB → XYZ matrix, as hdEmbree takes them.
 _REC709_LUMINANCE = np.array(_REC709.GetRGBToXYZ().GetRow(1), dtype=np.float64)
-# The widest angle off the −Z axis at which a light emits (one-sided rect and disk: 90°);
-# 180° for the others.
+# Kinds that emit at most 90° off their −Z axis (one-sided); the others reach 180°.
 _ONE_SIDED_KINDS = ("rect", "disk")
+# Kinds ShapingAPI does not apply to.
 _UNSHAPED_KINDS = ("distant", "dome")
+# A few float32 ulps, relative: how close to an emission limit an authored angle is at it.
 _FLOAT32_ROUNDING = 4.0 * float(np.finfo(np.float32).eps)
 
 
