@@ -1,4 +1,6 @@
-"""stage/: UsdLux lights → scene.Light (radiance, normalize, transforms, dome orientation)."""
+"""stage/: UsdLux lights → scene.Light (radiance, blackbody, normalize, transforms, dome
+orientation, shaping and IES profiles, textures, treatAs hints, multipliers, camera visibility,
+light and shadow linking, and what still warns)."""
 
 from __future__ import annotations
 
@@ -10,8 +12,8 @@ import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 
 from pxr_layers.request import RenderRequest
-from pxr_layers.stage import load_stage
 from pxr_layers.scene import LightShaping
+from pxr_layers.stage import load_stage
 from pxr_layers.stage.lights import blackbody_rgb
 
 
@@ -181,13 +183,16 @@ def test_light_transform_keeps_scale_and_converts_to_metres(tmp_path):
     assert np.linalg.norm(matrix[:3, 0] * got.width) == pytest.approx(1.0)
 
 
-def test_dome_ignores_normalize_and_reads_its_texture_raw(tmp_path):
-    pixels = np.array([[[4.0, 2.0, 1.0], [0.5, 0.25, 0.125]]], dtype=np.float32)
-    spec = oiio.ImageSpec(2, 1, 3, oiio.FLOAT)
-    output = oiio.ImageOutput.create(str(tmp_path / "sky.exr"))
-    output.open(str(tmp_path / "sky.exr"), spec)
+def write_exr(path, pixels: np.ndarray) -> None:
+    output = oiio.ImageOutput.create(str(path))
+    output.open(str(path), oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], oiio.FLOAT))
     output.write_image(pixels)
     output.close()
+
+
+def test_dome_ignores_normalize_and_reads_its_texture_raw(tmp_path):
+    pixels = np.array([[[4.0, 2.0, 1.0], [0.5, 0.25, 0.125]]], dtype=np.float32)
+    write_exr(tmp_path / "sky.exr", pixels)
     stage = new_stage(tmp_path)
     dome = UsdLux.DomeLight.Define(stage, "/sky")
     dome.CreateTextureFileAttr(Sdf.AssetPath("sky.exr"))
@@ -308,10 +313,7 @@ def test_without_default_lights_an_unlit_stage_warns_the_image_will_be_black(tmp
 
 def test_an_emissive_material_counts_as_light(tmp_path):
     stage = new_stage(tmp_path)
-    mesh = UsdGeom.Mesh.Define(stage, "/panel")
-    mesh.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (0, 1, 0)])
-    mesh.CreateFaceVertexCountsAttr([3])
-    mesh.CreateFaceVertexIndicesAttr([0, 1, 2])
+    mesh = tri(stage, "/panel")
     material = UsdShade.Material.Define(stage, "/Looks/glow")
     shader = UsdShade.Shader.Define(stage, "/Looks/glow/Surface")
     shader.CreateIdAttr("UsdPreviewSurface")
@@ -519,13 +521,6 @@ def test_the_luxtest_rect_reads_its_shaping_frames(shared_data):
 # RectLight colour maps, treatAsPoint / treatAsLine, multipliers
 
 
-def write_exr(path, pixels: np.ndarray) -> None:
-    output = oiio.ImageOutput.create(str(path))
-    output.open(str(path), oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], oiio.FLOAT))
-    output.write_image(pixels)
-    output.close()
-
-
 def test_a_rect_light_reads_its_colour_map(tmp_path):
     pixels = np.array([[[4.0, 2.0, 1.0], [0.5, 0.25, 0.125]]], dtype=np.float32)
     write_exr(tmp_path / "panel.exr", pixels)
@@ -675,7 +670,7 @@ def linked_stage(tmp_path):
     stage = new_stage(tmp_path)
     tri(stage, "/World/A/a")
     tri(stage, "/World/B/b")
-    prototype = stage.CreateClassPrim("/_thing")
+    stage.CreateClassPrim("/_thing")
     tri(stage, "/_thing/m")
     instance = UsdGeom.Xform.Define(stage, "/World/Inst").GetPrim()
     instance.GetReferences().AddInternalReference("/_thing")
@@ -685,7 +680,6 @@ def linked_stage(tmp_path):
     instancer.CreatePrototypesRel().AddTarget("/World/PI/Protos/p")
     instancer.CreateProtoIndicesAttr([0, 0])
     instancer.CreatePositionsAttr([(0, 0, 0), (2, 0, 0)])
-    assert prototype
     return stage
 
 
