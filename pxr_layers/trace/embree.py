@@ -40,18 +40,15 @@ class RayCaster:
         if self._scene is None:
             n = len(t_max)
             return np.full(n, MISS, np.int32), np.zeros(n, FLOAT), np.zeros(n, FLOAT), np.asarray(t_max, FLOAT)
-        result = self._scene.run(
-            _rows(origins), _rows(directions), dists=np.ascontiguousarray(t_max, FLOAT), output=1
-        )
+        # embreex writes the hit distances into `dists`: a copy keeps the caller's t_max
+        result = self._scene.run(_rows(origins), _rows(directions), dists=np.array(t_max, FLOAT), output=1)
         return result["primID"], result["u"], result["v"], result["tfar"]
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray) -> np.ndarray:
         """Any hit with t < t_max for origins, directions (n, 3): (n,) bool."""
         if self._scene is None:
             return np.zeros(len(t_max), bool)
-        hit = self._scene.run(
-            _rows(origins), _rows(directions), dists=np.ascontiguousarray(t_max, FLOAT), query="OCCLUDED"
-        )
+        hit = self._scene.run(_rows(origins), _rows(directions), dists=np.array(t_max, FLOAT), query="OCCLUDED")
         return hit != MISS
 
 

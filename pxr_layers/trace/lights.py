@@ -150,25 +150,32 @@ class LightArrays(NamedTuple):
                        its (H, V) candela table in ies_candela
     ies_angles, ies_candela : flat float64 tables (radians, candela)
     link_group       : (t,) int32 each triangle's link group, or (0,) when no light is linked
+                       (group_of: every triangle and the camera then in group 0)
     link_lit, link_blocks : (groups, lights) bool: the group's geometry is lit by / blocks
                        the light
-    emitter_triangles: (e,) int32 triangles NEE samples, triangle_cdf (e,) float64 over them
-    triangle_probability : (t,) float32 probability of each triangle among the emitters
-    area_probability : (1,) float64 probability of the area source
+
+    Light selection is per link group G (one group without linking): a shading point picks
+    only among the lights that light it, so linking costs no noise. Every `*_probability`
+    and cdf below has the groups on its first axis.
+
+    group_has_lights : (G,) bool some light lights the group
+    emitter_triangles: (e,) int32 triangles NEE samples, triangle_cdf (G, e) float64 over them
+    triangle_probability : (G, t) float32 probability of each triangle among the emitters
+    area_probability : (G,) float64 probability of the area source
     point_*          : per positional delta light (q,): light index, centre (q, 3) metres,
                        segment (q, 3) (a line's full length along its axis, zeros for a
                        point), intensity scale (the emitting area it stands for, seen
-                       broadside: π r² for a point, 2 r ℓ for a line, m²), probability
+                       broadside: π r² for a point, 2 r ℓ for a line, m²), probability (G, q)
     distant_*        : per distant light (d,): direction (d, 3) unit toward it, radiance
                        (d, 3), cos_max (cosine of the cone's half angle, 1 = delta), light
-                       index, source probability
+                       index, source probability (G, d)
     dome_*           : per dome (D,): radiance (D, 3), light_from_world (D, 3, 3), texture
                        (index into texture_info, −1 = none), rows, columns, offset into the
-                       flat cell tables, offset into dome_row_cdf, light index, probability
+                       flat cell tables, offset into dome_row_cdf, light index, probability (G, D)
     dome_cell_probability, dome_column_cdf : flat float64 (Σ rows·columns); dome_row_cdf
                        flat float64 (Σ rows)
     source_kind (s,) int64 AREA / DISTANT / DOME / POINT, source_item (s,) index among its
-    kind, source_cdf (s,) float64
+    kind, source_cdf (G, s) float64
     texels, texture_info : the domes' and rects' textures (textures.py atlas)
     """
 
@@ -186,6 +193,7 @@ class LightArrays(NamedTuple):
     link_group: np.ndarray
     link_lit: np.ndarray
     link_blocks: np.ndarray
+    group_has_lights: np.ndarray
     emitter_triangles: np.ndarray
     triangle_cdf: np.ndarray
     triangle_probability: np.ndarray
@@ -316,40 +324,50 @@ class LightSampler:
             ies_info=ies_info,
             ies_angles=flat([a for pair in zip(vertical, horizontal) for a in pair]),
             ies_candela=flat([p.candela for p in profiles]),
-            link_group=group, link_lit=lit_table, link_blocks=blocks_table,
-            emitter_triangles=emitter_triangles, triangle_cdf=np.ones(1),
-            triangle_probability=np.zeros(world.triangle_count, FLOAT), area_probability=np.zeros(1),
+            link_group=group, link_lit=lit_table, link_blocks=blocks_table, group_has_lights=np.zeros(1, bool),
+            emitter_triangles=emitter_triangles, triangle_cdf=np.ones((1, 1)),
+            triangle_probability=np.zeros((1, 0), FLOAT), area_probability=np.zeros(1),
             point_light=np.array(point_lights, np.int64),
             point_center=np.array(centers, np.float64).reshape(-1, 3),
             point_segment=np.array(segments, np.float64).reshape(-1, 3),
-            point_scale=np.array(scales, np.float64), point_probability=np.zeros(len(point_lights)),
+            point_scale=np.array(scales, np.float64), point_probability=np.zeros((1, len(point_lights))),
             distant_direction=np.zeros((0, 3)), distant_radiance=np.zeros((0, 3)), distant_cos_max=np.zeros(0),
-            distant_light=np.zeros(0, np.int64), distant_probability=np.zeros(0),
+            distant_light=np.zeros(0, np.int64), distant_probability=np.zeros((1, 0)),
             dome_radiance=np.zeros((0, 3)), dome_rotation=np.zeros((0, 3, 3)), dome_texture=np.zeros(0, np.int64),
             dome_rows=np.zeros(0, np.int64), dome_columns=np.zeros(0, np.int64),
             dome_cell_offset=np.zeros(0, np.int64), dome_row_offset=np.zeros(0, np.int64),
-            dome_light=np.zeros(0, np.int64), dome_probability=np.zeros(0), dome_cell_probability=np.zeros(0),
+            dome_light=np.zeros(0, np.int64), dome_probability=np.zeros((1, 0)), dome_cell_probability=np.zeros(0),
             dome_column_cdf=np.zeros(0), dome_row_cdf=np.zeros(0), source_kind=np.zeros(1, np.int64),
-            source_item=np.zeros(1, np.int64), source_cdf=np.ones(1), texels=texels, texture_info=texture_info,
+            source_item=np.zeros(1, np.int64), source_cdf=np.ones((1, 1)), texels=texels, texture_info=texture_info,
         )
 
-        sources: list[tuple[int, int, float]] = []  # (kind, index among its kind, power)
+        lit_table = self.arrays.link_lit  # (G, lights)
+        groups = len(lit_table)
+        # (kind, index among its kind, light or −1 for all emitting triangles, power)
+        sources: list[tuple[int, int, int, float]] = []
         scene_area = np.pi * world.radius**2
-        triangle_cdf = np.ones(1)
-        triangle_probability = np.zeros(world.triangle_count, FLOAT)
+        triangle_cdf = np.ones((groups, 1))
+        triangle_probability = np.zeros((groups, world.triangle_count), FLOAT)
+        area_power = np.zeros(groups)
         if len(emitter_triangles):
             radiance = _mean_emission(emitter_triangles, geometry, materials.arrays, self.arrays)
-            sides = np.where(world.triangle_light[emitter_triangles] < 0, 2.0, 1.0)
+            emitter_light = world.triangle_light[emitter_triangles]
+            sides = np.where(emitter_light < 0, 2.0, 1.0)
             power = world.area[emitter_triangles] * radiance * np.pi * sides
             keep = power > 0
-            emitter_triangles, power = emitter_triangles[keep], power[keep]
+            emitter_triangles, power, emitter_light = emitter_triangles[keep], power[keep], emitter_light[keep]
             if len(power):
-                triangle_cdf = _cumulative(power)
-                triangle_probability[emitter_triangles] = power / power.sum()
-                sources.append((AREA, 0, float(power.sum())))
+                # per group, the triangles of the lights that light it (emissive surfaces light every group)
+                allowed = np.where(emitter_light < 0, True, lit_table[:, np.maximum(emitter_light, 0)])
+                group_power = np.where(allowed, power, 0.0)
+                area_power = group_power.sum(axis=1)
+                triangle_cdf = np.array([_cumulative(row) if row.sum() > 0 else np.ones(len(row))
+                                         for row in group_power])
+                triangle_probability[:, emitter_triangles] = group_power / np.maximum(area_power, 1e-300)[:, None]
+                sources.append((AREA, 0, -1, 1.0))
         if point_lights:
             point_power = _point_power(self.arrays)
-            sources.extend((POINT, item, float(power)) for item, power in enumerate(point_power))
+            sources.extend((POINT, item, point_lights[item], float(power)) for item, power in enumerate(point_power))
         self.distant: list[DistantLight] = []
         self.domes: list[DomeDistribution] = []
         for index, light in enumerate(lights):
@@ -359,36 +377,48 @@ class LightSampler:
                 half_angle = np.radians(np.clip(light.angle, 0.0, 360.0) / 2)
                 distant = DistantLight(index, (toward / np.linalg.norm(toward)).astype(FLOAT),
                                        np.asarray(light.radiance, FLOAT), float(np.cos(half_angle)))
-                sources.append((DISTANT, len(self.distant), float(luminance(distant.irradiance)) * scene_area))
+                sources.append((DISTANT, len(self.distant), index, float(luminance(distant.irradiance)) * scene_area))
                 self.distant.append(distant)
             elif light.kind == "dome":
                 orthonormal = rotation / np.linalg.norm(rotation, axis=0, keepdims=True)
                 pixels = None if light.texture is None else scene.textures[light.texture].pixels
                 dome = DomeDistribution(index, light.radiance, pixels, orthonormal.T)
-                sources.append((DOME, len(self.domes), dome.mean_luminance * np.pi * scene_area))
+                sources.append((DOME, len(self.domes), index, dome.mean_luminance * np.pi * scene_area))
                 self.domes.append(dome)
-        sources = [source for source in sources if source[2] > 0]
+        # (G, s): each source's power for each link group (the area source's is the group's own)
+        power = np.array([[area_power[group] if kind == AREA else source_power * (lit_table[group, light])
+                           for kind, _, light, source_power in sources] for group in range(groups)]).reshape(groups, -1)
+        useful = power.sum(axis=0) > 0
+        sources = [source for source, keep in zip(sources, useful) if keep]
+        power = power[:, useful]
+        total = power.sum(axis=1)
         self.has_lights = bool(sources)
         self.has_infinite_lights = bool(self.domes or any(not d.is_delta for d in self.distant))
-        power = np.array([source[2] for source in sources] or [1.0])
-        probability = power / power.sum()
-        probability_of = {(kind, item): p for (kind, item, _), p in zip(sources, probability)}
+        probability = power / np.maximum(total, 1e-300)[:, None]
+        column = {(kind, item): at for at, (kind, item, _, _) in enumerate(sources)}
+
+        def of(kind: int, count: int) -> np.ndarray:
+            """(G, count) probability of each source of `kind` (0 for those left out)."""
+            out = np.zeros((groups, count))
+            for item in range(count):
+                if (kind, item) in column:
+                    out[:, item] = probability[:, column[kind, item]]
+            return out
+
         rows = np.array([dome.shape[0] for dome in self.domes], np.int64)
         cols = np.array([dome.shape[1] for dome in self.domes], np.int64)
-
         self.arrays = self.arrays._replace(
+            group_has_lights=total > 0,
             triangle_cdf=triangle_cdf,
             triangle_probability=triangle_probability,
             emitter_triangles=emitter_triangles,
-            area_probability=np.array([probability_of.get((AREA, 0), 0.0)], np.float64),
-            point_probability=np.array([probability_of.get((POINT, item), 0.0) for item in range(len(point_lights))],
-                                       np.float64),
+            area_probability=np.ascontiguousarray(of(AREA, 1)[:, 0]),
+            point_probability=of(POINT, len(point_lights)),
             distant_direction=np.array([d.direction for d in self.distant], np.float64).reshape(-1, 3),
             distant_radiance=np.array([d.radiance for d in self.distant], np.float64).reshape(-1, 3),
             distant_cos_max=np.array([d.cos_max for d in self.distant], np.float64),
             distant_light=np.array([d.light_index for d in self.distant], np.int64),
-            distant_probability=np.array([probability_of.get((DISTANT, item), 0.0) for item in range(len(self.distant))],
-                                         np.float64),
+            distant_probability=of(DISTANT, len(self.distant)),
             dome_radiance=np.array([d.radiance for d in self.domes], np.float64).reshape(-1, 3),
             dome_rotation=np.array([d.light_from_world for d in self.domes], np.float64).reshape(-1, 3, 3),
             dome_texture=np.array([atlas_index[d.light_index] for d in self.domes], np.int64),
@@ -396,14 +426,14 @@ class LightSampler:
             dome_cell_offset=np.cumsum(rows * cols) - rows * cols,  # where each dome's cells start
             dome_row_offset=np.cumsum(rows) - rows,
             dome_light=np.array([d.light_index for d in self.domes], np.int64),
-            dome_probability=np.array([probability_of.get((DOME, item), 0.0) for item in range(len(self.domes))],
-                                      np.float64),
+            dome_probability=of(DOME, len(self.domes)),
             dome_cell_probability=flat([d.cell_probability for d in self.domes]),
             dome_column_cdf=flat([d.column_cdf for d in self.domes]),
             dome_row_cdf=flat([d.row_cdf for d in self.domes]),
-            source_kind=np.array([kind for kind, _, _ in sources] or [AREA], np.int64),
-            source_item=np.array([item for _, item, _ in sources] or [0], np.int64),
-            source_cdf=_cumulative(power),
+            source_kind=np.array([kind for kind, _, _, _ in sources] or [AREA], np.int64),
+            source_item=np.array([item for _, item, _, _ in sources] or [0], np.int64),
+            source_cdf=np.array([_cumulative(row) if row.sum() > 0 else np.ones(len(row))
+                                 for row in (power if sources else np.ones((groups, 1)))]),
         )
 
 
@@ -693,12 +723,21 @@ def cone_pdf(probability, cos_max):
 
 
 @inline
-def triangle_pdf(triangle, distance, cos_light, area_probability, triangle_probability, area):
-    """Solid-angle density with which NEE picks a point seen at `distance` on `triangle`
-    under |cos_light|."""
-    if area_probability[0] == 0:
+def group_of(lights, triangle):
+    """The link group of `triangle` (−1: the camera): what selects a shading point's lights."""
+    if triangle < 0 or len(lights.link_group) == 0:
+        return 0
+    return lights.link_group[triangle]
+
+
+@inline
+def triangle_pdf(lights, group, triangle, distance, cos_light, area):
+    """Solid-angle density with which NEE from link group `group` picks a point seen at
+    `distance` on `triangle` under |cos_light|."""
+    area_probability = lights.area_probability[group]
+    if area_probability == 0:
         return 0.0
-    area_density = area_probability[0] * triangle_probability[triangle] / area[triangle]
+    area_density = area_probability * lights.triangle_probability[group, triangle] / area[triangle]
     return area_density * distance * distance / max(abs(cos_light), 1e-8)
 
 
@@ -772,17 +811,20 @@ def dome_sample(lights, dome, u1, u2):
 
 
 @inline
-def sample(lights, geometry, materials, px, py, pz, u0, u1, u2, u3, registers, inputs, scratch):
-    """One light sample toward point (px, py, pz) from uniforms u0 (source), u1, u2
+def sample(lights, geometry, materials, group, px, py, pz, u0, u1, u2, u3, registers, inputs, scratch):
+    """One light sample toward point (px, py, pz) of link group `group` (group_of; its
+    group must have lights: group_has_lights) from uniforms u0 (source), u1, u2
     (position), u3 (triangle). Returns (direction x, y, z unit toward the light; distance,
     metres, inf for distant and dome; radiance r, g, b arriving (irradiance at normal
     incidence for a delta light, point, line or distant, already divided by its
     probability); pdf, solid angle, with the light's selection, inf for a delta; light index, −1 for an emissive surface; triangle
     sampled, −1 for distant and dome). pdf 0: no sample."""
-    source = pick(lights.source_cdf, 0, len(lights.source_cdf), u0)
+    source_cdf = lights.source_cdf[group]
+    source = pick(source_cdf, 0, len(source_cdf), u0)
     kind, item = lights.source_kind[source], lights.source_item[source]
     if kind == AREA:
-        chosen = lights.emitter_triangles[pick(lights.triangle_cdf, 0, len(lights.triangle_cdf), u3)]
+        triangle_cdf = lights.triangle_cdf[group]
+        chosen = lights.emitter_triangles[pick(triangle_cdf, 0, len(triangle_cdf), u3)]
         root = math.sqrt(u1)
         bu, bv = u2 * root, 1.0 - root
         corners = geometry.corner_positions
@@ -796,8 +838,7 @@ def sample(lights, geometry, materials, px, py, pz, u0, u1, u2, u3, registers, i
         normal = geometry.geometric_normal
         cos_light = -(normal[chosen, 0] * dx + normal[chosen, 1] * dy + normal[chosen, 2] * dz)
         emitted(chosen, bu, bv, -dx, -dy, -dz, cos_light, geometry, lights, materials, registers, inputs, scratch)
-        pdf = triangle_pdf(chosen, distance, cos_light, lights.area_probability, lights.triangle_probability,
-                           geometry.area)
+        pdf = triangle_pdf(lights, group, chosen, distance, cos_light, geometry.area)
         return (dx, dy, dz, distance, scratch[0], scratch[1], scratch[2], pdf, geometry.triangle_light[chosen],
                 chosen)
     if kind == POINT:
@@ -816,7 +857,7 @@ def sample(lights, geometry, materials, px, py, pz, u0, u1, u2, u3, registers, i
             broadside = math.sqrt(max(1.0 - along * along, 0.0))
         fr, fg, fb = shaping_factor(lights, light, -dx, -dy, -dz)
         # irradiance at normal incidence: intensity / distance², by the light's probability
-        scale = lights.point_scale[item] * broadside / max(distance * distance, 1e-12) / lights.point_probability[item]
+        scale = lights.point_scale[item] * broadside / max(distance * distance, 1e-12) / lights.point_probability[group, item]
         radiance = lights.light_radiance
         return (dx, dy, dz, distance, radiance[light, 0] * fr * scale, radiance[light, 1] * fg * scale,
                 radiance[light, 2] * fb * scale, math.inf, light, -1)
@@ -824,7 +865,7 @@ def sample(lights, geometry, materials, px, py, pz, u0, u1, u2, u3, registers, i
         light = lights.distant_light[item]
         ax, ay, az = lights.distant_direction[item, 0], lights.distant_direction[item, 1], lights.distant_direction[item, 2]
         r, g, b = lights.distant_radiance[item, 0], lights.distant_radiance[item, 1], lights.distant_radiance[item, 2]
-        probability = lights.distant_probability[item]
+        probability = lights.distant_probability[group, item]
         cos_max = lights.distant_cos_max[item]
         if cos_max >= 1.0:
             return ax, ay, az, math.inf, r / probability, g / probability, b / probability, math.inf, light, -1
@@ -839,5 +880,5 @@ def sample(lights, geometry, materials, px, py, pz, u0, u1, u2, u3, registers, i
         return dx, dy, dz, math.inf, r, g, b, pdf, light, -1
     dx, dy, dz = dome_sample(lights, item, u1, u2)
     r, g, b = dome_radiance(lights, item, dx, dy, dz)
-    pdf = lights.dome_probability[item] * dome_pdf(lights, item, dx, dy, dz)
+    pdf = lights.dome_probability[group, item] * dome_pdf(lights, item, dx, dy, dz)
     return dx, dy, dz, math.inf, r, g, b, pdf, lights.dome_light[item], -1

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..bsdf import power_heuristic
 from ...compiled import kernel, scratch
-from ..lights import LightArrays, emitted, found_by_hit, triangle_pdf
+from ..lights import LightArrays, emitted, found_by_hit, group_of, triangle_pdf
 from .. import shading
 from ..shading import MaterialArrays
 from ..world import GeometryArrays
@@ -54,8 +54,8 @@ def _emission_kernel(triangle, bary_u, bary_v, t_hit, travelled, vertex_travelle
         else:
             # from the last scattering vertex, through any see-through surface crossed since
             distance = travelled[lane] + t_hit[lane] - vertex_travelled[lane]
-            density = triangle_pdf(tri, distance, cos_emitter, lights.area_probability,
-                                   lights.triangle_probability, geometry.area)
+            density = triangle_pdf(lights, group_of(lights, previous_triangle[lane]), tri, distance, cos_emitter,
+                                   geometry.area)
             weight = power_heuristic(previous_pdf[lane], density)
         weight *= found
         r = throughput[lane, 0] * radiance[0] * weight

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..bsdf import power_heuristic
 from ...compiled import inline, kernel
-from ..lights import LightArrays, cone_pdf, dome_pdf, dome_radiance, found_by_hit
+from ..lights import LightArrays, cone_pdf, dome_pdf, dome_radiance, found_by_hit, group_of
 from .queues import Hits, PathQueue, Splats, trimmed
 
 
@@ -32,13 +32,14 @@ def _escaped_kernel(triangle, direction, throughput, depth, previous_pdf, previo
         if triangle[lane] >= 0:
             continue
         x, y, z = direction[lane, 0], direction[lane, 1], direction[lane, 2]
+        group = group_of(lights, previous_triangle[lane])
         for dome in range(len(lights.dome_light)):
             found = found_by_hit(lights, lights.dome_light[dome], depth[lane], previous_triangle[lane],
                                  previous_lobe[lane], previous_singular[lane])
             if found == 0:
                 continue
             r, g, b = dome_radiance(lights, dome, x, y, z)
-            density = lights.dome_probability[dome] * dome_pdf(lights, dome, x, y, z)
+            density = lights.dome_probability[group, dome] * dome_pdf(lights, dome, x, y, z)
             weight = found * (1.0 if previous_singular[lane] else power_heuristic(previous_pdf[lane], density))
             count = _splat(lane, lights.dome_light[dome], r * weight, g * weight, b * weight, throughput, count,
                            lane_out, rgb_out, light_out)
@@ -53,7 +54,7 @@ def _escaped_kernel(triangle, direction, throughput, depth, previous_pdf, previo
                                  previous_lobe[lane], previous_singular[lane])
             if found == 0:
                 continue
-            density = cone_pdf(lights.distant_probability[item], cos_max)
+            density = cone_pdf(lights.distant_probability[group, item], cos_max)
             weight = found * (1.0 if previous_singular[lane] else power_heuristic(previous_pdf[lane], density))
             radiance = lights.distant_radiance[item]
             count = _splat(lane, lights.distant_light[item], radiance[0] * weight, radiance[1] * weight,

@@ -21,8 +21,9 @@ def light_samples(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: 
                   materials: MaterialArrays, lights: LightArrays) -> ShadowQueue:
     """A light sample for every shading point that may scatter, with its shadow ray and
     each lobe's MIS-weighted contribution if the ray is unoccluded (times the light's
-    diffuse or specular multiplier). Samples that cannot contribute (no density, behind the
-    surface, black light or lobes, a light not linked to the surface) are left out.
+    diffuse or specular multiplier), picked among the lights linked to the surface (light
+    linking). Samples that cannot contribute (no density, behind the surface, black light
+    or lobes) are left out.
 
     The shadow ray runs between the two offset ends: from the shading point lifted off its
     surface to the light's point lifted off the light's surface toward it. Measuring t_max
@@ -108,13 +109,14 @@ def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, sc
         u1 = rng.uniform(stream, dimension + rng.LIGHT_POSITION)
         u2 = rng.uniform(stream, dimension + rng.LIGHT_POSITION + 1)
         u3 = rng.uniform(stream, dimension + rng.LIGHT_POSITION + 2)
+        group = light_sampling.group_of(lights, surface_triangle[lane])
+        if not lights.group_has_lights[group]:
+            continue
         px, py, pz = position[lane, 0], position[lane, 1], position[lane, 2]
         dx, dy, dz, distance, r, g, b, pdf, light, triangle = light_sampling.sample(
-            lights, geometry, materials, px, py, pz, u0, u1, u2, u3, registers, inputs, radiance)
+            lights, geometry, materials, group, px, py, pz, u0, u1, u2, u3, registers, inputs, radiance)
         nx, ny, nz = facing[lane, 0], facing[lane, 1], facing[lane, 2]
         if not pdf > 0 or dx * nx + dy * ny + dz * nz <= 0 or max(r, g, b) <= 0:
-            continue
-        if not light_sampling.lit(lights, light, surface_triangle[lane]):
             continue
         ix, iy, iz = to_local(frame, lane, dx, dy, dz)
         bsdf.evaluate(lobes[lane], wo[lane, 0], wo[lane, 1], wo[lane, 2], ix, iy, iz, f, lobe_pdf)
