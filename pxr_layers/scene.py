@@ -27,6 +27,8 @@ from .shader_nodes import ShaderNode, WrapMode  # noqa: F401 (WrapMode: part of 
 
 FLOAT = np.float32
 INDEX = np.int32
+REC709_LUMINANCE = (0.2126, 0.7152, 0.0722)
+"""Luminance weights of linear Rec.709 RGB (the rendering colour space, see above)."""
 
 
 
@@ -146,8 +148,8 @@ class IesProfile:
     vertical   : (V,) float64 radians, ascending, 0 = the light's emission axis (−Z, "down"
                  in IES terms) up to at most π
     horizontal : (H,) float64 radians, ascending from 0 to 2π inclusive: the file's
-                 symmetries (one plane, a quadrant, a half) already unfolded, so
-                 candela[0] == candela[-1]
+                 symmetries (one plane, a quadrant, a half) already unfolded (then
+                 candela[0] == candela[-1]; a full 0–360° file keeps its own 360° plane)
     candela    : (H, V) float64 luminous intensity, the file's candela multiplier and ballast
                  factor applied
     power      : the profile's mean intensity (candela) over the sphere, or over the
@@ -174,8 +176,9 @@ class LightShaping:
     ies       : the profile's intensity at (θ scaled by ies_angle_scale, φ), divided by its
                 power when ies_normalize
 
-    cone_softness is clamped to [0, 1] and a negative focus read as 0 by the reader. The
-    reader gives a light a LightShaping only when one of these changes its emission.
+    cone_softness is clamped to [0, 1], and a negative cone_angle or focus read as 0, by the
+    reader. The reader gives a light a LightShaping only when one of these changes its
+    emission.
     """
 
     cone_angle: float = 180.0
@@ -213,7 +216,8 @@ class Light:
     light_link       : indices into SceneData.meshes this light illuminates, None = every mesh
                        (``collection:lightLink``); emissive surfaces are not linked
     shadow_link      : indices into SceneData.meshes that block this light, None = every mesh
-                       and light shape (``collection:shadowLink``)
+                       and light shape (``collection:shadowLink``); with a tuple, only those
+                       meshes block it (no light shape does)
 
     kind "point" is a SphereLight with ``treatAsPoint`` and "line" a CylinderLight with
     ``treatAsLine``: collapsed to their centre or axis with the power of the shape they stand

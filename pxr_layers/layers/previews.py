@@ -35,11 +35,12 @@ from ..recipe.model import (
     Layer,
     Product,
 )
+from ..scene import REC709_LUMINANCE
 from .exr import write_atomically
 
 logger = logging.getLogger(__name__)
 
-LUMINANCE_WEIGHTS = np.array([0.2126, 0.7152, 0.0722], dtype=np.float64)
+LUMINANCE_WEIGHTS = np.array(REC709_LUMINANCE, dtype=np.float64)
 """Rec.709 luminance of linear RGB: the 'energy' of a layer on the contact sheet."""
 FONT = "DroidSans"
 """Bundled with the OpenImageIO wheel, so the sheet looks the same on every machine."""

@@ -72,7 +72,7 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdLux
 
 from pxr_layers.errors import StageError
-from pxr_layers.scene import IesProfile, Light, LightKind, LightShaping
+from pxr_layers.scene import REC709_LUMINANCE, IesProfile, Light, LightKind, LightShaping
 
 from .context import ReadContext
 from .ies import read_ies
@@ -93,9 +93,6 @@ SUPPORTED_LIGHT_TYPES = (
 # for spheres).
 _THOMSEN_P = 1.6075
 _REC709 = Gf.ColorSpace(Gf.ColorSpaceNames.LinearRec709)
-# Rec.709 luminance weights (0.2126, 0.7152, 0.0722): the Y row of the colour space's
-# RGB → XYZ matrix, as hdEmbree takes them.
-_REC709_LUMINANCE = np.array(_REC709.GetRGBToXYZ().GetRow(1), dtype=np.float64)
 # Kinds that emit at most 90° off their −Z axis (one-sided); the others reach 180°.
 _ONE_SIDED_KINDS = ("rect", "disk")
 # Kinds ShapingAPI does not apply to.
@@ -250,7 +247,7 @@ def blackbody_rgb(kelvin: float) -> np.ndarray:
     color = Gf.Color(_REC709)
     color.SetFromPlanckianLocus(float(kelvin), 1.0)
     rgb = np.maximum(np.array(color.GetRGB(), dtype=np.float64), 0.0)
-    return rgb / float(rgb @ _REC709_LUMINANCE)
+    return rgb / float(rgb @ np.asarray(REC709_LUMINANCE))
 
 
 def distant_size_factor(angle_degrees: float) -> float:

@@ -357,8 +357,9 @@ class LightSampler:
             keep = power > 0
             emitter_triangles, power, emitter_light = emitter_triangles[keep], power[keep], emitter_light[keep]
             if len(power):
-                # per group, the triangles of the lights that light it (emissive surfaces light every group)
-                allowed = np.where(emitter_light < 0, True, lit_table[:, np.maximum(emitter_light, 0)])
+                # per group, the triangles of the lights that light it; emissive surfaces (light −1,
+                # the appended column) light every group
+                allowed = np.concatenate([lit_table, np.ones((groups, 1), bool)], axis=1)[:, emitter_light]
                 group_power = np.where(allowed, power, 0.0)
                 area_power = group_power.sum(axis=1)
                 triangle_cdf = np.array([_cumulative(row) if row.sum() > 0 else np.ones(len(row))

@@ -12,9 +12,9 @@ import math
 import numpy as np
 
 from ..compiled import inline
+from ..scene import REC709_LUMINANCE
 
-LUMINANCE_WEIGHTS = (0.2126, 0.7152, 0.0722)  # Rec.709
-_LR, _LG, _LB = LUMINANCE_WEIGHTS
+_LR, _LG, _LB = REC709_LUMINANCE
 
 
 def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
