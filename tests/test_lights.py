@@ -493,40 +493,45 @@ def test_the_specular_multiplier_scales_only_the_glossy_response(tmp_path):
 # -- shadow rays at grazing angles
 
 
-def rect_irradiance(point, normal, centre, half_width, half_height, radiance, n=400):
-    """E at `point` (normal `normal`) from a one-sided rect light in the x = centre[0] plane
-    (emitting toward −x, spanning y and z), by midpoint quadrature."""
-    ys = centre[1] + (np.arange(n) + 0.5) / n * 2 * half_width - half_width
-    zs = centre[2] + (np.arange(n) + 0.5) / n * 2 * half_height - half_height
+def wall_light_irradiance(point, normal, height, radiance, shape, n=400):
+    """E at `point` (normal `normal`) from a one-sided light in the x = 0 plane emitting
+    toward −x, centred at (0, height, 0): a 1 × 1 m "rect" or a "disk" of radius 0.5 m, by
+    midpoint quadrature over the square that holds it."""
+    ys = height + (np.arange(n) + 0.5) / n - 0.5
+    zs = (np.arange(n) + 0.5) / n - 0.5
     y, z = np.meshgrid(ys, zs)
-    offset = np.stack([np.full_like(y, centre[0]) - point[0], y - point[1], z - point[2]], axis=-1)
+    inside = np.ones_like(y, bool) if shape == "rect" else (y - height) ** 2 + z**2 <= 0.25
+    offset = np.stack([-point[0] + 0 * y, y - point[1], z - point[2]], axis=-1)
     d2 = (offset**2).sum(-1)
     direction = offset / np.sqrt(d2)[..., None]
     cos_surface = np.clip(direction @ normal, 0, None)
-    cos_light = np.clip(-direction[..., 0] * -1, 0, None)  # the light's normal is −x
-    area = (2 * half_width / n) * (2 * half_height / n)
-    return float((radiance * cos_surface * cos_light / d2).sum() * area)
+    cos_light = np.clip(direction[..., 0], 0, None)  # the light faces −x, toward the point
+    return float((radiance * cos_surface * cos_light / d2 * inside).sum() / n**2)
 
 
+@pytest.mark.parametrize("shape", ["RectLight", "DiskLight"])
 @pytest.mark.parametrize("cos_light", [0.2, 0.05, 0.02])
-def test_a_point_lit_edge_on_by_a_rect_light_gets_all_of_it(tmp_path, cos_light):
-    """A floor point seen from a vertical rect light at cos θ (light side) down to 0.02
+def test_a_point_lit_edge_on_by_an_area_light_gets_all_of_it(tmp_path, shape, cos_light):
+    """A floor point seen from a vertical area light at cos θ (light side) down to 0.02
     receives the quadrature's irradiance within 1 %: no shadow ray may hit the light's own
     triangle before reaching its sample."""
-    # the light: 1 m square, centre 0.6 m up in the x = 0 plane, facing −x; the probe s from its plane
+    # the light: centre 0.6 m up in the x = 0 plane, facing −x; the probe s from its plane
     height = 0.6
     s = height * cos_light / math.sqrt(1 - cos_light**2)  # cos θ at the light's centre = s / √(s² + h²)
-    probe_x = -s
+    size = "float inputs:radius = 0.5" if shape == "DiskLight" else ""
     body = floor() + f"""
-    def RectLight "wall"
+    def {shape} "wall"
     {{
         float inputs:intensity = 10
+        {size}
         double3 xformOp:translate = (0, {height}, 0)
         float3 xformOp:rotateXYZ = (0, 90, 0)
         uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]
     }}
 """
-    camera = camera_prim(1000, 0.01 * s, translate=(probe_x, 0.5, 0), rotate=(-90, 0, 0))
+    camera = camera_prim(1000, 0.01 * s, translate=(-s, 0.5, 0), rotate=(-90, 0, 0))
     value = image(load(tmp_path, body, camera=camera), spp=1 << 18, resolution=(1, 1)).mean()  # noise 0.6 %
-    expected = rect_irradiance(np.array([probe_x, 0, 0]), np.array([0, 1.0, 0]), (0, height, 0), 0.5, 0.5, 10.0) / math.pi
+    kind = "disk" if shape == "DiskLight" else "rect"
+    expected = wall_light_irradiance(np.array([-s, 0, 0]), np.array([0, 1.0, 0]), height, 10.0, kind) / math.pi
+    # the tessellated disk (64 segments) has 0.16 % less area than the circle
     assert value == pytest.approx(expected, rel=0.01)
