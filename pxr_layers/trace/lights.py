@@ -42,7 +42,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..scene import FLOAT, Light, SceneData
+from ..scene import FLOAT, IesProfile, Light, SceneData
 from . import bsdf, shading, textures
 from ..compiled import inline, kernel, scratch
 from .shading import MaterialArrays, MaterialTable
@@ -249,11 +249,6 @@ def _shaping_row(light: Light, ies_row: int) -> np.ndarray:
     return row
 
 
-def _world_scale(light: Light) -> np.ndarray:
-    """Singular values (3,) of the light's local-to-world linear map (metres per local unit)."""
-    return np.linalg.svd(np.asarray(light.world_from_light, np.float64)[:3, :3], compute_uv=False)
-
-
 class LightSampler:
     """Picks lights in proportion to an estimate of their power; builds ``arrays``."""
 
@@ -267,70 +262,31 @@ class LightSampler:
 
         profiles = [light.shaping.ies for light in lights if light.shaping and light.shaping.ies is not None]
         ies_rows = {id(profile): row for row, profile in enumerate(profiles)}
-        light_textures = [scene.textures[light.texture].pixels for light in lights
-                          if light.kind in ("rect", "dome") and light.texture is not None]
-        texels, texture_info = textures.pack(light_textures)
-        atlas_index, next_index = [], 0
-        for light in lights:
-            has_texture = light.kind in ("rect", "dome") and light.texture is not None
-            atlas_index.append(next_index if has_texture else -1)
-            next_index += has_texture
-        atlas_index = np.array(atlas_index, np.int64)
+        ies_info, ies_angles, ies_candela = _ies_tables(profiles)
+        textured = [light.kind in ("rect", "dome") and light.texture is not None for light in lights]
+        texels, texture_info = textures.pack([scene.textures[light.texture].pixels
+                                              for light, has in zip(lights, textured) if has])
+        atlas_index = np.where(textured, np.cumsum(textured) - 1, -1).astype(np.int64)  # each light's image
         inverse = [np.linalg.inv(np.asarray(light.world_from_light, np.float64))[:3] for light in lights]
         group, lit_table, blocks_table = _link_groups(scene, world)
-        vertical = [p.vertical for p in profiles]
-        horizontal = [p.horizontal for p in profiles]
-        v_counts = np.array([len(v) for v in vertical], np.int64)
-        h_counts = np.array([len(h) for h in horizontal], np.int64)
-        angle_offsets = np.cumsum(np.ravel(np.column_stack([v_counts, h_counts]))) if profiles else np.zeros(0)
-        ies_info = np.zeros((len(profiles), 5), np.int64)
-        if profiles:
-            starts = np.concatenate([[0], angle_offsets[:-1]]).reshape(-1, 2)
-            ies_info[:, 0], ies_info[:, 1] = starts[:, 0], v_counts
-            ies_info[:, 2], ies_info[:, 3] = starts[:, 1], h_counts
-            ies_info[:, 4] = np.concatenate([[0], np.cumsum(v_counts * h_counts)[:-1]])
-
-        def flat(values: list[np.ndarray]) -> np.ndarray:
-            return np.concatenate([np.ravel(v) for v in values]).astype(np.float64) if values else np.zeros(0)
-
-        point_lights = [index for index, light in enumerate(lights) if light.kind in ("point", "line")]
-        centers, segments, scales = [], [], []
-        for index in point_lights:
-            light = lights[index]
-            world_from_light = np.asarray(light.world_from_light, np.float64)
-            scale = _world_scale(light)
-            centers.append(world_from_light[:3, 3])
-            if light.kind == "point":
-                segments.append(np.zeros(3))
-                # the sphere's silhouette: π r² for a sphere, π·(abc)^(2/3) for an ellipsoid on average
-                scales.append(np.pi * light.radius**2 * float(np.prod(scale)) ** (2 / 3))
-            else:
-                segment = world_from_light[:3, 0] * light.length
-                segments.append(segment)
-                across = float(np.sqrt(np.prod(np.linalg.svd(world_from_light[:3, 1:3], compute_uv=False))))
-                scales.append(2 * light.radius * across * float(np.linalg.norm(segment)))
-        light_count = len(lights)
+        point_lights, centers, segments, scales = _positional(lights)
         self.arrays = LightArrays(
             light_radiance=np.array([light.radiance for light in lights], FLOAT).reshape(-1, 3),
             light_shaping=np.array([_shaping_row(light, ies_rows.get(id(light.shaping.ies), -1) if light.shaping
                                                  else -1) for light in lights], np.float64).reshape(-1, SHAPING_FIELDS),
             light_from_world=np.array(inverse, np.float64).reshape(-1, 3, 4),
             light_size=np.array([(light.width, light.height) for light in lights], np.float64).reshape(-1, 2),
-            light_texture=np.where(np.array([light.kind == "rect" for light in lights], bool), atlas_index, -1)
-            if light_count else np.zeros(0, np.int64),
+            light_texture=np.where([light.kind == "rect" for light in lights], atlas_index, -1).astype(np.int64),
             light_response=np.array([(light.diffuse, light.specular) for light in lights], np.float64).reshape(-1, 2),
             camera_visible=np.array([light.camera_visible for light in lights], bool),
             sampled_only=np.array([light.shadow_link is not None for light in lights], bool),
-            ies_info=ies_info,
-            ies_angles=flat([a for pair in zip(vertical, horizontal) for a in pair]),
-            ies_candela=flat([p.candela for p in profiles]),
+            ies_info=ies_info, ies_angles=ies_angles, ies_candela=ies_candela,
             link_group=group, link_lit=lit_table, link_blocks=blocks_table, group_has_lights=np.zeros(1, bool),
             emitter_triangles=emitter_triangles, triangle_cdf=np.ones((1, 1)),
             triangle_probability=np.zeros((1, 0), FLOAT), area_probability=np.zeros(1),
             point_light=np.array(point_lights, np.int64),
-            point_center=np.array(centers, np.float64).reshape(-1, 3),
-            point_segment=np.array(segments, np.float64).reshape(-1, 3),
-            point_scale=np.array(scales, np.float64), point_probability=np.zeros((1, len(point_lights))),
+            point_center=centers, point_segment=segments, point_scale=scales,
+            point_probability=np.zeros((1, len(point_lights))),
             distant_direction=np.zeros((0, 3)), distant_radiance=np.zeros((0, 3)), distant_cos_max=np.zeros(0),
             distant_light=np.zeros(0, np.int64), distant_probability=np.zeros((1, 0)),
             dome_radiance=np.zeros((0, 3)), dome_rotation=np.zeros((0, 3, 3)), dome_texture=np.zeros(0, np.int64),
@@ -428,14 +384,56 @@ class LightSampler:
             dome_row_offset=np.cumsum(rows) - rows,
             dome_light=np.array([d.light_index for d in self.domes], np.int64),
             dome_probability=of(DOME, len(self.domes)),
-            dome_cell_probability=flat([d.cell_probability for d in self.domes]),
-            dome_column_cdf=flat([d.column_cdf for d in self.domes]),
-            dome_row_cdf=flat([d.row_cdf for d in self.domes]),
+            dome_cell_probability=_flat([d.cell_probability for d in self.domes]),
+            dome_column_cdf=_flat([d.column_cdf for d in self.domes]),
+            dome_row_cdf=_flat([d.row_cdf for d in self.domes]),
             source_kind=np.array([kind for kind, _, _, _ in sources] or [AREA], np.int64),
             source_item=np.array([item for _, item, _, _ in sources] or [0], np.int64),
             source_cdf=np.array([_cumulative(row) if row.sum() > 0 else np.ones(len(row))
                                  for row in (power if sources else np.ones((groups, 1)))]),
         )
+
+
+def _flat(values: list[np.ndarray]) -> np.ndarray:
+    return np.concatenate([np.ravel(v) for v in values]).astype(np.float64) if values else np.zeros(0)
+
+
+def _ies_tables(profiles: list[IesProfile]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ies_info (p, 5) int64, ies_angles, ies_candela) of `profiles` (see LightArrays)."""
+    info, angles, candela = [], [], []
+    angle_offset = candela_offset = 0
+    for profile in profiles:
+        vertical, horizontal = len(profile.vertical), len(profile.horizontal)
+        info.append((angle_offset, vertical, angle_offset + vertical, horizontal, candela_offset))
+        angles += [profile.vertical, profile.horizontal]
+        candela.append(profile.candela)
+        angle_offset += vertical + horizontal
+        candela_offset += profile.candela.size
+    return np.array(info, np.int64).reshape(-1, 5), _flat(angles), _flat(candela)
+
+
+def _positional(lights: tuple[Light, ...]) -> tuple[list[int], np.ndarray, np.ndarray, np.ndarray]:
+    """The point and line lights: (their light indices, centres (q, 3) metres, segments
+    (q, 3), intensity scales (q,) m²: see LightArrays.point_*)."""
+    indices, centers, segments, scales = [], [], [], []
+    for index, light in enumerate(lights):
+        if light.kind not in ("point", "line"):
+            continue
+        world_from_light = np.asarray(light.world_from_light, np.float64)
+        indices.append(index)
+        centers.append(world_from_light[:3, 3])
+        if light.kind == "point":
+            segments.append(np.zeros(3))
+            # the silhouette of the sphere it stands for: π r², and π (abc)^(2/3) for an ellipsoid on average
+            scale = np.linalg.svd(world_from_light[:3, :3], compute_uv=False)
+            scales.append(np.pi * light.radius**2 * float(np.prod(scale)) ** (2 / 3))
+        else:  # a cylinder along local X: its silhouette broadside is 2 r ℓ
+            segment = world_from_light[:3, 0] * light.length
+            segments.append(segment)
+            across = float(np.sqrt(np.prod(np.linalg.svd(world_from_light[:3, 1:3], compute_uv=False))))
+            scales.append(2 * light.radius * across * float(np.linalg.norm(segment)))
+    return (indices, np.array(centers, np.float64).reshape(-1, 3), np.array(segments, np.float64).reshape(-1, 3),
+            np.array(scales, np.float64))
 
 
 def _link_groups(scene: SceneData, world: World) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
