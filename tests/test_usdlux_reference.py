@@ -287,6 +287,28 @@ def test_a_hard_cone_narrower_than_a_large_light_is_integrated_over_its_directio
     assert E(rect)[0] == pytest.approx(np.full(3, expected), rel=1e-9)
 
 
+def test_a_hard_cone_cutting_a_disk_gives_the_lens_it_leaves():
+    """A disk of radius 1, 1 m above, cone 30°, seen from 0.8 m off its axis: the light that
+    arrives is the lens where the disk and the cone's footprint (a circle of radius tan 30°
+    above the point) overlap: Lambert's contour integral of that lens."""
+    stage = new_stage()
+    disk = place(UsdLux.DiskLight.Define(stage, "/disk"), translate=(0, 0, 1))
+    disk.CreateRadiusAttr(1.0)
+    UsdLux.ShapingAPI.Apply(disk.GetPrim()).CreateShapingConeAngleAttr(30.0)
+    point = np.array([[0.8, 0.0, 0.0]])
+    angles = np.linspace(0, 2 * np.pi, 40000, endpoint=False)
+    circle = np.stack([np.cos(angles), np.sin(angles)], axis=-1)
+    footprint = math.tan(math.radians(30.0))
+    rim = circle[np.linalg.norm(circle - [0.8, 0.0], axis=1) <= footprint]  # of the disk, inside the footprint
+    arc = [0.8, 0.0] + footprint * circle
+    arc = arc[np.linalg.norm(arc, axis=1) <= 1.0]  # of the footprint, on the disk
+    lens = np.concatenate([rim, arc])
+    centre = lens.mean(axis=0)
+    lens = lens[np.argsort(np.arctan2(lens[:, 1] - centre[1], lens[:, 0] - centre[0]))]  # convex: by angle
+    expected = lambert_contour(np.c_[lens, np.ones(len(lens))], point[0], UP[0])
+    assert E(disk, point)[0] == pytest.approx(np.full(3, expected), rel=3e-4)  # kinks in azimuth: ~1e-4
+
+
 def lm63(vertical, horizontal, candela) -> str:
     """A minimal LM-63-2002 type C file (degrees; candela rows per horizontal angle)."""
     numbers = [1, -1, 1, len(vertical), len(horizontal), 1, 2, 0, 0, 0, 1, 1, 0,

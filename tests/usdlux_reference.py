@@ -97,6 +97,25 @@ class Quad:
     edge_v: np.ndarray
     path: str | None = None
 
+    @property
+    def normal(self) -> np.ndarray:
+        normal = np.cross(self.edge_u, self.edge_v)
+        return normal / np.linalg.norm(normal)
+
+    def intersect(self, origins: np.ndarray, rays: np.ndarray) -> np.ndarray:
+        """(n, m) parameter t > 0 where origins (n, 3) + t · rays (n or 1, m, 3) cross the
+        quad, inf where they miss it."""
+        # rows: the plane's normal, then the edges scaled so that a, b = (x − centre)·row
+        basis = np.stack([self.normal, self.edge_u / (self.edge_u @ self.edge_u),
+                          self.edge_v / (self.edge_v @ self.edge_v)])
+        start = (origins - self.centre) @ basis.T  # (n, 3)
+        along = rays @ basis.T  # (n or 1, m, 3)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = -start[:, None, 0] / along[..., 0]
+            a = start[:, None, 1] + t * along[..., 1]
+            b = start[:, None, 2] + t * along[..., 2]
+        return np.where((t > 0) & (np.abs(a) <= 0.5) & (np.abs(b) <= 0.5), t, np.inf)
+
 
 @dataclass(frozen=True)
 class Ies:
@@ -261,6 +280,8 @@ def read_light(prim: Usd.Prim, time: Usd.TimeCode | float = Usd.TimeCode.Default
             ies=read_ies(ies_path) if ies_path else None,
             ies_angle_scale=float(get("inputs:shaping:ies:angleScale")),
             ies_normalize=bool(get("inputs:shaping:ies:normalize")))
+        if shaping.focus <= 0 and shaping.ies is None and shaping.cone_angle * (1 - shaping.cone_softness) >= 180:
+            shaping = None  # changes nothing (and costs nothing then)
     return _replace(light, rgb=rgb, area=area, shaping=shaping)
 
 
@@ -423,16 +444,8 @@ def _unblocked(points: np.ndarray, segments: np.ndarray, occluders) -> np.ndarra
     """(n, m) 1 where the segment from each point (n, 3) along segments (n or 1, m, 3) is clear."""
     clear = np.ones((len(points), segments.shape[1]))
     for quad in occluders:
-        # rows: the plane's normal, then the edges scaled so that a, b = (x − centre)·row
-        basis = np.stack([np.cross(quad.edge_u, quad.edge_v), quad.edge_u / (quad.edge_u @ quad.edge_u),
-                          quad.edge_v / (quad.edge_v @ quad.edge_v)])
-        start = (points - quad.centre) @ basis.T  # (n, 3)
-        along = segments @ basis.T  # (n or 1, m, 3)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = -start[:, None, 0] / along[..., 0]
-        a = start[:, None, 1] + t * along[..., 1]
-        b = start[:, None, 2] + t * along[..., 2]
-        clear[(t > _EPSILON) & (t < 1.0 - _EPSILON) & (np.abs(a) <= 0.5) & (np.abs(b) <= 0.5)] = 0.0
+        t = quad.intersect(points, segments)
+        clear[(t > _EPSILON) & (t < 1.0 - _EPSILON)] = 0.0
     return clear
 
 
@@ -523,27 +536,60 @@ def _over_area(light: Light, points, normals, occluders, order: int):
     geometry = cos_surface * _unblocked(points, segments, occluders)
     radiance = light.radiance(-toward)
     solid_angle = np.zeros(len(points)) if node_normals is None else solid.sum(axis=1)
-    return np.einsum("nm,nmk->nk", geometry * solid, radiance), solid_angle, _jumps(solid, geometry, radiance)
+    return (np.einsum("nm,nmk->nk", geometry * solid, radiance), solid_angle, _jumps(solid, geometry == 0),
+            _jumps(solid, radiance.max(axis=-1) == 0))
 
 
-def _jumps(solid, geometry, radiance):
-    """(n,) whether the integrand drops to 0 over part of the light (a shadow, the horizon, a
+def _jumps(solid: np.ndarray, dark: np.ndarray) -> np.ndarray:
+    """(n,) whether the integrand is 0 over part of the light only (a shadow, the horizon, a
     cone's edge): where fixed-order quadrature is least accurate."""
     facing = solid > 0
-    dark = (geometry == 0) | (radiance.max(axis=-1) == 0)
     return (facing & dark).any(axis=1) & (facing & ~dark).any(axis=1)
 
 
-def _over_directions(light: Light, points, normals, occluders, directions, solid_angles):
-    """(n, 3) irradiance by quadrature over directions (m, 3) toward the light, each ray
-    tested against its shape."""
-    t, _ = hit(light, points, directions[None])
+def _over_cone(light: Light, points, normals, occluders, order: int, cutoff: float, scan: int = 64):
+    """(n, 3) irradiance over the directions within ``cutoff`` of the light's +Z (the
+    emission cone, seen from the receiver) that reach its shape. The set of
+    directions that hit a convex shape is convex, so along each of 2N azimuths about the
+    axis it is one arc: found by a scan of ``scan`` directions and bisection, then
+    integrated by N Gauss–Legendre nodes in cos. The light's outline and the cone's edge are
+    the ends of the domain, not jumps inside it."""
+    axis = -light.axis
+    phi, wphi = _periodic(2 * order)
+    first, second = (vector[0] for vector in _frame(axis[None]))
+    ring = np.cos(phi)[:, None] * first + np.sin(phi)[:, None] * second  # (2N, 3)
+    n = len(points)
+
+    def directions(mu):  # (n, 2N, k) cosines → (n, 2N·k, 3)
+        sin = np.sqrt(np.clip(1.0 - mu * mu, 0.0, None))
+        return (mu[..., None] * axis + sin[..., None] * ring[None, :, None, :]).reshape(n, -1, 3)
+
+    def reaches(mu):
+        return np.isfinite(hit(light, points, directions(mu))[0]).reshape(mu.shape)
+
+    low = math.cos(cutoff)
+    grid = np.linspace(low, 1.0, scan)
+    inside = reaches(np.broadcast_to(grid, (n, 2 * order, scan)))
+    seen = inside.any(axis=-1)
+    first_in = inside.argmax(axis=-1)
+    last_in = scan - 1 - inside[..., ::-1].argmax(axis=-1)
+    ends = []
+    for hit_at, miss_at, edge in ((first_in, first_in - 1, low), (last_in, last_in + 1, 1.0)):
+        at_edge = (miss_at < 0) | (miss_at >= scan)
+        inner, outer = grid[hit_at], grid[np.clip(miss_at, 0, scan - 1)]
+        for _ in range(40):  # to ~1e-12 of the cone's cos range
+            middle = 0.5 * (inner + outer)
+            reached = reaches(middle[..., None])[..., 0]
+            inner, outer = np.where(reached, middle, inner), np.where(reached, outer, middle)
+        ends.append(np.where(at_edge, edge, inner))
+    mu, wmu = _gauss(order, ends[0], ends[1])  # (n, 2N, N)
+    toward = directions(mu)
+    t, _ = hit(light, points, toward)
     reached = np.isfinite(t)
-    segments = np.where(reached, t, 0.0)[..., None] * directions
-    geometry = np.clip(normals @ directions.T, 0.0, None) * _unblocked(points, segments, occluders)
-    solid = np.where(reached, solid_angles, 0.0)
-    radiance = light.radiance(-directions)
-    return (geometry * solid) @ radiance, _jumps(solid, geometry, radiance[None])
+    solid = np.where(reached, (wmu * wphi[None, :, None] * seen[..., None]).reshape(n, -1), 0.0)
+    segments = np.where(reached, t, 0.0)[..., None] * toward
+    geometry = np.clip(np.einsum("nk,nmk->nm", normals, toward), 0.0, None) * _unblocked(points, segments, occluders)
+    return np.einsum("nm,nmk->nk", geometry * solid, light.radiance(-toward))
 
 
 def _chunk(light: Light, points: np.ndarray, normals: np.ndarray, occluders, order: int):
@@ -555,18 +601,17 @@ def _chunk(light: Light, points: np.ndarray, normals: np.ndarray, occluders, ord
         else:
             directions, solid_angles = _directions(-light.axis, theta_max, order)
         geometry = np.clip(normals @ directions.T, 0.0, None) * _unblocked(points, directions[None] * _FAR, occluders)
-        radiance = light.radiance(-directions)
         solid = np.broadcast_to(solid_angles, geometry.shape)
-        return (geometry * solid) @ radiance, _jumps(solid, geometry, radiance[None])
-    irradiance_, solid_angle, jumps = _over_area(light, points, normals, occluders, order)
+        return (geometry * solid) @ light.radiance(-directions), _jumps(solid, geometry == 0)
+    irradiance_, solid_angle, jumps, cut = _over_area(light, points, normals, occluders, order)
     cutoff = math.radians(light.shaping.cone_angle) if light.shaping is not None else math.pi
-    # A cone that lets through less than the light subtends: integrate over the cone's
-    # directions instead (its edge is then the domain's edge, not a jump inside it).
-    narrow = 2 * math.pi * (1 - math.cos(cutoff)) < solid_angle
-    if narrow.any():
-        directions, solid_angles = _directions(-light.axis, cutoff, order)
-        irradiance_[narrow], jumps[narrow] = _over_directions(light, points[narrow], normals[narrow], occluders,
-                                                              directions, solid_angles)
+    if cutoff < math.pi and light.kind in ("rect", "disk", "sphere", "cylinder"):
+        # Where the cone's edge cuts the light, or the cone lets through less than the
+        # light subtends: integrate over the cone's directions instead.
+        cone = cut | (2 * math.pi * (1 - math.cos(cutoff)) < solid_angle)
+        if cone.any():
+            irradiance_[cone] = _over_cone(light, points[cone], normals[cone], occluders, order, cutoff)
+            jumps |= cone  # the arcs' ends have kinks in azimuth: refined too
     return irradiance_, jumps
 
 
