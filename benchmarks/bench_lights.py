@@ -1,6 +1,6 @@
 """The cost of shaped lights, measured side by side in one run.
 
-    python benchmarks/bench_lights.py [--resolution 256 256] [--spp 16] [--repeats 5] [--write-ies]
+    python benchmarks/bench_lights.py [--resolution 256 256] [--spp 32] [--repeats 5] [--write-ies]
 
 The showcase (render/showcase.usda: a rect key, a sphere fill, a dome) gets two more lights,
 through a small layer that sublayers it:
@@ -102,7 +102,7 @@ def spot_profile(peak: float = 1000.0, power: int = 8) -> str:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--resolution", type=int, nargs=2, default=(256, 256), metavar=("W", "H"))
-    parser.add_argument("--spp", type=int, default=16)
+    parser.add_argument("--spp", type=int, default=32)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--wait", type=float, default=20.0,
                         help="wait at most this many seconds for other processes to leave the CPU (default 20)")

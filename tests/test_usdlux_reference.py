@@ -422,17 +422,17 @@ def test_light_link_excludes_a_receiver():
 
 def test_hits_on_each_shape():
     stage = new_stage()
-    down = np.array([[[0.0, 0.0, 1.0]]])  # from below, up the z axis
+    up = np.array([[[0.0, 0.0, 1.0]]])
     shapes = {"rect": UsdLux.RectLight, "disk": UsdLux.DiskLight, "sphere": UsdLux.SphereLight,
               "cylinder": UsdLux.CylinderLight}
-    expected = {"rect": 2.0, "disk": 2.0, "sphere": 1.5, "cylinder": 1.5}  # the shapes' centre at z = 2
-    below = np.array([[0.0, 0.0, 0.0]])
+    expected = {"rect": 2.0, "disk": 2.0, "sphere": 1.5, "cylinder": 1.5}  # each centred at z = 2
+    below, above = np.array([[0.0, 0.0, 0.0]]), np.array([[0.0, 0.0, 4.0]])
     for kind, schema in shapes.items():
         light = ref.read_light(place(schema.Define(stage, f"/{kind}"), translate=(0, 0, 2)).GetPrim())
-        t, normal = ref.hit(light, below, down)
-        assert t[0, 0] == pytest.approx(expected[kind]) and normal[0, 0] @ down[0, 0] == pytest.approx(-1.0)
-        above = np.array([[0.0, 0.0, 4.0]])
-        t_back, _ = ref.hit(light, above, -down)
-        if kind in ("rect", "disk"):  # their back: no emission, but a hit when both sides count
-            assert np.isinf(t_back[0, 0])
-            assert ref.hit(light, above, -down, front_only=False)[0][0, 0] == pytest.approx(2.0)
+        assert ref.hit(light, below, up)[0, 0] == pytest.approx(expected[kind])
+        if kind in ("rect", "disk"):  # their back emits nothing, but is hit when both sides count
+            assert np.isinf(ref.hit(light, above, -up)[0, 0])
+            assert ref.hit(light, above, -up, front_only=False)[0, 0] == pytest.approx(2.0)
+    inside = ref.read_light(UsdLux.SphereLight.Define(stage, "/inside").GetPrim())
+    assert np.isinf(ref.hit(inside, below, up)[0, 0])  # from inside: only its back
+    assert ref.hit(inside, below, up, front_only=False)[0, 0] == pytest.approx(0.5)
