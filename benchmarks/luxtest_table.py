@@ -89,6 +89,7 @@ over "floorPlane"
 }}
 """
 
+
 class Collect(logging.Handler):
     """Keeps the distinct warnings of the renders, to list once at the end."""
 
@@ -165,8 +166,7 @@ def reference_image(stage: Usd.Stage, light_path: str, time: float, resolution: 
         side = np.sign((points - light.origin) @ light.axis) if light.kind in ("rect", "disk") else 0
         values.append((albedo * value / np.pi).reshape(*directions.shape[:2], 3))
         keys.append(np.where(nearest >= 0, 3 * nearest + side + 1, -1).reshape(directions.shape[:2]))
-        behind.append((reference.hit(light, origin[None], rays, front_only=False)[0] < t
-                       if light.kind != "distant" else np.zeros(len(t), bool)).reshape(directions.shape[:2]))
+        behind.append((reference.hit(light, origin[None], rays, front_only=False)[0] < t).reshape(directions.shape[:2]))
 
     def at_corners(grid):  # (n + 1, n + 1, ...) → the pixels' four corners, each (n, n, ...)
         return [grid[:-1, :-1], grid[1:, :-1], grid[:-1, 1:], grid[1:, 1:]]

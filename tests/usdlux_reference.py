@@ -456,9 +456,11 @@ def _unblocked(points: np.ndarray, segments: np.ndarray, occluders) -> np.ndarra
 
 
 def hit(light: Light, origins: np.ndarray, directions: np.ndarray, front_only: bool = True) -> np.ndarray:
-    """(n, m) distance t along rays from origins (n, 3) along directions (n or 1, m, 3) to the
-    light's shape (rect, disk, sphere, cylinder), inf where they miss it. front_only: only
-    hits on its emitting side (seen from the origin)."""
+    """(n, m) parameter t of rays origins (n, 3) + t · directions (n or 1, m, 3) where they
+    meet the light's shape, inf where they miss it (always for point and line lights, which
+    have none). front_only: only hits on its emitting side (seen from the origin)."""
+    if light.kind in ("point", "line", "distant"):
+        return np.full((len(origins), directions.shape[1]), np.inf)
     inverse = np.linalg.inv(light.linear)
     o = ((origins - light.origin) @ inverse.T)[:, None, :]  # local; t is the same in both frames
     d = np.broadcast_to(directions @ inverse.T, (len(origins), *directions.shape[1:]))
