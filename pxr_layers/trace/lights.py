@@ -129,7 +129,7 @@ IES_ANGLE_SCALE = 11
 IES_FACTOR = 12  # 1 / the profile's power under ies:normalize, else 1
 SHAPING_FIELDS = 13
 
-POWER_SAMPLES = 64  # (point, direction) pairs averaged to estimate a shaped or textured emitter's power
+POWER_SAMPLES = 128  # (point, direction) pairs averaged to estimate a shaped or textured emitter's power
 SHAPE_WIDTH, SHAPE_HEIGHT = 0, 1  # columns of LightArrays.light_size
 
 
@@ -481,6 +481,27 @@ def _hammersley(k, count):
     return (k + 0.5) / count, inverse
 
 
+@inline
+def _spread_direction(lights, light, a, b):
+    """A direction (ex, ey, ez) from (a, b) ∈ [0, 1)², uniform over the directions a shaped
+    light can emit into (its cone about its axis, the whole sphere for an unshaped light or
+    a cone of 180°), and that set's solid angle: a narrow spotlight's power is then
+    estimated from directions inside its cone, not from the few that fall there by chance."""
+    cos_max = math.cos(lights.light_shaping[light, CONE_END]) if lights.light_shaping[light, SHAPED] > 0 else -1.0
+    cos_theta = 1.0 - a * (1.0 - cos_max)
+    sin_theta = math.sqrt(max(1.0 - cos_theta * cos_theta, 0.0))
+    ax, ay, az = lights.light_shaping[light, AXIS], lights.light_shaping[light, AXIS + 1], lights.light_shaping[light, AXIS + 2]
+    tx, ty, tz, bx, by, bz = basis(ax, ay, az)
+    cx, sx = sin_theta * math.cos(2 * math.pi * b), sin_theta * math.sin(2 * math.pi * b)
+    return (tx * cx + bx * sx + ax * cos_theta, ty * cx + by * sx + ay * cos_theta, tz * cx + bz * sx + az * cos_theta,
+            2 * math.pi * (1.0 - cos_max))
+
+
+# a light triangle or point whose estimate falls below this fraction of its unshaped power
+# keeps that much: every part of a light stays reachable by light sampling
+POWER_FLOOR = 1e-4
+
+
 @kernel
 def _mean_emission_kernel(triangles, geometry, materials, lights, samples, registers, inputs, radiance, out):
     normal = geometry.geometric_normal
@@ -493,24 +514,25 @@ def _mean_emission_kernel(triangles, geometry, materials, lights, samples, regis
             emitted(triangle, third, third, nx, ny, nz, 1.0, geometry, lights, materials, registers, inputs, radiance)
             out[lane] = luminance_of(radiance[0], radiance[1], radiance[2])
             continue
-        tx, ty, tz, bx, by, bz = basis(nx, ny, nz)
         total = 0.0
         for k in range(samples):
             a, b = _hammersley(k, samples)
-            root = math.sqrt(a)  # a direction cosine-weighted about the normal, a point uniform over the triangle
-            cx, sx, cos_theta = root * math.cos(2 * math.pi * b), root * math.sin(2 * math.pi * b), math.sqrt(1 - a)
-            ex, ey, ez = (tx * cx + bx * sx + nx * cos_theta, ty * cx + by * sx + ny * cos_theta,
-                          tz * cx + bz * sx + nz * cos_theta)
-            other = math.sqrt(b)
-            emitted(triangle, a * other, 1.0 - other, ex, ey, ez, 1.0, geometry, lights, materials, registers, inputs,
-                    radiance)
-            total += luminance_of(radiance[0], radiance[1], radiance[2])
-        out[lane] = total / samples
+            ex, ey, ez, solid_angle = _spread_direction(lights, light, a, b)
+            cos_out = ex * nx + ey * ny + ez * nz
+            if cos_out <= 0:
+                continue
+            other = math.sqrt(b)  # a point uniform over the triangle
+            emitted(triangle, a * other, 1.0 - other, ex, ey, ez, cos_out, geometry, lights, materials, registers,
+                    inputs, radiance)
+            # the mean over cosine-weighted directions, (1/π) ∫ L cos dω, from uniform ones
+            total += luminance_of(radiance[0], radiance[1], radiance[2]) * cos_out * solid_angle / math.pi
+        base = lights.light_radiance[light]
+        out[lane] = max(total / samples, POWER_FLOOR * luminance_of(base[0], base[1], base[2]))
 
 
 def _point_power(lights: LightArrays) -> np.ndarray:
     """Power estimate (q,) of each positional delta light: its luminance times the shaping
-    factor integrated over the sphere of directions (POWER_SAMPLES² directions)."""
+    factor integrated over the directions it can emit into (POWER_SAMPLES² of them)."""
     out = np.zeros(len(lights.point_light), np.float64)
     _point_power_kernel(lights, POWER_SAMPLES * POWER_SAMPLES, out)
     return out
@@ -522,20 +544,19 @@ def _point_power_kernel(lights, samples, out):
         light = lights.point_light[item]
         sx, sy, sz = lights.point_segment[item, 0], lights.point_segment[item, 1], lights.point_segment[item, 2]
         length = math.sqrt(sx * sx + sy * sy + sz * sz)
-        total = 0.0
+        radiance = lights.light_radiance[light]
+        total = solid_angle = 0.0
         for k in range(samples):
             a, b = _hammersley(k, samples)
-            z = 1.0 - 2.0 * a  # uniform on the sphere
-            r = math.sqrt(max(1.0 - z * z, 0.0))
-            ex, ey, ez = r * math.cos(2 * math.pi * b), r * math.sin(2 * math.pi * b), z
+            ex, ey, ez, solid_angle = _spread_direction(lights, light, a, b)
             fr, fg, fb = shaping_factor(lights, light, ex, ey, ez)
             broadside = 1.0
             if length > 0:  # a segment's silhouette shrinks as |sin| of the angle to its axis
                 along = (ex * sx + ey * sy + ez * sz) / length
                 broadside = math.sqrt(max(1.0 - along * along, 0.0))
-            radiance = lights.light_radiance[light]
             total += luminance_of(radiance[0] * fr, radiance[1] * fg, radiance[2] * fb) * broadside
-        out[item] = total / samples * 4 * math.pi * lights.point_scale[item]
+        unshaped = luminance_of(radiance[0], radiance[1], radiance[2]) * 4 * math.pi
+        out[item] = max(total / samples * solid_angle, POWER_FLOOR * unshaped) * lights.point_scale[item]
 
 
 # -- per-lane functions of kernels
