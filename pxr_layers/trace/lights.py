@@ -461,8 +461,9 @@ def _link_groups(scene: SceneData, world: World) -> tuple[np.ndarray, np.ndarray
 def _mean_emission(triangles: np.ndarray, geometry: GeometryArrays, materials: MaterialArrays,
                    lights: LightArrays) -> np.ndarray:
     """Luminance (e,) of the radiance emitting triangles send, averaged over their area and
-    cosine-weighted directions of their front (POWER_SAMPLES pairs where the light is shaped
-    or textured, the centroid and the normal elsewhere)."""
+    cosine-weighted directions of their front ((1/π) ∫ L cos dω, from POWER_SAMPLES points
+    and directions uniform over the light's cone where it is shaped or textured, from the
+    centroid elsewhere)."""
     out = np.zeros(len(triangles), np.float64)
     _mean_emission_kernel(triangles, geometry, materials, lights, POWER_SAMPLES, scratch(shading.REGISTERS, 4),
                           scratch(shading.MATERIAL_FIELDS), scratch(3), out)
