@@ -20,6 +20,6 @@ def test_wheel_carries_the_render_data(tmp_path):
     )
     (wheel,) = tmp_path.glob("pxr_layers-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
-    for data in ("cornell.usda", "showcase.usda", "textures/two_frequencies.png"):
+    for data in ("cornell.usda", "showcase.usda", "textures/two_frequencies.png", "ies/spot_cos8.ies"):
         assert f"pxr_layers/render/{data}" in names
     assert any(name.endswith("entry_points.txt") for name in names)
