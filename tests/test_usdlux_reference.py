@@ -362,14 +362,12 @@ def test_ies_profile_angle_scale_normalize_and_azimuth(tmp_path):
     assert ratio(45.0, 180.0) == pytest.approx(60.0 / power, rel=1e-4)
 
 
-def test_ies_power_agrees_with_the_parsers_midpoint_rule():
+def test_ies_power_agrees_with_the_parsers_midpoint_rule(shared_data):
     """The parser's power (hdEmbree's patch-centre sum) and the exact mean of the bilinear
     table differ by the midpoint rule's error only."""
     from pxr_layers.stage.ies import read_ies
 
-    path = ref.Path(__file__).resolve().parents[2] / "shared/data/luxtest/bega_omni002_4777lm.ies"
-    if not path.exists():
-        pytest.skip(f"{path} is not here (the workplace's shared assets)")
+    path = shared_data / "luxtest" / "bega_omni002_4777lm.ies"
     profile, _ = read_ies(str(path))
     assert ref.read_ies(path).power == pytest.approx(profile.power, rel=5e-3)
 
