@@ -117,7 +117,7 @@ def test_a_dome_alone_renders_the_sky(tmp_path):
     assert np.allclose(rgba[..., :3], 2.0) and (rgba[..., 3] == 0.0).all()
 
 
-NEGATIVE_LIGHT = """#usda 1.0
+BAD_SKY = """#usda 1.0
 def Xform "World"
 {
     def Camera "cam"
@@ -128,32 +128,40 @@ def Xform "World"
     def Sphere "ball"
     {
     }
-    def SphereLight "key"
+    def DomeLight "sky"
     {
-        float inputs:intensity = -20
-        double3 xformOp:translate = (2, 2, 2)
-        uniform token[] xformOpOrder = ["xformOp:translate"]
+        asset inputs:texture:file = @./sky.exr@
     }
 }
 """
 
 
+def bad_sky(tmp_path, texel: float) -> Path:
+    """A dome whose image holds `texel` in half its pixels: light values no reader can vet
+    (a wide-gamut HDRI holds small negative texels)."""
+    pixels = np.ones((4, 8, 3), np.float32)
+    pixels[:, :4] = texel
+    image = oiio.ImageOutput.create(str(tmp_path / "sky.exr"))
+    image.open(str(tmp_path / "sky.exr"), oiio.ImageSpec(8, 4, 3, "float"))
+    image.write_image(pixels)
+    image.close()
+    shot = tmp_path / "sky.usda"
+    shot.write_text(BAD_SKY)
+    return shot
+
+
 def test_a_beauty_with_negative_pixels_names_the_paths_that_made_them(tmp_path):
-    shot = tmp_path / "negative.usda"
-    shot.write_text(NEGATIVE_LIGHT)
-    result = run("render", str(shot), "-o", str(tmp_path / "out"), *SMALL, "--no-previews")
+    result = run("render", str(bad_sky(tmp_path, -5.0)), "-o", str(tmp_path / "out"), *SMALL, "--no-previews")
     assert result.returncode == 0
     (warning,) = [line for line in result.stderr.splitlines() if "negative pixels" in line]
-    assert "C RD'ball' L'key'" in warning
+    assert "C RD'ball' L'sky'" in warning
 
 
 def test_a_beauty_with_nan_pixels_is_refused_naming_the_paths_that_made_them(tmp_path):
-    shot = tmp_path / "nan.usda"
-    shot.write_text(NEGATIVE_LIGHT.replace("-20", "nan"))
-    result = run("render", str(shot), "-o", str(tmp_path / "out"), *SMALL, "--no-previews")
+    result = run("render", str(bad_sky(tmp_path, float("nan"))), "-o", str(tmp_path / "out"), *SMALL, "--no-previews")
     assert result.returncode == 1
     error = result.stderr.strip().splitlines()[-1]
-    assert "NaN or infinite pixels" in error and "C RD'ball' L'key'" in error and "Traceback" not in result.stderr
+    assert "NaN or infinite pixels" in error and "C RD'ball' L'sky'" in error and "Traceback" not in result.stderr
     assert not list((tmp_path / "out").glob("*"))  # neither the EXR nor the index
 
 

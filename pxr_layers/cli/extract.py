@@ -64,12 +64,10 @@ def run(args: argparse.Namespace) -> int:
     index = PathIndex(args.index)
     loaded = _recipe(index, args) if args.recipe else None
     products = list(loaded.products) if loaded else []
-    expressions = dict(args.layer)
-    if args.passes:
-        expressions.update(lpe.STANDARD_PASSES)
-    if args.lights:
-        names = sorted({event.name for event in index.events if event.type == "L" and event.name})
-        expressions.update(lpe.per_light_passes(names))
+    expressions, clash = _command_line_layers(args, index)
+    if clash:
+        print(f"pxr-layers extract: error: {clash}: every layer needs its own name", file=sys.stderr)
+        return 2
     if expressions:
         stem = index.path.stem + ".layers"
         products.append(Product(name=stem, output_name=stem + ".exr", camera=index.manifest.get("camera", ""),
@@ -93,6 +91,25 @@ def run(args: argparse.Namespace) -> int:
                              show_progress=args.show_progress):
         print(delivered.exr)
     return 0
+
+
+def _command_line_layers(args: argparse.Namespace, index: PathIndex) -> tuple[dict[str, str], str]:
+    """(name → expression of the --layer, --passes and --lights layers, "" or what names a
+    layer twice: a later one would silently replace the earlier)."""
+    expressions: dict[str, str] = {}
+    given: dict[str, str] = {}  # name → the flag that gave it
+    sources = [(f"--layer {name}={text}", {name: text}) for name, text in args.layer]
+    if args.passes:
+        sources.append(("--passes", lpe.STANDARD_PASSES))
+    if args.lights:
+        names = sorted({event.name for event in index.events if event.type == "L" and event.name})
+        sources.append(("--lights", lpe.per_light_passes(names)))
+    for flag, layers in sources:
+        for name, text in layers.items():
+            if name in given:
+                return expressions, f"the layer name {name!r} is given twice ({given[name]} and {flag})"
+            given[name], expressions[name] = flag, text
+    return expressions, ""
 
 
 def _recipe(index: PathIndex, args: argparse.Namespace) -> Recipe:

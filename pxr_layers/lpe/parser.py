@@ -24,6 +24,9 @@ _EVENT_STARTS = {Kind.TYPE, Kind.SCATTER, Kind.DOT, Kind.LABEL, Kind.OPEN_GROUP,
 _ATOM_STARTS = _EVENT_STARTS | {Kind.OPEN_PAREN, Kind.OPEN_SET}
 _REPETITIONS = {Kind.STAR: (0, None), Kind.PLUS: (1, None), Kind.QUESTION: (0, 1)}
 _SLOT_NAMES = ("event type", "scattering")
+MAX_NESTING = 32
+"""Groups ``(...)`` and sets ``[...]`` nested in one another at most (far beyond any path a
+light takes, and well inside what the recursive parser and the compiler can descend)."""
 
 
 def parse(query: str) -> nodes.Node:
@@ -36,6 +39,7 @@ class _Parser:
         self.query = query
         self.tokens = tokenize(query)
         self.index = 0
+        self.depth = 0  # groups and sets open at the current token
 
     @property
     def token(self) -> Token:
@@ -95,6 +99,18 @@ class _Parser:
 
     def atom(self) -> nodes.Node:
         token = self.token
+        if token.kind in (Kind.OPEN_PAREN, Kind.OPEN_SET):
+            if self.depth == MAX_NESTING:
+                raise self.error(f"groups and sets nest more than {MAX_NESTING} deep here")
+            self.depth += 1
+            try:
+                return self._group(token)
+            finally:
+                self.depth -= 1
+        return self.event()
+
+    def _group(self, token: Token) -> nodes.Node:
+        """``(...)`` or ``[...]`` starting at `token`."""
         if token.kind is Kind.OPEN_PAREN:
             self.advance()
             if self.token.kind is Kind.CLOSE_PAREN:
@@ -106,9 +122,7 @@ class _Parser:
                 raise self.error(f"expected ')': {self._unexpected_here()}")
             self.advance()
             return inner
-        if token.kind is Kind.OPEN_SET:
-            return self.alternative_set()
-        return self.event()
+        return self.alternative_set()
 
     def alternative_set(self) -> nodes.Node:
         """``[...]`` outside ``<...>``: any one of its items (OSL's "or list")."""

@@ -157,14 +157,22 @@ def _read_light(
     path = str(prim.GetPath())
     world_from_local = column_matrix(context.xform_cache.GetLocalToWorldTransform(prim))
     linear = world_from_local[:3, :3]
-    color = np.array(light.GetColorAttr().Get(time), dtype=np.float64)
-    radiance = (
-        float(light.GetIntensityAttr().Get(time))
-        * 2.0 ** float(light.GetExposureAttr().Get(time))
-        * color
-    )
+    def checked(attribute: Usd.Attribute, least: float | None = 0.0) -> float:
+        return _checked(context, path, attribute, float(attribute.Get(time)), least)
+
+    color = np.array([_checked(context, path, light.GetColorAttr(), float(value), 0.0)
+                      for value in light.GetColorAttr().Get(time)], dtype=np.float64)
+    intensity, exposure = checked(light.GetIntensityAttr()), checked(light.GetExposureAttr(), None)
     if light.GetEnableColorTemperatureAttr().Get(time):
-        radiance = radiance * blackbody_rgb(float(light.GetColorTemperatureAttr().Get(time)))
+        temperature = light.GetColorTemperatureAttr()
+        color = color * blackbody_rgb(_checked(context, path, temperature, float(temperature.Get(time)), 1.0))
+    brightest = intensity * float(color.max())
+    # in powers of two: 2^exposure itself overflows a float past exposure 1023
+    if brightest > 0 and math.log2(brightest) + exposure > math.log2(_LARGEST_RADIANCE):
+        raise StageError(f"intensity · 2^exposure · color reaches 2^{math.log2(brightest) + exposure:.1f}: more "
+                         f"than a render can hold (at most 2^{math.log2(_LARGEST_RADIANCE):.0f})",
+                         file=context.file, prim=path)
+    radiance = intensity * 2.0**exposure * color if brightest > 0 else np.zeros(3)
     normalize = bool(light.GetNormalizeAttr().Get(time))
     _note_ignored_controls(context, prim, light)
 
@@ -174,31 +182,29 @@ def _read_light(
     if prim.IsA(UsdLux.RectLight):
         kind = "rect"
         rect = UsdLux.RectLight(prim)
-        width = float(rect.GetWidthAttr().Get(time))
-        height = float(rect.GetHeightAttr().Get(time))
+        width, height = checked(rect.GetWidthAttr()), checked(rect.GetHeightAttr())
         fields.update(width=width, height=height, texture=_light_texture(context, prim, textures))
         size_factor = width * height * _parallelogram_area(linear)
     elif prim.IsA(UsdLux.DiskLight):
         kind = "disk"
-        radius = float(UsdLux.DiskLight(prim).GetRadiusAttr().Get(time))
+        radius = checked(UsdLux.DiskLight(prim).GetRadiusAttr())
         fields.update(radius=radius)
         size_factor = math.pi * radius**2 * _parallelogram_area(linear)
     elif prim.IsA(UsdLux.SphereLight):
         sphere = UsdLux.SphereLight(prim)
         kind = "point" if sphere.GetTreatAsPointAttr().Get(time) else "sphere"
-        radius = float(sphere.GetRadiusAttr().Get(time))
+        radius = checked(sphere.GetRadiusAttr())
         fields.update(radius=radius)
         size_factor = _ellipsoid_area(radius * np.linalg.svd(linear, compute_uv=False))
     elif prim.IsA(UsdLux.CylinderLight):
         cylinder = UsdLux.CylinderLight(prim)
         kind = "line" if cylinder.GetTreatAsLineAttr().Get(time) else "cylinder"
-        radius = float(cylinder.GetRadiusAttr().Get(time))
-        length = float(cylinder.GetLengthAttr().Get(time))
+        radius, length = checked(cylinder.GetRadiusAttr()), checked(cylinder.GetLengthAttr())
         fields.update(radius=radius, length=length)
         size_factor = _cylinder_side_area(linear, radius, length)
     elif prim.IsA(UsdLux.DistantLight):
         kind = "distant"
-        angle = float(UsdLux.DistantLight(prim).GetAngleAttr().Get(time))
+        angle = checked(UsdLux.DistantLight(prim).GetAngleAttr())
         fields.update(angle=angle)
         size_factor = distant_size_factor(angle)
     else:
@@ -232,13 +238,26 @@ def _read_light(
         world_from_light=world_from_local,
         radiance=radiance.astype(np.float64),
         shaping=_shaping(context, prim, kind, profiles),
-        diffuse=float(light.GetDiffuseAttr().Get(time)),
-        specular=float(light.GetSpecularAttr().Get(time)),
+        diffuse=checked(light.GetDiffuseAttr()),
+        specular=checked(light.GetSpecularAttr()),
         camera_visible=_camera_visible(context, prim),
         light_link=_members(light.GetLightLinkCollectionAPI(), mesh_paths),
         shadow_link=_members(light.GetShadowLinkCollectionAPI(), mesh_paths),
         **fields,
     )
+
+
+_LARGEST_RADIANCE = 1e30  # far beyond any light, far below float32's 3.4e38 (pixel sums stay finite)
+
+
+def _checked(context: ReadContext, path: str, attribute: Usd.Attribute, value: float, least: float | None) -> float:
+    """`value` of a light's `attribute` if it is finite and (unless `least` is None) at least
+    `least`; else a StageError naming the prim and the attribute. A negative intensity,
+    colour or size would make negative (or NaN) pixels, which no layer can hold."""
+    if math.isfinite(value) and (least is None or value >= least):
+        return value
+    bound = "a finite number" if least is None else f"a finite number ≥ {least:g}"
+    raise StageError(f"{attribute.GetName()} is {value:g}: it must be {bound}", file=context.file, prim=path)
 
 
 def blackbody_rgb(kelvin: float) -> np.ndarray:
