@@ -215,10 +215,9 @@ def test_job_run_from_the_command_line(tmp_path):
 
 def test_a_user_error_in_a_task_is_raised_once_not_retried(tmp_path, client):
     from pxr_layers.errors import PxrLayersError
-    from test_cli import NEGATIVE_LIGHT
+    from test_cli import bad_sky
 
-    stage = tmp_path / "nan.usda"
-    stage.write_text(NEGATIVE_LIGHT.replace("-20", "nan"))
+    stage = bad_sky(tmp_path, float("nan"))  # NaN pixels: a user error found only by rendering
     job_file = tmp_path / "nan.toml"
     job_file.write_text(f'stage = "{stage.name}"\nframes = "1"\n[render]\nspp = 4\nresolution = [16, 16]\n'
                         f'[output]\ndirectory = "out"\n[dask]\nretries = 2\n')
