@@ -18,6 +18,12 @@ DEFAULT_MAX_DEPTH = 8
 DEFAULT_SEED = 0
 DEFAULT_RESOLUTION = (512, 512)
 """(width, height) in pixels of a stage whose recipe (or lack of one) names no resolution."""
+MAX_SPP = 1 << 16
+"""Samples per pixel at most (65536: far past convergence; more is a typo)."""
+MAX_PIXELS = 1 << 28
+"""Pixels of one image at most (16384 × 16384): every per-pixel buffer must fit in memory."""
+MAX_SEED = (1 << 64) - 1
+"""The largest seed: seeds key 64-bit random streams, so a larger one would wrap silently."""
 DEFAULT_SUBDIV_LEVEL = 2
 """Uniform refinement levels of subdivision surfaces: each level splits a quad in four, so
 level 2 turns a cube into 96 quads; enough for a smooth silhouette at shot resolution of
@@ -111,6 +117,9 @@ class RenderRequest:
             raise RenderSettingsError(f"subdiv level must be 0 to {MAX_SUBDIV_LEVEL}, not {self.subdiv_level}")
         if self.resolution is not None and min(self.resolution) <= 0:
             raise RenderSettingsError(f"resolution must be positive, not {self.resolution}")
+        if self.seed > MAX_SEED:
+            raise RenderSettingsError(f"seed must be at most 2^64 − 1, not {self.seed}")
+        check_work(self.resolution, self.spp)
 
     def resolved_norm_bounces(self, product_bounces: int, has_conditions: bool) -> int:
         """The norm-bounce rule: the request's own number, else the products' index bounces
@@ -119,3 +128,13 @@ class RenderRequest:
         if self.norm_bounces is not None:
             return self.norm_bounces
         return max(product_bounces, self.max_depth) if has_conditions else product_bounces
+
+
+def check_work(resolution: tuple[int, int] | None, spp: int) -> None:
+    """Raise RenderSettingsError when a render would be beyond MAX_SPP samples per pixel or
+    MAX_PIXELS pixels, before anything is allocated for it."""
+    if spp > MAX_SPP:
+        raise RenderSettingsError(f"{spp} samples per pixel is more than the {MAX_SPP} a render takes")
+    if resolution is not None and resolution[0] * resolution[1] > MAX_PIXELS:
+        raise RenderSettingsError(f"a {resolution[0]}×{resolution[1]} image is more than the {MAX_PIXELS} pixels "
+                                  "(16384 × 16384) a render takes")

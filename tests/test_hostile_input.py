@@ -89,3 +89,33 @@ def test_deep_nesting_is_a_syntax_error_at_its_position(opening, closing):
     assert "nest" in str(raised.value) and raised.value.position == 1 + MAX_NESTING
     shallow = "C" + opening * MAX_NESTING + "D" + closing * MAX_NESTING + "L"
     lpe.parse(shallow)  # the limit itself parses
+
+
+@pytest.mark.parametrize("flags", [["--frame", "nan"], ["--frame", "inf"], ["--frame", "-inf"]])
+def test_a_frame_that_is_not_a_number_is_a_usage_error(tmp_path, flags):
+    result = run("render", str(RENDER_DIR / "cornell.usda"), *flags, "-o", str(tmp_path), *SMALL)
+    assert result.returncode == 2 and "--frame" in result.stderr and "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("flags, said", [
+    (["--spp", "99999999999999999999"], "samples per pixel"),
+    (["--spp", "4294967296", "--resolution", "1", "1"], "samples per pixel"),
+    (["--resolution", "1000000", "1000000"], "pixels"),
+    (["--seed", "99999999999999999999999"], "seed"),
+])
+def test_work_past_the_stated_limits_is_refused_before_it_starts(tmp_path, flags, said):
+    result = run("render", str(RENDER_DIR / "cornell.usda"), "-o", str(tmp_path / "out"), "--quiet", *flags)
+    assert result.returncode == 1
+    (line,) = result.stderr.strip().splitlines()
+    assert said in line and "Traceback" not in result.stderr
+    assert not (tmp_path / "out").exists() or not list((tmp_path / "out").iterdir())
+
+
+@pytest.mark.parametrize("action", ["run", "status"])
+def test_a_binary_job_file_is_one_line(tmp_path, action):
+    job = tmp_path / "binary.toml"
+    job.write_bytes(bytes(range(256)) * 2)
+    result = run("job", action, str(job))
+    assert result.returncode == 1
+    (line,) = result.stderr.strip().splitlines()
+    assert str(job) in line and "not a text file" in line and "Traceback" not in result.stderr

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import math
 import time
 from pathlib import Path
 
@@ -20,6 +21,8 @@ from ..request import (
     DEFAULT_RESOLUTION,
     DEFAULT_SEED,
     DEFAULT_SPP,
+    MAX_PIXELS,
+    MAX_SPP,
     DEFAULT_SUBDIV_LEVEL,
     MAX_REFINED_FACES,
     MAX_SUBDIV_LEVEL,
@@ -64,15 +67,15 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
                         help="add per-light layers to every product: none, lights (one layer per light) "
                         "or groups (one per pxrLayers:lightGroup); default: each product's pxrLayers:perLight")
     parser.add_argument("--spp", type=_positive, default=DEFAULT_SPP, metavar="N",
-                        help=f"samples per pixel (default {DEFAULT_SPP})")
+                        help=f"samples per pixel (default {DEFAULT_SPP}, at most {MAX_SPP})")
     parser.add_argument("--max-depth", type=_non_negative, default=DEFAULT_MAX_DEPTH, metavar="N",
                         help=f"most scattering events per path; 1 = direct light only (default {DEFAULT_MAX_DEPTH})")
     parser.add_argument("--resolution", type=_positive, nargs=2, metavar=("W", "H"),
                         help="image size in pixels (default: the recipe's, else "
-                        f"{DEFAULT_RESOLUTION[0]} {DEFAULT_RESOLUTION[1]})")
+                        f"{DEFAULT_RESOLUTION[0]} {DEFAULT_RESOLUTION[1]}; at most {MAX_PIXELS:,} pixels)")
     parser.add_argument("--seed", type=_non_negative, default=DEFAULT_SEED, metavar="N",
                         help=f"random seed (default {DEFAULT_SEED})")
-    parser.add_argument("--frame", type=float, metavar="F",
+    parser.add_argument("--frame", type=_finite, metavar="F",
                         help="time code to render (default: the stage's start time code)")
     parser.add_argument("--camera", metavar="PRIM", help="camera prim path (default: the recipe's camera)")
     parser.add_argument("--threads", type=_positive, metavar="N", help="render threads (default: all cores)")
@@ -190,6 +193,13 @@ def _variant(text: str) -> VariantSelection:
         return VariantSelection.parse(text)
     except PxrLayersError as error:
         raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def _finite(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
+    return value
 
 
 def _non_negative(text: str) -> int:

@@ -573,6 +573,8 @@ def _read_toml(path: Path, child: str | None) -> dict[str, Any]:
             return tomllib.load(stream)
     except tomllib.TOMLDecodeError as error:
         raise _error(f"not valid TOML: {error}", str(path), None) from None
+    except UnicodeDecodeError as error:
+        raise _error(f"not a text file (byte {error.start} is not UTF-8): not valid TOML", str(path), None) from None
     except OSError as error:
         raise _error(f"cannot read: {error.strerror}", str(path), None) from None
 

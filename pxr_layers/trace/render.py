@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import RenderSettingsError
+from ..request import check_work
 from ..paths.events import EventVocabulary
 from ..progress import Progress
 from ..scene import FLOAT, RenderSpec, SceneData
@@ -62,6 +63,7 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
         raise RenderSettingsError(f"samples per pixel must be positive, got {settings.spp}")
     if settings.max_depth < 0:
         raise RenderSettingsError(f"max depth must be 0 or more, got {settings.max_depth}")
+    check_work(spec.resolution, settings.spp)  # a recipe's own resolution too
     world = build_world(scene)
     geometry = geometry_arrays(world)
     materials = MaterialTable(scene, world.primvar_columns)
