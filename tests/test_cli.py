@@ -117,23 +117,28 @@ def test_a_dome_alone_renders_the_sky(tmp_path):
     assert np.allclose(rgba[..., :3], 2.0) and (rgba[..., 3] == 0.0).all()
 
 
-BAD_SKY = """#usda 1.0
+def ball_lit_by(light: str) -> str:
+    """A stage: a camera 5 m from a unit ball, and `light` (USD prim text) beside them."""
+    return f"""#usda 1.0
 def Xform "World"
-{
+{{
     def Camera "cam"
-    {
+    {{
         double3 xformOp:translate = (0, 0, 5)
         uniform token[] xformOpOrder = ["xformOp:translate"]
-    }
+    }}
     def Sphere "ball"
-    {
-    }
-    def DomeLight "sky"
+    {{
+    }}
+{light}
+}}
+"""
+
+
+BAD_SKY = ball_lit_by("""    def DomeLight "sky"
     {
         asset inputs:texture:file = @./sky.exr@
-    }
-}
-"""
+    }""")
 
 
 def bad_sky(tmp_path, texel: float) -> Path:

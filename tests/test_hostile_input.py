@@ -11,27 +11,16 @@ from pxr_layers.cli.main import main
 from pxr_layers.errors import LpeSyntaxError
 from pxr_layers.lpe.parser import MAX_NESTING
 
-from test_cli import RENDER_DIR, SMALL, run
+from test_cli import RENDER_DIR, SMALL, ball_lit_by, run
 
-LIGHT = """#usda 1.0
-def Xform "World"
-{{
-    def Camera "cam"
-    {{
-        double3 xformOp:translate = (0, 0, 5)
-        uniform token[] xformOpOrder = ["xformOp:translate"]
-    }}
-    def Sphere "ball"
-    {{
-    }}
-    def SphereLight "key"
+def lit_by_key(control: str) -> str:
+    """The ball under a SphereLight "key" with one control authored (USD text)."""
+    return ball_lit_by(f"""    def SphereLight "key"
     {{
         {control}
         double3 xformOp:translate = (2, 2, 2)
         uniform token[] xformOpOrder = ["xformOp:translate"]
-    }}
-}}
-"""
+    }}""")
 
 
 @pytest.mark.parametrize("control, attribute", [
@@ -48,7 +37,7 @@ def Xform "World"
 ])
 def test_a_light_value_no_image_can_hold_is_one_line_naming_the_prim(tmp_path, control, attribute):
     shot = tmp_path / "light.usda"
-    shot.write_text(LIGHT.format(control=control))
+    shot.write_text(lit_by_key(control))
     result = run("render", str(shot), "-o", str(tmp_path / "out"), *SMALL, "--no-previews", "--no-index")
     assert result.returncode == 1
     (line,) = result.stderr.strip().splitlines()
@@ -58,7 +47,7 @@ def test_a_light_value_no_image_can_hold_is_one_line_naming_the_prim(tmp_path, c
 
 def test_a_very_low_exposure_is_darkness_not_an_error(tmp_path):
     shot = tmp_path / "light.usda"
-    shot.write_text(LIGHT.format(control="float inputs:exposure = -5000"))
+    shot.write_text(lit_by_key("float inputs:exposure = -5000"))
     result = run("render", str(shot), "-o", str(tmp_path / "out"), *SMALL, "--no-previews", "--no-index")
     assert result.returncode == 0 and "will be black" in result.stderr
 

@@ -114,20 +114,25 @@ def test_a_normal_map_of_known_slope_tilts_the_shading_as_analytic(tmp_path):
     np.testing.assert_allclose(rgb, 0.6 / math.pi * 3.0 * math.sin(math.radians(elevation) + tilt), rtol=1e-4)
 
 
+def rotate_shader(material: str) -> str:
+    """A UsdTransform2d "rotate" (90°) in Material `material`, reading its "uv" reader."""
+    return f"""
+            def Shader "rotate"
+            {{
+                uniform token info:id = "UsdTransform2d"
+                float2 inputs:in.connect = </World/Looks/{material}/uv.outputs:result>
+                float inputs:rotation = 90
+                float2 outputs:result
+            }}
+"""
+
+
 def test_a_90_degree_usd_transform2d_rotates_a_texture_exactly(tmp_path):
     """rotation = 90 maps st to (−t, s) (UsdPreviewSurface: scale, rotate, translate): with
     wrap repeat, the rotated lookups equal the unrotated texture at (1 − t, s)."""
     rng = np.random.default_rng(3)
     write_image(tmp_path / "grid.exr", rng.uniform(0, 1, (8, 8, 3)))
-    rotate = """
-            def Shader "rotate"
-            {
-                uniform token info:id = "UsdTransform2d"
-                float2 inputs:in.connect = </World/Looks/turned/uv.outputs:result>
-                float inputs:rotation = 90
-                float2 outputs:result
-            }
-"""
+    rotate = rotate_shader("turned")
     looks = (textured_look("plain", "./grid.exr", "diffuseColor", '                token inputs:sourceColorSpace = "raw"\n')
              + textured_look("turned", "./grid.exr", "diffuseColor",
                              '                token inputs:sourceColorSpace = "raw"\n',
@@ -303,15 +308,7 @@ def test_a_normal_map_behind_a_rotation_is_perturbed_in_the_rotated_frame(tmp_pa
     tilt, elevation = math.radians(20), 60
     encoded = np.array([0.5, 0.5 + 0.5 * math.sin(tilt), 0.5 + 0.5 * math.cos(tilt)])
     write_image(tmp_path / "normal.exr", np.tile(encoded, (4, 4, 1)))
-    rotate = """
-            def Shader "rotate"
-            {
-                uniform token info:id = "UsdTransform2d"
-                float2 inputs:in.connect = </World/Looks/bumpy/uv.outputs:result>
-                float inputs:rotation = 90
-                float2 outputs:result
-            }
-"""
+    rotate = rotate_shader("bumpy")
     look = textured_look("bumpy", "./normal.exr", "normal",
                          '                float4 inputs:scale = (2, 2, 2, 1)\n'
                          '                float4 inputs:bias = (-1, -1, -1, 0)\n'
