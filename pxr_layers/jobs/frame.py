@@ -32,7 +32,8 @@ from ..layers.deliver import (
     plan_outputs,
     raw_sources,
 )
-from ..errors import PxrLayersError, RenderSettingsError
+from ..errors import RenderSettingsError
+from ..outputs import OutputSet
 from ..paths.events import path_text
 from ..paths.format import SUFFIX as INDEX_SUFFIX
 from ..paths.reader import PathIndex
@@ -220,25 +221,39 @@ class FrameAssembler:
 
     def deliver(self, vocabulary, data: dict[str, np.ndarray], object_paths: Sequence[str], *,
                 show_progress: bool = False) -> list[Delivered]:
-        """Close the index, then write every product (EXR + previews)."""
+        """Close the index, then write every product (EXR + previews). They appear together,
+        the index last, or (on an error, Ctrl-C or SIGTERM) none of them does."""
         plan = self.plan
-        if self.writer is not None:
-            self.writer.close(vocabulary)
-        metadata = dict(plan.metadata)
+        rgba, _ = self.images()
+        render_id = render_identity(plan.manifest, rgba)
+        metadata = {**plan.metadata, "renderId": render_id}
         if "primId" in data:
             metadata["primPaths"] = json.dumps(list(object_paths), separators=(",", ":"))
-        rgba, _ = self.images()
-        index = PathIndex(plan.index_path) if self.writer else None
-        try:
+        with OutputSet() as outputs:
+            index = None
+            if self.writer is not None:
+                self.writer.manifest["render_id"] = render_id
+                index = PathIndex(self.writer.close(vocabulary))
             check_beauty(rgba, index, plan.stage)
-            return deliver(index, plan.recipe, rgba, plan.outputs, data=data, metadata=metadata,
-                           previews=plan.previews, show_progress=show_progress)
-        except PxrLayersError:
-            plan.index_path.unlink(missing_ok=True)  # the frame's outputs appear together or not at all
-            raise
-        finally:
+            delivered = deliver(index, plan.recipe, rgba, plan.outputs, data=data, metadata=metadata,
+                                previews=plan.previews, show_progress=show_progress)
             if not plan.keep_index:
-                plan.index_path.unlink(missing_ok=True)
+                outputs.discard(plan.index_path)
+        return delivered
+
+
+def render_identity(manifest: dict, rgba: np.ndarray) -> str:
+    """The render's id (32 hex digits): SHA-256 of what was asked (the index manifest) and of
+    the beauty it gave. The index manifest (``render_id``) and every EXR part
+    (``pxrLayers/renderId``) carry it, so ``extract`` can tell an index from the EXR of
+    another render written into the same folder. Derived rather than random: rendering the
+    same thing again gives byte-identical files (a resumed job equals an uninterrupted one).
+
+    rgba: (h, w, 4) float32, the beauty as written.
+    """
+    digest = hashlib.sha256(json.dumps(manifest, sort_keys=True, default=str).encode())
+    digest.update(np.ascontiguousarray(rgba, dtype=np.float32).tobytes())
+    return digest.hexdigest()[:32]
 
 
 _CULPRITS_NAMED = 3

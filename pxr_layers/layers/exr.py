@@ -1,15 +1,14 @@
-"""OpenEXR output. Files appear atomically: written under a temporary name, then renamed."""
+"""OpenEXR output. Files appear whole (pxr_layers.outputs: a temporary name, then a rename)."""
 
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
 
-from ..errors import OutputError
+from ..outputs import write_atomically
 
 # Linear Rec.709 / sRGB primaries and D65 white: the rendering colour space.
 REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
@@ -40,25 +39,3 @@ def write_channels(path: str | os.PathLike, channels: dict[str, np.ndarray],
     pixels = {name: np.ascontiguousarray(image, dtype=np.float32) for name, image in channels.items()}
     write_atomically(path, lambda temporary: OpenEXR.File(fields, pixels).write(str(temporary)))
     return path
-
-
-def write_atomically(path: Path, write) -> None:
-    """Call write(temporary_path) in path's folder, then rename over `path`.
-
-    A crash or error leaves no partial file under `path` (and removes the temporary).
-    """
-    folder = path.parent
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise OutputError(f"{folder}: cannot create the output folder ({error.strerror})") from error
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp" + path.suffix, dir=folder)
-    os.close(handle)
-    try:
-        write(Path(temporary))
-        os.replace(temporary, path)
-    except Exception as error:
-        Path(temporary).unlink(missing_ok=True)
-        if isinstance(error, OSError):
-            raise OutputError(f"{path}: cannot write ({error.strerror or error})") from error
-        raise

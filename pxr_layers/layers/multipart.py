@@ -32,8 +32,9 @@ import OpenEXR
 
 from .. import __version__
 from ..errors import OutputError
+from ..outputs import write_atomically
 from ..recipe.model import BEAUTY_EXPRESSION, BEAUTY_PART, Layer, Product, Recipe
-from .exr import METADATA_PREFIX, header, write_atomically
+from .exr import METADATA_PREFIX, header
 
 logger = logging.getLogger(__name__)
 

@@ -6,7 +6,6 @@ import itertools
 import json
 import logging
 import os
-import tempfile
 import zlib
 from pathlib import Path
 
@@ -14,6 +13,7 @@ import numpy as np
 import zstandard
 
 from ..errors import OutputError
+from ..outputs import finish, temporary_beside
 from . import format as fmt
 from .events import EventVocabulary
 from .trie import ClassTrie
@@ -61,12 +61,7 @@ class PathIndexWriter:
         self._chunks: list[dict] = []
         self._records = 0
         self._compressor = zstandard.ZstdCompressor(level=fmt.ZSTD_LEVEL)
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            handle, temporary = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
-        except OSError as error:
-            raise OutputError(f"{self.path}: cannot create the path index ({error.strerror})") from error
-        self._temporary = Path(temporary)
+        handle, self._temporary = temporary_beside(self.path)
         self._file = os.fdopen(handle, "wb")
         self._file.write(fmt.HEADER.pack(fmt.HEADER_MAGIC, fmt.FORMAT_VERSION, 0))
 
@@ -147,10 +142,13 @@ class PathIndexWriter:
         payload = self._compressor.compress(b"".join(
             fmt.shuffle(column) for column in (class_id.astype(np.uint32), pixel_delta, sample, rgb, norms)
         ))
-        offset = self._file.tell()
         crc = zlib.crc32(payload)
-        self._file.write(fmt.CHUNK_HEADER.pack(fmt.CHUNK_MAGIC, len(payload), crc, len(class_id)))
-        self._file.write(payload)
+        try:
+            offset = self._file.tell()
+            self._file.write(fmt.CHUNK_HEADER.pack(fmt.CHUNK_MAGIC, len(payload), crc, len(class_id)))
+            self._file.write(payload)
+        except OSError as error:  # a full disk mid-render: the caller aborts, nothing is left behind
+            raise OutputError(f"{self.path}: cannot write the path index ({error.strerror or error})") from error
         self._chunks.append({
             "offset": offset, "bytes": len(payload), "crc32": crc, "records": len(class_id),
             "classes": np.unique(class_id).tolist(),
@@ -160,8 +158,9 @@ class PathIndexWriter:
     # -- finishing
 
     def close(self, vocabulary: EventVocabulary) -> Path:
-        """Flush, write the footer (event names from `vocabulary`) and trailer, and rename
-        to the final path."""
+        """Flush, write the footer (event names from `vocabulary`) and trailer, and put the
+        file in place (:func:`pxr_layers.outputs.finish`: after the products of an open
+        OutputSet). Returns where the complete file is now."""
         try:
             self._flush()
             footer = self._compressor.compress(json.dumps(self._footer(vocabulary), separators=(",", ":")).encode())
@@ -172,7 +171,7 @@ class PathIndexWriter:
             self._file.flush()
             os.fsync(self._file.fileno())
             self._file.close()
-            os.replace(self._temporary, self.path)
+            where = finish(self._temporary, self.path, last=True)
         except OSError as error:
             self.abort()
             raise OutputError(f"{self.path}: cannot write the path index ({error.strerror or error})") from error
@@ -180,8 +179,8 @@ class PathIndexWriter:
             self.abort()
             raise
         log.info("wrote %s: %d records, %d classes, %.1f bytes per record", self.path, self._records,
-                 len(self._class_keys), self.path.stat().st_size / max(self._records, 1))
-        return self.path
+                 len(self._class_keys), where.stat().st_size / max(self._records, 1))
+        return where
 
     def abort(self) -> None:
         """Drop everything written so far: no file is left behind."""

@@ -1,0 +1,273 @@
+"""How output files appear: whole, together, one writer at a time, with the user's umask.
+
+Every file pxr-layers writes is first written under a temporary name beside its final one,
+``.NAME.HOST-PID.RANDOM.tmp[.EXT]``, and renamed over ``NAME`` only when complete, so a
+file under its final name is always whole.
+
+A render's outputs (its EXRs, their PNG previews, its path index) must also appear
+*together*: an :class:`OutputSet` collects the completed temporaries of everything written
+inside its ``with`` block and renames them all when the block ends without an error (the
+path index last, so an index under its final name always has its products beside it), or
+removes them all when it fails or is interrupted. Writers do not need to know about it:
+:func:`write_atomically` (EXR, PNG) and the path index writer hand their finished file to
+:func:`finish`, which renames at once when no set is open in this thread.
+
+Two processes rendering into one folder (a farm retry, two artists) never interleave
+their files: each commit holds an advisory lock (``flock``) on the folder while it renames,
+so the folder holds one render's complete set or the other's. Renders are identified by a
+``renderId`` (see ``jobs.frame``) that ``extract`` checks between an index and its EXR.
+
+Temporaries of processes that were killed (SIGKILL, a crash) cannot remove themselves: the
+next commit into the folder removes those whose process, on this host, no longer runs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import errno
+import fcntl
+import logging
+import os
+import re
+import signal
+import socket
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+
+from .errors import OutputError
+
+log = logging.getLogger(__name__)
+
+LOCK_TIMEOUT_SECONDS = 120.0
+"""How long a commit waits for another process's commit into the same folder (a commit
+only renames files: it takes milliseconds, so a lock held longer is a stuck process)."""
+
+_HOST = re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname().split(".")[0]) or "host"
+_TEMPORARY = re.compile(r"^\..+\.(?P<host>[A-Za-z0-9_]+)-(?P<pid>\d+)\.[^.]+\.tmp(\.[^.]+)?$")
+
+
+def _read_umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+# mkstemp creates files 0600; outputs get the mode the user's umask gives any new file.
+# Read once, at import (os.umask both reads and sets, so reading it later could race with
+# another thread creating a file).
+FILE_MODE = 0o666 & ~_read_umask()
+
+_current: contextvars.ContextVar[OutputSet | None] = contextvars.ContextVar("pxr_layers_output_set", default=None)
+_committed_this_process: list[Path] = []
+
+
+def committed_files() -> tuple[Path, ...]:
+    """Every final file this process has put in place so far (for an honest message when it
+    is interrupted)."""
+    return tuple(_committed_this_process)
+
+
+def temporary_beside(path: Path) -> tuple[int, Path]:
+    """(open descriptor, path) of a new temporary file in ``path``'s folder, named so that a
+    later render can tell whether the process that made it still runs. Creates the folder.
+    Raises OutputError naming the folder when it cannot be created or written."""
+    folder = path.parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.{_HOST}-{os.getpid()}.",
+                                             suffix=".tmp" + path.suffix, dir=folder)
+    except OSError as error:
+        raise OutputError(f"{folder}: cannot write into this folder ({error.strerror or error})") from error
+    return handle, Path(temporary)
+
+
+def write_atomically(path: Path, write: Callable[[Path], None]) -> Path:
+    """Call ``write(temporary_path)`` beside ``path``, then :func:`finish` it.
+
+    A failure leaves nothing under ``path`` and removes the temporary; an OSError (a full
+    disk, a read-only folder) becomes an OutputError naming ``path``. Returns where the
+    file is now (its temporary while an :class:`OutputSet` holds it).
+    """
+    handle, temporary = temporary_beside(path)
+    os.close(handle)
+    try:
+        write(temporary)
+        if temporary.stat().st_size == 0:  # some writers report success on a full disk
+            raise OSError(errno.ENOSPC, "nothing was written (is the disk full?)")
+    except BaseException as error:
+        temporary.unlink(missing_ok=True)
+        if isinstance(error, OSError):
+            raise OutputError(f"{path}: cannot write ({error.strerror or error})") from error
+        raise
+    return finish(temporary, path)
+
+
+def finish(temporary: Path, final: Path, *, last: bool = False) -> Path:
+    """A completed temporary for ``final``: held by this thread's open OutputSet (renamed
+    when it commits; ``last``: after the others), else renamed now. Returns where the
+    file is now."""
+    outputs = _current.get()
+    if outputs is not None:
+        outputs.add(temporary, final, last=last)
+        return temporary
+    _rename_all([(temporary, final)])
+    return final
+
+
+class OutputSet:
+    """The files written inside ``with OutputSet():`` appear together when the block ends
+    normally, and none of them (not even their temporaries) when it raises or is
+    interrupted. ``committed``: the final paths, once committed."""
+
+    def __init__(self) -> None:
+        self._pending: list[tuple[Path, Path, bool]] = []  # (temporary, final, last)
+        self._token: contextvars.Token | None = None
+        self.committed: list[Path] = []
+
+    def __enter__(self) -> OutputSet:
+        self._token = _current.set(self)
+        return self
+
+    def __exit__(self, kind, error, traceback) -> None:
+        _current.reset(self._token)
+        if kind is None:
+            self.commit()
+        else:
+            self.abort()
+
+    def add(self, temporary: Path, final: Path, *, last: bool = False) -> None:
+        self.discard(final)  # a file written twice in one set: the later one counts
+        self._pending.append((temporary, final, last))
+
+    def discard(self, final: Path) -> None:
+        """Drop the pending file for ``final`` (e.g. an index only needed to cut layers)."""
+        for temporary, path, _ in self._pending:
+            if path == final:
+                temporary.unlink(missing_ok=True)
+        self._pending = [entry for entry in self._pending if entry[1] != final]
+
+    def commit(self) -> None:
+        ordered = sorted(self._pending, key=lambda entry: entry[2])  # stable: the `last` ones at the end
+        self._pending = []
+        try:
+            _rename_all([(temporary, final) for temporary, final, _ in ordered])
+        except BaseException:
+            for temporary, _, _ in ordered:
+                temporary.unlink(missing_ok=True)
+            raise
+        self.committed = [final for _, final, _ in ordered]
+
+    def abort(self) -> None:
+        for temporary, _, _ in self._pending:
+            temporary.unlink(missing_ok=True)
+        self._pending = []
+
+
+def _rename_all(pairs: list[tuple[Path, Path]]) -> None:
+    """Rename every (temporary, final) pair, holding each folder's lock, with Ctrl-C and
+    SIGTERM held back until all are in place (so the set is never cut in two)."""
+    if not pairs:
+        return
+    folders = {final.parent.resolve() for _, final in pairs}
+    with _signals_deferred(), _folder_locks(folders):
+        for folder in folders:
+            remove_stale_temporaries(folder)
+        for temporary, final in pairs:
+            try:
+                os.chmod(temporary, FILE_MODE)
+                os.replace(temporary, final)
+            except OSError as error:
+                raise OutputError(f"{final}: cannot put the file in place ({error.strerror or error})") from error
+            _committed_this_process.append(final)
+
+
+def remove_stale_temporaries(folder: Path) -> list[Path]:
+    """Remove the temporaries in ``folder`` left by pxr-layers processes of this host that
+    no longer run (killed before they could clean up). Returns what was removed."""
+    removed = []
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return removed
+    for name in names:
+        match = _TEMPORARY.match(name)
+        if match and match["host"] == _HOST and not _process_runs(int(match["pid"])):
+            path = folder / name
+            try:
+                path.unlink()
+            except OSError:
+                continue
+            removed.append(path)
+    if removed:
+        log.info("%s: removed %d temporary files of killed renders", folder, len(removed))
+    return removed
+
+
+def _process_runs(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process: it runs
+        return True
+    return True
+
+
+@contextlib.contextmanager
+def _folder_locks(folders: Iterable[Path]) -> Iterator[None]:
+    """Exclusive advisory locks on folders (flock on the folder itself: no lock file to leave
+    behind), taken in sorted order so two commits cannot deadlock. A file system without
+    locks (some NFS mounts) gets a warning and no lock."""
+    handles: list[int] = []
+    try:
+        for folder in sorted(folders):
+            handles.append(_locked(folder))
+        yield
+    finally:
+        for handle in handles:
+            if handle >= 0:
+                os.close(handle)  # closing releases the flock
+
+
+def _locked(folder: Path) -> int:
+    try:
+        handle = os.open(folder, os.O_RDONLY)
+    except OSError as error:
+        raise OutputError(f"{folder}: cannot open the output folder ({error.strerror or error})") from error
+    deadline = time.monotonic() + LOCK_TIMEOUT_SECONDS
+    while True:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return handle
+        except BlockingIOError:
+            if time.monotonic() > deadline:
+                os.close(handle)
+                raise OutputError(f"{folder}: another process has held this folder's lock for "
+                                  f"{LOCK_TIMEOUT_SECONDS:.0f} s (a stuck pxr-layers?); nothing was written") from None
+            time.sleep(0.02)
+        except OSError as error:
+            if error.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL):
+                os.close(handle)
+                raise OutputError(f"{folder}: cannot lock the output folder ({error.strerror})") from error
+            log.warning("%s: this file system has no locks: concurrent renders into it are not serialised", folder)
+            os.close(handle)
+            return -1
+
+
+@contextlib.contextmanager
+def _signals_deferred() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM back until the block ends (they are delivered then). Only in
+    the main thread, where Python handles signals."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held = {signal.SIGINT, signal.SIGTERM}
+    signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
