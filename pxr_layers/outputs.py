@@ -76,6 +76,8 @@ def temporary_beside(path: Path) -> tuple[int, Path]:
     later render can tell whether the process that made it still runs. Creates the folder.
     Raises OutputError naming the folder when it cannot be created or written."""
     folder = path.parent
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{folder}: is a file, not a folder")
     try:
         folder.mkdir(parents=True, exist_ok=True)
         handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.{_HOST}-{os.getpid()}.",

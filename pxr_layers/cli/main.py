@@ -1,19 +1,43 @@
-"""The `pxr-layers` command: one module per subcommand, each with add_arguments() and run()."""
+"""The `pxr-layers` command: one module per subcommand, each with add_arguments() and run().
+
+Only the standard library is imported before main() runs: the subcommands (numpy, USD,
+Embree...) are imported inside it, where Ctrl-C and SIGTERM are already handled.
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import os
+import signal
 import sys
 import warnings
 
 from .. import __version__
 from ..errors import PxrLayersError
-from . import demo, extract, index, job, logging_flags, lpe, render
+from . import logging_flags
 
-SUBCOMMANDS = {"render": render, "demo": demo, "index": index, "extract": extract, "lpe": lpe, "job": job}
+SUBCOMMAND_NAMES = ("render", "demo", "index", "extract", "lpe", "job")
 EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE, EXIT_INTERNAL_ERROR = 0, 1, 2, 3
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (what farm managers send before SIGKILL), raised where Ctrl-C would be, so the
+    same clean-up runs: temporaries removed, a frame's outputs all or nothing."""
+
+    def __init__(self, signal_number: int):
+        super().__init__(signal.Signals(signal_number).name)
+        self.exit_code = 128 + signal_number
+
+
+def _raise_terminated(signal_number, frame) -> None:
+    raise Terminated(signal_number)
+
+
+def subcommands() -> dict:
+    """Subcommand name → its module (imported on first use: they pull in numpy, USD, Embree)."""
+    return {name: importlib.import_module(f"{__package__}.{name}") for name in SUBCOMMAND_NAMES}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -24,7 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"pxr-layers {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name, module in SUBCOMMANDS.items():
+    for name, module in subcommands().items():
         sub = commands.add_parser(name, help=module.HELP, description=module.DESCRIPTION, parents=[logging_flags()])
         module.add_arguments(sub)
     return parser
@@ -47,11 +71,16 @@ def _warning_as_log_line(message, category, filename, lineno, file=None, line=No
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:  # not when embedded in a program with its own
+        signal.signal(signal.SIGTERM, _raise_terminated)
     try:
-        args = parser.parse_args(argv)
-    except SystemExit as exit_:  # argparse: 0 for --help/--version, 2 for bad usage
-        return int(exit_.code or 0)
+        parser = build_parser()
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as exit_:  # argparse: 0 for --help/--version, 2 for bad usage
+            return int(exit_.code or 0)
+    except KeyboardInterrupt as interrupt:  # during start-up (the imports): nothing was begun
+        return _interrupted(interrupt)
     level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
     logging.basicConfig(level=level, format="pxr-layers: %(levelname)s: %(message)s", stream=sys.stderr)
     if not args.verbose:
@@ -60,18 +89,33 @@ def main(argv: list[str] | None = None) -> int:
     warnings.showwarning = _warning_as_log_line
     args.show_progress = not args.quiet and not os.environ.get("CI")
     try:
-        return SUBCOMMANDS[args.command].run(args)
+        return subcommands()[args.command].run(args)
     except PxrLayersError as error:
         print(f"pxr-layers: error: {error}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        print("pxr-layers: interrupted; nothing was written", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as interrupt:
+        return _interrupted(interrupt)
     except Exception as error:  # a bug of ours, not the user's input: one line, the trace with -v
         logging.getLogger(__name__).debug("internal error", exc_info=True)
         print(f"pxr-layers: internal error: {type(error).__name__}: {error} (a bug in pxr-layers; "
               "-v prints the traceback)", file=sys.stderr)
         return EXIT_INTERNAL_ERROR
+
+
+def _interrupted(interrupt: KeyboardInterrupt) -> int:
+    """Say what an interrupted command left in place (whole files only), and exit 130 for
+    Ctrl-C, 143 for SIGTERM."""
+    from ..outputs import committed_files
+
+    what = "terminated" if isinstance(interrupt, Terminated) else "interrupted"
+    committed = committed_files()
+    if committed:
+        folders = sorted({str(path.parent) for path in committed})
+        print(f"pxr-layers: {what}; {len(committed)} complete files had been written (in {', '.join(folders)}), "
+              "nothing else", file=sys.stderr)
+    else:
+        print(f"pxr-layers: {what}; nothing was written", file=sys.stderr)
+    return getattr(interrupt, "exit_code", 130)
 
 
 if __name__ == "__main__":
