@@ -7,6 +7,7 @@ Embree...) are imported inside it, where Ctrl-C and SIGTERM are already handled.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import os
@@ -20,6 +21,8 @@ from . import logging_flags
 
 SUBCOMMAND_NAMES = ("render", "demo", "index", "extract", "lpe", "job")
 EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE, EXIT_INTERNAL_ERROR = 0, 1, 2, 3
+ENVIRONMENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES})
+"""OSErrors that reach main() as one user-facing line rather than an internal error."""
 
 
 class Terminated(KeyboardInterrupt):
@@ -95,11 +98,25 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USER_ERROR
     except KeyboardInterrupt as interrupt:
         return _interrupted(interrupt)
-    except Exception as error:  # a bug of ours, not the user's input: one line, the trace with -v
-        logging.getLogger(__name__).debug("internal error", exc_info=True)
-        print(f"pxr-layers: internal error: {type(error).__name__}: {error} (a bug in pxr-layers; "
-              "-v prints the traceback)", file=sys.stderr)
-        return EXIT_INTERNAL_ERROR
+    except OSError as error:
+        if error.errno not in ENVIRONMENT_ERRNOS:
+            return _internal_error(error)
+        # The machine, not the input nor pxr-layers: a full disk or quota while a library
+        # (numba's kernel cache, a Dask spill) writes a file of its own.
+        where = f"{error.filename}: " if error.filename else ""
+        print(f"pxr-layers: error: {where}{error.strerror or error} (a full disk, a quota or a folder "
+              "that cannot be written?)", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except Exception as error:
+        return _internal_error(error)
+
+
+def _internal_error(error: Exception) -> int:
+    """A bug of ours, not the user's input: one line, the traceback with -v."""
+    logging.getLogger(__name__).debug("internal error", exc_info=error)
+    print(f"pxr-layers: internal error: {type(error).__name__}: {error} (a bug in pxr-layers; "
+          "-v prints the traceback)", file=sys.stderr)
+    return EXIT_INTERNAL_ERROR
 
 
 def _interrupted(interrupt: KeyboardInterrupt) -> int:
