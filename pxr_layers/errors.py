@@ -4,6 +4,8 @@ The CLI turns any PxrLayersError into one line on stderr and exit code 1; anythi
 bug: one "internal error" line and exit code 3, the traceback with -v.
 """
 
+import unicodedata
+
 
 class PxrLayersError(Exception):
     """Base class of every error caused by the user's input or environment."""
@@ -44,8 +46,14 @@ class LpeSyntaxError(LpeError):
     """A Light Path Expression (or a path in the textual notation) that does not parse.
 
     ``position`` is the 0-based character offset of the fault in ``query``; str() shows the
-    message, then the query's line, then a caret under the fault.
+    message, then the query's line, then a caret under the fault. The caret is placed by
+    display width (wide CJK and emoji characters take two columns, combining marks none);
+    control characters are shown escaped (``\\x1b``), and a line longer than the context
+    shown on each side of the fault (SHOWN_CONTEXT) is cut, with ``…`` at each cut.
     """
+
+    SHOWN_CONTEXT = 60
+    """Characters of the query's line shown on each side of the fault."""
 
     def __init__(self, message: str, query: str, position: int):
         super().__init__(message)
@@ -58,9 +66,37 @@ class LpeSyntaxError(LpeError):
         line_end = self.query.find("\n", self.position)
         line = self.query[line_start : line_end if line_end >= 0 else len(self.query)]
         column = self.position - line_start
-        # Tabs keep their width on the caret line so the caret stays under the fault.
-        padding = "".join("\t" if char == "\t" else " " for char in line[:column])
-        return f"{self.message}\n  {line}\n  {padding}^"
+        first, last = max(0, column - self.SHOWN_CONTEXT), min(len(line), column + self.SHOWN_CONTEXT)
+        before = ("…" if first > 0 else "") + _shown(line[first:column])
+        after = _shown(line[column:last]) + ("…" if last < len(line) else "")
+        return f"{self.message}\n  {before}{after}\n  {_padding(before)}^"
+
+
+def _shown(text: str) -> str:
+    """``text`` as a terminal may show it: control characters (but tabs) escaped, so that
+    the query cannot move the cursor or colour the terminal, and the caret stays aligned."""
+    return "".join(
+        char if char == "\t" or unicodedata.category(char) != "Cc" else repr(char)[1:-1] for char in text
+    )
+
+
+ZERO_WIDTH_JOINER = "\u200d"
+
+
+def _padding(text: str) -> str:
+    """Blanks as wide on a terminal as ``text``: tabs kept, wide characters (east Asian
+    wide or full-width, most emoji) two columns, combining marks and format characters
+    (zero-width joiners) none, a character joined to the previous one by a zero-width
+    joiner (the parts of 👩‍💻) none, anything else one."""
+    blanks = []
+    joined = False
+    for char in text:
+        if char == "\t":
+            blanks.append("\t")
+        elif not (joined or unicodedata.combining(char) or unicodedata.category(char) in ("Mn", "Me", "Cf")):
+            blanks.append("  " if unicodedata.east_asian_width(char) in ("W", "F") else " ")
+        joined = char == ZERO_WIDTH_JOINER
+    return "".join(blanks)
 
 
 class PathIndexError(PxrLayersError):

@@ -65,8 +65,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"automaton: {_count(automaton.state_count, 'state')}, "
                   f"{_count(automaton.transition_count, 'transition')}")
         else:
-            labels = len(automaton.alphabet.patterns)
-            print(f"automaton: built on demand ({labels} labels: the complete one is too large to enumerate)")
+            print(f"automaton: built on demand ({automaton.on_demand_reason})")
         return EXIT_OK
     paths = [parse_path(text) for text in args.paths]
     known_labels = {label for path in paths for event in path.events for label in event.labels}

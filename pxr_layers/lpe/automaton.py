@@ -32,6 +32,7 @@ from . import conditions as cond
 from . import nodes
 from .events import ALL_SCATTERINGS, EVENT_TYPES, Event, PatternTable, label_matches
 from .labels import closest_labels
+from .limits import MAX_DFA_STATES, MAX_NFA_STATES
 from .outcomes import (
     ALWAYS,
     NEVER,
@@ -51,8 +52,11 @@ MAX_ENUMERATED_EVENTS = 8192
 """Most events (type × scattering × label subset × truths of the conditions tested on it)
 enumerated to build the complete DFA; past this the DFA is built on demand."""
 
-MAX_COMPLETE_WORK = 20_000
-"""Most (state, symbol) pairs explored while building the complete DFA."""
+MAX_COMPLETE_WORK = 200_000
+"""Most steps taken to build the complete DFA: one per symbol looked at in each DFA state,
+and one per NFA state visited in each (DFA state, symbol) pair explored. Past this the DFA
+is built on demand; it keeps the complete build, its minimisation (which takes a few steps
+per state and symbol) and ``pxr-layers lpe check`` well under a second."""
 
 MAX_ATOMS_PER_CLASS = 16
 """Most (condition, event) pairs a path class's truth table may depend on (it has 2**atoms
@@ -78,25 +82,25 @@ class Nfa:
     epsilon: list[list[int]]
     accepting: list[str | None]
     start: int
-    _closures: list[frozenset[int]] | None = field(default=None, repr=False)
+    _closures: dict[int, frozenset[int]] = field(default_factory=dict, repr=False)
 
     @property
     def state_count(self) -> int:
         return len(self.edges)
 
     def closure(self, states) -> frozenset[int]:
-        """The states reachable through epsilon edges (including the given ones)."""
-        closures = self._state_closures()
-        return frozenset().union(*(closures[state] for state in states))
-
-    def _state_closures(self) -> list[frozenset[int]]:
-        """Epsilon closure of each single state, computed once (the subset construction
-        asks for the same closures over and over)."""
-        if self._closures is None:
-            self._closures = [self._closure_of(state) for state in range(self.state_count)]
-        return self._closures
+        """The states reachable through epsilon edges (including the given ones) that read an
+        event or end a layer: the others (epsilon-only states) can neither step nor accept,
+        so DFA states that differ only by them are the same state, and are built once."""
+        return frozenset().union(*(self._closure_of(state) for state in states))
 
     def _closure_of(self, state: int) -> frozenset[int]:
+        # Computed once per state and only for states reached (the subset construction asks
+        # for the same closures over and over; precomputing them all is quadratic in memory
+        # for long chains of optional copies).
+        found = self._closures.get(state)
+        if found is not None:
+            return found
         seen = {state}
         stack = [state]
         while stack:
@@ -104,7 +108,38 @@ class Nfa:
                 if target not in seen:
                     seen.add(target)
                     stack.append(target)
-        return frozenset(seen)
+        found = self._closures[state] = frozenset(
+            reached for reached in seen if self.edges[reached] or self.accepting[reached] is not None
+        )
+        return found
+
+
+def nfa_state_count(node: nodes.Node, known: dict | None = None) -> int:
+    """The number of states :class:`_NfaBuilder` makes for a tree, without building them.
+
+    2 per event, 1 per sequence, 2 per alternation and per repetition, and a repetition
+    ``{m,n}`` holds n copies of what it repeats (``{m,}``: m + 1, the last one looping).
+    known : id(node) → (node, count) of nodes counted already (the node is kept so that its
+        id is not reused); callers that count a tree as it grows pass the same dict.
+    """
+    if known is None:
+        known = {}
+    found = known.get(id(node))
+    if found is not None:
+        return found[1]
+    if isinstance(node, nodes.EventPattern):
+        count = 2
+    elif isinstance(node, nodes.Concat):
+        count = 1 + sum(nfa_state_count(item, known) for item in node.items)
+    elif isinstance(node, nodes.Union):
+        count = 2 + sum(nfa_state_count(alternative, known) for alternative in node.alternatives)
+    elif isinstance(node, nodes.Repeat):
+        copies = node.minimum + 1 if node.maximum is None else node.maximum
+        count = 2 + copies * nfa_state_count(node.body, known)
+    else:
+        raise TypeError(f"not an expression node: {node!r}")
+    known[id(node)] = (node, count)
+    return count
 
 
 class _NfaBuilder:
@@ -270,7 +305,7 @@ class Alphabet:
             self._type_masks[event_type] & self._scatter_masks[scatter]
             for event_type, scatter in itertools.product(EVENT_TYPES, ALL_SCATTERINGS)
         }
-        label_masks = {self.label_mask(carried) for carried in range(2 ** len(self.patterns))}
+        label_masks = self._every_label_mask()
         symbols = set()
         enumerated = 0
         for slots, labels in itertools.product(slot_masks, label_masks):
@@ -282,6 +317,17 @@ class Alphabet:
             for holding in _subsets(involved):
                 symbols.add(self.symbol(outright, conditional, holding))
         return sorted(symbols)
+
+    def _every_label_mask(self) -> set[int]:
+        """:meth:`label_mask` of every subset of the patterns (at most 2**13 of them), in
+        numpy: guards × subsets tests in Python would take seconds for a long expression."""
+        carried = np.arange(2 ** len(self.patterns), dtype=np.int64)
+        holds = np.ones((carried.size, max(len(self._label_terms), 1)), dtype=bool)
+        for bit, terms in enumerate(self._label_terms):
+            for pattern_mask, negated in terms:
+                holds[:, bit] &= ((carried & pattern_mask) != 0) != negated
+        rows = np.unique(np.packbits(holds, axis=1, bitorder="little"), axis=0)
+        return {int.from_bytes(row.tobytes(), "little") & ((1 << len(self._label_terms)) - 1) for row in rows}
 
 
 def _guard_mask(guards, accepts) -> int:
@@ -347,12 +393,23 @@ class Dfa:
         found = self._ids.get(nfa_set)
         if found is not None:
             return found
+        if len(self._nfa_sets) >= MAX_DFA_STATES:
+            raise LpeError(self._too_many_states())
         self._ids[nfa_set] = len(self._nfa_sets)
         self._nfa_sets.append(nfa_set)
         self.transitions.append({})
         self.accepts.append(frozenset(self.nfa.accepting[s] for s in nfa_set if self.nfa.accepting[s] is not None))
         self.relevant.append(sum({1 << guard for s in nfa_set for guard, _ in self.nfa.edges[s]}))
         return len(self._nfa_sets) - 1
+
+    def _too_many_states(self) -> str:
+        layers = list(dict.fromkeys(layer for layer in self.nfa.accepting if layer is not None))
+        which = f"layer {layers[0]!r}" if len(layers) == 1 else f"these {len(layers)} layers"
+        return (
+            f"the automaton of {which} needs more than {MAX_DFA_STATES} states (MAX_DFA_STATES, see "
+            "docs/lpe.md) for the paths matched: a repetition after a loop, as in .*R.{12}, makes it "
+            "remember every one of the last events; anchor such expressions or repeat fewer times"
+        )
 
     def step(self, state: int, symbol: int) -> int:
         if state == DEAD:
@@ -376,15 +433,17 @@ class Dfa:
         return self._state(self.nfa.closure(reached))
 
     def expand(self, symbols: list[int], max_work: int = MAX_COMPLETE_WORK) -> bool:
-        """Build every state reachable on ``symbols``; False if that takes more than ``max_work`` steps."""
+        """Build every state reachable on ``symbols``; False if that takes more than ``max_work``
+        steps (see MAX_COMPLETE_WORK) or builds more than MAX_DFA_STATES states."""
         work = 0
         frontier = [self.start]
         visited = {self.start}
         while frontier:
             state = frontier.pop()
+            work += len(symbols)
             for key in {symbol & self.relevant[state] for symbol in symbols}:
-                work += 1
-                if work > max_work:
+                work += 1 + len(self._nfa_sets[state])
+                if work > max_work or self.state_count >= MAX_DFA_STATES:
                     return False
                 target = self.step(state, key)
                 if target != DEAD and target not in visited:
@@ -407,18 +466,20 @@ class Dfa:
         successors = np.array([*zip(*columns), [dead] * len(columns)], dtype=np.int64).reshape(count + 1, len(columns))
         block = np.array(_renumber([*self.accepts, frozenset()]), dtype=np.int64)
         while True:
-            signatures = np.column_stack([block, block[successors]])
-            refined = np.array(_renumber(row.tobytes() for row in signatures), dtype=np.int64)
-            if refined.max() == block.max():
+            refined = _refined_blocks(block, successors)
+            if refined.max() == block.max():  # blocks are numbered 0..k-1: no block split
                 break
             block = refined
         block = block.tolist()
 
         dead_block = block[dead]
-        live_blocks = list(dict.fromkeys(b for b in block[:count] if b != dead_block))
+        representative: dict[int, int] = {}  # block → its first state
+        for state, b in enumerate(block[:count]):
+            if b != dead_block:
+                representative.setdefault(b, state)
+        live_blocks = list(representative)
         new_id = {b: i for i, b in enumerate(live_blocks)}
         new_id[dead_block] = DEAD
-        representative = {b: block.index(b) for b in live_blocks}
         transitions = []
         for b in live_blocks:
             # Equivalent states step alike: the representative's row speaks for its block.
@@ -453,6 +514,21 @@ def _distinguishable_symbols(symbols: list[int], masks: set[int]) -> list[int]:
     return [members[0] for members in classes]
 
 
+def _refined_blocks(block: np.ndarray, successors: np.ndarray) -> np.ndarray:
+    """One round of Moore's refinement: states stay together when their block and the blocks
+    of all their successors agree.
+
+    block : (n,) int64 block of each state, numbered 0..k-1; successors : (n, columns) int64
+    returns : (n,) int64 blocks numbered 0..k'-1
+    """
+    # The signature (block, successor blocks...) is folded into one int64 column by column,
+    # renumbering after each: key < n and block < n, so key * n + block < n**2 never overflows.
+    key = block
+    for column in successors.T:
+        key = np.unique(key * len(block) + block[column], return_inverse=True)[1].reshape(-1)
+    return key
+
+
 def _renumber(keys) -> list[int]:
     """Number equal keys alike, in order of first appearance."""
     numbers: dict = {}
@@ -470,6 +546,7 @@ class LayerAutomaton:
     state_count, transition_count : size of the DFA (minimal when ``complete``)
     complete : True when the whole DFA was built and minimised at compile time; False when
         its states are built on demand as path classes are matched (large label sets)
+    on_demand_reason : why it is built on demand (None when complete)
     """
 
     def __init__(self, trees: dict[str, nodes.Node], *, build_complete: bool = True):
@@ -477,27 +554,36 @@ class LayerAutomaton:
         the complete minimal DFA (states are then always built on demand)."""
         self.layers: tuple[str, ...] = tuple(trees)
         self.trees = dict(trees)
+        for name, tree in self.trees.items():  # parsed trees are checked already, built ones not
+            size = nfa_state_count(tree)
+            if size > MAX_NFA_STATES:
+                raise LpeError(f"layer {name!r}: the expression's automaton would have {size} states, more "
+                               f"than the {MAX_NFA_STATES} an expression may have (MAX_NFA_STATES, see docs/lpe.md)")
         self.canonical = {name: nodes.canonical(tree) for name, tree in trees.items()}
         self.nfa = build_nfa(self.trees)
         self.alphabet = Alphabet(self.nfa.guards)
-        self.dfa = self._build_dfa(build_complete)
+        self.dfa, self.on_demand_reason = self._build_dfa(build_complete)
         # Conditional walks are interned: path classes end in few distinct walks, so each
         # step and each end is worked out once (keys hold the ids of interned walks).
         self._walks: dict[tuple, tuple] = {}
         self._steps: dict[tuple, tuple | None] = {}
         self._ends: dict[int, dict[str, Outcome]] = {}
 
-    def _build_dfa(self, build_complete: bool) -> Dfa:
+    def _build_dfa(self, build_complete: bool) -> tuple[Dfa, str | None]:
+        """The complete minimal DFA and None, or one built on demand and why."""
         symbols = self.alphabet.every_symbol() if build_complete else None
-        if symbols is not None:
+        if not build_complete:
+            reason = "asked for"
+        elif symbols is None:
+            reason = (f"{len(self.alphabet.patterns)} labels and {len(self.alphabet.conditions)} conditions: "
+                      f"more than {MAX_ENUMERATED_EVENTS} kinds of events to enumerate")
+        else:
             complete = Dfa(self.nfa)
             if complete.expand(symbols):
-                return complete.minimised(symbols)
-        log.debug(
-            "LPE automaton for %d layers is built on demand (%d labels, %d conditions)",
-            len(self.layers), len(self.alphabet.patterns), len(self.alphabet.conditions),
-        )
-        return Dfa(self.nfa)  # a fresh one: its size then tells what matching has needed
+                return complete.minimised(symbols), None
+            reason = f"building it complete takes more than {MAX_COMPLETE_WORK} steps or {MAX_DFA_STATES} states"
+        log.debug("LPE automaton for %d layers is built on demand: %s", len(self.layers), reason)
+        return Dfa(self.nfa), reason  # a fresh one: its size then tells what matching has needed
 
     @property
     def complete(self) -> bool:

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import LpeError, LpeSyntaxError
+from .limits import LARGEST_NUMBER, MAX_NESTING
 
 MUCH_GREATER_FACTOR = 10.0
 """``a >> b`` means ``a > MUCH_GREATER_FACTOR * b``: one order of magnitude."""
@@ -101,6 +102,14 @@ class Number:
 
 Operand = Norm | Entry | Number
 
+
+def _much_greater(left, right):
+    # 10·b past the float32 range is ±inf, which compares as the exact product would: no
+    # finite value exceeds +inf and every one exceeds -inf, so the overflow is harmless.
+    with np.errstate(over="ignore"):
+        return np.greater(left, MUCH_GREATER_FACTOR * right)
+
+
 COMPARATORS = {
     "=": np.equal,
     "!=": np.not_equal,
@@ -108,7 +117,7 @@ COMPARATORS = {
     "<=": np.less_equal,
     ">": np.greater,
     ">=": np.greater_equal,
-    ">>": lambda left, right: np.greater(left, MUCH_GREATER_FACTOR * right),
+    ">>": _much_greater,
 }
 """Canonical spelling of each comparison → its vectorised test."""
 
@@ -276,6 +285,7 @@ class ConditionParser:
         self.prefix = query[prefix_position]
         self.cursor = opening
         self._peeked: _Token | None = None
+        self.depth = 0  # parentheses open inside the condition's own
 
     def parse(self) -> tuple[Condition, int]:
         """Returns the condition and the position just after its closing parenthesis."""
@@ -304,9 +314,13 @@ class ConditionParser:
 
     def _primary(self) -> Condition:
         if self._peek().text == "(":
-            self._next()
+            opening = self._next()
+            if self.depth == MAX_NESTING:
+                raise self._error(f"parentheses nest more than {MAX_NESTING} deep here", opening.position)
+            self.depth += 1
             inner = self._disjunction()
             self._expect(")", "expected 'and', 'or' or ')'")
+            self.depth -= 1
             return inner
         left_token = self._peek()
         left = self._operand()
@@ -325,7 +339,7 @@ class ConditionParser:
     def _operand(self) -> Operand:
         token = self._next()
         if token.kind == "number":
-            return Number(float(token.text))
+            return Number(number_value(token.text, lambda message: self._error(message, token.position)))
         if token.kind == "bar":
             inner = self._next()
             if inner.kind != "quantity":
@@ -405,6 +419,16 @@ class ConditionParser:
 
     def _error(self, message: str, position: int) -> LpeSyntaxError:
         return LpeSyntaxError(message, self.query, position)
+
+
+def number_value(text: str, error) -> float:
+    """The value of a number's text, or ``error(message)`` raised if its magnitude passes
+    LARGEST_NUMBER (including what reads as infinity, such as ``1e999``)."""
+    value = float(text)
+    if abs(value) > LARGEST_NUMBER:
+        shown = text if len(text) <= 24 else f"{text[:20]}…"
+        raise error(f"{shown} is out of range: values are float32, at most ±{LARGEST_NUMBER:.8g}")
+    return value
 
 
 def parse_condition(query: str, prefix_position: int, opening: int) -> tuple[Condition, int]:

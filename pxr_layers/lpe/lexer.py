@@ -7,12 +7,14 @@ A covariance condition (``C(|S_C| = 0)``, ``@(...)``) is read whole by
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from enum import Enum, auto
 
 from ..errors import LpeSyntaxError
 from . import conditions
 from .events import EVENT_TYPES, SCATTERINGS
+from .limits import MAX_REPETITION
 
 NO_SCATTERING_LETTER = "x"
 """OSL's spelling of "no scattering" (the scattering slot of C, L, O, B events)."""
@@ -61,9 +63,6 @@ _PUNCTUATION = {
     "+": Kind.PLUS,
     "?": Kind.QUESTION,
 }
-
-MAX_REPETITION = 100
-"""Largest bound of ``{n,m}``: paths are never that long, and each copy costs automaton states."""
 
 
 def tokenize(query: str) -> list[Token]:
@@ -123,26 +122,27 @@ def _read_label(query: str, opening: int) -> tuple[str, int]:
     return label, closing + 1
 
 
+_RANGE = re.compile(r"\{\s*([0-9]+)\s*(?:(,)\s*([0-9]*)\s*)?\}")
+
+
 def _read_range(query: str, opening: int) -> tuple[tuple[int, int | None], int]:
-    closing = query.find("}", opening)
-    inside = query[opening + 1 : closing] if closing >= 0 else ""
-    parts = [part.strip() for part in inside.split(",")]
-    well_formed = (
-        closing >= 0
-        and len(parts) in (1, 2)
-        and parts[0].isdigit()
-        and (len(parts) == 1 or parts[1] == "" or parts[1].isdigit())
-    )
-    if not well_formed:
+    found = _RANGE.match(query, opening)
+    if found is None:
         raise LpeSyntaxError("bad repetition: expected {n}, {n,} or {n,m} with whole numbers", query, opening)
-    minimum = int(parts[0])
-    maximum = minimum if len(parts) == 1 else (int(parts[1]) if parts[1] else None)
+    low, comma, high = found.groups()
+    # Leading zeros go first, and bounds longer than the limit's digits are refused unread:
+    # Python's int() refuses a few thousand digits.
+    low, high = low.lstrip("0") or "0", high and (high.lstrip("0") or "0")
+    if any(len(bound) > len(str(MAX_REPETITION)) for bound in (low, high or "")):
+        raise LpeSyntaxError(f"repetition bounds above {MAX_REPETITION} are not supported", query, opening)
+    minimum = int(low)
+    maximum = minimum if not comma else (int(high) if high else None)
     if maximum is not None and maximum < minimum:
         message = f"bad repetition: {{{minimum},{maximum}}} has its maximum below its minimum"
         raise LpeSyntaxError(message, query, opening)
     if max(minimum, maximum or 0) > MAX_REPETITION:
         raise LpeSyntaxError(f"repetition bounds above {MAX_REPETITION} are not supported", query, opening)
-    return (minimum, maximum), closing + 1
+    return (minimum, maximum), found.end()
 
 
 def _unexpected(query: str, position: int) -> str:

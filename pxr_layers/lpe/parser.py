@@ -17,16 +17,15 @@ from __future__ import annotations
 
 from ..errors import LpeSyntaxError
 from . import nodes
+from .automaton import nfa_state_count
 from .lexer import Kind, Token, tokenize
+from .limits import MAX_NESTING, MAX_NFA_STATES
 from .nodes import ANY_LABEL, EventPattern, LabelTerm, SymbolSet
 
 _EVENT_STARTS = {Kind.TYPE, Kind.SCATTER, Kind.DOT, Kind.LABEL, Kind.OPEN_GROUP, Kind.OPEN_NEGATED_SET}
 _ATOM_STARTS = _EVENT_STARTS | {Kind.OPEN_PAREN, Kind.OPEN_SET}
 _REPETITIONS = {Kind.STAR: (0, None), Kind.PLUS: (1, None), Kind.QUESTION: (0, 1)}
 _SLOT_NAMES = ("event type", "scattering")
-MAX_NESTING = 32
-"""Groups ``(...)`` and sets ``[...]`` nested in one another at most (far beyond any path a
-light takes, and well inside what the recursive parser and the compiler can descend)."""
 
 
 def parse(query: str) -> nodes.Node:
@@ -40,6 +39,7 @@ class _Parser:
         self.tokens = tokenize(query)
         self.index = 0
         self.depth = 0  # groups and sets open at the current token
+        self.sizes: dict = {}  # nfa_state_count's memo, shared as the tree grows
 
     @property
     def token(self) -> Token:
@@ -64,19 +64,41 @@ class _Parser:
         return tree
 
     def alternation(self) -> nodes.Node:
+        positions = [self.token.position]
         alternatives = [self.sequence()]
         while self.token.kind is Kind.BAR:
             self.advance()
+            positions.append(self.token.position)
             alternatives.append(self.sequence())
-        return nodes.union(alternatives)
+        return self.checked_size(nodes.union(alternatives), alternatives, positions, "alternative")
 
     def sequence(self) -> nodes.Node:
         if self.token.kind not in _ATOM_STARTS:
             raise self.error(self._unexpected_here())
-        items = []
+        items, positions = [], []
         while self.token.kind in _ATOM_STARTS:
+            positions.append(self.token.position)
             items.append(self.postfix())
-        return nodes.concat(items)
+        return self.checked_size(nodes.concat(items), items, positions, "item")
+
+    def checked_size(self, node: nodes.Node, parts: list, positions: list[int], part_name: str) -> nodes.Node:
+        """``node``, made of ``parts`` (which start at ``positions``), unless its NFA passes
+        MAX_NFA_STATES: then a syntax error at the part that takes it past."""
+        if nfa_state_count(node, self.sizes) <= MAX_NFA_STATES:
+            return node
+        running = 0
+        for part, position in zip(parts, positions):
+            # Caret at the part where the running count passes the limit (or at the last part:
+            # flattening a group into the enclosing sequence saves a state, so the count of
+            # the parts taken whole is within a state or two of the node's own).
+            running += nfa_state_count(part, self.sizes)
+            if running > MAX_NFA_STATES:
+                break
+        raise self.error(
+            f"the expression is too large at this {part_name}: its automaton would have more than "
+            f"{MAX_NFA_STATES} states (MAX_NFA_STATES, see docs/lpe.md); split it into several layers",
+            position,
+        )
 
     def postfix(self) -> nodes.Node:
         atom = self.atom()
@@ -90,7 +112,17 @@ class _Parser:
         if self.token.kind in _REPETITIONS or self.token.kind is Kind.RANGE:
             token = self.advance()
             minimum, maximum = token.value if token.kind is Kind.RANGE else _REPETITIONS[token.kind]
+            body_size = nfa_state_count(atom, self.sizes)
             atom = nodes.repeat(atom, minimum, maximum)
+            size = nfa_state_count(atom, self.sizes)
+            if size > MAX_NFA_STATES:
+                copies = minimum + 1 if maximum is None else maximum
+                raise self.error(
+                    f"this repetition makes the expression too large: {copies} copies of {body_size} "
+                    f"automaton states are {size}, more than the {MAX_NFA_STATES} an expression may have "
+                    "(MAX_NFA_STATES, see docs/lpe.md); repeat fewer times, or repeat a shorter expression",
+                    token.position,
+                )
             if self.token.kind in _REPETITIONS or self.token.kind is Kind.RANGE:
                 raise self.error("two repetitions in a row: use parentheses, e.g. (R*){2}")
             if self.token.kind is Kind.CONDITION:
@@ -127,17 +159,18 @@ class _Parser:
     def alternative_set(self) -> nodes.Node:
         """``[...]`` outside ``<...>``: any one of its items (OSL's "or list")."""
         opening = self.advance()
-        items = []
+        items, positions = [], []
         while self.token.kind is not Kind.CLOSE_SET:
             if self.token.kind is Kind.END:
                 raise self.error("missing ']' to close the '['", opening.position)
             if self.token.kind not in _ATOM_STARTS:
                 raise self.error(self._unexpected_here())
+            positions.append(self.token.position)
             items.append(self.postfix())
         self.advance()
         if not items:
             raise self.error("empty set []", opening.position)
-        return _fold_letter_set(items) or nodes.union(items)
+        return _fold_letter_set(items) or self.checked_size(nodes.union(items), items, positions, "item")
 
     def event(self) -> EventPattern:
         token = self.token

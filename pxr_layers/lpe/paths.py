@@ -176,7 +176,7 @@ class _PathParser:
                 raise self.error("expected a number")
             if quantity in given:
                 raise self.error(f"{_key_text(quantity)} is given twice", key_position)
-            given[quantity] = float(number.group())
+            given[quantity] = cond.number_value(number.group(), self.error)
             self.position = number.end()
             self.skip_space()
             if self.peek() == ",":
