@@ -172,7 +172,7 @@ def test_bad_inputs_are_refused_and_leave_no_file(tmp_path, delivery):
     assert list(tmp_path.iterdir()) == []
     blocker = tmp_path / "file"
     blocker.write_text("")
-    with pytest.raises(OutputError, match="cannot create the output folder"):
+    with pytest.raises(OutputError, match="file: is a file, not a folder"):
         write_multipart(blocker / "shot.exr", beauty, images, product)
 
 

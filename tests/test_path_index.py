@@ -182,7 +182,8 @@ def test_an_interrupted_write_leaves_no_index(stage, tmp_path):
         render(scene, spec, SETTINGS, threads=2, batch_paths=512, show_progress=False, on_batch=interrupt)
     assert not final.exists()
     partial = [p for p in tmp_path.iterdir()]
-    assert len(partial) == 1 and partial[0].name.startswith(".shot.pxlidx.")  # the temporary, never the index
+    assert len(partial) == 1 and partial[0].name.startswith(".shot.")  # the temporary, never the index
+    assert partial[0].name.endswith(".tmp.pxlidx")
     with pytest.raises(PathIndexError, match="truncated"):
         PathIndex(partial[0])
     writer.abort()
