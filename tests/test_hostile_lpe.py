@@ -20,7 +20,7 @@ from pxr_layers.errors import LpeError, LpeSyntaxError
 from pxr_layers.lpe import automaton as automaton_module
 from pxr_layers.lpe import testing
 from pxr_layers.lpe.automaton import build_nfa, nfa_state_count
-from pxr_layers.lpe.limits import MAX_DFA_STATES, MAX_NESTING, MAX_NFA_STATES
+from pxr_layers.lpe.limits import MAX_DFA_STATES, MAX_NESTING, MAX_NFA_STATES, MAX_QUERY_LENGTH, MAX_TOKENS
 
 COMPILE_SECONDS = 1.0
 """What one compile may take, even on a slow machine: the limits keep it far below. Measured
@@ -164,6 +164,27 @@ def test_the_complete_build_stops_at_the_dfa_state_limit(monkeypatch):
     monkeypatch.setattr(automaton_module, "MAX_DFA_STATES", 100)
     automaton = lpe.compile("C.*R.{8}L").automaton  # 2**8 states and more
     assert not automaton.complete and "100 states" in automaton.on_demand_reason
+
+
+def test_long_queries_are_refused_past_the_token_and_length_limits():
+    letters = "[" + "R" * (MAX_TOKENS - 2) + "]"  # one event, as many tokens as allowed
+    expression, seconds = timed_compile(letters)
+    assert isinstance(expression, lpe.Expression) and seconds < COMPILE_SECONDS
+    error = syntax_error("[R" + letters[1:])
+    assert error.position == MAX_TOKENS and "MAX_TOKENS" in error.message
+    condition = "C<RD>@(" + " or ".join(["|S_C| > 1"] * (MAX_TOKENS // 5)) + ")L"  # | S_C | > 1 or: 6 tokens
+    error = syntax_error(condition)
+    assert "MAX_TOKENS" in error.message and len("C<RD>@(") < error.position < len(condition) - 2
+    assert "MAX_QUERY_LENGTH" in syntax_error("C" + " " * MAX_QUERY_LENGTH + "L").message
+
+
+def test_a_per_light_expression_over_thousands_of_lights_compiles_quickly():
+    lights = [f"/World/Lights/rig/light_{i:05d}" for i in range(5000)]
+    started = time.process_time()
+    automaton = lpe.compile_layers(lpe.per_light_passes({"rig": lights, "key": ["/World/Lights/key"]}))
+    assert time.process_time() - started < COMPILE_SECONDS
+    event = lpe.Event("L", "", {lights[1234]})
+    assert automaton.accepting_layers([lpe.Event("C"), event]) == {"light_rig"}
 
 
 # --- numbers -----------------------------------------------------------------------------

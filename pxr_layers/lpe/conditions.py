@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import LpeError, LpeSyntaxError
-from .limits import LARGEST_NUMBER, MAX_NESTING
+from .limits import LARGEST_NUMBER, MAX_NESTING, MAX_TOKENS
 
 MUCH_GREATER_FACTOR = 10.0
 """``a >> b`` means ``a > MUCH_GREATER_FACTOR * b``: one order of magnitude."""
@@ -279,13 +279,14 @@ class ConditionParser:
     Positions in errors are offsets into the whole query, so the caret lands right.
     """
 
-    def __init__(self, query: str, prefix_position: int, opening: int):
+    def __init__(self, query: str, prefix_position: int, opening: int, max_tokens: int = MAX_TOKENS):
         self.query = query
         self.prefix_position = prefix_position
         self.prefix = query[prefix_position]
         self.cursor = opening
         self._peeked: _Token | None = None
         self.depth = 0  # parentheses open inside the condition's own
+        self.tokens_left = max_tokens  # of the expression's MAX_TOKENS
 
     def parse(self) -> tuple[Condition, int]:
         """Returns the condition and the position just after its closing parenthesis."""
@@ -411,6 +412,9 @@ class ConditionParser:
         match = _TOKEN.match(self.query, self.cursor)
         if match is None:
             raise self._error(f"unexpected character {self.query[self.cursor]!r} in a condition", self.cursor)
+        self.tokens_left -= 1
+        if self.tokens_left < 0:
+            raise self._error(too_many_tokens(), self.cursor)
         position, self.cursor = self.cursor, match.end()
         kind = match.lastgroup
         if kind == "word" and match.group() not in ("and", "or"):
@@ -431,9 +435,19 @@ def number_value(text: str, error) -> float:
     return value
 
 
-def parse_condition(query: str, prefix_position: int, opening: int) -> tuple[Condition, int]:
-    """Parse the condition whose prefix is at ``prefix_position`` and ``(`` at ``opening``.
+def too_many_tokens() -> str:
+    return (f"the expression passes {MAX_TOKENS} tokens here (MAX_TOKENS, see docs/lpe.md): write long runs "
+            "of events as repetitions, and long lists of labels as globs")
 
-    Returns the condition tree and the position just after its closing parenthesis.
+
+def parse_condition(query: str, prefix_position: int, opening: int,
+                    max_tokens: int = MAX_TOKENS) -> tuple[Condition, int, int]:
+    """Parse the condition whose prefix is at ``prefix_position`` and ``(`` at ``opening``;
+    an LpeSyntaxError past its ``max_tokens`` (what the expression has left of MAX_TOKENS).
+
+    Returns the condition tree, the position just after its closing parenthesis and the
+    number of tokens it read.
     """
-    return ConditionParser(query, prefix_position, opening).parse()
+    parser = ConditionParser(query, prefix_position, opening, max_tokens)
+    condition, position_after = parser.parse()
+    return condition, position_after, max_tokens - parser.tokens_left

@@ -14,7 +14,7 @@ from enum import Enum, auto
 from ..errors import LpeSyntaxError
 from . import conditions
 from .events import EVENT_TYPES, SCATTERINGS
-from .limits import MAX_REPETITION
+from .limits import MAX_QUERY_LENGTH, MAX_REPETITION, MAX_TOKENS
 
 NO_SCATTERING_LETTER = "x"
 """OSL's spelling of "no scattering" (the scattering slot of C, L, O, B events)."""
@@ -67,17 +67,25 @@ _PUNCTUATION = {
 
 def tokenize(query: str) -> list[Token]:
     """All tokens of the query, ending with one END token. Raises LpeSyntaxError."""
+    if len(query) > MAX_QUERY_LENGTH:
+        message = f"the expression has {len(query)} characters, more than {MAX_QUERY_LENGTH} (MAX_QUERY_LENGTH)"
+        raise LpeSyntaxError(message, query, MAX_QUERY_LENGTH)
     tokens: list[Token] = []
+    condition_tokens = 0  # read inside conditions, which count towards MAX_TOKENS too
     position = 0
     while position < len(query):
         char = query[position]
         if char.isspace():
             position += 1
             continue
+        if len(tokens) + condition_tokens >= MAX_TOKENS:
+            raise LpeSyntaxError(conditions.too_many_tokens(), query, position)
         opening = conditions.condition_opens_at(query, position)
         if opening is not None:
-            condition, position_after = conditions.parse_condition(query, position, opening)
+            left = MAX_TOKENS - len(tokens) - condition_tokens
+            condition, position_after, read = conditions.parse_condition(query, position, opening, left)
             tokens.append(Token(Kind.CONDITION, condition, position))
+            condition_tokens += read - 1  # the condition itself is one of the tokens
             position = position_after
         elif char in EVENT_TYPES:
             tokens.append(Token(Kind.TYPE, char, position))

@@ -10,6 +10,15 @@ from __future__ import annotations
 
 import numpy as np
 
+MAX_QUERY_LENGTH = 1_000_000
+"""Most characters of one expression (a megabyte: labels and spaces are read at memory speed)."""
+
+MAX_TOKENS = 50_000
+"""Most tokens of one expression: letters, labels, operators, bounds, and inside conditions
+each number, quantity, comparator, word and parenthesis. Reading one takes microseconds, so
+this keeps parsing well under a second, and is far above any expression a path needs (a
+per-light expression lists each light's label once: a rig of 20 000 lights fits)."""
+
 MAX_REPETITION = 100
 """Largest bound of ``{n,m}``: paths are never that long, and each copy costs automaton states."""
 

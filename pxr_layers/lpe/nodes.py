@@ -32,6 +32,8 @@ ANY_LABEL = "*"
 
 TYPE_ORDER = EVENT_TYPES
 SCATTER_ORDER = (*SCATTERINGS, NO_SCATTERING)
+_EVERY_TYPE = frozenset(EVENT_TYPES)
+_EVERY_SCATTERING = frozenset(ALL_SCATTERINGS)
 
 
 @dataclass(frozen=True)
@@ -73,9 +75,9 @@ class EventPattern:
     def __post_init__(self):
         # A positive set naming every letter is a wildcard: normalise so that equal
         # meanings give equal trees.
-        if self.types is not None and not self.types.negated and self.types.symbols >= set(EVENT_TYPES):
+        if self.types is not None and not self.types.negated and self.types.symbols >= _EVERY_TYPE:
             object.__setattr__(self, "types", None)
-        if self.scatters is not None and not self.scatters.negated and self.scatters.symbols >= set(ALL_SCATTERINGS):
+        if self.scatters is not None and not self.scatters.negated and self.scatters.symbols >= _EVERY_SCATTERING:
             object.__setattr__(self, "scatters", None)
 
     def matches_event(self, event: Event) -> bool:

@@ -40,6 +40,7 @@ class _Parser:
         self.index = 0
         self.depth = 0  # groups and sets open at the current token
         self.sizes: dict = {}  # nfa_state_count's memo, shared as the tree grows
+        self.single_events: dict[tuple[Kind, object], EventPattern] = {}  # one object per letter, label or '.'
 
     @property
     def token(self) -> Token:
@@ -180,6 +181,14 @@ class _Parser:
             kind, symbols = self.symbol_list()
             return _event_with_slot(kind, SymbolSet(frozenset(symbols), negated=True), symbols)
         self.advance()
+        found = self.single_events.get((token.kind, token.value))
+        if found is None:
+            # Trees are immutable, so equal events share one object: long runs of letters
+            # (``[RRRR...]``) then cost one dictionary look-up each.
+            found = self.single_events[token.kind, token.value] = self.single_event(token)
+        return found
+
+    def single_event(self, token: Token) -> EventPattern:
         if token.kind is Kind.TYPE:
             return EventPattern(types=SymbolSet(frozenset([token.value])))
         if token.kind is Kind.SCATTER:
