@@ -545,7 +545,8 @@ class LayerAutomaton:
     trees, canonical : each layer's expression tree and canonical text
     state_count, transition_count : size of the DFA (minimal when ``complete``)
     complete : True when the whole DFA was built and minimised at compile time; False when
-        its states are built on demand as path classes are matched (large label sets)
+        its states are built on demand as path classes are matched (large label sets, or a
+        subset construction past its budget)
     on_demand_reason : why it is built on demand (None when complete)
     """
 
