@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 
 from . import logging_flags
 
@@ -15,6 +16,8 @@ DESCRIPTION = (
     "`job status` lists each frame as done, under way (tiles committed) or pending."
 )
 log = logging.getLogger(__name__)
+EXIT_INTERRUPTED = 130
+"""128 + SIGINT: what a shell reports for a command stopped by Ctrl-C (main's own code for it)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -52,18 +55,38 @@ def run(args: argparse.Namespace) -> int:
         return _status(job)
     from ..jobs.executor import run_job
 
-    report = run_job(job, on_frame=lambda frame, status: log.info("frame %g: %s", frame, status))
+    try:
+        report = run_job(job, on_frame=lambda frame, status: log.info("frame %g: %s", frame, status))
+    except KeyboardInterrupt:
+        # Frames are committed one by one (by the workers, which the client does not see
+        # write), so what is on disk is read back: the honest account of an interrupted run.
+        print(f"pxr-layers: interrupted: {_committed(job)}; the same command again resumes", file=sys.stderr)
+        return EXIT_INTERRUPTED
     print(f"{job.name}: {len(report.rendered)} frames rendered, {len(report.skipped)} already done "
           f"({report.tiles_rendered} tiles rendered, {report.tiles_reused} reused) in {report.seconds:.1f}s")
     return 0
 
 
-def _status(job) -> int:
-    from ..jobs.executor import frame_status
+def _committed(job) -> str:
+    """'16 of 24 frames committed in DIR (2 more under way: their committed tiles are kept)'."""
+    from ..jobs.executor import frame_statuses
 
-    statuses = [(frame, frame_status(job, frame)) for frame in job.frames]
-    for frame, status in statuses:
-        print(f"{job.output_stem(frame)}  {status}")
-    done = sum(status == "done" for _, status in statuses)
-    print(f"{job.name}: {done}/{len(statuses)} frames done")
+    statuses = [status for _, _, status in frame_statuses(job)]
+    done = statuses.count("done")
+    under_way = sum(status.endswith(" tiles") and not status.startswith("0/") for status in statuses)
+    text = f"{done} of {len(statuses)} frames committed in {job.output_directory}"
+    if under_way:
+        text += f" ({under_way} more under way: their committed tiles are kept)"
+    return text
+
+
+def _status(job) -> int:
+    from ..jobs.executor import check_output_directory, frame_statuses
+
+    check_output_directory(job, create=False)
+    done = 0
+    for _, stem, status in frame_statuses(job):
+        print(f"{stem}  {status}")
+        done += status == "done"
+    print(f"{job.name}: {done}/{len(job.frames)} frames done")
     return 0

@@ -57,9 +57,12 @@ from ..request import (
     DEFAULT_SEED,
     DEFAULT_SPP,
     DEFAULT_SUBDIV_LEVEL,
+    MAX_SEED,
+    MAX_SPP,
     MAX_SUBDIV_LEVEL,
     RenderRequest,
     VariantSelection,
+    check_work,
 )
 
 DEFAULT_BATCH_PIXELS = 16384
@@ -93,9 +96,11 @@ class Job:
     request        : what every frame renders, as ``pxr-layers render`` would for the same
                      flags (stage, recipe layers, variants, settings, per-light mode, spp,
                      seed, depth, norm bounces, resolution, subdiv level, default lights, strict)
-    frames         : the frames (USD time codes) to render, whole numbers, in the order given
+    frames         : the frames (USD time codes) to render, whole numbers, in the order given;
+                     at most MAX_FRAMES
     output_directory : where every file of the job goes
-    output_template  : the stem template of the beauty and the index (``shot010.$F4``)
+    output_template  : the stem template of the beauty and the index (``shot010.$F4``), inside
+                     output_directory (a subfolder at most, never ``..``)
     batch_pixels   : pixels per task (a frame is split into batches of this many pixels)
     retries        : how many times Dask retries a failed task
     scheduler      : a Dask scheduler address (``tcp://host:8786``), None = a LocalCluster
@@ -292,7 +297,23 @@ def _resolution(value: Any, base: Path, file: str, key: str) -> tuple[int, int]:
         raise _error(f"must be [width, height] in pixels, not {value!r}", file, key)
     if value[0] <= 0 or value[1] <= 0:
         raise _error(f"must be positive, not {value!r}", file, key)
-    return int(value[0]), int(value[1])
+    resolution = int(value[0]), int(value[1])
+    _within_work(file, key, resolution=resolution)
+    return resolution
+
+
+def _spp(value: Any, base: Path, file: str, key: str) -> int:
+    spp = _integer(1)(value, base, file, key)
+    _within_work(file, key, spp=spp)
+    return spp
+
+
+def _within_work(file: str, key: str, *, resolution: tuple[int, int] | None = None, spp: int = 1) -> None:
+    """request.check_work (MAX_SPP, MAX_PIXELS) of one key's value, the error naming file and key."""
+    try:
+        check_work(resolution, spp)
+    except RenderSettingsError as error:
+        raise _error(str(error), file, key) from None
 
 
 def _directory(value: Any, base: Path, file: str, key: str) -> str:
@@ -310,8 +331,15 @@ def _stem(value: Any, base: Path, file: str, key: str) -> str:
         raise _error("must be a file stem, not an empty string", file, key)
     if text.lower().endswith((BEAUTY_SUFFIX, INDEX_SUFFIX)):
         raise _error(f"a stem, without a suffix: {text!r} names both the .exr and the .pxlidx", file, key)
-    if Path(text).is_absolute():
+    if Path(text).is_absolute() or text.startswith(("/", "\\")):
         raise _error(f"must be relative to output.directory, not absolute: {text!r}", file, key)
+    # A stem may name a subfolder (beauty/$F4), never a way out of the output directory:
+    # every file of the job, and the scratch folders a run removes, stay inside it.
+    parts = re.split(r"[/\\]", text)
+    if ".." in parts:
+        raise _error(f"must stay inside output.directory: {text!r} climbs out of it with '..'", file, key)
+    if not parts[-1].strip():
+        raise _error(f"must end with a file name, not a folder: {text!r}", file, key)
     check_template(text, file=file, key=key)
     return text
 
@@ -350,8 +378,8 @@ KEYS: tuple[_Key, ...] = (
     _Key("recipe.add_layers", _recipe_layers, "[]", "appended to the layers the parent resolved to"),
     _Key("recipe.per_light", _per_light, '"recipe"',
          'per-light layers for every product: "none", "lights", "groups"; "recipe" = as authored'),
-    _Key("render.spp", _integer(1), str(DEFAULT_SPP), "samples per pixel"),
-    _Key("render.seed", _integer(0), str(DEFAULT_SEED), "random seed (with the frame, keys every stream)"),
+    _Key("render.spp", _spp, str(DEFAULT_SPP), f"samples per pixel, 1 to {MAX_SPP}"),
+    _Key("render.seed", _integer(0, MAX_SEED), str(DEFAULT_SEED), "random seed (with the frame, keys every stream)"),
     _Key("render.max_depth", _integer(0), str(DEFAULT_MAX_DEPTH), "most scattering events per path"),
     _Key("render.norm_bounces", _integer(0), "the products'",
          "events per path whose covariance norms the index keeps (default: the products' "
@@ -385,10 +413,21 @@ TABLES = tuple(dict.fromkeys(key.name.split(".")[0] for key in KEYS if "." in ke
 # -- frames and templates ---------------------------------------------------------------------
 
 
+MAX_FRAMES = 100_000
+"""Frames one job may have: over an hour of film at 24 fps, more than any shot, so a larger
+set is a typo ("1-99999999999999"). A frame range is counted before it is expanded, so such
+a range is refused at once, without building the frames it would hold."""
+MAX_FRAME_NUMBER = 1 << 53
+"""Frame numbers are at most this far from 0: every whole number up to 2^53 is exact as a
+USD time code (a double), so consecutive frames stay distinct frames."""
+
+
 def parse_frames(value: Any, *, file: str | None = None, key: str | None = "frames") -> tuple[float, ...]:
     """Frames from a job file's value: ``"1-24"``, ``"1-24x4"`` (start-end, every 4th),
     ``"1-10, 20, 30-40x2"``, a list ``[1, 5, 9]`` or one integer. Negative frames are
-    written with a sign (``"-5--1"``). Every frame must be a whole number and listed once.
+    written with a sign (``"-5--1"``). Every frame must be a whole number within
+    ±MAX_FRAME_NUMBER and listed once, and there are at most MAX_FRAMES of them (counted
+    before anything is expanded: time and memory are O(frames) ≤ O(MAX_FRAMES)).
 
     Raises JobError naming ``file`` and ``key``; for text, with the 0-based ``position`` of
     the fault.
@@ -398,15 +437,23 @@ def parse_frames(value: Any, *, file: str | None = None, key: str | None = "fram
     if isinstance(value, (int, float)):
         value = [value]
     if isinstance(value, list):
+        if len(value) > MAX_FRAMES:
+            raise _error(f"{len(value)} frames listed, more than the {MAX_FRAMES} a job may have (MAX_FRAMES)",
+                         file, key)
         frames: list[float] = []
+        seen: set[float] = set()
         for number, entry in enumerate(value):
             entry_key = f"{key}[{number}]" if key else None
             if isinstance(entry, bool) or not isinstance(entry, (int, float)):
                 raise _error(f"must be a frame number, not {_type_name(entry)} ({entry!r})", file, entry_key)
             if not float(entry).is_integer():
                 raise _error(f"frame {entry!r} is not a whole number", file, entry_key)
-            if float(entry) in frames:
+            if abs(entry) > MAX_FRAME_NUMBER:
+                raise _error(f"frame {entry!r} is beyond ±{MAX_FRAME_NUMBER} (2^53, MAX_FRAME_NUMBER)",
+                             file, entry_key)
+            if float(entry) in seen:
                 raise _error(f"frame {int(entry)} is listed twice", file, entry_key)
+            seen.add(float(entry))
             frames.append(float(entry))
         if not frames:
             raise _error("no frames: the list is empty", file, key)
@@ -419,6 +466,10 @@ def parse_frames(value: Any, *, file: str | None = None, key: str | None = "fram
 class _FrameText:
     """``item ("," item)*`` with ``item = N | N "-" N ["x" STEP]``; spaces allowed."""
 
+    _NUMBER = re.compile(r"[+-]?\d+")
+    _UNSIGNED = re.compile(r"\d+")
+    _DIGITS = len(str(MAX_FRAME_NUMBER))
+
     def __init__(self, text: str, file: str | None, key: str | None):
         self.text = text
         self.file = file
@@ -430,7 +481,7 @@ class _FrameText:
         position = self.position if position is None else position
         if found:
             message += ", found " + (repr(self.text[position]) if position < len(self.text) else "the end")
-        return _error(f"bad frame range {self.text!r}: {message} at character {position + 1}",
+        return _error(f"bad frame range {_shortened(self.text)}: {message} at character {position + 1}",
                       self.file, self.key, position)
 
     def skip_spaces(self) -> None:
@@ -442,15 +493,20 @@ class _FrameText:
 
     def number(self, what: str, signed: bool = True) -> int:
         self.skip_spaces()
-        match = re.compile(r"[+-]?\d+" if signed else r"\d+").match(self.text, self.position)
+        match = (self._NUMBER if signed else self._UNSIGNED).match(self.text, self.position)
         if not match:
             raise self.fail(f"expected {what}")
+        digits = match.group().lstrip("+-").lstrip("0")
+        # Digits counted before int(): a number of thousands of digits is refused, not parsed.
+        if len(digits) > self._DIGITS or int(digits or 0) > MAX_FRAME_NUMBER:
+            raise self.fail(f"{what} beyond ±{MAX_FRAME_NUMBER} (2^53, MAX_FRAME_NUMBER)", self.position,
+                            found=False)
         self.position = match.end()
         return int(match.group())
 
     def parse(self) -> tuple[float, ...]:
-        frames: list[float] = []
-        seen: set[int] = set()
+        ranges: list[tuple[int, int, int, int]] = []  # (start, end, step, position) of each item
+        total = 0
         while True:
             self.skip_spaces()
             item_start = self.position
@@ -474,16 +530,35 @@ class _FrameText:
                 if end < start:
                     raise self.fail(f"the range ends before it starts (write {end}-{start})", item_start,
                                     found=False)
+            # Counted, not expanded: a range of 10^14 frames is refused here at once.
+            total += (end - start) // step + 1
+            if total > MAX_FRAMES:
+                so_far = " up to here" if ranges else ""
+                raise self.fail(f"{total} frames{so_far}, more than the {MAX_FRAMES} a job may have (MAX_FRAMES; "
+                                "split the shot into several jobs)", item_start, found=False)
+            ranges.append((start, end, step, item_start))
+            if self.position == len(self.text):
+                break
+            if self.peek() != ",":
+                raise self.fail(f"expected {expected}")
+            self.position += 1
+        frames: list[float] = []
+        seen: set[int] = set()
+        for start, end, step, item_start in ranges:
             for frame in range(start, end + 1, step):
                 if frame in seen:
                     raise self.fail(f"frame {frame} is listed twice", item_start, found=False)
                 seen.add(frame)
                 frames.append(float(frame))
-            if self.position == len(self.text):
-                return tuple(frames)
-            if self.peek() != ",":
-                raise self.fail(f"expected {expected}")
-            self.position += 1
+        return tuple(frames)
+
+
+_SHOWN_TEXT = 60
+"""Characters of a frame range text quoted in an error (the position says where the fault is)."""
+
+
+def _shortened(text: str) -> str:
+    return repr(text) if len(text) <= _SHOWN_TEXT else repr(text[:_SHOWN_TEXT]) + f"… ({len(text)} characters)"
 
 
 _TEMPLATE_TOKEN = re.compile(r"\$\{(?P<braced>[A-Za-z_]+)(?P<braced_pad>\d*)\}|\$(?P<name>[A-Za-z_]+)(?P<pad>\d*)|#+")

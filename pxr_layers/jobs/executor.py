@@ -22,7 +22,9 @@ Tasks (run on workers):
   ``<stem>.done.json``, the frame's commit record, written last; then the scratch folder
   is removed.
 
-The client only plans the frames, submits the tasks and waits. Workers share the output
+The client only plans the frames and submits their tasks, a window of frames at a time
+(``FRAMES_IN_FLIGHT_PER_THREAD`` per worker thread: however many frames a job has, the
+client and the scheduler hold a few frames' worth), and waits. Workers share the output
 directory (a local disk for a LocalCluster, the studio's shared storage on a farm). A frame with a commit record whose files exist is complete and is
 skipped on the next run; an interrupted frame keeps its committed tiles, and the next run
 renders only the missing ones. A killed worker loses at most its running tile (its
@@ -33,20 +35,24 @@ retried ``job.retries`` times.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import logging
 import math
 import os
 import pickle
 import shutil
+import signal
+import tempfile
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import JobError, PxrLayersError
+from ..errors import JobError, OutputError, PxrLayersError
 from ..layers.exr import write_atomically
 from ..paths.format import stored_norms
 from .definition import Job
@@ -240,9 +246,25 @@ def run_job(job: Job, *, client=None, on_frame: Callable[[float, str], None] | N
              :func:`~pxr_layers.jobs.workers.local_cluster`) and stops
              it at the end.
     on_frame(frame, status) : called as frames are skipped, started and finished.
+
+    Raises OutputError when the output directory cannot be created or written. Ctrl-C
+    raises KeyboardInterrupt (within INTERRUPT_POLL_SECONDS once frames are under way);
+    the frames committed until then stay, and a run again resumes from them.
     """
     started = time.perf_counter()
     report = JobReport()
+    check_output_directory(job, create=True)
+    todo = []
+    for frame in job.frames:
+        if is_done(job, frame):
+            report.skipped.append(frame)
+            if on_frame:
+                on_frame(frame, "skipped (done)")
+        else:
+            todo.append(frame)
+    if not todo:
+        report.seconds = time.perf_counter() - started
+        return report
     # Worked out once for every frame: the recipe (a stage's own is not animated), unless it
     # has per-light layers, whose lights are listed at each frame as `render --frame` lists
     # them (a light may be invisible at some frames); and the stage file's hash (the
@@ -254,21 +276,79 @@ def run_job(job: Job, *, client=None, on_frame: Callable[[float, str], None] | N
     if any(product.per_light != "none" for product in recipe.products):
         recipe = None
     stage_sha256 = file_sha256(job.request.stage)
-    todo = []
-    for frame in job.frames:
-        if is_done(job, frame):
-            report.skipped.append(frame)
-            if on_frame:
-                on_frame(frame, "skipped (done)")
-        else:
-            todo.append(frame_plan(job, frame, recipe, stage_sha256, shot))
-    if not todo:
-        report.seconds = time.perf_counter() - started
-        return report
+    # Planned as they are submitted: the client holds the plans of the frames in flight only.
+    plans = (frame_plan(job, frame, recipe, stage_sha256, shot) for frame in todo)
+    first = next(plans)  # before a cluster starts: a mistake in the recipe stops the job at once
     with _client(job, client) as dask:
-        _run_frames(job, dask, todo, report, on_frame)
+        _run_frames(job, dask, itertools.chain([first], plans), len(todo), report, on_frame)
     report.seconds = time.perf_counter() - started
     return report
+
+
+def check_output_directory(job: Job, *, create: bool) -> None:
+    """Raise OutputError, naming the job's output directory, when it cannot be used.
+
+    It must be a directory, or one that can be created (no file on its way). create True
+    (a run): it is created if missing, then a file is created in it and removed, the one
+    sure test of writing (permissions, ACLs, read-only mounts, a farm's root squash alike).
+    create False (status): if it exists, it must be readable.
+    """
+    directory = job.output_directory
+    try:
+        existing = next(folder for folder in (directory, *directory.parents) if folder.exists())
+    except OSError as error:  # a folder on the way that may not be searched
+        raise OutputError(f"output directory {directory}: cannot be reached ({error.strerror})") from None
+    if not existing.is_dir():
+        where = "is a file" if existing == directory else f"cannot be created: {existing} is a file"
+        raise OutputError(f"output directory {directory}: {where}, not a directory")
+    if not create:
+        if existing == directory and not os.access(directory, os.R_OK | os.X_OK):
+            raise OutputError(f"output directory {directory}: cannot be read (permission denied)")
+        return
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OutputError(f"output directory {directory}: cannot be created ({error.strerror})") from None
+    try:
+        with tempfile.NamedTemporaryFile(dir=directory, prefix=".pxr-layers-write-test."):
+            pass
+    except OSError as error:
+        raise OutputError(f"output directory {directory}: cannot be written ({error.strerror})") from None
+
+
+INTERRUPT_POLL_SECONDS = 0.2
+"""How often the client, waiting for its frames, looks whether Ctrl-C was pressed."""
+
+
+@contextmanager
+def _ctrl_c_polled() -> Iterator[threading.Event]:
+    """While the block runs, Ctrl-C (SIGINT) only sets the Event it yields, for the block
+    to raise KeyboardInterrupt where it looks (Python's own handler raises it wherever the
+    main thread is: in a garbage-collector callback, which Dask registers, or a finaliser,
+    it is printed as a traceback and ignored, and the run went on). Only in the main
+    thread, and only over Python's handler (a program's own is left alone)."""
+    pressed = threading.Event()
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield pressed
+        return
+    signal.signal(signal.SIGINT, lambda signum, frame: pressed.set())
+    try:
+        yield pressed
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+@contextmanager
+def _file_errors(what: str):
+    """An OSError about a file (it carries the file's name: a full disk, a permission, a
+    read-only mount) as one OutputError line; others (a lost connection) are left as they are."""
+    try:
+        yield
+    except OSError as error:
+        if error.filename is None:
+            raise
+        raise OutputError(f"{what}: {error.filename}: {error.strerror or error}") from None
 
 
 class _client:
@@ -330,50 +410,85 @@ def _user_errors_returned(task: Callable) -> Callable:
     return run
 
 
-def _run_frames(job: Job, client, plans: list[FramePlan], report: JobReport, on_frame) -> None:
-    """Submit every frame's tiles and its assembly (which waits for them); wait for all."""
-    from distributed import as_completed
+FRAMES_IN_FLIGHT_PER_THREAD = 2
+"""Frames submitted to Dask at a time, per worker thread of the cluster (counted again as
+frames finish, so workers that join are used). Enough that every worker has tiles while
+earlier frames are assembled; few enough that the client plans, and the scheduler holds,
+a bounded number of frames however long the job (up to MAX_FRAMES)."""
+
+
+def _run_frames(job: Job, client, plans: Iterator[FramePlan], count: int, report: JobReport, on_frame) -> None:
+    """Submit the frames' tiles and assemblies (which wait for them), a window of frames at
+    a time, the next as one is done; wait for all. ``count``: how many ``plans`` yields.
+    Ctrl-C raises KeyboardInterrupt within INTERRUPT_POLL_SECONDS."""
+    from distributed import wait
 
     from .workers import WorkerTuning
 
     client.register_plugin(WorkerTuning())
-    assemblies = {}
-    for position, plan in enumerate(plans):
-        # Frame k's tiles come before the assembly of frame k - 1: workers run ahead on
-        # tiles, and the last two assemblies run side by side instead of one alone at the end
-        # (the scratch of about two frames is on disk at a time). Higher priority runs first.
-        tile_priority, assembly_priority = -2 * position, -(2 * position + 3)
-        tile_list = tiles(plan, job.batch_pixels)
-        folder = _scratch(job, plan, tile_list)
-        inputs = []
-        data_path = None if (folder / DATA_FILE).exists() else str(folder / DATA_FILE)
-        for first, stop in tile_list:
-            path = tile_file(folder, first, stop)
-            if path.exists():
-                report.tiles_reused += 1
-                continue
-            inputs.append(client.submit(_user_errors_returned(render_tile), plan, first, stop, str(path), data_path,
-                                        retries=job.retries, pure=False, priority=tile_priority))
-            data_path = None  # the frame's first tile to render brings the data
-            report.tiles_rendered += 1
-        if data_path is not None:  # every tile was committed by an earlier run, not the data
-            inputs.append(client.submit(_user_errors_returned(render_frame_data), plan, data_path,
-                                        retries=job.retries, pure=False, priority=tile_priority))
-        # Assembling runs on a worker too: frames are assembled in parallel, next to the
-        # tiles of later frames, and the client only waits.
-        future = client.submit(_user_errors_returned(assemble_frame), job, plan, inputs, retries=job.retries,
-                               pure=False, priority=assembly_priority)
-        assemblies[future] = plan.frame
-        if on_frame:
-            on_frame(plan.frame, f"submitted {len(inputs)} tasks ({len(tile_list)} tiles) and the assembly")
-    for future in as_completed(list(assemblies)):
-        result = future.result()  # raises the task's error once its retries are spent
-        if isinstance(result, UserErrorResult):
-            raise PxrLayersError(result.text)
-        report.rendered.append(assemblies[future])
-        if on_frame:
-            on_frame(assemblies[future], f"done ({len(report.rendered)} of {len(plans)} frames)")
+    assemblies: dict = {}  # future → frame, of the frames in flight
+    positions = itertools.count()
+
+    def submit_more() -> None:
+        window = FRAMES_IN_FLIGHT_PER_THREAD * max(1, sum(client.nthreads().values()))
+        while len(assemblies) < window:
+            plan = next(plans, None)
+            if plan is None:
+                return
+            assemblies[_submit_frame(job, client, plan, next(positions), report, on_frame)] = plan.frame
+
+    with _ctrl_c_polled() as ctrl_c:
+        submit_more()
+        while assemblies:
+            try:
+                done, _ = wait(list(assemblies), timeout=INTERRUPT_POLL_SECONDS, return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                done = set()
+            if ctrl_c.is_set():
+                raise KeyboardInterrupt
+            for future in sorted(done, key=assemblies.get):
+                frame = assemblies.pop(future)
+                with _file_errors(f"frame {frame:g}"):
+                    result = future.result()  # raises the task's error once its retries are spent
+                if isinstance(result, UserErrorResult):
+                    raise PxrLayersError(result.text)
+                report.rendered.append(frame)
+                if on_frame:
+                    on_frame(frame, f"done ({len(report.rendered)} of {count} frames)")
+            submit_more()
     report.rendered.sort()
+
+
+def _submit_frame(job: Job, client, plan: FramePlan, position: int, report: JobReport, on_frame):
+    """Submit the frame's tiles not committed yet and its assembly; returns the assembly's future."""
+    # Frame k's tiles come before the assembly of frame k - 1: workers run ahead on tiles,
+    # and the last two assemblies run side by side instead of one alone at the end (the
+    # scratch of about two frames is on disk at a time). Higher priority runs first.
+    tile_priority, assembly_priority = -2 * position, -(2 * position + 3)
+    tile_list = tiles(plan, job.batch_pixels)
+    with _file_errors(f"frame {plan.frame:g}"):
+        folder = _scratch(job, plan, tile_list)
+    inputs = []
+    data_path = None if (folder / DATA_FILE).exists() else str(folder / DATA_FILE)
+    for first, stop in tile_list:
+        path = tile_file(folder, first, stop)
+        if path.exists():
+            report.tiles_reused += 1
+            continue
+        inputs.append(client.submit(_user_errors_returned(render_tile), plan, first, stop, str(path), data_path,
+                                    retries=job.retries, pure=False, priority=tile_priority))
+        data_path = None  # the frame's first tile to render brings the data
+        report.tiles_rendered += 1
+    if data_path is not None:  # every tile was committed by an earlier run, not the data
+        inputs.append(client.submit(_user_errors_returned(render_frame_data), plan, data_path,
+                                    retries=job.retries, pure=False, priority=tile_priority))
+    # Assembling runs on a worker too: frames are assembled in parallel, next to the
+    # tiles of later frames, and the client only waits.
+    future = client.submit(_user_errors_returned(assemble_frame), job, plan, inputs, retries=job.retries,
+                           pure=False, priority=assembly_priority)
+    if on_frame:
+        on_frame(plan.frame, f"submitted {len(inputs)} tasks ({len(tile_list)} tiles) and the assembly")
+    return future
 
 
 def assemble_frame(job: Job, plan: FramePlan, inputs=()) -> None:
@@ -411,3 +526,24 @@ def frame_status(job: Job, frame: float) -> str:
         return "pending"
     committed = len(list(folder.glob("tile.*.pkl")))
     return f"{committed}/{total} tiles"
+
+
+def frame_statuses(job: Job) -> Iterator[tuple[float, str, str]]:
+    """(frame, its file stem, its :func:`frame_status`) of every frame of the job, in order.
+
+    The output folders are listed once: a frame with neither a commit record nor a scratch
+    folder is pending without a file-system call of its own, so the status of a job of
+    MAX_FRAMES frames takes about a second.
+    """
+    listings: dict[str, set[str]] = {}  # folder of the stems (relative to the output directory) → its names
+    for frame in job.frames:
+        stem = job.output_stem(frame)
+        folder, name = os.path.split(stem)  # a stem may name a subfolder, "beauty/shot.$F4"
+        if folder not in listings:
+            try:
+                listings[folder] = set(os.listdir(job.output_directory / folder))
+            except OSError:  # not there (yet): nothing of these frames was written
+                listings[folder] = set()
+        names = listings[folder]
+        started = name in names or name + DONE_SUFFIX in names
+        yield frame, stem, frame_status(job, frame) if started else "pending"

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import ctypes
 import logging
+import signal
 import sys
+import threading
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -15,11 +17,13 @@ LOCAL_CLUSTER_CONFIG = {
     "distributed.worker.memory.monitor-interval": "500ms",
     "distributed.admin.system-monitor.interval": "2s",
     "distributed.admin.tick.interval": "100ms",
+    "distributed.worker.preload": [__name__],  # dask_setup, below
 }
 """Dask's housekeeping, at a pace for tasks of seconds. With the defaults (memory checked
 every 100 ms by each nanny and worker, system figures every 500 ms, event-loop ticks every
 20 ms) the scheduler, nannies and workers spend about 8 % of a core on it, which the
-workers' tasks lose when there is one worker per core."""
+workers' tasks lose when there is one worker per core. And each worker process runs this
+module's :func:`dask_setup` as it starts (a Dask preload)."""
 
 
 def local_cluster(workers: int, **options):
@@ -36,6 +40,16 @@ def local_cluster(workers: int, **options):
         # as the settings are undone in the shared one when this block ends.
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                             config=copy.deepcopy(dask.config.config), **options)
+
+
+def dask_setup(worker) -> None:
+    """Run by each worker process of a job's LocalCluster as it starts (and restarts): the
+    worker ignores SIGINT. Ctrl-C in a terminal reaches the whole process group; a worker
+    killed by it printed its KeyboardInterrupt traceback and its nanny another. The job's
+    own process takes the Ctrl-C, says what was committed and closes the cluster. (Only
+    local workers: a farm's `dask worker` keeps its own Ctrl-C.)"""
+    if threading.current_thread() is threading.main_thread():  # where Python handles signals
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 class WorkerTuning(WorkerPlugin):
