@@ -143,3 +143,13 @@ class JobError(PxrLayersError):
         self.file = file
         self.key = key
         self.position = position
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (what farm managers send before SIGKILL), raised where Ctrl-C's
+    KeyboardInterrupt would be, so the same clean-up runs: temporaries removed, a frame's
+    outputs all or nothing. ``exit_code``: 128 + the signal's number, as a shell reports it."""
+
+    def __init__(self, signal_number: int = 15):
+        super().__init__("SIGTERM")
+        self.exit_code = 128 + signal_number

@@ -242,10 +242,11 @@ def test_an_unreadable_output_directory_is_one_line_for_status(tmp_path, stage, 
     folder = tmp_path / "hidden"
     folder.mkdir(mode=0o000)
     try:
-        if os.access(folder, os.R_OK):
-            pytest.skip("this user reads any directory (root)")
         code, _, stderr = cli(capsys, "job", "status", str(directory_job(tmp_path, folder)))
-        assert code == 1 and "cannot be read" in one_error_line(stderr)
+        if os.access(folder, os.R_OK):  # root reads any directory: status answers as for any other
+            assert code == 0, stderr
+        else:
+            assert code == 1 and "cannot be read" in one_error_line(stderr)
     finally:
         folder.chmod(0o755)
 
@@ -262,10 +263,12 @@ def test_a_file_system_error_in_a_run_is_an_output_error(tmp_path):
 # --- Ctrl-C -------------------------------------------------------------------------------
 
 
-def test_ctrl_c_says_what_was_committed_and_exits_130(tmp_path):
-    """A real Ctrl-C (SIGINT to the whole process group, workers too) once a frame is
-    committed: exit 130 and one last line counting the frames on disk, not "nothing was
-    written". The frames are submitted a window at a time, not all 40 at once."""
+@pytest.mark.parametrize("signal_number, said", [(signal.SIGINT, "interrupted"), (signal.SIGTERM, "terminated")])
+def test_ctrl_c_or_sigterm_says_what_was_committed(tmp_path, signal_number, said):
+    """A real Ctrl-C (SIGINT to the whole process group, workers too), or a farm manager's
+    SIGTERM, once a frame is committed: exit 128 + the signal and one last line counting the
+    frames on disk, not "nothing was written". The frames are submitted a window at a time,
+    not all 40 at once."""
     frames = 40
     command = [SCRIPT, "job", "run", str(SHOT), "--frames", f"1-{frames}", "--spp", "4", "--resolution", "16", "12",
                "--workers", "1", "-o", str(tmp_path)]
@@ -274,13 +277,13 @@ def test_ctrl_c_says_what_was_committed_and_exits_130(tmp_path):
     deadline = time.monotonic() + 600  # seconds: the first render of a fresh checkout compiles the tracer
     while not list(tmp_path.glob("*.done.json")) and time.monotonic() < deadline and process.poll() is None:
         time.sleep(0.05)
-    os.killpg(process.pid, signal.SIGINT)
+    os.killpg(process.pid, signal_number)
     _, stderr = process.communicate(timeout=120)
-    assert process.returncode == 130, stderr
+    assert process.returncode == 128 + signal_number, stderr
     committed = sum(is_done(load_job(SHOT, {"output.directory": str(tmp_path)}), frame) for frame in range(1, frames + 1))
     assert 1 <= committed < frames
     last = stderr.strip().splitlines()[-1]
-    assert re.fullmatch(rf"pxr-layers: interrupted: {committed} of {frames} frames committed in {re.escape(str(tmp_path))}"
+    assert re.fullmatch(rf"pxr-layers: {said}: {committed} of {frames} frames committed in {re.escape(str(tmp_path))}"
                         r"( \(\d+ more under way: their committed tiles are kept\))?; the same command again resumes", last)
     assert "nothing was written" not in stderr and "Traceback" not in stderr, stderr
     submitted = len(re.findall(r"frame \d+: submitted", stderr))

@@ -6,6 +6,7 @@ import argparse
 import logging
 import sys
 
+from ..errors import Terminated
 from . import logging_flags
 
 HELP = "run a shot job (frames × tiles on Dask), or show its progress"
@@ -57,11 +58,12 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         report = run_job(job, on_frame=lambda frame, status: log.info("frame %g: %s", frame, status))
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as interrupt:  # Ctrl-C, or SIGTERM (Terminated)
         # Frames are committed one by one (by the workers, which the client does not see
         # write), so what is on disk is read back: the honest account of an interrupted run.
-        print(f"pxr-layers: interrupted: {_committed(job)}; the same command again resumes", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        what = "terminated" if isinstance(interrupt, Terminated) else "interrupted"
+        print(f"pxr-layers: {what}: {_committed(job)}; the same command again resumes", file=sys.stderr)
+        return getattr(interrupt, "exit_code", EXIT_INTERRUPTED)
     print(f"{job.name}: {len(report.rendered)} frames rendered, {len(report.skipped)} already done "
           f"({report.tiles_rendered} tiles rendered, {report.tiles_reused} reused) in {report.seconds:.1f}s")
     return 0

@@ -16,7 +16,7 @@ import sys
 import warnings
 
 from .. import __version__
-from ..errors import PxrLayersError
+from ..errors import PxrLayersError, Terminated
 from . import logging_flags
 
 SUBCOMMAND_NAMES = ("render", "demo", "index", "extract", "lpe", "job")
@@ -25,17 +25,11 @@ ENVIRONMENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.E
 """OSErrors that reach main() as one user-facing line rather than an internal error."""
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (what farm managers send before SIGKILL), raised where Ctrl-C would be, so the
-    same clean-up runs: temporaries removed, a frame's outputs all or nothing."""
-
-    def __init__(self, signal_number: int):
-        super().__init__(signal.Signals(signal_number).name)
-        self.exit_code = 128 + signal_number
-
-
 def _raise_terminated(signal_number, frame) -> None:
     raise Terminated(signal_number)
+
+
+_raise_terminated.raises_terminated = True  # a job's client may defer it as it defers Ctrl-C
 
 
 def subcommands() -> dict:

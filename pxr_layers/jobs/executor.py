@@ -52,8 +52,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import JobError, OutputError, PxrLayersError
-from ..layers.exr import write_atomically
+from ..errors import JobError, OutputError, PxrLayersError, Terminated
+from ..outputs import write_atomically
 from ..paths.format import stored_norms
 from .definition import Job
 from .frame import (
@@ -317,26 +317,35 @@ def check_output_directory(job: Job, *, create: bool) -> None:
 
 
 INTERRUPT_POLL_SECONDS = 0.2
-"""How often the client, waiting for its frames, looks whether Ctrl-C was pressed."""
+"""How often the client, waiting for its frames, looks whether Ctrl-C or SIGTERM came."""
 
 
 @contextmanager
-def _ctrl_c_polled() -> Iterator[threading.Event]:
-    """While the block runs, Ctrl-C (SIGINT) only sets the Event it yields, for the block
-    to raise KeyboardInterrupt where it looks (Python's own handler raises it wherever the
-    main thread is: in a garbage-collector callback, which Dask registers, or a finaliser,
-    it is printed as a traceback and ignored, and the run went on). Only in the main
-    thread, and only over Python's handler (a program's own is left alone)."""
-    pressed = threading.Event()
-    if (threading.current_thread() is not threading.main_thread()
-            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
-        yield pressed
+def _interrupts_polled() -> Iterator[list[int]]:
+    """While the block runs, Ctrl-C (SIGINT) and SIGTERM only append their number to the list
+    it yields, for the block to raise KeyboardInterrupt (or Terminated) where it looks.
+    Python's own handlers raise wherever the main thread is: in a garbage-collector callback,
+    which Dask registers, or a finaliser, it is printed as a traceback and ignored, and the
+    run went on. Only in the main thread, and only over Python's and pxr-layers' handlers
+    (a program's own is left alone)."""
+    received: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield received
         return
-    signal.signal(signal.SIGINT, lambda signum, frame: pressed.set())
+    previous = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
+    for number, handler in previous.items():
+        if handler is signal.default_int_handler or getattr(handler, "raises_terminated", False):
+            signal.signal(number, lambda signum, frame: received.append(signum))
     try:
-        yield pressed
+        yield received
     finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+
+
+def _raise_interrupt(received: list[int]) -> None:
+    if received:
+        raise Terminated(received[0]) if received[0] == signal.SIGTERM else KeyboardInterrupt
 
 
 @contextmanager
@@ -420,7 +429,7 @@ a bounded number of frames however long the job (up to MAX_FRAMES)."""
 def _run_frames(job: Job, client, plans: Iterator[FramePlan], count: int, report: JobReport, on_frame) -> None:
     """Submit the frames' tiles and assemblies (which wait for them), a window of frames at
     a time, the next as one is done; wait for all. ``count``: how many ``plans`` yields.
-    Ctrl-C raises KeyboardInterrupt within INTERRUPT_POLL_SECONDS."""
+    Ctrl-C raises KeyboardInterrupt, SIGTERM Terminated, within INTERRUPT_POLL_SECONDS."""
     from distributed import wait
 
     from .workers import WorkerTuning
@@ -437,15 +446,14 @@ def _run_frames(job: Job, client, plans: Iterator[FramePlan], count: int, report
                 return
             assemblies[_submit_frame(job, client, plan, next(positions), report, on_frame)] = plan.frame
 
-    with _ctrl_c_polled() as ctrl_c:
+    with _interrupts_polled() as interrupts:
         submit_more()
         while assemblies:
             try:
                 done, _ = wait(list(assemblies), timeout=INTERRUPT_POLL_SECONDS, return_when="FIRST_COMPLETED")
             except TimeoutError:
                 done = set()
-            if ctrl_c.is_set():
-                raise KeyboardInterrupt
+            _raise_interrupt(interrupts)
             for future in sorted(done, key=assemblies.get):
                 frame = assemblies.pop(future)
                 with _file_errors(f"frame {frame:g}"):
