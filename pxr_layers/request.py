@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import RenderSettingsError
+from .recipe.model import MAX_INDEX_BOUNCES
 
 DEFAULT_SPP = 64
 DEFAULT_MAX_DEPTH = 8
@@ -22,6 +23,8 @@ MAX_SPP = 1 << 16
 """Samples per pixel at most (65536: far past convergence; more is a typo)."""
 MAX_PIXELS = 1 << 28
 """Pixels of one image at most (16384 × 16384): every per-pixel buffer must fit in memory."""
+MAX_DEPTH = 1024
+"""Scattering events per path at most (Russian roulette ends paths long before; more is a typo)."""
 MAX_SEED = (1 << 64) - 1
 """The largest seed: seeds key 64-bit random streams, so a larger one would wrap silently."""
 DEFAULT_SUBDIV_LEVEL = 2
@@ -117,17 +120,21 @@ class RenderRequest:
             raise RenderSettingsError(f"subdiv level must be 0 to {MAX_SUBDIV_LEVEL}, not {self.subdiv_level}")
         if self.resolution is not None and min(self.resolution) <= 0:
             raise RenderSettingsError(f"resolution must be positive, not {self.resolution}")
+        if self.max_depth > MAX_DEPTH:
+            raise RenderSettingsError(f"max depth must be at most {MAX_DEPTH}, not {self.max_depth}")
+        if self.norm_bounces is not None and self.norm_bounces > MAX_INDEX_BOUNCES:
+            raise RenderSettingsError(f"norm bounces must be at most {MAX_INDEX_BOUNCES}, not {self.norm_bounces}")
         if self.seed > MAX_SEED:
             raise RenderSettingsError(f"seed must be at most 2^64 − 1, not {self.seed}")
         check_work(self.resolution, self.spp)
 
     def resolved_norm_bounces(self, product_bounces: int, has_conditions: bool) -> int:
         """The norm-bounce rule: the request's own number, else the products' index bounces
-        raised to ``max_depth`` when a layer has a covariance condition (a condition under
-        ``.*`` may test any event of the path)."""
+        raised to ``max_depth`` (at most MAX_INDEX_BOUNCES) when a layer has a covariance
+        condition (a condition under ``.*`` may test any event of the path)."""
         if self.norm_bounces is not None:
             return self.norm_bounces
-        return max(product_bounces, self.max_depth) if has_conditions else product_bounces
+        return max(product_bounces, min(self.max_depth, MAX_INDEX_BOUNCES)) if has_conditions else product_bounces
 
 
 def check_work(resolution: tuple[int, int] | None, spp: int) -> None:

@@ -108,3 +108,23 @@ def test_a_binary_job_file_is_one_line(tmp_path, action):
     assert result.returncode == 1
     (line,) = result.stderr.strip().splitlines()
     assert str(job) in line and "not a text file" in line and "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("flags, said", [
+    (["--max-depth", "1000000000"], "max depth must be at most 1024"),
+    (["--norm-bounces", "1000000000"], "norm bounces must be at most 64"),
+])
+def test_depths_past_the_stated_limits_are_refused(tmp_path, flags, said):
+    """A billion norm bounces once meant a 592 GiB allocation (a MemoryError traceback)."""
+    result = run("render", str(RENDER_DIR / "cornell.usda"), "-o", str(tmp_path), *SMALL, *flags)
+    assert result.returncode == 1 and result.stderr.count("\n") == 1 and said in result.stderr, result.stderr
+    assert not any(tmp_path.iterdir())
+
+
+def test_index_bounces_past_the_limit_are_a_recipe_error():
+    from pxr_layers.errors import RecipeError
+    from pxr_layers.recipe.model import MAX_INDEX_BOUNCES, IndexSettings
+
+    IndexSettings(bounces=MAX_INDEX_BOUNCES)
+    with pytest.raises(RecipeError, match=f"from 0 to {MAX_INDEX_BOUNCES}"):
+        IndexSettings(bounces=MAX_INDEX_BOUNCES + 1)

@@ -14,7 +14,7 @@ from ..jobs.frame import FrameAssembler, plan_frame, prepare_frame
 from ..layers.debug import write_covariance_debug
 from ..layers.deliver import Delivered
 from ..progress import Progress
-from ..recipe.model import DEFAULT_INDEX_BOUNCES, PER_LIGHT_MODES
+from ..recipe.model import DEFAULT_INDEX_BOUNCES, MAX_INDEX_BOUNCES, PER_LIGHT_MODES
 from ..recipe.presets import PRESETS, preset
 from ..request import (
     DEFAULT_MAX_DEPTH,
@@ -24,6 +24,7 @@ from ..request import (
     MAX_PIXELS,
     MAX_SPP,
     DEFAULT_SUBDIV_LEVEL,
+    MAX_DEPTH,
     MAX_REFINED_FACES,
     MAX_SUBDIV_LEVEL,
     RenderRequest,
@@ -69,7 +70,8 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--spp", type=_positive, default=DEFAULT_SPP, metavar="N",
                         help=f"samples per pixel (default {DEFAULT_SPP}, at most {MAX_SPP})")
     parser.add_argument("--max-depth", type=_non_negative, default=DEFAULT_MAX_DEPTH, metavar="N",
-                        help=f"most scattering events per path; 1 = direct light only (default {DEFAULT_MAX_DEPTH})")
+                        help=f"most scattering events per path; 1 = direct light only (default {DEFAULT_MAX_DEPTH}, "
+                        f"at most {MAX_DEPTH})")
     parser.add_argument("--resolution", type=_positive, nargs=2, metavar=("W", "H"),
                         help="image size in pixels (default: the recipe's, else "
                         f"{DEFAULT_RESOLUTION[0]} {DEFAULT_RESOLUTION[1]}; at most {MAX_PIXELS:,} pixels)")
@@ -83,7 +85,7 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
                         help="events per path (camera side) whose covariance norms C, T, R the path "
                         "index keeps (default: the products' pxrLayers:index:bounces, else "
                         f"{DEFAULT_INDEX_BOUNCES}, raised to --max-depth when a layer has a covariance "
-                        "condition; 0: none)")
+                        f"condition; 0: none; at most {MAX_INDEX_BOUNCES})")
     parser.add_argument("--subdiv-level", type=_subdiv_level, default=DEFAULT_SUBDIV_LEVEL, metavar="N",
                         help="uniform refinement level of subdivision surfaces (subdivisionScheme "
                         f"catmullClark, loop, bilinear), lowered where a mesh would pass {MAX_REFINED_FACES} "

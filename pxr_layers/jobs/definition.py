@@ -50,13 +50,14 @@ except ModuleNotFoundError:  # Python 3.10: the same parser, as a package
     import tomli as tomllib
 
 from ..errors import JobError, RenderSettingsError
-from ..recipe.model import PER_LIGHT_MODES
+from ..recipe.model import MAX_INDEX_BOUNCES, PER_LIGHT_MODES
 from ..recipe.presets import PRESETS, preset
 from ..request import (
     DEFAULT_MAX_DEPTH,
     DEFAULT_SEED,
     DEFAULT_SPP,
     DEFAULT_SUBDIV_LEVEL,
+    MAX_DEPTH,
     MAX_SEED,
     MAX_SPP,
     MAX_SUBDIV_LEVEL,
@@ -380,10 +381,11 @@ KEYS: tuple[_Key, ...] = (
          'per-light layers for every product: "none", "lights", "groups"; "recipe" = as authored'),
     _Key("render.spp", _spp, str(DEFAULT_SPP), f"samples per pixel, 1 to {MAX_SPP}"),
     _Key("render.seed", _integer(0, MAX_SEED), str(DEFAULT_SEED), "random seed (with the frame, keys every stream)"),
-    _Key("render.max_depth", _integer(0), str(DEFAULT_MAX_DEPTH), "most scattering events per path"),
-    _Key("render.norm_bounces", _integer(0), "the products'",
+    _Key("render.max_depth", _integer(0, MAX_DEPTH), str(DEFAULT_MAX_DEPTH),
+         f"most scattering events per path, at most {MAX_DEPTH}"),
+    _Key("render.norm_bounces", _integer(0, MAX_INDEX_BOUNCES), "the products'",
          "events per path whose covariance norms the index keeps (default: the products' "
-         "pxrLayers:index:bounces, raised to max_depth when a layer has a covariance condition)"),
+         f"pxrLayers:index:bounces, raised to max_depth when a layer has a covariance condition; at most {MAX_INDEX_BOUNCES})"),
     _Key("render.subdiv_level", _integer(0, MAX_SUBDIV_LEVEL), str(DEFAULT_SUBDIV_LEVEL),
          "uniform refinement level of subdivision surfaces (0 = the cage)"),
     _Key("render.default_lights", _boolean, "true", "a stage without any light gets the default rig"),

@@ -32,6 +32,10 @@ PER_LIGHT_MODES = ("none", "lights", "groups")
 DEFAULT_PIXEL_TYPE = "float"
 DEFAULT_COMPRESSION = "zip"
 DEFAULT_INDEX_BOUNCES = 5
+MAX_INDEX_BOUNCES = 64
+"""The most events per path whose covariance norms the index keeps: each costs every record
+6 bytes (C, T, R as float16), and light past 64 bounces is below any threshold an artist
+sets (a path that long carries a 1e-6 share of a scene's light with albedos of 0.8)."""
 DEFAULT_OCIO_CONFIG = "ocio://studio-config-v2.2.0_aces-v1.3_ocio-v2.4"
 """Pinned built-in config (OCIO >= 2.4). ``ocio://default`` and ``*-latest`` resolve to a
 different config with each OCIO release, and OpenImageIO's wheel bundles another OCIO than
@@ -196,8 +200,9 @@ class IndexSettings:
     covariance: str = "norms"
 
     def __post_init__(self):
-        if not isinstance(self.bounces, int) or self.bounces < 0:
-            raise RecipeError(f"must be an integer >= 0, not {self.bounces!r}", attribute="pxrLayers:index:bounces")
+        if not isinstance(self.bounces, int) or not 0 <= self.bounces <= MAX_INDEX_BOUNCES:
+            raise RecipeError(f"must be an integer from 0 to {MAX_INDEX_BOUNCES}, not {self.bounces!r}",
+                              attribute="pxrLayers:index:bounces")
         if self.covariance not in COVARIANCE_MODES:
             raise RecipeError(f"unknown covariance {self.covariance!r} (allowed: {', '.join(COVARIANCE_MODES)})",
                               attribute="pxrLayers:index:covariance")
