@@ -1,8 +1,21 @@
-"""Read a path index: its manifest, label and class tables, and records class by class."""
+"""Read a path index: its manifest, label and class tables, and records class by class.
+
+Nothing the file says is taken on trust, so that a damaged file is one PathIndexError
+naming it (and the chunk), never a traceback, unbounded memory or other pixels; even a
+forged one (its checksums made to agree) cannot crash the reader or bring NaN, pixels
+outside the image or records of classes the footer does not list. At open: the header, trailer and footer checksum, then the tables (types, ids in
+range, counts that agree, chunks inside the file and apart). When a chunk is read: its
+CRC-32, a zstd frame of exactly its columns' size, class ids among those the footer lists
+for it, pixels inside the image, rgb finite wherever the footer's class sums are.
+``PathIndex.verify`` reads every chunk and checks the rest: every rgb finite, and the
+records and summed rgb of each class what the footer says.
+"""
 
 from __future__ import annotations
 
+import itertools
 import json
+import math
 import os
 import zlib
 from collections.abc import Iterable, Iterator
@@ -13,8 +26,31 @@ import numpy as np
 import zstandard
 
 from ..errors import PathIndexError
+from ..lpe.events import ALL_SCATTERINGS, EVENT_TYPES
+from ..progress import Progress
+from ..request import MAX_PIXELS
 from . import format as fmt
 from .events import Event
+
+MAX_CHUNK_BYTES = 1 << 28
+"""The most one chunk may decode to (256 MiB): bounds the memory of reading it. The
+writer's chunks hold at most writer.CHUNK_RECORDS (2^16) records, 3.5 MB with N = 5."""
+MAX_FOOTER_BYTES = 1 << 28
+"""The most the footer's JSON may take (256 MiB): bounds the memory of opening a file.
+A render with a hundred thousand path classes writes a footer of some tens of MB."""
+
+CHUNKS_NAMED = 8
+"""How many of the chunks holding a class whose records disagree with the footer verify names."""
+RGB_SUM_TOLERANCE = 1e-6
+"""How far (relative to the summed |rgb|) verify lets a class's summed rgb stray from the
+footer's: both are float64 sums of the same float32 values, in another order (the footer's
+per flush of the writer), which differ by some 1e-16 × the number of records at most."""
+
+RENDER_KEYS = {"stage": str, "stage_sha256": str, "camera": str, "frame": str, "variants": str,
+               "defaultLights": str, "beauty": str, "version": str, "maxDepth": str, "spp": int,
+               "seed": int, "max_depth": int, "subdiv_level": int}
+"""Manifest keys that whoever wrote the index may give (PathIndexWriter stores its manifest
+as given) and that pxr-layers reads, with their types; checked when present."""
 
 
 class PathClass:
@@ -54,13 +90,41 @@ class RecordChunk:
     norms: np.ndarray
 
 
+class Manifest(dict):
+    """The footer's manifest. A key it lacks is a PathIndexError naming the file, not a
+    KeyError in whatever reads it: the render's keys (resolution, spp, ...) are given by
+    whoever wrote the index, and an index written by other code may lack them."""
+
+    def __init__(self, values: dict, path: Path):
+        super().__init__(values)
+        self.path = path
+
+    def __missing__(self, key):
+        raise PathIndexError(f"its manifest has no {key!r} (not written by `pxr-layers render`?)",
+                             file=str(self.path))
+
+
+class _Malformed(ValueError):
+    """A footer whose checksum matches but whose tables make no sense (a foreign or buggy
+    writer, or a forged file): PathIndex turns it into a PathIndexError naming the file."""
+
+
 class PathIndex:
-    """An open path index. Checks the header, trailer, version and footer checksum at
-    open; every chunk's checksum when it is read. Memory: the tables, plus one chunk at
-    a time while streaming records."""
+    """An open path index. Checks the header, trailer, version, footer checksum and tables
+    at open; every chunk when it is read (module docstring). Memory: the tables, plus one
+    chunk at a time while streaming records."""
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
+        footer = self._footer_bytes()
+        try:
+            self._load(self._footer_tables(footer))
+        except _Malformed as error:
+            raise self._error(f"corrupted footer: {error}") from None
+
+    def _footer_bytes(self) -> bytes:
+        """The footer, after checking the header, trailer and footer checksum; sets size
+        and the footer's offset."""
         try:
             self.size = self.path.stat().st_size
             with open(self.path, "rb") as file:
@@ -72,35 +136,130 @@ class PathIndex:
                 if self.size < fmt.HEADER.size + fmt.TRAILER.size:
                     raise self._error("truncated: the file ends before its trailer (an interrupted write?)")
                 file.seek(self.size - fmt.TRAILER.size)
-                offset, length, crc, _, magic = fmt.TRAILER.unpack(file.read(fmt.TRAILER.size))
+                offset, length, crc, trailer_version, magic = fmt.TRAILER.unpack(file.read(fmt.TRAILER.size))
                 if magic != fmt.TRAILER_MAGIC:
                     raise self._error("truncated or incomplete: no trailer at the end of the file "
                                       "(an interrupted write?)")
-                if offset + length + fmt.TRAILER.size != self.size:
+                if offset < fmt.HEADER.size or offset + length + fmt.TRAILER.size != self.size:
                     raise self._error("corrupted: the trailer points outside the file")
+                if trailer_version != version:
+                    raise self._error(f"corrupted: the trailer says format version {trailer_version}, "
+                                      f"the header {version}")
                 file.seek(offset)
                 footer = file.read(length)
         except OSError as error:
             raise PathIndexError(f"cannot read ({error.strerror or error})", file=str(self.path)) from error
         if zlib.crc32(footer) != crc:
             raise self._error("corrupted: the footer's checksum does not match")
+        self._footer_offset = offset
+        return footer
+
+    def _footer_tables(self, footer: bytes) -> dict:
         try:
-            tables = json.loads(zstandard.ZstdDecompressor().decompress(footer))
-        except (zstandard.ZstdError, ValueError) as error:
-            raise self._error(f"corrupted footer ({error})") from error
-        self.manifest: dict = tables["manifest"]
-        self.labels: tuple[str, ...] = tuple(tables["labels"])
-        self.events: tuple[Event, ...] = tuple(
-            Event(kind, scatter, frozenset(self.labels[i] for i in ids), *name)
-            for kind, scatter, ids, *name in tables["events"]
-        )
-        self.classes: tuple[PathClass, ...] = tuple(
+            size = zstandard.frame_content_size(footer)
+            if not 0 <= size <= MAX_FOOTER_BYTES:
+                raise _Malformed(f"it states a size of {size} bytes, not 0 to MAX_FOOTER_BYTES ({MAX_FOOTER_BYTES})")
+            tables = json.loads(zstandard.ZstdDecompressor().decompress(footer, allow_extra_data=False))
+        except (zstandard.ZstdError, ValueError, RecursionError) as error:
+            raise _Malformed(str(error) or type(error).__name__) from None
+        if type(tables) is not dict:
+            raise _Malformed("not a JSON object")
+        return tables
+
+    def _load(self, tables: dict) -> None:
+        """The tables, checked: raises _Malformed."""
+        manifest = _typed(tables, "manifest", dict)
+        self.labels: tuple[str, ...] = tuple(_typed(tables, "labels", list))
+        if not all(type(label) is str for label in self.labels):
+            raise _Malformed("a label is not a string")
+        self.events: tuple[Event, ...] = tuple(self._event(entry) for entry in _typed(tables, "events", list))
+        class_events = _id_lists(_typed(tables, "classes", list), len(self.events), "a class's event ids")
+        records_listed, rgb_listed = _typed(tables, "class_records", list), _typed(tables, "class_rgb", list)
+        class_records = _counts(records_listed, "class_records")
+        class_rgb = _array(rgb_listed or np.zeros((0, 3)), "class_rgb")
+        if len(class_records) != len(class_events) or class_rgb.shape != (len(class_events), 3) \
+                or class_rgb.dtype.kind not in "iuf":
+            raise _Malformed(f"class_records and class_rgb do not give counts and rgb for its "
+                             f"{len(class_events)} classes")
+        self.classes: tuple[PathClass, ...] = tuple(  # from the JSON lists, checked above (3x faster than tolist)
             PathClass(index, tuple(events), records, tuple(rgb), self.events)
-            for index, (events, records, rgb) in enumerate(
-                zip(tables["classes"], tables["class_records"], tables["class_rgb"]))
-        )
-        self.chunks: tuple[dict, ...] = tuple(tables["chunks"])
+            for index, (events, records, rgb) in enumerate(zip(class_events, records_listed, rgb_listed)))
+        # A class whose summed rgb is finite has finite records only: a record that is not
+        # is damage (a render with NaN contributions has NaN sums, and is read as it is).
+        self._finite_class = np.isfinite(class_rgb).all(axis=1)
+        self._class_records = class_records
+        self._class_rgb = class_rgb.astype(np.float64)
+        self.chunks: tuple[dict, ...] = tuple(_typed(tables, "chunks", list))
+        self._check_manifest(manifest)
+        self.manifest: Manifest = Manifest(manifest, self.path)
+        self._check_chunks()
+        total = sum(records_listed)  # Python ints: a forged count cannot wrap around
+        if not manifest["records"] == total == sum(chunk["records"] for chunk in self.chunks):
+            raise _Malformed(f"the manifest says {manifest['records']} records, its classes {total}, its chunks "
+                             f"{sum(chunk['records'] for chunk in self.chunks)}")
+        if manifest["classes"] != len(self.classes):
+            raise _Malformed(f"the manifest says {manifest['classes']} classes, its table holds {len(self.classes)}")
+
+    def _event(self, entry) -> Event:
+        if type(entry) is not list or len(entry) not in (3, 4):
+            raise _Malformed("an event is not [type, scatter, label ids, name]")
+        kind, scatter, label_ids, *name = entry
+        if type(kind) is not str or len(kind) != 1 or kind not in EVENT_TYPES or scatter not in ALL_SCATTERINGS \
+                or not all(type(text) is str for text in name):
+            raise _Malformed(f"an event has type {kind!r}, scattering {scatter!r}")
+        ids = _ids(label_ids if type(label_ids) is list else [None], len(self.labels), "an event's label ids")
+        return Event(kind, scatter, frozenset(self.labels[i] for i in ids.tolist()), *name)
+
+    def _check_manifest(self, manifest: dict) -> None:
+        """The writer's own keys must be there; the render's (RENDER_KEYS, resolution) are
+        checked when present. Sets _pixels, the image's pixel count (None: not given)."""
+        for key, kind in (("norm_slots", int), ("records", int), ("classes", int), ("contributions", int),
+                          ("format_version", int), ("norms", dict), ("norm_storage", str), ("aggregated", bool)):
+            _typed(manifest, key, kind, "the manifest's ")
+        if manifest["norm_slots"] < 0:
+            raise _Malformed(f"the manifest's norm_slots is {manifest['norm_slots']}")
+        if not all(type(name) is str and type(unit) is str for name, unit in manifest["norms"].items()):
+            raise _Malformed("the manifest's norms are not names and units")
+        for key, kind in RENDER_KEYS.items():
+            if key in manifest:
+                _typed(manifest, key, kind, "the manifest's ")
+        if manifest.get("spp", 1) < 1:
+            raise _Malformed(f"the manifest's spp is {manifest['spp']}")
+        frame = manifest.get("frame", "default")
+        if frame != "default" and not math.isfinite(_number(frame)):
+            raise _Malformed(f"the manifest's frame is {frame!r}, not a finite number or 'default'")
+        self._pixels = None  # pixels in the image, when the manifest says
+        if "resolution" in manifest:
+            resolution = manifest["resolution"]
+            if type(resolution) is not list or len(resolution) != 2 \
+                    or not all(type(n) is int and n > 0 for n in resolution) \
+                    or resolution[0] * resolution[1] > MAX_PIXELS:
+                raise _Malformed(f"the manifest's resolution is {resolution!r}, not two sizes of at most "
+                                 f"MAX_PIXELS ({MAX_PIXELS}) pixels in all")
+            self._pixels = resolution[0] * resolution[1]
+
+    def _check_chunks(self) -> None:
+        """Each chunk: its fields, its classes, its decoded size, and its bytes inside the
+        file between the header and the footer, apart from the others."""
         self.norm_slots: int = self.manifest["norm_slots"]
+        self._record_bytes = sum(dtype.itemsize * int(np.prod(shape))  # the decoded bytes of one record
+                                 for _, dtype, shape in fmt.column_sizes(1, self.norm_slots))
+        end = fmt.HEADER.size
+        for number, chunk in enumerate(self.chunks):
+            if type(chunk) is not dict:
+                raise _Malformed(f"chunk {number} is not a JSON object")
+            for key in ("offset", "bytes", "crc32", "records"):
+                if type(chunk.get(key)) is not int or chunk[key] < 0:
+                    raise _Malformed(f"chunk {number}'s {key!r} is not a whole number >= 0")
+            _id_lists([_typed(chunk, "classes", list, f"chunk {number}'s ")], len(self.classes),
+                      f"chunk {number}'s classes")
+            if chunk["records"] * self._record_bytes > MAX_CHUNK_BYTES:
+                raise _Malformed(f"chunk {number} holds {chunk['records']} records, more than MAX_CHUNK_BYTES "
+                                 f"({MAX_CHUNK_BYTES}) bytes")
+            if chunk["offset"] < end or chunk["offset"] + fmt.CHUNK_HEADER.size + chunk["bytes"] > self._footer_offset:
+                raise _Malformed(f"chunk {number} at byte {chunk['offset']} overlaps the one before, "
+                                 "the header or the footer")
+            end = chunk["offset"] + fmt.CHUNK_HEADER.size + chunk["bytes"]
 
     @property
     def record_count(self) -> int:
@@ -117,38 +276,102 @@ class PathIndex:
         if classes is not None:  # a lookup table: wanted[class id]
             wanted = np.zeros(len(self.classes), bool)
             wanted[np.fromiter(classes, np.int64)] = True
-        decompressor = zstandard.ZstdDecompressor()
-        with open(self.path, "rb") as file:
+        with self._open() as file:
             for number, chunk in enumerate(self.chunks):
                 chunk_wanted = None if wanted is None else wanted[np.asarray(chunk["classes"], np.int64)]
                 if chunk_wanted is not None and not chunk_wanted.any():
                     continue
-                file.seek(chunk["offset"])
-                head = file.read(fmt.CHUNK_HEADER.size)
-                payload = file.read(chunk["bytes"])
-                magic, length, crc, records = fmt.CHUNK_HEADER.unpack(head) if len(head) == fmt.CHUNK_HEADER.size \
-                    else (b"", 0, 0, 0)
-                if magic != fmt.CHUNK_MAGIC or length != chunk["bytes"] or len(payload) != length:
-                    raise self._error(f"corrupted: chunk {number} at byte {chunk['offset']} has a bad header")
-                if zlib.crc32(payload) != crc or crc != chunk["crc32"]:
-                    raise self._error(f"corrupted: chunk {number} at byte {chunk['offset']} fails its checksum")
-                decoded = self._decode(decompressor.decompress(payload), records, number, norms)
+                decoded = self._read_chunk(file, number, norms)
                 if chunk_wanted is not None and not chunk_wanted.all():
                     keep = wanted[decoded.class_id]
-                    decoded = RecordChunk(*(column[keep] if len(column) else column for column in vars(decoded).values()))
+                    decoded = RecordChunk(*(column[keep] if len(column) else column
+                                            for column in vars(decoded).values()))
                 yield decoded
 
-    def _decode(self, data: bytes, records: int, number: int, all_columns: bool) -> RecordChunk:
+    def verify(self, *, show_progress: bool = False) -> int:
+        """Read every chunk and check all of it (module docstring), also that every rgb is
+        finite and that each class has the records and the summed rgb (to RGB_SUM_TOLERANCE)
+        the footer says; returns the number of chunks. Raises PathIndexError naming the file
+        and the first bad chunk's number and byte offset (for a class whose counts or sums
+        are wrong, the chunks holding it). Progress (records) on stderr when `show_progress`."""
+        classes = len(self.classes)
+        counts = np.zeros(classes, np.int64)
+        sums, magnitudes = np.zeros((classes, 3)), np.zeros((classes, 3))  # float64 sums of rgb and |rgb|
+        progress = Progress(self.record_count, "verify", enabled=show_progress)
+        with self._open() as file:
+            for number in range(len(self.chunks)):
+                decoded = self._read_chunk(file, number, True)
+                wrong = ~np.isfinite(decoded.rgb).all(axis=1)
+                if wrong.any():
+                    raise self._chunk_error(number, f"holds {int(wrong.sum())} records of NaN or infinite rgb "
+                                            f"(class {int(decoded.class_id[wrong][0])} first): the render went wrong",
+                                            damaged=False)
+                counts += np.bincount(decoded.class_id, minlength=classes)
+                for channel in range(3):
+                    sums[:, channel] += np.bincount(decoded.class_id, decoded.rgb[:, channel], classes)
+                    magnitudes[:, channel] += np.bincount(decoded.class_id, np.abs(decoded.rgb[:, channel]), classes)
+                progress.advance(len(decoded.class_id))
+        for class_id in np.flatnonzero(counts != self._class_records)[:1].tolist():
+            raise self._error(f"corrupted: class {class_id} has {counts[class_id]} records in the chunks, the footer "
+                              f"says {self._class_records[class_id]} ({self._holders(class_id)})")
+        # not (difference <= tolerance): a NaN sum in the footer (its records are finite) disagrees too
+        off = ~(np.abs(sums - self._class_rgb) <= RGB_SUM_TOLERANCE * magnitudes)
+        for class_id in np.flatnonzero(off.any(axis=1))[:1].tolist():
+            raise self._error(f"corrupted: class {class_id}'s records sum to rgb "
+                              f"({', '.join(f'{value:.7g}' for value in sums[class_id])}), the footer says "
+                              f"({', '.join(f'{value:.7g}' for value in self._class_rgb[class_id])}) "
+                              f"({self._holders(class_id)})")
+        return len(self.chunks)
+
+    def _holders(self, class_id: int) -> str:
+        """'held by chunks 3, 4': the chunks whose footer entries list the class."""
+        holders = [str(number) for number, chunk in enumerate(self.chunks) if class_id in chunk["classes"]]
+        return f"held by chunks {', '.join(holders[:CHUNKS_NAMED])}{', ...' if len(holders) > CHUNKS_NAMED else ''}"
+
+    def _open(self):
+        try:
+            return open(self.path, "rb")
+        except OSError as error:
+            raise PathIndexError(f"cannot read ({error.strerror or error})", file=str(self.path)) from error
+
+    def _read_chunk(self, file, number: int, all_columns: bool) -> RecordChunk:
+        """Chunk `number`, read from `file` and checked (all_columns: with samples and norms)."""
+        chunk = self.chunks[number]
+        try:
+            file.seek(chunk["offset"])
+            head = file.read(fmt.CHUNK_HEADER.size)
+            payload = file.read(chunk["bytes"])
+        except OSError as error:
+            raise self._chunk_error(number, f"cannot be read ({error.strerror or error})") from error
+        magic, length, crc, records = fmt.CHUNK_HEADER.unpack(head) if len(head) == fmt.CHUNK_HEADER.size \
+            else (b"", 0, 0, 0)
+        if magic != fmt.CHUNK_MAGIC or length != chunk["bytes"] or len(payload) != length \
+                or records != chunk["records"]:
+            raise self._chunk_error(number, "has a bad header")
+        if zlib.crc32(payload) != crc or crc != chunk["crc32"]:
+            raise self._chunk_error(number, "fails its checksum")
+        size = records * self._record_bytes
+        try:
+            if zstandard.frame_content_size(payload) != size:
+                raise self._chunk_error(number, f"does not hold its {records} records")
+            data = zstandard.ZstdDecompressor().decompress(payload, allow_extra_data=False)
+        except zstandard.ZstdError as error:
+            raise self._chunk_error(number, f"is not a zstd frame of its records ({error})") from None
+        if len(data) != size:
+            raise self._chunk_error(number, f"does not hold its {records} records")
+        decoded = self._decode(data, fmt.column_sizes(records, self.norm_slots), all_columns)
+        self._check_records(decoded, number)
+        return decoded
+
+    def _decode(self, data: bytes, layout, all_columns: bool) -> RecordChunk:
         columns = {}
         position = 0
-        layout = fmt.column_sizes(records, self.norm_slots)
-        if position + sum(int(np.prod(shape)) * dtype.itemsize for _, dtype, shape in layout) != len(data):
-            raise self._error(f"corrupted: chunk {number} does not hold its {records} records")
         for name, dtype, shape in layout:
             size = int(np.prod(shape)) * dtype.itemsize
             if all_columns or name in ("class", "pixel", "rgb"):
                 columns[name] = fmt.unshuffle(data[position:position + size], dtype, shape)
             position += size
+        records = layout[0][2][0]
         return RecordChunk(
             class_id=columns["class"].astype(np.int64),
             pixel=np.cumsum(columns["pixel"], dtype=np.int64),
@@ -157,10 +380,74 @@ class PathIndex:
             norms=columns["norms"].astype(np.float32) if all_columns else np.zeros((records, 0, 3), np.float32),
         )
 
+    def _check_records(self, decoded: RecordChunk, number: int) -> None:
+        """Class ids among the chunk's (the footer's list is what decides which chunks are
+        read), pixels inside the image, rgb finite where the class's sum is."""
+        if not np.isin(decoded.class_id, self.chunks[number]["classes"]).all():
+            raise self._chunk_error(number, "holds records of classes its footer entry does not list")
+        pixel = decoded.pixel
+        if len(pixel) and (pixel.min() < 0 or self._pixels is not None and pixel.max() >= self._pixels):
+            outside = int(pixel.min()) if pixel.min() < 0 else int(pixel.max())
+            raise self._chunk_error(number, f"holds pixel {outside}, outside the image's {self._pixels or '?'} pixels")
+        not_finite = ~np.isfinite(decoded.rgb).all(axis=1)
+        if not_finite.any() and self._finite_class[decoded.class_id[not_finite]].any():
+            raise self._chunk_error(number, "holds NaN or infinite rgb in a class whose footer sum is finite")
+
     def _check_version(self, version: int) -> None:
         if version != fmt.FORMAT_VERSION:
             raise self._error(f"written in path index format version {version}; this pxr-layers reads version "
                               f"{fmt.FORMAT_VERSION} only: render the shot again to rebuild its index")
 
+    def _chunk_error(self, number: int, message: str, *, damaged: bool = True) -> PathIndexError:
+        return self._error(f"{'corrupted: ' if damaged else ''}chunk {number} at byte "
+                           f"{self.chunks[number]['offset']} {message}")
+
     def _error(self, message: str) -> PathIndexError:
         return PathIndexError(message, file=str(self.path))
+
+
+def _typed(table: dict, key: str, kind: type, owner: str = ""):
+    """table[key], which must be of type `kind` (exactly: a bool is no int here)."""
+    value = table.get(key)
+    if type(value) is not kind:
+        raise _Malformed(f"{owner}{key!r} is {'missing' if value is None else type(value).__name__}, "
+                         f"not {kind.__name__}")
+    return value
+
+
+def _ids(values: list, bound: int, what: str) -> np.ndarray:
+    """`values` as (n,) int64: integers in [0, bound), else _Malformed."""
+    array = _array(values, what) if values else np.zeros(0, np.int64)
+    if array.ndim != 1 or array.dtype.kind not in "iu":
+        raise _Malformed(f"{what} are not integers")
+    if len(array) and (array.min() < 0 or array.max() >= bound):
+        raise _Malformed(f"{what} go outside 0 to {bound - 1}")
+    return array.astype(np.int64)
+
+
+def _id_lists(lists: list, bound: int, what: str) -> list[list[int]]:
+    """`lists`, a list of lists of integers in [0, bound), else _Malformed."""
+    if not all(type(values) is list for values in lists):
+        raise _Malformed(f"{what} are not lists")
+    _ids(list(itertools.chain.from_iterable(lists)), bound, what)
+    return lists
+
+
+def _array(values: list, what: str) -> np.ndarray:
+    """np.array(values), else _Malformed (lists of unequal lengths)."""
+    try:
+        return np.array(values)
+    except (ValueError, TypeError):
+        raise _Malformed(f"{what} are not numbers") from None
+
+
+def _counts(values: list, what: str) -> np.ndarray:
+    """`values` as (n,) int64 counts (integers >= 0), else _Malformed."""
+    return _ids(values, np.iinfo(np.int64).max, what)
+
+
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        return math.nan

@@ -1,0 +1,434 @@
+"""Hostile path indexes: truncated, flipped, forged and garbage files.
+
+Every damaged file is one PathIndexError line naming it (and the chunk and its byte offset
+where there is one), or, when the damage touched nothing the reader uses, the very pixels
+of the intact index; never a traceback, never other pixels. `index info --verify` reads
+every chunk. A forged chunk (its checksums made to agree, as a buggy or hostile writer
+could) can still move light between pixels of the image or change its rgb, which no
+reader can tell; what it cannot do is crash the reader, or bring NaN, pixels outside the
+image or records of classes the footer does not list.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import dataclasses
+import io
+import json
+import re
+import zlib
+
+import numpy as np
+import pytest
+import zstandard
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pxr_layers import lpe
+from pxr_layers.cli.main import main
+from pxr_layers.errors import PathIndexError
+from pxr_layers.layers.extract import extract
+from pxr_layers.paths import format as fmt
+from pxr_layers.paths.reader import MAX_CHUNK_BYTES, PathIndex
+from pxr_layers.paths.writer import PathIndexWriter
+from pxr_layers.trace.integrator import TraceSettings
+from pxr_layers.trace.render import render
+
+RESOLUTION = (16, 12)
+SETTINGS = TraceSettings(spp=2, max_depth=3, seed=7, norm_bounces=2, record_paths=True)
+CHUNK_RECORDS = 48  # nine chunks: damage can land in any of them
+LAYERS = {"beauty": lpe.BEAUTY, "diffuse": "C<RD>.*", "flat": "C<R.>@(|S_C| = 0).*"}  # the last reads the norms
+PROPERTY = settings(deadline=None, derandomize=True, database=None)  # reproducible, leaves no .hypothesis/
+RECORD_BYTES = sum(dtype.itemsize * int(np.prod(shape))
+                   for _, dtype, shape in fmt.column_sizes(1, SETTINGS.norm_bounces))
+
+
+@dataclasses.dataclass(frozen=True)
+class Intact:
+    """The undamaged index: its bytes, footer tables, chunk columns and layers."""
+
+    data: bytes
+    tables: dict
+    columns: list[bytes]  # per chunk, its decompressed columns
+    layers: dict[str, np.ndarray]
+
+    def __repr__(self) -> str:  # pytest and hypothesis print the arguments of a failing example
+        return f"Intact({len(self.data)} bytes, {len(self.columns)} chunks)"
+
+    def _repr_pretty_(self, printer, cycle) -> None:
+        printer.text(repr(self))
+
+
+@pytest.fixture(scope="module")
+def cornell_index(shipped_scene, tmp_path_factory) -> Intact:
+    """A tiny Cornell render's index (16 × 12 pixels, 2 spp, chunks of 48 records)."""
+    from pxr_layers.stage import load_stage
+
+    scene, spec = load_stage(shipped_scene("cornell.usda"))
+    path = tmp_path_factory.mktemp("intact") / "cornell.pxlidx"
+    writer = PathIndexWriter(path, {"spp": SETTINGS.spp, "resolution": list(RESOLUTION)}, SETTINGS.norm_bounces,
+                             chunk_records=CHUNK_RECORDS)
+    result = render(scene, dataclasses.replace(spec, resolution=RESOLUTION), SETTINGS, threads=2,
+                    show_progress=False, on_batch=lambda batch: writer.add(batch.records))
+    writer.close(result.vocabulary)
+    data = path.read_bytes()
+    tables = footer_of(data)
+    columns = [zstandard.ZstdDecompressor().decompress(data[chunk["offset"] + fmt.CHUNK_HEADER.size:][:chunk["bytes"]])
+               for chunk in tables["chunks"]]
+    assert len(columns) >= 6, len(columns)
+    return Intact(data, tables, columns, extract(PathIndex(path), LAYERS).layers)
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    return tmp_path_factory.mktemp("damaged")
+
+
+def footer_of(data: bytes):
+    """The footer tables of an index's bytes."""
+    offset, length, *_ = fmt.TRAILER.unpack(data[-fmt.TRAILER.size:])
+    return json.loads(zstandard.ZstdDecompressor().decompress(data[offset:offset + length]))
+
+
+def with_footer(data: bytes, tables) -> bytes:
+    """`data` with its footer replaced by `tables` (any JSON value), its trailer made to agree."""
+    offset, *_ = fmt.TRAILER.unpack(data[-fmt.TRAILER.size:])
+    footer = zstandard.ZstdCompressor().compress(json.dumps(tables).encode())
+    return data[:offset] + footer + fmt.TRAILER.pack(offset, len(footer), zlib.crc32(footer), fmt.FORMAT_VERSION,
+                                                     fmt.TRAILER_MAGIC)
+
+
+def forged(tables: dict, columns: list[bytes], *, compress=None) -> bytes:
+    """An index of these tables and chunk columns with every offset, size and CRC-32 made
+    to agree: damage no checksum can catch. compress: bytes -> a chunk's payload."""
+    compress = compress or zstandard.ZstdCompressor(level=fmt.ZSTD_LEVEL).compress
+    tables = copy.deepcopy(tables)
+    data = bytearray(fmt.HEADER.pack(fmt.HEADER_MAGIC, fmt.FORMAT_VERSION, 0))
+    for chunk, chunk_columns in zip(tables["chunks"], columns, strict=True):
+        payload = compress(chunk_columns)
+        chunk.update(offset=len(data), bytes=len(payload), crc32=zlib.crc32(payload))
+        data += fmt.CHUNK_HEADER.pack(fmt.CHUNK_MAGIC, len(payload), chunk["crc32"], chunk["records"]) + payload
+    data += fmt.TRAILER.pack(len(data), 0, 0, fmt.FORMAT_VERSION, fmt.TRAILER_MAGIC)  # where the footer goes
+    return with_footer(bytes(data), tables)
+
+
+def with_column(columns: list[bytes], number: int, name: str, change) -> list[bytes]:
+    """`columns` with chunk `number`'s column `name` replaced by change(values) (a copy)."""
+    records = len(columns[number]) // RECORD_BYTES
+    start = 0
+    for column, dtype, shape in fmt.column_sizes(records, SETTINGS.norm_bounces):
+        size = int(np.prod(shape)) * dtype.itemsize
+        if column == name:
+            values = change(fmt.unshuffle(columns[number][start:start + size], dtype, shape).copy())
+            changed = list(columns)
+            changed[number] = (columns[number][:start] + fmt.shuffle(values.astype(dtype))
+                               + columns[number][start + size:])
+            return changed
+        start += size
+    raise KeyError(name)
+
+
+def cli(*argv: str) -> tuple[int, str, str]:
+    """(exit code, stdout, stderr) of `pxr-layers ARGV`, in this process."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(list(argv))
+    return code, out.getvalue(), err.getvalue()
+
+
+def assert_one_line_naming(path, code: int, stderr: str) -> None:
+    assert code == 1, stderr
+    assert len(stderr.strip().splitlines()) == 1 and stderr.startswith(f"pxr-layers: error: {path}: "), stderr
+
+
+def assert_refused_or_intact(data: bytes, intact: Intact, folder) -> None:
+    """`index info`, `index info --verify` and extracting layers from `data` either refuse
+    it in one line naming the file, or (verify passing, or nothing touched) give the
+    intact index's pixels exactly."""
+    path = folder / "damaged.pxlidx"
+    path.write_bytes(data)
+    for flags in ([], ["--verify"]):
+        code, _, stderr = cli("index", "info", "-q", *flags, str(path))
+        if code:
+            assert_one_line_naming(path, code, stderr)
+    verified = code == 0
+    try:
+        layers = extract(PathIndex(path), LAYERS).layers
+    except PathIndexError as error:
+        assert str(error).startswith(f"{path}: ") and "\n" not in str(error)
+        assert not verified, "a file --verify passes must extract"
+        return
+    for name, image in intact.layers.items():
+        assert np.array_equal(layers[name], image), f"{name}: other pixels from a damaged index"
+
+
+# -- index info --verify
+
+
+def test_info_says_chunks_are_not_verified_and_verify_reads_them(cornell_index, folder):
+    path = folder / "intact.pxlidx"
+    path.write_bytes(cornell_index.data)
+    code, out, _ = cli("index", "info", str(path))
+    assert code == 0 and "chunks       not verified (--verify reads every chunk)" in out
+    code, out, _ = cli("index", "info", "--verify", "-q", str(path))
+    chunks = len(cornell_index.tables["chunks"])
+    assert code == 0 and f"chunks       verified: {chunks} chunks, CRC-32 and contents ok" in out
+    assert PathIndex(path).verify() == chunks
+
+
+@pytest.mark.parametrize("number", [0, 3, -1])
+def test_verify_names_the_chunk_of_a_flipped_payload_byte(cornell_index, folder, number):
+    chunk = cornell_index.tables["chunks"][number]
+    number %= len(cornell_index.tables["chunks"])
+    data = bytearray(cornell_index.data)
+    data[chunk["offset"] + fmt.CHUNK_HEADER.size + chunk["bytes"] // 2] ^= 0x10
+    path = folder / "flipped.pxlidx"
+    path.write_bytes(bytes(data))
+    assert cli("index", "info", str(path))[0] == 0  # the tables are intact: only reading chunks finds it
+    code, out, stderr = cli("index", "info", "--verify", str(path))
+    assert_one_line_naming(path, code, stderr)
+    assert f"chunk {number} at byte {chunk['offset']} fails its checksum" in stderr and not out
+
+
+@pytest.mark.parametrize("keep", [0.9, 0.5, 0.02])
+def test_verify_refuses_a_truncated_file(cornell_index, folder, keep):
+    path = folder / "cut.pxlidx"
+    path.write_bytes(cornell_index.data[:int(len(cornell_index.data) * keep)])
+    code, _, stderr = cli("index", "info", "--verify", str(path))
+    assert_one_line_naming(path, code, stderr)
+    assert "truncated" in stderr
+
+
+# -- forged chunks: the checksums agree, the contents do not
+
+
+def unlisted_class(tables: dict, number: int) -> int:
+    """A class of the index that chunk `number` does not hold."""
+    return min(set(range(len(tables["classes"]))) - set(tables["chunks"][number]["classes"]))
+
+
+def first_record_nan(rgb: np.ndarray) -> np.ndarray:
+    return np.where(np.arange(len(rgb))[:, None] == 0, np.float32("nan"), rgb)
+
+
+FORGED_CHUNKS = {  # damage: (column, tables -> change of its values, what the error says)
+    "a class id past the table": ("class", lambda t: lambda ids: np.full_like(ids, len(t["classes"])),
+                                  "holds records of classes its footer entry does not list"),
+    "a class its footer entry does not list": (
+        "class", lambda t: lambda ids: np.full_like(ids, unlisted_class(t, 2)),
+        "holds records of classes its footer entry does not list"),
+    "a pixel past the image": ("pixel", lambda t: lambda deltas: deltas + np.int32(RESOLUTION[0] * RESOLUTION[1]),
+                               f"outside the image's {RESOLUTION[0] * RESOLUTION[1]} pixels"),
+    "a negative pixel": ("pixel", lambda t: lambda deltas: np.r_[np.int32(-1), deltas[1:]], "holds pixel -"),
+    "NaN rgb in a class of finite sum": ("rgb", lambda t: first_record_nan,
+                                         "NaN or infinite rgb in a class whose footer sum is finite"),
+}
+
+
+@pytest.mark.parametrize("damage", list(FORGED_CHUNKS))
+def test_forged_records_are_refused_naming_the_chunk(cornell_index, folder, damage):
+    column, change, message = FORGED_CHUNKS[damage]
+    change = change(cornell_index.tables)
+    path = folder / "forged.pxlidx"
+    path.write_bytes(forged(cornell_index.tables, with_column(cornell_index.columns, 2, column, change)))
+    offset = PathIndex(path).chunks[2]["offset"]
+    for read in (lambda index: index.verify(), lambda index: extract(index, LAYERS),
+                 lambda index: list(index.records(norms=False))):
+        with pytest.raises(PathIndexError) as error:
+            read(PathIndex(path))
+        assert str(error.value).startswith(f"{path}: corrupted: chunk 2 at byte {offset} ")
+        assert message in str(error.value)
+
+
+@pytest.mark.parametrize("payload, message", [
+    (lambda columns: zstandard.ZstdCompressor().compress(columns[:-1]), "does not hold its"),
+    (lambda columns: zstandard.ZstdCompressor(write_content_size=False).compress(columns), "does not hold its"),
+    (lambda columns: b"not zstd" + columns[:50], "is not a zstd frame of its records"),
+    (lambda columns: zstandard.ZstdCompressor().compress(columns) + b"extra", "is not a zstd frame of its records"),
+])
+def test_a_payload_of_other_sizes_is_refused_naming_the_chunk(cornell_index, folder, payload, message):
+    columns = cornell_index.columns
+    path = folder / "sizes.pxlidx"
+    path.write_bytes(forged(cornell_index.tables, columns,
+                            compress=lambda data: payload(data) if data is columns[1] else
+                            zstandard.ZstdCompressor().compress(data)))
+    index = PathIndex(path)
+    with pytest.raises(PathIndexError, match=f"chunk 1 at byte {index.chunks[1]['offset']} {message}"):
+        index.verify()
+
+
+def test_a_chunk_header_of_other_record_count_is_refused(cornell_index, folder):
+    data = bytearray(cornell_index.data)
+    chunk = cornell_index.tables["chunks"][4]
+    data[chunk["offset"] + 12:chunk["offset"] + 16] = (chunk["records"] - 1).to_bytes(4, "little")
+    path = folder / "count.pxlidx"
+    path.write_bytes(bytes(data))
+    with pytest.raises(PathIndexError, match=f"chunk 4 at byte {chunk['offset']} has a bad header"):
+        PathIndex(path).verify()
+
+
+def test_verify_counts_each_classes_records(cornell_index, folder):
+    tables = copy.deepcopy(cornell_index.tables)
+    counts = tables["class_records"]
+    first, second = [c for c in range(len(counts)) if counts[c] > 1][:2]
+    counts[first] += 1
+    counts[second] -= 1  # the total still agrees
+    path = folder / "counts.pxlidx"
+    path.write_bytes(forged(tables, cornell_index.columns))
+    extract(PathIndex(path), LAYERS)  # reading does not count per class...
+    with pytest.raises(PathIndexError, match=f"class {first} has {counts[first] - 1} records in the chunks, "
+                                             f"the footer says {counts[first]}"):
+        PathIndex(path).verify()  # ...verify does
+
+
+def test_verify_sums_each_classes_rgb(cornell_index, folder):
+    tables = copy.deepcopy(cornell_index.tables)
+    tables["class_rgb"][5][1] *= 1.001
+    path = folder / "sums.pxlidx"
+    path.write_bytes(forged(tables, cornell_index.columns))
+    holders = [str(n) for n, chunk in enumerate(tables["chunks"]) if 5 in chunk["classes"]]
+    with pytest.raises(PathIndexError, match=rf"class 5's records sum to rgb \(.*\), the footer says \(.*\) "
+                                             rf"\(held by chunks {', '.join(holders)}\)$"):
+        PathIndex(path).verify()
+
+
+def test_a_render_with_nan_contributions_is_read_but_does_not_verify(cornell_index, folder):
+    """NaN records whose class sum is NaN too are what the render made (the jobs name the
+    paths of a NaN beauty from them): read as they are, and --verify says so, not 'corrupted'."""
+    tables = copy.deepcopy(cornell_index.tables)
+    culprit = tables["chunks"][2]["classes"][0]
+    tables["class_rgb"][culprit] = [float("nan")] * 3
+    columns = with_column(cornell_index.columns, 2, "rgb", first_record_nan)
+    path = folder / "nan.pxlidx"
+    path.write_bytes(forged(tables, columns))
+    index = PathIndex(path)
+    rgb = np.concatenate([chunk.rgb for chunk in index.records(norms=False)])
+    assert np.isnan(rgb).any(axis=1).sum() == 1
+    code, _, stderr = cli("index", "info", "--verify", "-q", str(path))
+    assert_one_line_naming(path, code, stderr)
+    assert f"chunk 2 at byte {index.chunks[2]['offset']} holds 1 records of NaN or infinite rgb (class {culprit}" \
+        in stderr and "corrupted" not in stderr
+
+
+# -- forged footers
+
+
+def changed(tables: dict, change) -> dict:
+    tables = copy.deepcopy(tables)
+    change(tables)
+    return tables
+
+
+def set_key(table: dict, key: str, value):
+    table[key] = value
+
+
+FORGED_FOOTERS = {
+    "class event id past the table": lambda t: t["classes"][3].append(len(t["events"])),
+    "negative label id": lambda t: t["events"][1][2].append(-1),
+    "unknown event type": lambda t: t["events"][1].__setitem__(0, "Q"),
+    "class count mismatch": lambda t: t["class_records"].pop(),
+    "ragged class rgb": lambda t: t["class_rgb"][0].pop(),
+    "records disagree": lambda t: set_key(t["manifest"], "records", t["manifest"]["records"] + 1),
+    "zero spp": lambda t: set_key(t["manifest"], "spp", 0),
+    "resolution past MAX_PIXELS": lambda t: set_key(t["manifest"], "resolution", [1 << 20, 1 << 20]),
+    "resolution of text": lambda t: set_key(t["manifest"], "resolution", ["16", 12]),
+    "frame not a number": lambda t: set_key(t["manifest"], "frame", "tomorrow"),
+    "norm slots of text": lambda t: set_key(t["manifest"], "norm_slots", "2"),
+    "chunk classes past the table": lambda t: t["chunks"][1]["classes"].append(len(t["classes"])),
+    "a huge chunk": lambda t: set_key(t["chunks"][1], "records", MAX_CHUNK_BYTES),
+    "overlapping chunks": lambda t: set_key(t["chunks"][2], "offset", t["chunks"][1]["offset"] + 1),
+    "chunk without offset": lambda t: t["chunks"][1].pop("offset"),
+    "tables not an object": lambda t: [1, 2],
+}
+
+
+@pytest.mark.parametrize("damage", list(FORGED_FOOTERS))
+def test_a_forged_footer_is_refused_at_open(cornell_index, folder, damage):
+    tables = copy.deepcopy(cornell_index.tables)
+    replaced = FORGED_FOOTERS[damage](tables)
+    path = folder / "footer.pxlidx"
+    path.write_bytes(with_footer(cornell_index.data, tables if replaced is None else replaced))
+    code, _, stderr = cli("index", "info", str(path))
+    assert_one_line_naming(path, code, stderr)
+    assert "corrupted footer" in stderr
+
+
+def test_an_index_without_a_resolution_is_refused_when_extracting(cornell_index, folder):
+    """Other code than `pxr-layers render` may write an index without the render's keys:
+    reading its records works, extracting layers (which needs the image size) is one error."""
+    tables = changed(cornell_index.tables, lambda t: t["manifest"].pop("resolution"))
+    path = folder / "bare.pxlidx"
+    path.write_bytes(forged(tables, cornell_index.columns))
+    index = PathIndex(path)
+    assert index.verify() == len(index.chunks)
+    with pytest.raises(PathIndexError, match=f"^{re.escape(str(path))}: its manifest has no 'resolution'"):
+        extract(index, LAYERS)
+
+
+# -- properties: random damage anywhere
+
+
+@settings(PROPERTY, max_examples=40)
+@given(data=st.data())
+def test_a_file_truncated_anywhere_is_refused(cornell_index, folder, data):
+    keep = data.draw(st.integers(0, len(cornell_index.data) - 1), label="bytes kept")
+    assert_refused_or_intact(cornell_index.data[:keep], cornell_index, folder)
+
+
+@settings(PROPERTY, max_examples=80)
+@given(data=st.data())
+def test_flipped_bytes_anywhere_are_refused_or_change_nothing(cornell_index, folder, data):
+    size = len(cornell_index.data)
+    footer, *_ = fmt.TRAILER.unpack(cornell_index.data[-fmt.TRAILER.size:])
+    offsets = st.one_of(st.integers(0, size - 1),  # anywhere: most of this small file is its footer
+                        st.integers(fmt.HEADER.size, footer - 1),  # in the chunks
+                        st.integers(0, fmt.HEADER.size - 1), st.integers(size - fmt.TRAILER.size, size - 1))
+    flips = data.draw(st.lists(st.tuples(offsets, st.integers(1, 255)), min_size=1, max_size=8),
+                      label="(offset, xor) flips")
+    damaged = bytearray(cornell_index.data)
+    for offset, xor in flips:
+        damaged[offset] ^= xor
+    assert_refused_or_intact(bytes(damaged), cornell_index, folder)
+
+
+@settings(PROPERTY, max_examples=40)
+@given(garbage=st.one_of(
+    st.binary(max_size=2048),
+    st.binary(max_size=2048).map(lambda tail: fmt.HEADER.pack(fmt.HEADER_MAGIC, fmt.FORMAT_VERSION, 0) + tail),
+    st.tuples(st.binary(max_size=2048), st.integers(0, 4096), st.integers(0, 4096)).map(
+        lambda parts: fmt.HEADER.pack(fmt.HEADER_MAGIC, fmt.FORMAT_VERSION, 0) + parts[0] + fmt.TRAILER.pack(
+            parts[1], parts[2], 0, fmt.FORMAT_VERSION, fmt.TRAILER_MAGIC)),
+))
+def test_garbage_is_refused(cornell_index, folder, garbage):
+    assert_refused_or_intact(garbage, cornell_index, folder)
+
+
+@settings(PROPERTY, max_examples=60)
+@given(data=st.data())
+def test_forged_chunk_contents_never_crash_the_reader(cornell_index, folder, data):
+    """Bytes flipped in a chunk's decoded columns, checksums made to agree: a PathIndexError
+    naming the chunk, or layers that are finite images of the right size."""
+    number = data.draw(st.integers(0, len(cornell_index.columns) - 1), label="chunk")
+    size = len(cornell_index.columns[number])
+    flips = data.draw(st.lists(st.tuples(st.integers(0, size - 1), st.integers(1, 255)), min_size=1, max_size=8),
+                      label="(offset, xor) flips")
+    columns = bytearray(cornell_index.columns[number])
+    for offset, xor in flips:
+        columns[offset] ^= xor
+    path = folder / "forged.pxlidx"
+    path.write_bytes(forged(cornell_index.tables, [*cornell_index.columns[:number], bytes(columns),
+                                                   *cornell_index.columns[number + 1:]]))
+    for flags in ([], ["--verify"]):
+        code, _, stderr = cli("index", "info", "-q", *flags, str(path))
+        if code:  # a class id moved to another class of the chunk shows only in the counts
+            assert_one_line_naming(path, code, stderr)
+            assert re.search(rf"chunk {number} at byte |held by chunks (\d+, )*{number}\b", stderr), stderr
+    try:
+        layers = extract(PathIndex(path), LAYERS).layers
+    except PathIndexError as error:
+        assert str(error).startswith(f"{path}: corrupted: chunk {number} at byte") and "\n" not in str(error)
+        return
+    for name, image in cornell_index.layers.items():
+        assert layers[name].shape == image.shape and np.isfinite(layers[name]).all()
