@@ -37,7 +37,7 @@ MAX_CHUNK_BYTES = 1 << 28
 writer's chunks hold at most writer.CHUNK_RECORDS (2^16) records, 3.5 MB with N = 5."""
 MAX_FOOTER_BYTES = 1 << 28
 """The most the footer's JSON may take (256 MiB): bounds the memory of opening a file.
-A render with a hundred thousand path classes writes a footer of some tens of MB."""
+A footer takes some 100 bytes per path class: 10 MB for a hundred thousand classes."""
 
 CHUNKS_NAMED = 8
 """How many of the chunks holding a class whose records disagree with the footer verify names."""
