@@ -309,6 +309,9 @@ def test_a_render_with_nan_contributions_is_read_but_does_not_verify(cornell_ind
     assert_one_line_naming(path, code, stderr)
     assert f"chunk 2 at byte {index.chunks[2]['offset']} holds 1 records of NaN or infinite rgb (class {culprit}" \
         in stderr and "corrupted" not in stderr
+    code, _, stderr = cli("extract", str(path), "--layer", "all=C.*", "--no-previews", "-q")  # never NaN pixels
+    assert_one_line_naming(path, code, stderr)
+    assert "1 path classes carry NaN or infinite light" in stderr
 
 
 # -- forged footers

@@ -16,12 +16,15 @@ from __future__ import annotations
 
 import itertools
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from .. import lpe
+from ..errors import PathIndexError
 from ..lpe.automaton import DEAD
+from ..paths.events import path_text
 from ..paths.reader import PathIndex
 from ..progress import Progress
 
@@ -40,7 +43,17 @@ class Extraction:
 
 
 def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: bool = False) -> Extraction:
-    """Every layer of `expressions` (name → extended LPE) from `index`, in one pass."""
+    """Every layer of `expressions` (name → extended LPE) from `index`, in one pass.
+
+    An index holding NaN or infinite light (from a render that went wrong: ``render`` itself
+    refuses to keep one) is refused, naming a path class that carries it: no layer of it
+    could be trusted to sum to anything.
+    """
+    broken = [path_class for path_class in index.classes if not all(map(math.isfinite, path_class.rgb))]
+    if broken:
+        raise PathIndexError(f"{len(broken)} path classes carry NaN or infinite light (the first: "
+                             f"{path_text(broken[0].events)}); the render that wrote it went wrong",
+                             file=str(index.path))
     automata = _automata(expressions)
     for automaton in automata:
         warn_unknown_labels(automaton, index)
