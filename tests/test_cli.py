@@ -142,8 +142,8 @@ BAD_SKY = ball_lit_by("""    def DomeLight "sky"
 
 
 def bad_sky(tmp_path, texel: float) -> Path:
-    """A dome whose image holds `texel` in half its pixels: light values no reader can vet
-    (a wide-gamut HDRI holds small negative texels)."""
+    """A dome whose image holds `texel` in half its pixels (a wide-gamut HDRI holds small
+    negative texels): the reader reads NaN, infinite and negative ones as 0, with a warning."""
     pixels = np.ones((4, 8, 3), np.float32)
     pixels[:, :4] = texel
     image = oiio.ImageOutput.create(str(tmp_path / "sky.exr"))
@@ -155,15 +155,39 @@ def bad_sky(tmp_path, texel: float) -> Path:
     return shot
 
 
+def ball_of(surface_input: str) -> str:
+    """A stage: the camera and ball of ball_lit_by under a plain dome, the ball's
+    UsdPreviewSurface with `surface_input` authored (USD text): material values the reader
+    does not vet, which the beauty check is there for."""
+    return ball_lit_by(f"""    def DomeLight "sky"
+    {{
+    }}
+    def Material "look"
+    {{
+        token outputs:surface.connect = </World/look/surface.outputs:surface>
+        def Shader "surface"
+        {{
+            uniform token info:id = "UsdPreviewSurface"
+            {surface_input}
+            token outputs:surface
+        }}
+    }}""").replace('def Sphere "ball"\n    {\n', 'def Sphere "ball" (prepend apiSchemas = ["MaterialBindingAPI"])\n    {\n'
+                   '        rel material:binding = </World/look>\n')
+
+
 def test_a_beauty_with_negative_pixels_names_the_paths_that_made_them(tmp_path):
-    result = run("render", str(bad_sky(tmp_path, -5.0)), "-o", str(tmp_path / "out"), *SMALL, "--no-previews")
+    shot = tmp_path / "glow.usda"
+    shot.write_text(ball_of("color3f inputs:emissiveColor = (-5, 1, 1)"))
+    result = run("render", str(shot), "-o", str(tmp_path / "out"), *SMALL, "--no-previews")
     assert result.returncode == 0
     (warning,) = [line for line in result.stderr.splitlines() if "negative pixels" in line]
-    assert "C RD'ball' L'sky'" in warning
+    assert "C O'ball'" in warning
 
 
 def test_a_beauty_with_nan_pixels_is_refused_naming_the_paths_that_made_them(tmp_path):
-    result = run("render", str(bad_sky(tmp_path, float("nan"))), "-o", str(tmp_path / "out"), *SMALL, "--no-previews")
+    shot = tmp_path / "nan.usda"
+    shot.write_text(ball_of("color3f inputs:diffuseColor = (nan, 1, 1)"))
+    result = run("render", str(shot), "-o", str(tmp_path / "out"), *SMALL, "--no-previews")
     assert result.returncode == 1
     error = result.stderr.strip().splitlines()[-1]
     assert "NaN or infinite pixels" in error and "C RD'ball' L'sky'" in error and "Traceback" not in result.stderr

@@ -215,15 +215,16 @@ def test_job_run_from_the_command_line(tmp_path):
 
 def test_a_user_error_in_a_task_is_raised_once_not_retried(tmp_path, client):
     from pxr_layers.errors import PxrLayersError
-    from test_cli import bad_sky
+    from test_cli import ball_lit_by
 
-    stage = bad_sky(tmp_path, float("nan"))  # NaN pixels: a user error found only by rendering
+    stage = tmp_path / "nan.usda"  # a light value refused when the task reads the frame
+    stage.write_text(ball_lit_by('    def SphereLight "key"\n    {\n        float inputs:intensity = nan\n    }'))
     job_file = tmp_path / "nan.toml"
     job_file.write_text(f'stage = "{stage.name}"\nframes = "1"\n[render]\nspp = 4\nresolution = [16, 16]\n'
                         f'[output]\ndirectory = "out"\n[dask]\nretries = 2\n')
     job = load_job(job_file)
     started = time.perf_counter()
-    with pytest.raises(PxrLayersError, match="NaN or infinite pixels"):
+    with pytest.raises(PxrLayersError, match="/World/key: inputs:intensity is nan"):
         run_job(job, client=client)
     assert time.perf_counter() - started < 60
     assert not list((tmp_path / "out").glob("*.exr")) and not list((tmp_path / "out").glob("*.pxlidx"))

@@ -1,5 +1,6 @@
-"""stage/: broken geometry is skipped with a warning naming the prim (never NaN points or a
-traceback), and model draw modes (UsdGeomModelAPI) replace what they should.
+"""stage/: broken geometry is skipped with a warning naming the prim, or is an error naming
+the prim and attribute (never NaN points or a traceback), and model draw modes
+(UsdGeomModelAPI) replace what they should.
 
 The walk (walk.py) is tested directly through a ReadContext; the points of what it finds are
 placed with implicit.tessellate and placement.place_surface, as the reader does.
@@ -15,6 +16,7 @@ import OpenImageIO as oiio
 import pytest
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel, Vt
 
+from pxr_layers.errors import StageError
 from pxr_layers.stage.context import ReadContext
 from pxr_layers.stage.diagnostics import Diagnostics
 from pxr_layers.stage.draw_modes import (
@@ -29,6 +31,7 @@ from test_stage_materials import texture_input
 from pxr_layers.stage.implicit import is_implicit, tessellate, unusable_dimension
 from pxr_layers.stage.materials import MaterialLibrary
 from pxr_layers.stage.placement import place_surface
+from pxr_layers.stage.surfaces import read_mesh
 from pxr_layers.stage.textures import TextureLibrary
 from pxr_layers.stage.walk import compose_instance_transforms, walk_stage
 
@@ -82,31 +85,34 @@ def one_warning(warnings, fragment: str) -> str:
 # --- implicit gprims whose sizes make no surface --------------------------------------------
 
 
-BAD_SIZES = [
-    ("Sphere", "radius", -1.0, "radius is -1"),
+# Sizes of 0: a shape that is not there, skipped with a warning.
+EMPTY_SIZES = [
     ("Sphere", "radius", 0.0, "radius is 0"),
+    ("Cube", "size", 0.0, "size is 0"),
+    ("Cylinder", "height", 0.0, "height is 0"),
+    ("Cone", "radius", 0.0, "radius is 0"),
+    ("Plane", "width", 0.0, "width is 0"),
+]
+# Sizes no shape has: an error naming the prim and the attribute.
+INVALID_SIZES = [
+    ("Sphere", "radius", -1.0, "radius is -1"),
     ("Sphere", "radius", NAN, "radius is nan"),
     ("Sphere", "radius", INF, "radius is inf"),
-    ("Cube", "size", 0.0, "size is 0"),
     ("Cube", "size", -2.0, "size is -2"),
     ("Cube", "size", NAN, "size is nan"),
     ("Cylinder", "radius", -1.0, "radius is -1"),
-    ("Cylinder", "height", 0.0, "height is 0"),
     ("Cylinder", "height", INF, "height is inf"),
-    ("Cone", "radius", 0.0, "radius is 0"),
     ("Cone", "height", -1.0, "height is -1"),
     ("Capsule", "radius", NAN, "radius is nan"),
     ("Capsule", "height", -1.0, "height is -1"),
-    ("Plane", "width", 0.0, "width is 0"),
     ("Plane", "length", -1.0, "length is -1"),
     ("Cylinder_1", "radiusBottom", -1.0, "radiusBottom is -1"),
     ("Capsule_1", "height", NAN, "height is nan"),
 ]
 
 
-@pytest.mark.parametrize("type_name, attribute, value, reason", BAD_SIZES)
-def test_implicit_gprim_with_unusable_size_is_skipped_with_a_warning(type_name, attribute, value,
-                                                                      reason):
+@pytest.mark.parametrize("type_name, attribute, value, reason", EMPTY_SIZES)
+def test_implicit_gprim_of_size_zero_is_skipped_with_a_warning(type_name, attribute, value, reason):
     stage = new_stage()
     bad = stage.DefinePrim("/World/bad", type_name)
     bad.GetAttribute(attribute).Set(value)
@@ -117,8 +123,20 @@ def test_implicit_gprim_with_unusable_size_is_skipped_with_a_warning(type_name, 
     assert f"/World/bad ({reason})" in warning and "skipped" in warning
     assert unusable_dimension(bad, TIME) == reason
     with pytest.raises(ValueError, match=reason):
-        tessellate(bad, TIME)  # never NaN points, even when called without the check
+        tessellate(bad, TIME)  # never collapsed triangles, even when called without the check
     assert np.isfinite(placed_points(contents.gprims[0])).all()
+
+
+@pytest.mark.parametrize("type_name, attribute, value, reason", INVALID_SIZES)
+def test_implicit_gprim_of_invalid_size_is_an_error_naming_prim_and_attribute(type_name, attribute, value, reason):
+    stage = new_stage()
+    bad = stage.DefinePrim("/World/bad", type_name)
+    bad.GetAttribute(attribute).Set(value)
+    with pytest.raises(StageError, match=f"test.usda, prim /World/bad: {reason}: a size must be") as raised:
+        walk(stage)
+    assert raised.value.prim == "/World/bad"
+    with pytest.raises(ValueError, match=reason):
+        tessellate(bad, TIME)  # never NaN points, even when called without the check
 
 
 def test_tapered_shapes_need_one_radius_and_a_blocked_size_has_no_value():
@@ -147,6 +165,19 @@ def test_degenerate_but_valid_implicit_shapes_still_render():
         assert np.isfinite(points).all() and np.ptp(points, axis=0).min() > 0.5
 
 
+@pytest.mark.parametrize("bad_value", [NAN, INF])
+def test_a_mesh_with_non_finite_points_is_skipped_with_a_warning_naming_it(bad_value):
+    stage = new_stage()
+    mesh = UsdGeom.Mesh.Define(stage, "/World/broken")
+    mesh.CreatePointsAttr([(0, 0, 0), (bad_value, 0, 0), (0, 1, 0)])
+    mesh.CreateFaceVertexCountsAttr([3])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2])
+    diagnostics = Diagnostics()
+    assert read_mesh(mesh.GetPrim(), TIME, "st", diagnostics, "test.usda", subdiv_level=0) is None
+    (warning,) = diagnostics.finish()
+    assert "NaN or infinite points skipped: /World/broken (1 of 3 points)" in warning
+
+
 # --- non-finite transforms ------------------------------------------------------------------
 
 
@@ -170,8 +201,9 @@ def test_gprims_lights_and_instancers_under_a_non_finite_transform_are_skipped(b
     assert paths(contents) == ["/fine"]
     assert [str(light.GetPath()) for light in contents.lights] == ["/fineLamp"]
     warning = one_warning(warnings, "NaN or infinite transforms")
-    for path in ("/Broken/cube", "/Broken/lamp", "/Broken/scatter", "/scaled"):
-        assert path in warning
+    for path in ("/Broken/cube", "/Broken/lamp", "/Broken/scatter"):
+        assert f"{path} (/Broken.xformOp:translate)" in warning  # the op at fault, on an ancestor
+    assert "/scaled (xformOp:scale)" in warning  # on the prim itself
     assert np.isfinite(placed_points(contents.gprims[0])).all()
 
 
@@ -186,7 +218,7 @@ def test_prototype_part_with_a_non_finite_transform_is_skipped():
     instancer.CreatePositionsAttr([(0, 0, 0), (5, 0, 0)])
     contents, warnings = walk(stage)
     assert paths(contents) == ["/scatter/instance_0/proto/body", "/scatter/instance_1/proto/body"]
-    assert "/scatter/proto/arm" in one_warning(warnings, "NaN or infinite transforms")
+    assert "/scatter/proto/arm (xformOp:translate)" in one_warning(warnings, "NaN or infinite transforms")
 
 
 # --- point instancers: unusable instances are dropped, not the instancer ---------------------
@@ -209,24 +241,29 @@ def instance_numbers(contents) -> list[int]:
     return sorted(placement.instance for placement in contents.gprims)
 
 
+# breakage → (how to break instance 1, what the warning says of it)
 BAD_INSTANCE_DATA = {
-    "nan position": lambda i: i.GetPositionsAttr().Set([(0, 0, 0), (NAN, 0, 0), (20, 0, 0), (30, 0, 0)]),
-    "inf orientation": lambda i: i.CreateOrientationsAttr(
+    "nan position": (lambda i: i.GetPositionsAttr().Set([(0, 0, 0), (NAN, 0, 0), (20, 0, 0), (30, 0, 0)]),
+                     "1 with NaN or infinite positions"),
+    "inf orientation": (lambda i: i.CreateOrientationsAttr(
         [Gf.Quath(1, 0, 0, 0), Gf.Quath(INF, 0, 0, 0), Gf.Quath(1, 0, 0, 0), Gf.Quath(1, 0, 0, 0)]),
-    "nan scale": lambda i: i.CreateScalesAttr([(1, 1, 1), (1, NAN, 1), (1, 1, 1), (1, 1, 1)]),
-    "protoIndex too large": lambda i: i.GetProtoIndicesAttr().Set([0, 5, 0, 0]),
-    "negative protoIndex": lambda i: i.GetProtoIndicesAttr().Set([0, -1, 0, 0]),
+        "1 with NaN or infinite orientations"),
+    "nan scale": (lambda i: i.CreateScalesAttr([(1, 1, 1), (1, NAN, 1), (1, 1, 1), (1, 1, 1)]),
+                  "1 with NaN or infinite scales"),
+    "protoIndex too large": (lambda i: i.GetProtoIndicesAttr().Set([0, 5, 0, 0]), "1 with protoIndices out of range"),
+    "negative protoIndex": (lambda i: i.GetProtoIndicesAttr().Set([0, -1, 0, 0]), "1 with protoIndices out of range"),
 }
 
 
 @pytest.mark.parametrize("breakage", sorted(BAD_INSTANCE_DATA))
 def test_one_bad_instance_is_dropped_and_the_rest_render(breakage):
     stage = new_stage()
-    BAD_INSTANCE_DATA[breakage](scatter(stage))
+    breaking, said = BAD_INSTANCE_DATA[breakage]
+    breaking(scatter(stage))
     contents, warnings = walk(stage)
     assert instance_numbers(contents) == [0, 2, 3]
     warning = one_warning(warnings, "/World/scatter")
-    assert warning.startswith("dropped 1 point instances") and "/World/scatter" in warning
+    assert warning.startswith("dropped 1 point instances") and f"/World/scatter (1 of 4 instances: {said})" in warning
     for placement in contents.gprims:
         points = placed_points(placement)
         assert np.isfinite(points).all()
@@ -242,7 +279,9 @@ def test_arrays_shorter_than_proto_indices_drop_the_instances_they_do_not_reach(
     instancer.CreateScalesAttr([(2, 2, 2)] * 5)
     contents, warnings = walk(stage)
     assert instance_numbers(contents) == [0, 1, 2]
-    assert one_warning(warnings, "/World/scatter").startswith("dropped 2 point instances")
+    warning = one_warning(warnings, "/World/scatter")
+    assert warning.startswith("dropped 2 point instances")
+    assert "(2 of 5 instances: 1 past the 4 positions, 2 past the 3 orientations)" in warning
     by_instance = {placement.instance: placement for placement in contents.gprims}
     # the survivors keep their rotation and scale (composed here: USD refuses ragged arrays)
     np.testing.assert_allclose(by_instance[1].world_from_local[:3, :3],

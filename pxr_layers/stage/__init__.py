@@ -21,6 +21,7 @@ Modules, in the order a read uses them:
 * ``materials``     binding and UsdPreviewSurface; ``textures`` decode images with OIIO
 * ``lights``        UsdLux with intensity, exposure, colour and normalize folded in
 * ``diagnostics``   warnings, grouped per kind and naming the prims
+* ``values``        attribute values of their schema's type, or a StageError naming them
 """
 
 from .schema import register as _register_schema

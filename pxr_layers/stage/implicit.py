@@ -16,6 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 from pxr import Usd, UsdGeom
 
+from pxr_layers.errors import StageError
+
+from . import values
 from .surfaces import LocalSurface
 
 # Segments around the axis: at 64 the polygon's sagitta is 0.12 % of the radius, invisible
@@ -63,51 +66,68 @@ def is_implicit(prim: Usd.Prim) -> bool:
     return any(prim.IsA(schema) for schema in IMPLICIT_TYPES)
 
 
-def _dimensions(prim: Usd.Prim, time: Usd.TimeCode) -> dict[str, float | None]:
+def _dimensions(prim: Usd.Prim, time: Usd.TimeCode, file: str | None = None) -> dict[str, float | None]:
     """The sizes an implicit gprim is built from (``_SIZE_ATTRIBUTES``), in stage units;
-    None where the attribute has no value (a blocked opinion)."""
+    None where the attribute has no value (a blocked opinion). StageError naming the
+    attribute for a value that is not a number (values.real)."""
     schema = next((schema for schema in _SIZE_ATTRIBUTES if prim.IsA(schema)), None)
     if schema is None:
         raise ValueError(f"not an implicit gprim: {prim.GetPath()}")
-    values = {}
-    for name in _SIZE_ATTRIBUTES[schema]:
-        value = prim.GetAttribute(name).Get(time)
-        values[name] = None if value is None else float(value)
-    return values
+    return {name: values.real(prim.GetAttribute(name), time, file) for name in _SIZE_ATTRIBUTES[schema]}
 
 
-def unusable_dimension(prim: Usd.Prim, time: Usd.TimeCode) -> str | None:
-    """Why an implicit gprim has no surface (e.g. "radius is -1"), or None when it has one."""
-    return _why_unusable(prim, _dimensions(prim, time))
+def unusable_dimension(prim: Usd.Prim, time: Usd.TimeCode, file: str | None = None) -> str | None:
+    """Why an implicit gprim of valid sizes has no surface (e.g. "radius is 0"), or None
+    when it has one.
+
+    Raises StageError naming the file, prim and attribute for a size no shape can have:
+    negative, NaN, infinite, or not a number. A size of 0 (or none: a blocked opinion) is a
+    shape that is not there, not a mistake: it is how an animation grows a shape from
+    nothing or collapses it away, and the right image of it is no surface, so the caller
+    skips the prim (walk.py, with a warning, as it may still surprise).
+    """
+    found = _why_unusable(prim, _dimensions(prim, time, file))
+    if found is None:
+        return None
+    reason, invalid = found
+    if invalid:
+        raise StageError(f"{reason}: a size must be a finite number, not negative",
+                         file=file, prim=str(prim.GetPath()))
+    return reason
 
 
-def _why_unusable(prim: Usd.Prim, dimensions: dict[str, float | None]) -> str | None:
-    """Every size must be finite and positive, except that a capsule's ``height`` may be 0
+def _why_unusable(prim: Usd.Prim, dimensions: dict[str, float | None]) -> tuple[str, bool] | None:
+    """(Why the sizes make no surface, whether that is because one is invalid: negative or
+    not finite), or None when they make one.
+
+    Every size must be finite and positive, except that a capsule's ``height`` may be 0
     (its hemispheres then make a sphere) and one of the two radii of a tapered shape may be
     0 (a cone, or a capsule ending in a point), but not both."""
     is_capsule = prim.IsA(UsdGeom.Capsule) or prim.IsA(UsdGeom.Capsule_1)
     for name, value in dimensions.items():
         if value is None:
-            return f"{name} has no value"
+            return f"{name} has no value", False
+        if not math.isfinite(value) or value < 0.0:
+            return f"{name} is {value:g}", True
         may_be_zero = (name == "height" and is_capsule) or name in ("radiusBottom", "radiusTop")
-        if not math.isfinite(value) or value < 0.0 or (value == 0.0 and not may_be_zero):
-            return f"{name} is {value:g}"
+        if value == 0.0 and not may_be_zero:
+            return f"{name} is 0", False
     if dimensions.get("radiusBottom") == 0.0 and dimensions.get("radiusTop") == 0.0:
-        return "radiusBottom and radiusTop are 0"
+        return "radiusBottom and radiusTop are 0", False
     return None
 
 
 def tessellate(prim: Usd.Prim, time: Usd.TimeCode) -> LocalSurface:
     """Triangulate an implicit gprim in its object space (stage units).
 
-    Callers skip prims with an :func:`unusable_dimension` first (walk.py does, with a
-    warning); sizes that cannot make a surface raise ValueError here rather than give NaN
-    points or collapsed triangles.
+    Callers check the prim with :func:`unusable_dimension` first (walk.py does: an error for
+    invalid sizes, the prim skipped with a warning for sizes of 0); sizes that cannot make a
+    surface raise ValueError here rather than give NaN points or collapsed triangles.
     """
     size = _dimensions(prim, time)
-    reason = _why_unusable(prim, size)
-    if reason is not None:
-        raise ValueError(f"{prim.GetPath()}: {reason}")
+    found = _why_unusable(prim, size)
+    if found is not None:
+        raise ValueError(f"{prim.GetPath()}: {found[0]}")
     axis = str(prim.GetAttribute(UsdGeom.Tokens.axis).Get(time))
     if prim.IsA(UsdGeom.Cube):
         return _cube(size["size"])

@@ -42,8 +42,9 @@ does not apply to distant and dome lights: one warning when its authored values 
 them (the fallbacks of an applied ShapingAPI alone do not count).
 
 Textures (``inputs:texture:file``): a dome's lat-long image and a rect's colour map, read
-raw when float and as sRGB when 8-bit (TextureLibrary's "auto"). An empty ``@@`` is no
-texture; a missing file is a warning and a constant light.
+raw when float and as sRGB when 8-bit (TextureLibrary's "auto"), their NaN, infinite and
+negative texels as 0 with a warning (TextureLibrary.load's ``light``). An empty ``@@`` is
+no texture; a missing file is a warning and a constant light.
 
 Camera visibility (``camera_visible``): UsdLux has no attribute for it and says a light is
 seen (a directly visible light of intensity 1 gives pixel value 1). Stages written for
@@ -345,7 +346,7 @@ def _light_texture(context: ReadContext, prim: Usd.Prim, textures: TextureLibrar
     if not resolved:
         return None
     # Light images are HDR floats (read raw); an 8-bit one is sRGB-encoded like any LDR image.
-    loaded = textures.load(resolved, "auto", str(prim.GetPath()))
+    loaded = textures.load(resolved, "auto", str(prim.GetPath()), light=True)
     return None if loaded is None else loaded.index
 
 

@@ -52,6 +52,12 @@ _FACE_LOOKBACK = 8
 # The winding that undoes a mirror: two corners swapped, corner 0 kept.
 _MIRRORED = [0, 2, 1]
 
+# Placed points farther than this from the origin (in metres, on any axis) skip their gprim.
+# The tracer works in float32: within 1e9 m (2.6 times the Moon's distance) edges stay below
+# 2e9 m, and the squared lengths of their cross products (edge⁴ = 1.6e37, trace/world.py)
+# below float32's 3.4e38. A set that big would be resolved to about 100 m there anyway.
+MAX_WORLD_COORDINATE = 1e9
+
 
 @dataclass(frozen=True, eq=False)
 class _Layout:
@@ -121,16 +127,21 @@ class PreparedSurface:
 
 
 def prepare_surface(surface: LocalSurface) -> PreparedSurface:
-    """The object-space work shared by all placements of ``surface`` (see module)."""
-    area_vectors, degenerate = _triangle_geometry(surface.points, surface.triangles)
-    normal_values = normal_indices = None
-    if surface.normals is not None:
-        normal_values, normal_indices = _index_by_point(surface.normals, surface.triangles, len(surface.points))
-    elif surface.smooth:
-        normal_values = _area_weighted_vertex_normals(
-            area_vectors, surface.triangles, surface.triangle_face, len(surface.points)
-        )
-        normal_indices = surface.triangles
+    """The object-space work shared by all placements of ``surface`` (see module).
+
+    Points too big to square (a radius of 1e300) give non-finite area vectors here, without
+    numpy's overflow warnings: place_surface skips such a surface, out of reach, unless its
+    transform brings it back, and then falls back to geometric normals (_world_normals)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        area_vectors, degenerate = _triangle_geometry(surface.points, surface.triangles)
+        normal_values = normal_indices = None
+        if surface.normals is not None:
+            normal_values, normal_indices = _index_by_point(surface.normals, surface.triangles, len(surface.points))
+        elif surface.smooth:
+            normal_values = _area_weighted_vertex_normals(
+                area_vectors, surface.triangles, surface.triangle_face, len(surface.points)
+            )
+            normal_indices = surface.triangles
     return PreparedSurface(
         surface=surface, normal_values=normal_values, normal_indices=normal_indices, degenerate=degenerate
     )
@@ -146,7 +157,9 @@ def place_surface(
     diagnostics: Diagnostics,
     instance: int = -1,
 ) -> Mesh | None:
-    """Transform ``surface`` to world metres; None when no triangle survives.
+    """Transform ``surface`` to world metres; None when no triangle survives, or (with a
+    warning) when the placed points are beyond MAX_WORLD_COORDINATE or not finite (finite
+    inputs can overflow: a radius of 1e300, scales of 1e200 twice).
 
     surface           : a LocalSurface, or its PreparedSurface to share the object-space work
                         between several placements
@@ -157,9 +170,19 @@ def place_surface(
     prepared = surface if isinstance(surface, PreparedSurface) else prepare_surface(surface)
     local = prepared.surface
     linear = world_from_local[:3, :3]
-    points = local.points @ linear.T
-    points += world_from_local[:3, 3]
-    points *= meters_per_unit
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow is found just below
+        points = local.points @ linear.T
+        points += world_from_local[:3, 3]
+        points *= meters_per_unit
+        reach = float(np.abs(points).max(initial=0.0))
+    if not reach <= MAX_WORLD_COORDINATE:  # NaN too
+        diagnostics.note(
+            "out-of-reach",
+            f"gprims placed beyond {MAX_WORLD_COORDINATE:g} m from the origin (or whose placed points "
+            "overflow) skipped: {prims}",
+            path,
+        )
+        return None
     # A mirror turns counter-clockwise into clockwise: two corners swapped back.
     mirrored = bool(np.linalg.det(linear) < 0.0)
     similarity = _is_similarity(linear)

@@ -22,6 +22,7 @@ from .skinning import SkinnedPoser
 from .surfaces import LocalSurface, find_primvar, mesh_opinions, read_mesh, with_constant_primvars
 from .transforms import column_matrix
 from .textures import TextureLibrary
+from .values import integer_array
 from .walk import GprimPlacement, walk_stage
 
 logger = logging.getLogger(__name__)
@@ -42,8 +43,12 @@ def read_scene(
     earlier_warnings  : warnings already logged for this stage (its opening), kept in
                         SceneData.warnings but not logged again
 
-    Raises StageError (naming the file, and the prim) for bad geometry (NaN points, broken
-    topology). Everything the tracer cannot honour but can render around is a warning,
+    Raises StageError (naming the file, the prim and the attribute) for values that are
+    wrong wherever they are read: attributes of another type than the schema's, broken
+    topology, sizes of implicit shapes and camera values no shape or lens has. Computed data
+    gone bad (NaN or infinite transforms, instance data or mesh points; geometry placed out
+    of float32's reach) skips its prim, or its instances, with a warning naming them (see
+    walk.py). Everything else the tracer cannot honour but can render around is a warning,
     logged once and kept in SceneData.warnings.
     """
     diagnostics, file = context.diagnostics, context.file
@@ -98,8 +103,9 @@ class _MeshBuilder:
         # (prototype prim path, uv primvar, material primvars, where they are found: see
         # _primvar_owners) → surface, and mesh_opinions key → (surface, the path it was read
         # under, the notes of its read).
-        self._surfaces: dict[tuple, PreparedSurface] = {}
-        self._by_opinions: dict[tuple, tuple[PreparedSurface, str, list[tuple]]] = {}
+        # None: a surface read_mesh skipped.
+        self._surfaces: dict[tuple, PreparedSurface | None] = {}
+        self._by_opinions: dict[tuple, tuple[PreparedSurface | None, str, list[tuple]]] = {}
 
     def build(self, placement: GprimPlacement) -> Mesh | None:
         context = self._context
@@ -127,13 +133,14 @@ class _MeshBuilder:
         if posed is None:
             surface = self._surface(prim, uv_primvar, primvars)
         else:
-            surface = prepare_surface(
-                self._read_mesh(prim, uv_primvar, primvars, posed.points, context.diagnostics)
-            )
+            local = self._read_mesh(prim, uv_primvar, primvars, posed.points, context.diagnostics)
+            surface = None if local is None else prepare_surface(local)
             # The skinned points sit in the skeleton's space: replace the prim's own world
             # transform by it (and keep a point instance's placement of the prim, if any).
             prim_world = column_matrix(context.xform_cache.GetLocalToWorldTransform(prim))
             world_from_local = world_from_local @ np.linalg.inv(prim_world) @ posed.world_from_points
+        if surface is None:  # skipped by read_mesh, which said why
+            return None
 
         local = surface.surface
         face_material = np.full(local.face_count, mesh_material.index, dtype=INDEX)
@@ -160,7 +167,7 @@ class _MeshBuilder:
         primvars: tuple[str, ...],
         points: np.ndarray | None,
         diagnostics: Diagnostics,
-    ) -> LocalSurface:
+    ) -> LocalSurface | None:
         context = self._context
         return read_mesh(prim, context.time, uv_primvar, diagnostics, context.file,
                          subdiv_level=self._subdiv_level, points=points, primvars=primvars)
@@ -174,12 +181,12 @@ class _MeshBuilder:
         for subset in UsdShade.MaterialBindingAPI(prim).GetMaterialBindSubsets():
             if subset.GetElementTypeAttr().Get() != UsdGeom.Tokens.face:
                 continue
-            faces = np.asarray(subset.GetIndicesAttr().Get(self._context.time) or [], np.int64)
+            faces = integer_array(subset.GetIndicesAttr(), self._context.time, self._context.file)
             material = self._materials.bound_material(subset.GetPrim())
             subsets.append((faces, self._materials.resolve(material, color)))
         return subsets
 
-    def _surface(self, prim: Usd.Prim, uv_primvar: str, primvars: tuple[str, ...]) -> PreparedSurface:
+    def _surface(self, prim: Usd.Prim, uv_primvar: str, primvars: tuple[str, ...]) -> PreparedSurface | None:
         source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
         key = (str(source.GetPath()), uv_primvar, primvars, _primvar_owners(prim, primvars))
         if key in self._surfaces:
@@ -201,7 +208,8 @@ class _MeshBuilder:
                     context.diagnostics.note(kind, template, noted, count)
             else:
                 recorder = _NoteRecorder(context.diagnostics)
-                surface = prepare_surface(self._read_mesh(prim, uv_primvar, primvars, None, recorder))
+                local = self._read_mesh(prim, uv_primvar, primvars, None, recorder)
+                surface = None if local is None else prepare_surface(local)
                 if opinions is not None:
                     self._by_opinions[opinions] = (surface, path, recorder.notes)
         self._surfaces[key] = surface

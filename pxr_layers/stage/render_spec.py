@@ -9,9 +9,9 @@ from pxr import Sdf, Usd, UsdGeom, UsdRender
 from pxr_layers.errors import StageError
 from pxr_layers.scene import DEFAULT_BINDING_PURPOSES, DEFAULT_INCLUDED_PURPOSES, Camera
 
+from . import values
 from .context import ReadContext
-from .transforms import column_matrix, rigid_in_metres
-
+from .transforms import column_matrix, rigid_in_metres, transform_errors_name
 
 
 def settings_fields(settings: UsdRender.Settings | None, time: Usd.TimeCode) -> dict[str, object]:
@@ -56,37 +56,48 @@ def read_camera(context: ReadContext, prim: Usd.Prim) -> Camera:
 
     Raises StageError naming the prim and attribute for what would give a black or NaN
     image: a focal length or aperture that is not a positive finite number, a clipping
-    range that is not 0 <= near < far, a non-finite transform.
+    range that is not 0 <= near < far, a value of another type than the schema's (values.py),
+    a world transform that is not finite.
     """
     time = context.time
     camera = UsdGeom.Camera(prim)
     path = str(prim.GetPath())
 
+    def number(attribute: Usd.Attribute) -> float:
+        value = values.real(attribute, time, context.file)
+        if value is None:
+            raise StageError(f"{attribute.GetName()} has no value", file=context.file, prim=path)
+        return value
+
     def positive(attribute: Usd.Attribute) -> float:
-        value = float(attribute.Get(time))
+        value = number(attribute)
         if not (math.isfinite(value) and value > 0.0):
             raise StageError(f"{attribute.GetName()} is {value:g}: it must be a positive number",
                              file=context.file, prim=path)
         return value
 
     def finite(attribute: Usd.Attribute) -> float:
-        value = float(attribute.Get(time))
+        value = number(attribute)
         if not math.isfinite(value):
             raise StageError(f"{attribute.GetName()} is {value:g}: it must be a finite number",
                              file=context.file, prim=path)
         return value
 
-    near, far = (float(value) for value in camera.GetClippingRangeAttr().Get(time))
+    clipping = values.reals(camera.GetClippingRangeAttr(), time, 2, context.file)
+    if clipping is None:
+        raise StageError("clippingRange has no value", file=context.file, prim=path)
+    near, far = clipping
     if not (math.isfinite(near) and math.isfinite(far) and 0.0 <= near < far):
         raise StageError(f"clippingRange is ({near:g}, {far:g}): it must be 0 <= near < far",
                          file=context.file, prim=path)
-    world = column_matrix(context.xform_cache.GetLocalToWorldTransform(prim))
+    with transform_errors_name(prim, context.file):
+        world = column_matrix(context.xform_cache.GetLocalToWorldTransform(prim))
     if not all(math.isfinite(value) for value in world.ravel()):
         raise StageError("the camera's world transform is not finite (NaN or infinite xformOps)",
                          file=context.file, prim=path)
     projection = str(camera.GetProjectionAttr().Get(time))
     # An orthographic view has no lens: only its apertures size it.
-    focal_length = (float(camera.GetFocalLengthAttr().Get(time)) if projection == "orthographic"
+    focal_length = (number(camera.GetFocalLengthAttr()) if projection == "orthographic"
                     else positive(camera.GetFocalLengthAttr()))
     return Camera(
         name=prim.GetName(),

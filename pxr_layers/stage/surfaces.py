@@ -20,13 +20,14 @@ from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom
+from pxr import Usd, UsdGeom
 
 from pxr_layers.errors import StageError
 from pxr_layers.request import MAX_REFINED_FACES
 
 from . import subdivision
 from .diagnostics import Diagnostics
+from .values import integer_array, real_array, usd_type_name
 
 
 @dataclass(frozen=True)
@@ -62,12 +63,6 @@ class LocalSurface:
     triangle_face: np.ndarray
     face_count: int
     primvars: Mapping[str, np.ndarray] = field(default_factory=dict)
-
-
-def _as_array(value, width: int, dtype=np.float64) -> np.ndarray:
-    if value is None:
-        return np.zeros((0, width), dtype=dtype)
-    return np.asarray(value, dtype=dtype).reshape(-1, width)
 
 
 def affordable_subdiv_level(face_count: int, asked: int) -> int:
@@ -139,7 +134,7 @@ def read_mesh(
     subdiv_level: int,
     points: np.ndarray | None = None,
     primvars: tuple[str, ...] = (),
-) -> LocalSurface:
+) -> LocalSurface | None:
     """Triangulate a UsdGeom.Mesh with its normals, the ``uv_primvar`` primvar and the
     ``primvars`` its materials read.
 
@@ -154,16 +149,33 @@ def read_mesh(
                    inheritance (find_primvar); missing ones are left out, ones of another type
                    than 1–4 numbers or with too few values are left out with a note
 
-    Faces with fewer than 3 vertices and faces listed in ``holeIndices`` produce no
-    triangles. Raises StageError on NaN/infinite points or inconsistent topology.
+    Faces listed in ``holeIndices`` produce no triangles, nor do faces of fewer than 3
+    vertices (noted, naming the first; Hydra leaves them out too).
+
+    Raises StageError naming the attribute for points, faceVertexCounts, faceVertexIndices
+    or holeIndices of another type than the schema's (values.py) and for inconsistent
+    topology (a negative count, counts that do not add up to the indices, an index past the
+    points). A mesh with NaN or infinite points (a simulation that blew up, a broken
+    deformer) is computed data gone bad, not a mistake in the topology: it is skipped with a
+    note naming it and how many points, and None returned, as the walk skips a prim with a
+    non-finite transform.
     """
     mesh = UsdGeom.Mesh(prim)
     path = str(prim.GetPath())
     points_override = points
     points = _mesh_points(mesh, time, points, file, path)
-    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(time) or [], dtype=np.int64)
-    indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(time) or [], dtype=np.int64)
+    counts = integer_array(mesh.GetFaceVertexCountsAttr(), time, file)
+    indices = integer_array(mesh.GetFaceVertexIndicesAttr(), time, file)
     _check_topology(points, counts, indices, file, path)
+    non_finite = int(np.count_nonzero(~np.isfinite(points).all(axis=1)))
+    if non_finite:
+        diagnostics.note(
+            "non-finite-points",
+            "meshes with NaN or infinite points skipped: {prims}",
+            f"{path} ({non_finite} of {len(points)} points{' as posed' if points_override is not None else ''})",
+        )
+        return None
+    _note_short_faces(counts, diagnostics, path)
 
     scheme = mesh.GetSubdivisionSchemeAttr().Get(time)
     if scheme != UsdGeom.Tokens.none:
@@ -181,13 +193,13 @@ def read_mesh(
         # UsdGeom: normals are ignored on subdivision surfaces; a wrong type is still reported.
         _authored_normals(mesh, time, diagnostics, path)
         return _subdivision_surface(
-            mesh, time, uv_primvar, primvars, diagnostics, path, points, counts, indices, scheme,
+            mesh, time, uv_primvar, primvars, diagnostics, file, path, points, counts, indices, scheme,
             subdiv_level,
         )
 
     face_count = len(counts)
     triangles_per_face = np.maximum(counts - 2, 0)
-    holes = np.asarray(mesh.GetHoleIndicesAttr().Get(time) or [], dtype=np.int64)
+    holes = integer_array(mesh.GetHoleIndicesAttr(), time, file)
     holes = holes[(holes >= 0) & (holes < face_count)]
     triangles_per_face[holes] = 0
 
@@ -240,7 +252,7 @@ def _mesh_points(
 ) -> np.ndarray:
     """(v, 3) float64 object-space points: the given ones, else the authored ``points``."""
     if points is None:
-        return _as_array(mesh.GetPointsAttr().Get(time), 3)
+        return real_array(mesh.GetPointsAttr(), time, 3, file, "point3f[]")
     given = np.asarray(points, dtype=np.float64)
     if given.ndim != 2 or given.shape[1] != 3:
         raise StageError(
@@ -254,10 +266,7 @@ def _mesh_points(
 def _check_topology(
     points: np.ndarray, counts: np.ndarray, indices: np.ndarray, file: str, path: str
 ) -> None:
-    """Raise StageError naming the first bad value of points, counts or indices."""
-    if not np.isfinite(points).all():
-        bad = int(np.count_nonzero(~np.isfinite(points).all(axis=1)))
-        raise StageError(f"{bad} points are NaN or infinite", file=file, prim=path)
+    """Raise StageError naming the first bad value of counts or indices."""
     negative = np.flatnonzero(counts < 0)
     if len(negative):
         first = int(negative[0])
@@ -285,6 +294,19 @@ def _check_topology(
         )
 
 
+def _note_short_faces(counts: np.ndarray, diagnostics: Diagnostics, path: str) -> None:
+    """Note faces of 0, 1 or 2 vertices (they make no triangle, and are left out), naming the
+    first one's index and count."""
+    short = np.flatnonzero(counts < 3)
+    if len(short):
+        first = int(short[0])
+        diagnostics.note(
+            "short-faces",
+            "faces of fewer than 3 vertices left out (they have no surface): {prims}",
+            f"{path} ({len(short)} faces, the first faceVertexCounts[{first}] = {int(counts[first])})",
+        )
+
+
 def _vector_array(value, width: int) -> np.ndarray | None:
     """(n, width) float64 if ``value`` is an array of ``width``-vectors of reals, else None.
 
@@ -295,12 +317,6 @@ def _vector_array(value, width: int) -> np.ndarray | None:
     if array.ndim != 2 or array.shape[1] != width or array.dtype.kind != "f":
         return None
     return array.astype(np.float64)
-
-
-def _type_name(value) -> str:
-    """The USD type name of an authored value (``int[]``, ``double3``), for messages."""
-    type_name = Sdf.GetValueTypeNameForValue(value)
-    return str(type_name) if type_name else type(value).__name__
 
 
 def _expected_count(
@@ -330,7 +346,7 @@ def _note_bad_type(diagnostics: Diagnostics, path: str, name: str, value) -> Non
     diagnostics.note(
         "primvar-type",
         "primvars of an unexpected type were ignored on: {prims}",
-        f"{path}.{name} ({_type_name(value)})",
+        f"{path}.{name} ({usd_type_name(value)})",
     )
 
 
@@ -371,7 +387,7 @@ def _authored_normals(
             "normals-type",
             "normals that are not an array of 3-vectors were ignored (normals computed "
             "instead) on: {prims}",
-            f"{path}.{name} ({_type_name(values)})",
+            f"{path}.{name} ({usd_type_name(values)})",
         )
         return None
     return array, interpolation
@@ -624,6 +640,7 @@ def _subdivision_surface(
     uv_primvar: str,
     primvar_names: tuple[str, ...],
     diagnostics: Diagnostics,
+    file: str,
     path: str,
     points: np.ndarray,
     counts: np.ndarray,
@@ -687,7 +704,7 @@ def _subdivision_surface(
         indices,
         level,
         scheme=scheme,
-        tags=_subdivision_tags(mesh, time, diagnostics, path),
+        tags=_subdivision_tags(mesh, time, diagnostics, file, path),
         vertex_data=np.hstack(vertex_columns) if vertex_columns else None,
         varying_data=np.hstack(varying_columns) if varying_columns else None,
         face_varying=face_varying,
@@ -742,9 +759,10 @@ def _reversed_face_corners(counts: np.ndarray) -> np.ndarray:
 
 
 def _subdivision_tags(
-    mesh: UsdGeom.Mesh, time: Usd.TimeCode, diagnostics: Diagnostics, path: str
+    mesh: UsdGeom.Mesh, time: Usd.TimeCode, diagnostics: Diagnostics, file: str, path: str
 ) -> subdivision.SubdivisionTags:
-    """The mesh's subdivision attributes; unknown tokens fall back to the schema's default."""
+    """The mesh's subdivision attributes; unknown tokens fall back to the schema's default;
+    StageError for arrays of another type than the schema's."""
     defaults = subdivision.SubdivisionTags()
 
     def token(attribute: Usd.Attribute, allowed: tuple[str, ...], fallback: str) -> str:
@@ -761,7 +779,9 @@ def _subdivision_tags(
         return str(value)
 
     def array(attribute: Usd.Attribute, dtype) -> np.ndarray:
-        return np.asarray(attribute.Get(time) or [], dtype=dtype).reshape(-1)
+        if dtype == np.int64:
+            return integer_array(attribute, time, file)
+        return real_array(attribute, time, 1, file, "float[]").reshape(-1)
 
     return subdivision.SubdivisionTags(
         interpolate_boundary=token(

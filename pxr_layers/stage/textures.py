@@ -11,6 +11,14 @@ opened by OIIO directly; anything else USD's asset resolver (Ar) resolved, a mem
 package (``/x/shot.usdz[textures/rough.png]``) or a path of a custom resolver, is read through
 ``Ar.GetResolver().OpenAsset`` and its bytes decoded by OIIO.
 
+Texels no lookup can use are replaced by 0 when a file is decoded, with one warning naming
+the file and how many texels changed (_repaired): NaN and infinite ones in every texture
+(a NaN roughness or albedo makes NaN pixels, and an infinite one NaN as soon as it is
+multiplied by 0), and in the images of lights (``light=True``: a dome's lat-long image, a
+rect light's colour map) negative ones too, which would be negative radiance, while texels
+above MAX_LIGHT_TEXEL are lowered to it. Those of materials keep their sign, which normal
+maps, displacement and scale/bias offsets need.
+
 The textures of the last stage read are remembered in the process by identity (see
 _texture_identity): the frames of a shot read the same files one after another, and the next
 read takes the decoded images instead of decoding them again. The images are read-only
@@ -39,6 +47,12 @@ from .diagnostics import Diagnostics
 logger = logging.getLogger(__name__)
 
 ColorSpace = Literal["raw", "sRGB"]
+# An image as a read uses it: its colour space, and whether a light emits it (_repaired).
+_Use = tuple[ColorSpace, bool]
+# Light texels above this are lowered to it: far above any sun an HDRI holds (1e9 for the
+# Sun's disc in cd/m²), far enough below float32's 3.4e38 that the dome sampler's float32
+# sums over an image of up to 2^32 texels (trace/lights.py) stay finite.
+MAX_LIGHT_TEXEL = 1e20
 UDIM = "<UDIM>"  # the tile token of a texture path (Mari's convention, as USD and MaterialX use it)
 
 # OIIO's "wrapmodes" metadata ("s,t") uses RenderMan words; scene.py uses UsdUVTexture's.
@@ -69,7 +83,8 @@ class _FileTexture:
     channels: int
     wrap_modes: tuple[WrapMode | None, WrapMode | None]
     decoded: _DecodedFile | None = None
-    images: dict[ColorSpace, np.ndarray] = field(default_factory=dict)  # (h, w, c) read-only
+    images: dict[_Use, np.ndarray] = field(default_factory=dict)  # (h, w, c) read-only
+    repaired: dict[_Use, int] = field(default_factory=dict)  # texels _repaired in images[use]
 
 
 _REMEMBERED: dict[tuple, _FileTexture] = {}
@@ -156,10 +171,10 @@ class TextureLibrary:
         self.images: list[TextureImage] = []
         self._diagnostics = diagnostics
         self._files: dict[str, _FileTexture | None] = {}
-        self._indices: dict[tuple[str, ColorSpace], int] = {}
+        self._indices: dict[tuple[str, ColorSpace, bool], int] = {}
 
     def load(
-        self, path: str, source_color_space: str, user_prim: str
+        self, path: str, source_color_space: str, user_prim: str, *, light: bool = False
     ) -> LoadedTexture | None:
         """Decode ``path`` (a resolved asset path: a file, a package member, any resolver
         path) for the prim ``user_prim``.
@@ -167,6 +182,9 @@ class TextureLibrary:
         source_color_space : "raw", "sRGB" or "auto" (UsdUVTexture's sourceColorSpace);
                              "auto" decodes 8-bit files with 3+ channels as sRGB and
                              everything else (float, 16-bit, grey) as raw.
+        light              : the image of a light: negative texels are read as 0 too, not
+                             only NaN and infinite ones, and those above MAX_LIGHT_TEXEL as
+                             it (see the module docstring)
         Returns None after a warning (once per file) when the file cannot be read.
         """
         texture = self._file(path, user_prim)
@@ -184,20 +202,31 @@ class TextureLibrary:
                     user_prim,
                 )
             color_space = "sRGB" if texture.is_uint8 and texture.channels >= 3 else "raw"
-        key = (path, color_space)
+        use: _Use = (color_space, light)
+        key = (path, *use)
         if key not in self._indices:
-            if color_space not in texture.images:
-                if texture.decoded is None:  # remembered from an earlier read in another colour space
+            if use not in texture.images:
+                if texture.decoded is None:  # remembered from an earlier read in another use
                     try:
                         texture.decoded = _read_texture(path)
                     except OSError as error:
                         self._unreadable(path, user_prim, error)
                         return None
                 pixels = _linear(texture.decoded.pixels, color_space)
+                texture.repaired[use] = _repaired(pixels, light)
                 pixels.flags.writeable = False
-                texture.images[color_space] = pixels
+                texture.images[use] = pixels
+            if texture.repaired[use]:  # said at every read: each frame's warnings are its own
+                pixels = texture.images[use]
+                what = (f"NaN, infinite or negative (read as 0) or above {MAX_LIGHT_TEXEL:g} (read as that)"
+                        if light else "NaN or infinite (read as 0)")
+                self._diagnostics.warn(
+                    f"texture {path} (used by {user_prim}): {texture.repaired[use]} of "
+                    f"{pixels.shape[0] * pixels.shape[1]} texels are {what}",
+                    once_key=f"texture-repaired:{path}:{light}",
+                )
             self._indices[key] = len(self.images)
-            self.images.append(TextureImage(path=path, pixels=texture.images[color_space]))
+            self.images.append(TextureImage(path=path, pixels=texture.images[use]))
         return LoadedTexture(self._indices[key], texture.wrap_modes)
 
     def load_tiles(self, path: str, source_color_space: str, user: str) -> list[tuple[int, LoadedTexture]]:
@@ -217,7 +246,8 @@ class TextureLibrary:
     def remember(self) -> None:
         """Keep this read's images for the next read in the process (replacing the last)."""
         global _REMEMBERED
-        kept = {texture.identity: dataclasses.replace(texture, decoded=None, images=dict(texture.images))
+        kept = {texture.identity: dataclasses.replace(texture, decoded=None, images=dict(texture.images),
+                                                      repaired=dict(texture.repaired))
                 for texture in self._files.values() if texture is not None and texture.identity is not None}
         with _REMEMBERED_LOCK:
             _REMEMBERED = kept
@@ -229,7 +259,7 @@ class TextureLibrary:
         with _REMEMBERED_LOCK:
             earlier = _REMEMBERED.get(identity) if identity is not None else None
         if earlier is not None:
-            texture = dataclasses.replace(earlier, images=dict(earlier.images))
+            texture = dataclasses.replace(earlier, images=dict(earlier.images), repaired=dict(earlier.repaired))
         else:
             texture = None
             try:
@@ -305,6 +335,24 @@ def _read_file(path: str, name: str | None = None) -> _DecodedFile:
         is_uint8=spec.format.basetype == oiio.UINT8,
         wrap_modes=(wrap_modes[0], wrap_modes[1]),
     )
+
+
+def _repaired(pixels: np.ndarray, light: bool) -> int:
+    """Replace, in the (h, w, c) float32 ``pixels``, the values no lookup can use by 0: NaN and
+    infinities, and with ``light`` negative values too (and lower those above MAX_LIGHT_TEXEL
+    to it). Returns how many texels (pixels, any channel) changed."""
+    unusable = ~np.isfinite(pixels)
+    too_bright = None
+    if light:
+        unusable |= pixels < 0.0
+        too_bright = ~unusable & (pixels > MAX_LIGHT_TEXEL)
+    changed = unusable if too_bright is None else unusable | too_bright
+    count = int(np.count_nonzero(changed.any(axis=2)))
+    if count:
+        pixels[unusable] = 0.0
+        if too_bright is not None:
+            pixels[too_bright] = MAX_LIGHT_TEXEL
+    return count
 
 
 def _linear(pixels: np.ndarray, color_space: ColorSpace) -> np.ndarray:

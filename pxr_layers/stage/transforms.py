@@ -7,8 +7,15 @@ here is a (4, 4) float64 numpy array in the column convention.
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 import numpy as np
-from pxr import Gf
+from pxr import Gf, Tf, Usd
+
+from pxr_layers.errors import StageError
+
+from .opening import tf_error_summary
 
 # Rotation of +90° about X: takes +Y to +Z and +Z to -Y. UsdLux (DomeLight_1 poleAxis) says a
 # Z-up dome has latitude +pi/2 at +Z and (latitude 0, longitude 0) at -Y, where the OpenEXR
@@ -64,3 +71,15 @@ def normal_matrix(linear: np.ndarray) -> np.ndarray:
     c0, c1, c2 = linear[:, 0], linear[:, 1], linear[:, 2]
     cofactor = np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=1)
     return cofactor if np.linalg.det(linear) >= 0.0 else -cofactor
+
+
+@contextlib.contextmanager
+def transform_errors_name(prim: Usd.Prim, file: str) -> Iterator[None]:
+    """Turn a Tf error of the transform computations inside into a StageError naming
+    ``prim``: USD raises one for an xformOp of the wrong type (``string xformOp:translate``)
+    on the prim or an ancestor, which would otherwise name only the file."""
+    try:
+        yield
+    except Tf.ErrorException as error:
+        raise StageError(f"its transform cannot be computed: {tf_error_summary(error)}", file=file,
+                         prim=str(prim.GetPath())) from None

@@ -8,10 +8,17 @@ guides and render nothing), and stops at gprims, cameras, point instancers and l
 (UsdGeom forbids gprims under gprims; a light's children are not lit geometry).
 PointInstancers are expanded here into one placement per instance and prototype gprim.
 
-What would become NaN pixels or degenerate junk is skipped with one warning per kind of
-problem, naming the prims: implicit gprims whose sizes make no surface, gprims, lights and
-instancers whose world transform is not finite, and, one by one, point instances whose
-data is unusable (the rest of their instancer renders).
+Bad data follows one rule (see reader.read_scene). A value that is wrong wherever it is
+read, an implicit shape's size that is negative, NaN or infinite, an attribute of another
+type than its schema's (values.py), is an error naming the prim and the attribute: one
+edit fixes it. Data that goes bad by being computed (a simulation, a constraint, a
+scatter) is skipped, with one warning per kind of problem naming the prims and what is at
+fault, so that one bad element among thousands does not stop a render (``--strict`` makes
+the warnings fatal): gprims, lights and instancers whose world transform is not finite
+(the xformOp named), and, one by one, point instances whose data is unusable (counted by
+cause: NaN or infinite positions, orientations or scales, protoIndices out of range,
+arrays too short; the rest of their instancer renders). Implicit gprims of size 0, which
+describe a shape that is not there, are skipped with a warning too.
 """
 
 from __future__ import annotations
@@ -21,11 +28,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from pxr import Usd, UsdGeom, UsdLux, UsdRender, UsdShade, UsdVol
 
+from . import values
 from .context import ReadContext
 from .draw_modes import applied_draw_mode, cards_pass_models, is_guide_mode
 from .implicit import is_implicit, unusable_dimension
 from .lights import is_supported_light
-from .transforms import column_matrix
+from .transforms import column_matrix, transform_errors_name
 
 _PREDICATE = Usd.TraverseInstanceProxies(
     Usd.PrimIsActive & Usd.PrimIsDefined & Usd.PrimIsLoaded & ~Usd.PrimIsAbstract
@@ -190,12 +198,12 @@ def _is_gprim(prim: Usd.Prim) -> bool:
 
 
 def _has_surface(context: ReadContext, prim: Usd.Prim) -> bool:
-    """False (with a warning) for an implicit gprim whose sizes make no surface, which would
-    tessellate into NaN points or collapsed triangles."""
+    """False (with a warning) for an implicit gprim whose sizes make no surface (a size of 0);
+    StageError for sizes no shape has (implicit.unusable_dimension)."""
     if prim.HasAPI(UsdLux.LightAPI):
         _note_unsupported_light(context, prim)
     if is_implicit(prim):
-        reason = unusable_dimension(prim, context.time)
+        reason = unusable_dimension(prim, context.time, context.file)
         if reason is not None:
             context.diagnostics.note(
                 "implicit-size",
@@ -209,17 +217,40 @@ def _has_surface(context: ReadContext, prim: Usd.Prim) -> bool:
 def _finite_world_transform(context: ReadContext, prim: Usd.Prim) -> np.ndarray | None:
     """(4, 4) float64 world_from_local (column convention, stage units), or None (with a
     warning) when it holds NaN or infinity: everything placed by it would be NaN."""
-    world = column_matrix(context.xform_cache.GetLocalToWorldTransform(prim))
+    with transform_errors_name(prim, context.file):
+        world = column_matrix(context.xform_cache.GetLocalToWorldTransform(prim))
     if np.isfinite(world).all():
         return world
-    _note_non_finite_transform(context, str(prim.GetPath()))
+    _note_non_finite_transform(context, prim)
     return None
 
 
-def _note_non_finite_transform(context: ReadContext, path: str) -> None:
+def _note_non_finite_transform(context: ReadContext, prim: Usd.Prim, below: Usd.Prim | None = None) -> None:
+    """Note ``prim`` as skipped for a non-finite transform, naming the xformOp at fault
+    (see _non_finite_op); ``below``: the ancestor the transform is relative to (a prototype
+    root), whose own ops are not part of it."""
     context.diagnostics.note(
-        "non-finite-transform", "prims with NaN or infinite transforms skipped: {prims}", path
+        "non-finite-transform",
+        "prims with NaN or infinite transforms skipped (the xformOp at fault in brackets): {prims}",
+        f"{prim.GetPath()} ({_non_finite_op(prim, context.time, below)})",
     )
+
+
+def _non_finite_op(prim: Usd.Prim, time: Usd.TimeCode, below: Usd.Prim | None = None) -> str:
+    """The first xformOp of ``prim`` or its ancestors (below ``below``, and up to a
+    resetXformStack) whose transform is not finite: its name on ``prim`` itself, its property
+    path on an ancestor; when every op is finite, their product overflows."""
+    current = prim
+    while current and not current.IsPseudoRoot() and current != below:
+        if current.IsA(UsdGeom.Xformable):
+            xformable = UsdGeom.Xformable(current)
+            for op in xformable.GetOrderedXformOps():
+                if not np.isfinite(np.asarray(op.GetOpTransform(time))).all():
+                    return op.GetName() if current == prim else f"{current.GetPath()}.{op.GetName()}"
+            if xformable.GetResetXformStack():
+                break
+        current = current.GetParent()
+    return "finite xformOps whose product overflows"
 
 
 def _is_unsupported_geometry(context: ReadContext, prim: Usd.Prim) -> bool:
@@ -263,7 +294,7 @@ def _expand_instancer(
     time = context.time
     instancer = UsdGeom.PointInstancer(prim)
     prototype_paths = instancer.GetPrototypesRel().GetForwardedTargets()
-    proto_indices = np.asarray(instancer.GetProtoIndicesAttr().Get(time) or [], dtype=np.int64)
+    proto_indices = values.integer_array(instancer.GetProtoIndicesAttr(), time, context.file)
     if not prototype_paths or not len(proto_indices):
         return
     prototype_roots = [context.stage.GetPrimAtPath(path) for path in prototype_paths]
@@ -274,11 +305,15 @@ def _expand_instancer(
     mask = np.asarray(instancer.ComputeMaskAtTime(time), dtype=bool)
     shown = usable & mask if len(mask) == len(usable) else usable
     prototypes = [_prototype_items(context, root, instancer_path) for root in prototype_roots]
-    world_from_instances = world_from_instancer @ instancer_from_instances
-    for instance in np.flatnonzero(shown).tolist():
-        world_from_instance = world_from_instances[instance]
+    shown_instances = np.flatnonzero(shown)
+    # Finite transforms can still overflow in these products: the placement skips what
+    # lands out of reach (placement.MAX_WORLD_COORDINATE), without numpy's warnings here.
+    with np.errstate(over="ignore", invalid="ignore"):
+        world_from_instances = world_from_instancer @ instancer_from_instances[shown_instances]
+    for world_from_instance, instance in zip(world_from_instances, shown_instances.tolist()):
         for item in prototypes[proto_indices[instance]]:
-            world = world_from_instance @ item.proto_from_prim
+            with np.errstate(over="ignore", invalid="ignore"):
+                world = world_from_instance @ item.proto_from_prim
             path = f"{instancer_path}/instance_{instance}/{item.sub_path}"
             if item.is_instancer:
                 _expand_instancer(context, item.prim, world, path, depth + 1, contents)
@@ -308,18 +343,19 @@ def _instance_transforms(
     whenever the arrays agree, which is always for valid data; otherwise the usable
     instances are composed here from positions, orientations and scales alone.
     """
-    time = context.time
+    time, file = context.time, context.file
     count = len(proto_indices)
-    positions = _vectors(instancer.GetPositionsAttr(), time, 3)
-    orientations = _vectors(instancer.GetOrientationsfAttr(), time, 4)
+    positions = values.real_array(instancer.GetPositionsAttr(), time, 3, file, "point3f[]")
+    orientations = values.real_array(instancer.GetOrientationsfAttr(), time, 4, file, "quatf[]")
     if not len(orientations):  # orientationsf wins over orientations, as in USD
-        orientations = _vectors(instancer.GetOrientationsAttr(), time, 4)
-    scales = _vectors(instancer.GetScalesAttr(), time, 3)
+        orientations = values.real_array(instancer.GetOrientationsAttr(), time, 4, file, "quath[]")
+    scales = values.real_array(instancer.GetScalesAttr(), time, 3, file, "float3[]")
+    arrays = {"positions": positions, "orientations": orientations, "scales": scales}
     # Orientations and scales are optional: unauthored (empty) ones do not limit anything.
-    lengths = [len(positions), *(len(values) for values in (orientations, scales) if len(values))]
-    reached = np.arange(count) < min(lengths)
+    lengths = {name: len(array) for name, array in arrays.items() if len(array) or name == "positions"}
+    reached = np.arange(count) < min(lengths.values())
     in_range = (proto_indices >= 0) & (proto_indices < len(prototype_roots))
-    if max(lengths) > count:
+    if max(lengths.values()) > count:
         context.diagnostics.note(
             "instancer-long-arrays",
             "PointInstancers with more positions, orientations or scales than protoIndices "
@@ -327,7 +363,7 @@ def _instance_transforms(
             instancer_path,
         )
     transforms = None
-    if in_range.all() and all(length == count for length in lengths):
+    if in_range.all() and all(length == count for length in lengths.values()):
         computed = instancer.ComputeInstanceTransformsAtTime(
             time, time, UsdGeom.PointInstancer.IncludeProtoXform,
             UsdGeom.PointInstancer.IgnoreMask,
@@ -337,37 +373,52 @@ def _instance_transforms(
     if transforms is None:
         usable_rows = reached & in_range
         root_transforms = np.stack([_local_transform(root, time) for root in prototype_roots])
-        transforms = compose_instance_transforms(
-            positions, orientations, scales, root_transforms, proto_indices, usable_rows
-        )
+        with np.errstate(invalid="ignore", over="ignore"):  # non-finite rows are dropped just below
+            transforms = compose_instance_transforms(
+                positions, orientations, scales, root_transforms, proto_indices, usable_rows
+            )
     usable = reached & in_range & np.isfinite(transforms).all(axis=(1, 2))
     dropped = int(count - usable.sum())
-    if dropped == count:
+    if dropped:
+        why = _why_instances_unusable(arrays, lengths, in_range, usable, count)
         context.diagnostics.note(
-            "instancer-unusable",
-            "PointInstancers none of whose instances has usable data (NaN or infinite "
-            "positions, orientations or scales, protoIndices out of range, or arrays shorter "
-            "than protoIndices) skipped: {prims}",
-            instancer_path,
-        )
-    elif dropped:
-        context.diagnostics.note(
-            "instancer-dropped",
-            "dropped {count} point instances with unusable data (NaN or infinite positions, "
-            "orientations or scales, protoIndices out of range, or arrays shorter than "
-            "protoIndices) from: {prims}",
-            instancer_path,
+            "instancer-unusable" if dropped == count else "instancer-dropped",
+            "PointInstancers none of whose instances has usable data skipped: {prims}" if dropped == count
+            else "dropped {count} point instances with unusable data from: {prims}",
+            f"{instancer_path} ({dropped} of {count} instances: {why})",
             dropped,
         )
     return transforms, usable
 
 
-def _vectors(attribute: Usd.Attribute, time: Usd.TimeCode, width: int) -> np.ndarray:
-    """An array attribute's value as (n, width) float64; (0, width) when unauthored."""
-    value = attribute.Get(time) if attribute else None
-    if not value:
-        return np.zeros((0, width))
-    return np.asarray(value, dtype=np.float64).reshape(-1, width)
+def _why_instances_unusable(
+    arrays: dict[str, np.ndarray], lengths: dict[str, int], in_range: np.ndarray, usable: np.ndarray, count: int
+) -> str:
+    """What made the instances that are not ``usable`` so, for the warning: how many have a
+    protoIndex out of range, lie past the end of an array, or have NaN or infinite values in
+    one, and, for the rest, a transform that is not finite all the same (velocities,
+    accelerations, a prototype root's own transform, or an overflowing product).
+
+    arrays  : name → (m, w) float64 authored values; lengths: name → m of those that limit
+              the instances (positions, and the optional arrays when authored)
+    """
+    reasons = []
+    explained = ~in_range
+    if not in_range.all():
+        reasons.append(f"{int((~in_range).sum())} with protoIndices out of range")
+    for name, length in lengths.items():
+        if length < count:
+            reasons.append(f"{count - length} past the {length} {name}")
+            explained[length:] = True
+        shared = min(count, length)
+        bad = ~np.isfinite(arrays[name][:shared]).all(axis=1)
+        if bad.any():
+            reasons.append(f"{int(bad.sum())} with NaN or infinite {name}")
+            explained[:shared] |= bad
+    rest = int((~usable & ~explained).sum())
+    if rest:
+        reasons.append(f"{rest} whose transform is not finite")
+    return ", ".join(reasons)
 
 
 def _local_transform(prim: Usd.Prim, time: Usd.TimeCode) -> np.ndarray:
@@ -444,10 +495,11 @@ def _prototype_items(
             if prim == root:
                 proto_from_prim = np.eye(4)
             else:
-                relative, _ = context.xform_cache.ComputeRelativeTransform(prim, root)
+                with transform_errors_name(prim, context.file):
+                    relative, _ = context.xform_cache.ComputeRelativeTransform(prim, root)
                 proto_from_prim = column_matrix(relative)
             if not np.isfinite(proto_from_prim).all():
-                _note_non_finite_transform(context, str(prim.GetPath()))
+                _note_non_finite_transform(context, prim, below=root)
                 continue
             sub_path = str(prim.GetPath().MakeRelativePath(parent_path))
             items.append(_PrototypeItem(prim, proto_from_prim, sub_path, is_instancer))
