@@ -23,6 +23,7 @@ next commit into the folder removes those whose process, on this host, no longer
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import contextvars
 import errno
@@ -35,6 +36,7 @@ import socket
 import tempfile
 import threading
 import time
+import zlib
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
@@ -46,8 +48,26 @@ LOCK_TIMEOUT_SECONDS = 120.0
 """How long a commit waits for another process's commit into the same folder (a commit
 only renames files: it takes milliseconds, so a lock held longer is a stuck process)."""
 
-_HOST = re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname().split(".")[0]) or "host"
-_TEMPORARY = re.compile(r"^\..+\.(?P<host>[A-Za-z0-9_]+)-(?P<pid>\d+)\.[^.]+\.tmp(\.[^.]+)?$")
+LOCK_FILE = ".pxr-layers.lock"
+"""Locked instead of the folder itself where a folder cannot be locked (NFS emulates flock
+with byte-range locks, which need a file open for writing)."""
+
+
+def _process_space() -> str:
+    """Who may judge whether a temporary's pid still runs: a readable host label and a hash of
+    the full host name and the pid namespace (containers that share a host name, hosts whose
+    first labels are equal, never take each other's pids for their own)."""
+    name = socket.gethostname()
+    try:
+        namespace = os.stat("/proc/self/ns/pid").st_ino
+    except OSError:
+        namespace = 0
+    label = re.sub(r"[^A-Za-z0-9]", "", name.split(".")[0])[:16] or "host"
+    return f"{label}{zlib.crc32(f'{name}/{namespace}'.encode()):08x}"
+
+
+_PROCESS_SPACE = _process_space()
+_TEMPORARY = re.compile(r"^\..+\.(?P<space>[A-Za-z0-9]+)-(?P<pid>\d+)\.[^.]+\.tmp(\.[^.]+)?$")
 
 
 def _read_umask() -> int:
@@ -62,13 +82,18 @@ def _read_umask() -> int:
 FILE_MODE = 0o666 & ~_read_umask()
 
 _current: contextvars.ContextVar[OutputSet | None] = contextvars.ContextVar("pxr_layers_output_set", default=None)
-_committed_this_process: list[Path] = []
+_committed: collections.Counter[Path] = collections.Counter()  # folder → files put in place
+_unlockable: set[Path] = set()  # folders already warned of
 
 
-def committed_files() -> tuple[Path, ...]:
-    """Every final file this process has put in place so far (for an honest message when it
-    is interrupted)."""
-    return tuple(_committed_this_process)
+def committed_counts() -> dict[Path, int]:
+    """Folder → how many final files this process has put in place there since
+    :func:`forget_committed` (for an honest message when a command is interrupted)."""
+    return dict(_committed)
+
+
+def forget_committed() -> None:
+    _committed.clear()
 
 
 def temporary_beside(path: Path) -> tuple[int, Path]:
@@ -80,7 +105,7 @@ def temporary_beside(path: Path) -> tuple[int, Path]:
         raise OutputError(f"{folder}: is a file, not a folder")
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.{_HOST}-{os.getpid()}.",
+        handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.{_PROCESS_SPACE}-{os.getpid()}.",
                                              suffix=".tmp" + path.suffix, dir=folder)
     except OSError as error:
         raise OutputError(f"{folder}: cannot write into this folder ({error.strerror or error})") from error
@@ -170,21 +195,26 @@ class OutputSet:
 
 
 def _rename_all(pairs: list[tuple[Path, Path]]) -> None:
-    """Rename every (temporary, final) pair, holding each folder's lock, with Ctrl-C and
-    SIGTERM held back until all are in place (so the set is never cut in two)."""
+    """Rename every (temporary, final) pair holding each folder's lock, with Ctrl-C and
+    SIGTERM held back until all are in place (so the set is never cut in two). Every
+    temporary gets its mode first: what can fail fails before the first rename."""
     if not pairs:
         return
     folders = {final.parent.resolve() for _, final in pairs}
-    with _signals_deferred(), _folder_locks(folders):
+    with _folder_locks(folders), _signals_deferred():
         for folder in folders:
             remove_stale_temporaries(folder)
+        try:
+            for temporary, _ in pairs:
+                os.chmod(temporary, FILE_MODE)
+        except OSError as error:
+            raise OutputError(f"{temporary}: cannot set the file's mode ({error.strerror or error})") from error
         for temporary, final in pairs:
             try:
-                os.chmod(temporary, FILE_MODE)
                 os.replace(temporary, final)
             except OSError as error:
                 raise OutputError(f"{final}: cannot put the file in place ({error.strerror or error})") from error
-            _committed_this_process.append(final)
+            _committed[final.parent] += 1
 
 
 def remove_stale_temporaries(folder: Path) -> list[Path]:
@@ -197,7 +227,7 @@ def remove_stale_temporaries(folder: Path) -> list[Path]:
         return removed
     for name in names:
         match = _TEMPORARY.match(name)
-        if match and match["host"] == _HOST and not _process_runs(int(match["pid"])):
+        if match and match["space"] == _PROCESS_SPACE and not _process_runs(int(match["pid"])):
             path = folder / name
             try:
                 path.unlink()
@@ -221,55 +251,76 @@ def _process_runs(pid: int) -> bool:
 
 @contextlib.contextmanager
 def _folder_locks(folders: Iterable[Path]) -> Iterator[None]:
-    """Exclusive advisory locks on folders (flock on the folder itself: no lock file to leave
-    behind), taken in sorted order so two commits cannot deadlock. A file system without
-    locks (some NFS mounts) gets a warning and no lock."""
+    """Exclusive advisory locks on folders, taken in sorted order so two commits cannot
+    deadlock: flock on the folder itself (no file left behind), else on its LOCK_FILE. A file
+    system without locks gets one warning per folder and no lock."""
     handles: list[int] = []
     try:
         for folder in sorted(folders):
-            handles.append(_locked(folder))
+            handle = _locked(folder)
+            if handle is not None:
+                handles.append(handle)
         yield
     finally:
         for handle in handles:
-            if handle >= 0:
-                os.close(handle)  # closing releases the flock
+            os.close(handle)  # closing releases the flock
 
 
-def _locked(folder: Path) -> int:
-    try:
-        handle = os.open(folder, os.O_RDONLY)
-    except OSError as error:
-        raise OutputError(f"{folder}: cannot open the output folder ({error.strerror or error})") from error
+def _locked(folder: Path) -> int | None:
+    """An open descriptor holding ``folder``'s lock, or None where nothing can be locked."""
+    for target, flags in ((folder, os.O_RDONLY), (folder / LOCK_FILE, os.O_RDWR | os.O_CREAT)):
+        try:
+            handle = os.open(target, flags, 0o666)
+        except OSError as error:
+            raise OutputError(f"{folder}: cannot open the output folder ({error.strerror or error})") from error
+        try:
+            if _wait_for_lock(handle, folder):
+                return handle
+        except BaseException:
+            os.close(handle)
+            raise
+        os.close(handle)
+    if folder not in _unlockable:
+        _unlockable.add(folder)
+        log.warning("%s: this file system has no locks: concurrent renders into it are not serialised", folder)
+    return None
+
+
+def _wait_for_lock(handle: int, folder: Path) -> bool:
+    """Lock ``handle`` (waiting up to LOCK_TIMEOUT_SECONDS); False when it cannot be locked."""
     deadline = time.monotonic() + LOCK_TIMEOUT_SECONDS
     while True:
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            return handle
+            return True
         except BlockingIOError:
             if time.monotonic() > deadline:
-                os.close(handle)
                 raise OutputError(f"{folder}: another process has held this folder's lock for "
                                   f"{LOCK_TIMEOUT_SECONDS:.0f} s (a stuck pxr-layers?); nothing was written") from None
             time.sleep(0.02)
         except OSError as error:
-            if error.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL):
-                os.close(handle)
-                raise OutputError(f"{folder}: cannot lock the output folder ({error.strerror})") from error
-            log.warning("%s: this file system has no locks: concurrent renders into it are not serialised", folder)
-            os.close(handle)
-            return -1
+            if error.errno in (errno.EBADF, errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL):
+                return False
+            raise OutputError(f"{folder}: cannot lock the output folder ({error.strerror})") from error
 
 
 @contextlib.contextmanager
 def _signals_deferred() -> Iterator[None]:
-    """Hold SIGINT and SIGTERM back until the block ends (they are delivered then). Only in
-    the main thread, where Python handles signals."""
+    """Ctrl-C and SIGTERM that come during the block are recorded, and raised again when it
+    ends. (Blocking them with pthread_sigmask would not do: the process's other threads,
+    Embree's and numba's, would take them.) Only in the main thread, where Python handles
+    signals."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    held = {signal.SIGINT, signal.SIGTERM}
-    signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    received: list[int] = []
+    previous = {number: signal.signal(number, lambda signum, frame: received.append(signum))
+                for number in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
+        for number, handler in previous.items():
+            if handler is not None:  # None: a handler set outside Python, which signal.signal cannot restore
+                signal.signal(number, handler)
+        if received:
+            signal.raise_signal(received[0])

@@ -195,3 +195,22 @@ def test_outputs_have_the_mode_the_umask_gives(tmp_path):
     assert process.wait(timeout=300) == 0
     modes = {name: (tmp_path / name).stat().st_mode & 0o777 for name in visible_files(tmp_path)}
     assert set(modes.values()) == {0o640}, modes
+
+
+def test_ctrl_c_during_the_renames_is_raised_after_them():
+    """The process's other threads (Embree's, numba's) do not take the signal in the middle
+    of a commit either: it is recorded, then raised once the block is done."""
+    import threading
+
+    from pxr_layers.outputs import _signals_deferred
+
+    other = threading.Thread(target=time.sleep, args=(0.5,))
+    other.start()
+    reached = False
+    with pytest.raises(KeyboardInterrupt):
+        with _signals_deferred():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.1)  # Python runs handlers between bytecodes: here, without the deferral
+            reached = True
+    other.join()
+    assert reached and signal.getsignal(signal.SIGINT) is signal.default_int_handler

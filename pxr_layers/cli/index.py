@@ -44,10 +44,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _count(text: str) -> int:
-    value = int(text) if text.strip().isdigit() else -1
-    if value < 0:
+    if not text.strip().isdigit():
         raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
-    return value
+    return int(text)
 
 
 def info_lines(index: PathIndex, top: int, verified: int | None = None) -> list[str]:

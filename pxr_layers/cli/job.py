@@ -6,7 +6,6 @@ import argparse
 import logging
 import sys
 
-from ..errors import Terminated
 from . import logging_flags
 
 HELP = "run a shot job (frames × tiles on Dask), or show its progress"
@@ -17,8 +16,6 @@ DESCRIPTION = (
     "`job status` lists each frame as done, under way (tiles committed) or pending."
 )
 log = logging.getLogger(__name__)
-EXIT_INTERRUPTED = 130
-"""128 + SIGINT: what a shell reports for a command stopped by Ctrl-C (main's own code for it)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -61,8 +58,10 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt as interrupt:  # Ctrl-C, or SIGTERM (Terminated)
         # Frames are committed one by one (by the workers, which the client does not see
         # write), so what is on disk is read back: the honest account of an interrupted run.
-        what = "terminated" if isinstance(interrupt, Terminated) else "interrupted"
-        print(f"pxr-layers: {what}: {_committed(job)}; the same command again resumes", file=sys.stderr)
+        from .main import EXIT_INTERRUPTED, interruption
+
+        print(f"pxr-layers: {interruption(interrupt)}: {_committed(job)}; the same command again resumes",
+              file=sys.stderr)
         return getattr(interrupt, "exit_code", EXIT_INTERRUPTED)
     print(f"{job.name}: {len(report.rendered)} frames rendered, {len(report.skipped)} already done "
           f"({report.tiles_rendered} tiles rendered, {report.tiles_reused} reused) in {report.seconds:.1f}s")

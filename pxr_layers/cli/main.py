@@ -21,6 +21,8 @@ from . import logging_flags
 
 SUBCOMMAND_NAMES = ("render", "demo", "index", "extract", "lpe", "job")
 EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE, EXIT_INTERNAL_ERROR = 0, 1, 2, 3
+EXIT_INTERRUPTED = 130
+"""128 + SIGINT: what a shell reports for a command stopped by Ctrl-C (SIGTERM: 143)."""
 ENVIRONMENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES})
 """OSErrors that reach main() as one user-facing line rather than an internal error."""
 
@@ -68,8 +70,17 @@ def _warning_as_log_line(message, category, filename, lineno, file=None, line=No
 
 
 def main(argv: list[str] | None = None) -> int:
-    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:  # not when embedded in a program with its own
+    previous_sigterm = signal.getsignal(signal.SIGTERM)
+    if previous_sigterm is signal.SIG_DFL:  # not when embedded in a program with its own
         signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        return _command(argv)
+    finally:
+        if previous_sigterm is signal.SIG_DFL:
+            signal.signal(signal.SIGTERM, previous_sigterm)
+
+
+def _command(argv: list[str] | None) -> int:
     try:
         parser = build_parser()
         try:
@@ -85,6 +96,9 @@ def main(argv: list[str] | None = None) -> int:
             handler.addFilter(_quiet_libraries)
     warnings.showwarning = _warning_as_log_line
     args.show_progress = not args.quiet and not os.environ.get("CI")
+    from ..outputs import forget_committed
+
+    forget_committed()  # what this command writes, not an earlier one in the same process
     try:
         return subcommands()[args.command].run(args)
     except PxrLayersError as error:
@@ -95,11 +109,11 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as error:
         if error.errno not in ENVIRONMENT_ERRNOS:
             return _internal_error(error)
-        # The machine, not the input nor pxr-layers: a full disk or quota while a library
-        # (numba's kernel cache, a Dask spill) writes a file of its own.
+        # The machine, not the input nor pxr-layers: a full disk, a quota or a permission met
+        # while a library (numba's kernel cache, a Dask spill) writes a file of its own.
         where = f"{error.filename}: " if error.filename else ""
-        print(f"pxr-layers: error: {where}{error.strerror or error} (a full disk, a quota or a folder "
-              "that cannot be written?)", file=sys.stderr)
+        print(f"pxr-layers: error: {where}{error.strerror or error} (the disk, a quota or a "
+              "permission of this machine)", file=sys.stderr)
         return EXIT_USER_ERROR
     except Exception as error:
         return _internal_error(error)
@@ -116,17 +130,22 @@ def _internal_error(error: Exception) -> int:
 def _interrupted(interrupt: KeyboardInterrupt) -> int:
     """Say what an interrupted command left in place (whole files only), and exit 130 for
     Ctrl-C, 143 for SIGTERM."""
-    from ..outputs import committed_files
+    from ..outputs import committed_counts
 
-    what = "terminated" if isinstance(interrupt, Terminated) else "interrupted"
-    committed = committed_files()
-    if committed:
-        folders = sorted({str(path.parent) for path in committed})
-        print(f"pxr-layers: {what}; {len(committed)} complete files had been written (in {', '.join(folders)}), "
-              "nothing else", file=sys.stderr)
-    else:
-        print(f"pxr-layers: {what}; nothing was written", file=sys.stderr)
-    return getattr(interrupt, "exit_code", 130)
+    print(f"pxr-layers: {interruption(interrupt)}; {_written(committed_counts())}", file=sys.stderr)
+    return getattr(interrupt, "exit_code", EXIT_INTERRUPTED)
+
+
+def interruption(interrupt: KeyboardInterrupt) -> str:
+    """'terminated' (SIGTERM) or 'interrupted' (Ctrl-C)."""
+    return "terminated" if isinstance(interrupt, Terminated) else "interrupted"
+
+
+def _written(counts: dict) -> str:
+    if not counts:
+        return "nothing was written"
+    return (f"{sum(counts.values())} complete files had been written (in {', '.join(sorted(map(str, counts)))}), "
+            "nothing else")
 
 
 if __name__ == "__main__":

@@ -464,6 +464,7 @@ def _run_frames(job: Job, client, plans: Iterator[FramePlan], count: int, report
                 if on_frame:
                     on_frame(frame, f"done ({len(report.rendered)} of {count} frames)")
             submit_more()
+        _raise_interrupt(interrupts)  # one that came while the last frames were counted
     report.rendered.sort()
 
 

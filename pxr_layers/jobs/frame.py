@@ -233,7 +233,7 @@ class FrameAssembler:
             index = None
             if self.writer is not None:
                 self.writer.manifest["render_id"] = render_id
-                index = PathIndex(self.writer.close(vocabulary))
+                index = PathIndex(self.writer.close(vocabulary), shown_as=plan.index_path)
             check_beauty(rgba, index, plan.stage)
             delivered = deliver(index, plan.recipe, rgba, plan.outputs, data=data, metadata=metadata,
                                 previews=plan.previews, show_progress=show_progress)

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import itertools
 import logging
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,11 +48,11 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     refuses to keep one) is refused, naming a path class that carries it: no layer of it
     could be trusted to sum to anything.
     """
-    broken = [path_class for path_class in index.classes if not all(map(math.isfinite, path_class.rgb))]
-    if broken:
+    broken = np.flatnonzero(~index.finite_class)
+    if len(broken):
         raise PathIndexError(f"{len(broken)} path classes carry NaN or infinite light (the first: "
-                             f"{path_text(broken[0].events)}); the render that wrote it went wrong",
-                             file=str(index.path))
+                             f"{path_text(index.classes[broken[0]].events)}); the render that wrote it went wrong",
+                             file=str(index.shown_as))
     automata = _automata(expressions)
     for automaton in automata:
         warn_unknown_labels(automaton, index)
@@ -312,7 +311,7 @@ def warn_unknown_labels(automaton: lpe.LayerAutomaton, index: PathIndex) -> None
     for bit, pattern in enumerate(table.patterns):
         if not matched >> bit & 1:
             closest = lpe.closest_labels(pattern, index.labels)
-            log.warning("label '%s' names nothing in %s; closest: %s", pattern, index.path,
+            log.warning("label '%s' names nothing in %s; closest: %s", pattern, index.shown_as,
                         ", ".join(f"'{name}'" for name in closest) or "none")
 
 

@@ -8,8 +8,8 @@ found and the type wanted, instead of a ValueError deep in numpy or numbers sile
 truncated (``float[] faceVertexIndices``) or reshaped (``float[] points``).
 
 Types are compared without their roles (``point3f[]`` is ``float3[]``), and precisions are
-interchangeable (half, float, double); a real where an integer is wanted is refused, an
-integer where a real is wanted is taken (the conversion is exact).
+interchangeable (half, float, double); a real where an integer is wanted is refused; an
+integer scalar where a real is wanted is taken, integer vectors and arrays are not.
 """
 
 from __future__ import annotations
