@@ -13,8 +13,10 @@ removes them all when it fails or is interrupted. Writers do not need to know ab
 :func:`finish`, which renames at once when no set is open in this thread.
 
 Two processes rendering into one folder (a farm retry, two artists) never interleave
-their files: each commit holds an advisory lock (``flock``) on the folder while it renames,
-so the folder holds one render's complete set or the other's. Renders are identified by a
+their files: each commit holds an advisory lock (``flock``) on the folder (or on its
+LOCK_FILE where a folder cannot be locked) while it renames, so the folder holds one
+render's complete set or the other's. Ctrl-C and SIGTERM that come during the renames are
+raised once they are done. Renders are identified by a
 ``renderId`` (see ``jobs.frame``) that ``extract`` checks between an index and its EXR.
 
 Temporaries of processes that were killed (SIGKILL, a crash) cannot remove themselves: the
