@@ -150,12 +150,11 @@ def finish(temporary: Path, final: Path, *, last: bool = False) -> Path:
 class OutputSet:
     """The files written inside ``with OutputSet():`` appear together when the block ends
     normally, and none of them (not even their temporaries) when it raises or is
-    interrupted. ``committed``: the final paths, once committed."""
+    interrupted."""
 
     def __init__(self) -> None:
         self._pending: list[tuple[Path, Path, bool]] = []  # (temporary, final, last)
         self._token: contextvars.Token | None = None
-        self.committed: list[Path] = []
 
     def __enter__(self) -> OutputSet:
         self._token = _current.set(self)
@@ -188,7 +187,6 @@ class OutputSet:
             for temporary, _, _ in ordered:
                 temporary.unlink(missing_ok=True)
             raise
-        self.committed = [final for _, final, _ in ordered]
 
     def abort(self) -> None:
         for temporary, _, _ in self._pending:
