@@ -198,17 +198,22 @@ def curvature_matrix(k1, k2, angle=0.0) -> np.ndarray:
     return r @ principal @ np.swapaxes(r, -1, -2)
 
 
-def curvature(sigma: np.ndarray, k1, k2, sign=1.0, angle=0.0) -> np.ndarray:
-    """Local surface curvature: Σ' = Cᵀ Σ C, C = [[I, 0], [−sign·K, I]], K = curvature_matrix.
+def curvature(sigma: np.ndarray, k1, k2, sign=1.0, angle=0.0, sagittal_scale=1.0) -> np.ndarray:
+    """Local surface curvature: Σ' = Cᵀ Σ C, C = [[I, 0], [−sign·D·K, I]], K = curvature_matrix,
+    D = diag(sagittal_scale, 1).
 
     sigma : (n, 4, 4); k1, k2 : (n,) principal curvatures, 1/m (positive: bowl facing the
     light, see the package docstring); angle : (n,) radians from t̂x to the first
     principal direction; sign : +1 before the BRDF, −1 after. Angles change by
-    sign·K·s with the tangent offset s.
+    sign·D·K·s with the tangent offset s. sagittal_scale : (n,) the factor of the change
+    across the plane of incidence (the u row): cos θ at a reflection, where a normal
+    tilted by δ across the plane turns the reflected ray by 2·cos θ·δ, not 2δ (1: the
+    source model's unforeshortened operator).
     """
     sigma = _as_sigma(sigma)
     n = len(sigma)
     k = curvature_matrix(_per_lane(k1, n, "k1"), _per_lane(k2, n, "k2"), _per_lane(angle, n, "angle"))
+    k[:, 0, :] *= _per_lane(sagittal_scale, n, "sagittal_scale")[:, None]
     shear = _identities(n)
     shear[:, _ANGULAR, _SPATIAL] = -_per_lane(sign, n, "sign")[:, None, None] * k
     return _congruence(sigma, shear)

@@ -55,10 +55,11 @@ def inverse_project(sigma: np.ndarray, cos_theta: float, eps: float = GRAZING_CO
     return p @ sigma @ p
 
 
-def curvature(sigma: np.ndarray, k1: float, k2: float, sign: float = 1.0, angle: float = 0.0) -> np.ndarray:
+def curvature(sigma: np.ndarray, k1: float, k2: float, sign: float = 1.0, angle: float = 0.0,
+              sagittal_scale: float = 1.0) -> np.ndarray:
     c, s = np.cos(angle), np.sin(angle)
     r = np.array([[c, -s], [s, c]])
-    k = r @ np.diag([k1, k2]) @ r.T
+    k = np.diag([sagittal_scale, 1.0]) @ r @ np.diag([k1, k2]) @ r.T
     shear = _blocks(I2, Z2, -sign * k, I2)
     return shear.T @ sigma @ shear
 
@@ -153,13 +154,13 @@ def scatter(sigma: np.ndarray, vertex: VertexParams) -> np.ndarray:
     sigma = rotate(sigma, vertex.rotation_in)
     sigma = project(sigma, vertex.cos_in)
     sigma = reverse(sigma)
-    sigma = curvature(sigma, vertex.k1, vertex.k2, +1.0, vertex.curvature_angle)
+    sigma = curvature(sigma, vertex.k1, vertex.k2, +1.0, vertex.curvature_angle, abs(vertex.cos_in))
     sigma = texture(sigma, np.asarray(vertex.texture))
     if not (np.isinf(vertex.bandwidth_u) and np.isinf(vertex.bandwidth_v)):
         sigma = cosine(sigma, vertex.cos_in)
     sigma = mirror(sigma)
     sigma = brdf(sigma, vertex.bandwidth_u, vertex.bandwidth_v)
-    sigma = curvature(sigma, vertex.k1, vertex.k2, -1.0, vertex.curvature_angle)
+    sigma = curvature(sigma, vertex.k1, vertex.k2, -1.0, vertex.curvature_angle, abs(vertex.cos_in))
     sigma = rotate(sigma, vertex.rotation_out)
     sigma = inverse_project(sigma, vertex.cos_out)
     return travel(sigma, vertex.distance)
