@@ -198,6 +198,8 @@ def test_cli_render_writes_the_index_and_info_reads_it(tmp_path, shipped_scene):
     info = subprocess.run([SCRIPT, "index", "info", str(tmp_path / "cornell.pxlidx")], capture_output=True, text=True, check=False)
     assert info.returncode == 0, info.stderr
     assert "records" in info.stdout and "bytes per record" in info.stdout and "C RD'" in info.stdout
+    per_pixel = (tmp_path / "cornell.pxlidx").stat().st_size / (24 * 24)
+    assert f"{per_pixel:,.0f} bytes per pixel" in info.stdout
     (tmp_path / "broken.pxlidx").write_bytes((tmp_path / "cornell.pxlidx").read_bytes()[:100])
     broken = subprocess.run([SCRIPT, "index", "info", str(tmp_path / "broken.pxlidx")], capture_output=True, text=True, check=False)
     assert broken.returncode == 1

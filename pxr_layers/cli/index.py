@@ -69,7 +69,7 @@ def info_lines(index: PathIndex, top: int, verified: int | None = None) -> list[
         f"classes      {len(index.classes):,}",
         f"labels       {len(index.labels):,}",
         (f"size         {index.size:,} bytes ({index.size / max(records, 1):.2f} bytes per record, "
-        f"{len(index.chunks)} chunks)"),
+        f"{_per_pixel(index)}{len(index.chunks)} chunks)"),
         ("chunks       not verified (--verify reads every chunk)" if verified is None
          else f"chunks       verified: {verified} chunks, CRC-32 and contents ok"),
         "",
@@ -83,3 +83,10 @@ def info_lines(index: PathIndex, top: int, verified: int | None = None) -> list[
         path_class = index.classes[rank]
         lines.append(f"  {energy[rank] / total:7.2%}  {path_class.records:>10,}  {path_text(path_class.events)}")
     return lines
+
+
+def _per_pixel(index: PathIndex) -> str:
+    """'669 bytes per pixel, ' when the index says its resolution (what a frame costs grows
+    with it, whatever the spp), else ''."""
+    width, height = index.manifest.get("resolution") or (0, 0)
+    return f"{index.size / (width * height):,.0f} bytes per pixel, " if width * height else ""
