@@ -1,12 +1,16 @@
-"""What the path index costs: size per record and render-time overhead, side by side.
+"""What the path index costs: size per record, per pixel and per sample, and render-time
+overhead, side by side.
 
     python benchmarks/bench_index.py [--resolution 256 256] [--spp 16 64 256] [--stages cornell showcase]
+                                     [--modes full aggregated]
 
-For each stage and spp, in one run: a plain render (no covariance, no records) and a
-render that records every contribution with the norms of N = 5 events and writes the
-path index, as `pxr-layers render` does by default. Prints records, classes, size on
-disk, bytes per record and the overhead. Targets: ≤ 12 bytes per record, ≤ 25 %
-render-time overhead.
+For each stage, spp and index mode, in one run: a plain render (no covariance, no records)
+and a render that records every contribution with the norms of N = 5 events and writes the
+path index, as `pxr-layers render` does (``full``: one record per contribution, the
+default; ``aggregated``: --aggregate-index). Prints records, classes, size on disk, bytes
+per record, per pixel and per sample, and the overhead. Targets: ≤ 12 bytes per record and
+≤ 25 % render-time overhead (full); issue 19's: ≤ 150 bytes per pixel at 256 spp, ≤ 1.5×
+growth from 64 to 256 spp, ≤ 15 % write overhead.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from pxr_layers.trace import TraceSettings
 from pxr_layers.trace.render import render
 
 NORM_BOUNCES = 5
+MODES = ("full", "aggregated")
 
 
 def timed_pair(scene, spec, spp: int, folder: Path, aggregate: bool) -> tuple[float, float, PathIndex]:
@@ -45,23 +50,24 @@ def main() -> None:
     parser.add_argument("--resolution", type=int, nargs=2, default=(256, 256), metavar=("W", "H"))
     parser.add_argument("--spp", type=int, nargs="+", default=[16, 64, 256])
     parser.add_argument("--stages", nargs="+", default=["cornell", "showcase"])
-    parser.add_argument("--aggregate", action="store_true",
-                        help="write aggregated indexes (pxr-layers render --aggregate-index)")
+    parser.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES),
+                        help="index modes to measure (aggregated: pxr-layers render --aggregate-index)")
     args = parser.parse_args()
     width, height = args.resolution
-    mode = "aggregated" if args.aggregate else "full"
-    print(f"{width}x{height}, N = {NORM_BOUNCES}; plain render vs render + {mode} path index, same run")
-    print(f"{'stage':10} {'spp':>4} {'records':>11} {'classes':>8} {'size MB':>8} {'B/record':>8} "
-          f"{'plain s':>8} {'index s':>8} {'overhead':>8}")
+    print(f"{width}x{height}, N = {NORM_BOUNCES}; plain render vs render + path index, same run")
+    print(f"{'stage':10} {'mode':10} {'spp':>4} {'records':>11} {'classes':>8} {'size MB':>8} {'B/record':>8} "
+          f"{'B/pixel':>8} {'B/sample':>8} {'plain s':>8} {'index s':>8} {'overhead':>8}")
     with tempfile.TemporaryDirectory() as folder:
         for name in args.stages:
             scene, spec = load_stage(str(resources.files("pxr_layers.render").joinpath(f"{name}.usda")))
             spec = dataclasses.replace(spec, resolution=(width, height))
-            for spp in args.spp:
-                plain, indexed, index = timed_pair(scene, spec, spp, Path(folder), args.aggregate)
-                print(f"{name:10} {spp:>4} {index.record_count:>11,} {len(index.classes):>8,} "
-                      f"{index.size / 1e6:>8.1f} {index.size / index.record_count:>8.2f} "
-                      f"{plain:>8.2f} {indexed:>8.2f} {indexed / plain - 1:>+8.1%}", flush=True)
+            for mode in args.modes:
+                for spp in args.spp:
+                    plain, indexed, index = timed_pair(scene, spec, spp, Path(folder), mode == "aggregated")
+                    print(f"{name:10} {mode:10} {spp:>4} {index.record_count:>11,} {len(index.classes):>8,} "
+                          f"{index.size / 1e6:>8.1f} {index.size / index.record_count:>8.2f} "
+                          f"{index.size / (width * height):>8.0f} {index.size / (width * height * spp):>8.2f} "
+                          f"{plain:>8.2f} {indexed:>8.2f} {indexed / plain - 1:>+8.1%}", flush=True)
 
 
 if __name__ == "__main__":
