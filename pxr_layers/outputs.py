@@ -33,15 +33,14 @@ import fcntl
 import logging
 import os
 import re
-import signal
 import socket
 import tempfile
-import threading
 import time
 import zlib
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
+from . import interrupts
 from .errors import OutputError
 
 log = logging.getLogger(__name__)
@@ -201,20 +200,22 @@ def _rename_all(pairs: list[tuple[Path, Path]]) -> None:
     if not pairs:
         return
     folders = {final.parent.resolve() for _, final in pairs}
-    with _folder_locks(folders), _signals_deferred():
-        for folder in folders:
-            remove_stale_temporaries(folder)
-        try:
-            for temporary, _ in pairs:
-                os.chmod(temporary, FILE_MODE)
-        except OSError as error:
-            raise OutputError(f"{temporary}: cannot set the file's mode ({error.strerror or error})") from error
-        for temporary, final in pairs:
+    with _folder_locks(folders):
+        with interrupts.recorded() as received:
+            for folder in folders:
+                remove_stale_temporaries(folder)
             try:
-                os.replace(temporary, final)
+                for temporary, _ in pairs:
+                    os.chmod(temporary, FILE_MODE)
             except OSError as error:
-                raise OutputError(f"{final}: cannot put the file in place ({error.strerror or error})") from error
-            _committed[final.parent] += 1
+                raise OutputError(f"{temporary}: cannot set the file's mode ({error.strerror or error})") from error
+            for temporary, final in pairs:
+                try:
+                    os.replace(temporary, final)
+                except OSError as error:
+                    raise OutputError(f"{final}: cannot put the file in place ({error.strerror or error})") from error
+                _committed[final.parent] += 1
+        interrupts.raise_recorded(received)  # once every file is in place
 
 
 def remove_stale_temporaries(folder: Path) -> list[Path]:
@@ -302,25 +303,3 @@ def _wait_for_lock(handle: int, folder: Path) -> bool:
             if error.errno in (errno.EBADF, errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL):
                 return False
             raise OutputError(f"{folder}: cannot lock the output folder ({error.strerror})") from error
-
-
-@contextlib.contextmanager
-def _signals_deferred() -> Iterator[None]:
-    """Ctrl-C and SIGTERM that come during the block are recorded, and raised again when it
-    ends. (Blocking them with pthread_sigmask would not do: the process's other threads,
-    Embree's and numba's, would take them.) Only in the main thread, where Python handles
-    signals."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    received: list[int] = []
-    previous = {number: signal.signal(number, lambda signum, frame: received.append(signum))
-                for number in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for number, handler in previous.items():
-            if handler is not None:  # None: a handler set outside Python, which signal.signal cannot restore
-                signal.signal(number, handler)
-        if received:
-            signal.raise_signal(received[0])

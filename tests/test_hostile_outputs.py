@@ -202,15 +202,17 @@ def test_ctrl_c_during_the_renames_is_raised_after_them():
     of a commit either: it is recorded, then raised once the block is done."""
     import threading
 
-    from pxr_layers.outputs import _signals_deferred
+    from pxr_layers.interrupts import raise_recorded, recorded
 
     other = threading.Thread(target=time.sleep, args=(0.5,))
     other.start()
     reached = False
     with pytest.raises(KeyboardInterrupt):
-        with _signals_deferred():
+        with recorded() as received:
             os.kill(os.getpid(), signal.SIGINT)
-            time.sleep(0.1)  # Python runs handlers between bytecodes: here, without the deferral
+            time.sleep(0.1)  # Python runs handlers between bytecodes: here, without the recording
             reached = True
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        raise_recorded(received)
     other.join()
-    assert reached and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert reached

@@ -11,12 +11,12 @@ import errno
 import importlib
 import logging
 import os
-import signal
 import sys
 import warnings
 
 from .. import __version__
 from ..errors import PxrLayersError, Terminated
+from ..interrupts import sigterm_raises
 from . import logging_flags
 
 SUBCOMMAND_NAMES = ("render", "demo", "index", "extract", "lpe", "job")
@@ -25,13 +25,6 @@ EXIT_INTERRUPTED = 130
 """128 + SIGINT: what a shell reports for a command stopped by Ctrl-C (SIGTERM: 143)."""
 ENVIRONMENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES})
 """OSErrors that reach main() as one user-facing line rather than an internal error."""
-
-
-def _raise_terminated(signal_number, frame) -> None:
-    raise Terminated(signal_number)
-
-
-_raise_terminated.raises_terminated = True  # a job's client may defer it as it defers Ctrl-C
 
 
 def subcommands() -> dict:
@@ -70,14 +63,8 @@ def _warning_as_log_line(message, category, filename, lineno, file=None, line=No
 
 
 def main(argv: list[str] | None = None) -> int:
-    previous_sigterm = signal.getsignal(signal.SIGTERM)
-    if previous_sigterm is signal.SIG_DFL:  # not when embedded in a program with its own
-        signal.signal(signal.SIGTERM, _raise_terminated)
-    try:
+    with sigterm_raises():  # SIGTERM unwinds like Ctrl-C: the same clean-up, exit 143
         return _command(argv)
-    finally:
-        if previous_sigterm is signal.SIG_DFL:
-            signal.signal(signal.SIGTERM, previous_sigterm)
 
 
 def _command(argv: list[str] | None) -> int:

@@ -42,7 +42,6 @@ import math
 import os
 import pickle
 import shutil
-import signal
 import tempfile
 import threading
 import time
@@ -52,7 +51,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import JobError, OutputError, PxrLayersError, Terminated
+from .. import interrupts
+from ..errors import JobError, OutputError, PxrLayersError
 from ..outputs import write_atomically
 from ..paths.format import stored_norms
 from .definition import Job
@@ -321,34 +321,6 @@ INTERRUPT_POLL_SECONDS = 0.2
 
 
 @contextmanager
-def _interrupts_polled() -> Iterator[list[int]]:
-    """While the block runs, Ctrl-C (SIGINT) and SIGTERM only append their number to the list
-    it yields, for the block to raise KeyboardInterrupt (or Terminated) where it looks.
-    Python's own handlers raise wherever the main thread is: in a garbage-collector callback,
-    which Dask registers, or a finaliser, it is printed as a traceback and ignored, and the
-    run went on. Only in the main thread, and only over Python's and pxr-layers' handlers
-    (a program's own is left alone)."""
-    received: list[int] = []
-    if threading.current_thread() is not threading.main_thread():
-        yield received
-        return
-    previous = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
-    for number, handler in previous.items():
-        if handler is signal.default_int_handler or getattr(handler, "raises_terminated", False):
-            signal.signal(number, lambda signum, frame: received.append(signum))
-    try:
-        yield received
-    finally:
-        for number, handler in previous.items():
-            signal.signal(number, handler)
-
-
-def _raise_interrupt(received: list[int]) -> None:
-    if received:
-        raise Terminated(received[0]) if received[0] == signal.SIGTERM else KeyboardInterrupt
-
-
-@contextmanager
 def _file_errors(what: str):
     """An OSError about a file (it carries the file's name: a full disk, a permission, a
     read-only mount) as one OutputError line; others (a lost connection) are left as they are."""
@@ -446,14 +418,14 @@ def _run_frames(job: Job, client, plans: Iterator[FramePlan], count: int, report
                 return
             assemblies[_submit_frame(job, client, plan, next(positions), report, on_frame)] = plan.frame
 
-    with _interrupts_polled() as interrupts:
+    with interrupts.recorded() as received:  # Python's handlers raise where Dask's callbacks swallow it
         submit_more()
         while assemblies:
             try:
                 done, _ = wait(list(assemblies), timeout=INTERRUPT_POLL_SECONDS, return_when="FIRST_COMPLETED")
             except TimeoutError:
                 done = set()
-            _raise_interrupt(interrupts)
+            interrupts.raise_recorded(received)
             for future in sorted(done, key=assemblies.get):
                 frame = assemblies.pop(future)
                 with _file_errors(f"frame {frame:g}"):
@@ -464,7 +436,7 @@ def _run_frames(job: Job, client, plans: Iterator[FramePlan], count: int, report
                 if on_frame:
                     on_frame(frame, f"done ({len(report.rendered)} of {count} frames)")
             submit_more()
-        _raise_interrupt(interrupts)  # one that came while the last frames were counted
+        interrupts.raise_recorded(received)  # one that came while the last frames were counted
     report.rendered.sort()
 
 
