@@ -82,7 +82,7 @@ def main() -> None:
         for name in args.stages:
             scene, spec = load_stage(str(resources.files("pxr_layers.render").joinpath(f"{name}.usda")))
             spec = dataclasses.replace(spec, resolution=(width, height))
-            settings = TraceSettings(spp=args.spp, norm_bounces=5, record_paths=True)
+            settings = TraceSettings(spp=args.spp, norm_bounces=5, record_paths=True, merge_records=True)
             path = Path(folder) / f"{name}.pxlidx"
             start = time.perf_counter()
             writer = PathIndexWriter(path, {"spp": args.spp, "resolution": [width, height]}, 5)

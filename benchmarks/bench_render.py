@@ -366,14 +366,14 @@ def index_overhead(cli, resolution, spp: int, threads: int, scratch: Path) -> No
     scene, spec = load_stage(stage)
     spec = dataclasses.replace(spec, resolution=tuple(resolution))
     render(scene, dataclasses.replace(spec, resolution=(16, 16)), TraceSettings(spp=4, norm_bounces=5,
-           record_paths=True), threads=threads, show_progress=False)  # warm every kernel
+           record_paths=True, merge_records=True), threads=threads, show_progress=False)  # warm every kernel
 
     def indexed() -> tuple[float, float]:
         path = scratch / "in-process.pxlidx"
         writer = PathIndexWriter(path, {"resolution": list(resolution), "spp": spp}, 5)
         try:
             with Load() as load:
-                result = render(scene, spec, TraceSettings(spp=spp, norm_bounces=5, record_paths=True),
+                result = render(scene, spec, TraceSettings(spp=spp, norm_bounces=5, record_paths=True, merge_records=True),
                                 threads=threads, show_progress=False, on_batch=lambda batch: writer.add(batch.records))
                 writer.close(result.vocabulary)
         except BaseException:
@@ -421,7 +421,7 @@ def thread_scaling(resolution, spp: int, max_depth: int, scratch: Path) -> None:
     width, height = spec.resolution
     for label, settings in (("plain", TraceSettings(spp=spp, max_depth=max_depth)),
                             ("with index", TraceSettings(spp=spp, max_depth=max_depth, norm_bounces=5,
-                                                         record_paths=True))):
+                                                         record_paths=True, merge_records=True))):
         integrator = prepare(scene, spec, settings)
         warm_up(integrator)
         seconds, cores, notes = {}, {}, {}

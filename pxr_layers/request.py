@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import RenderSettingsError
-from .recipe.model import MAX_INDEX_BOUNCES
+from .recipe.model import COVARIANCE_MODES, INDEX_MODES, MAX_INDEX_BOUNCES
 
 DEFAULT_SPP = 64
 DEFAULT_MAX_DEPTH = 8
@@ -82,6 +82,8 @@ class RenderRequest:
     norm_bounces   : events per path whose covariance norms the index keeps; None = the
                      products' ``pxrLayers:index:bounces``, raised to ``max_depth`` when a
                      layer has a covariance condition (:meth:`resolved_norm_bounces`)
+    index_mode     : "merged" | "records" overriding the products' ``pxrLayers:index:mode``
+    index_covariance : "norms" | "sigma" overriding the products' ``pxrLayers:index:covariance``
     subdiv_level   : uniform refinement level of subdivision surfaces (0 = the cage)
     default_lights : a stage without any light gets the default rig (``/pxrLayers/defaultLights``)
     strict         : any composition error (missing or unreadable reference, payload,
@@ -99,6 +101,8 @@ class RenderRequest:
     max_depth: int = DEFAULT_MAX_DEPTH
     seed: int = DEFAULT_SEED
     norm_bounces: int | None = None
+    index_mode: str | None = None
+    index_covariance: str | None = None
     subdiv_level: int = DEFAULT_SUBDIV_LEVEL
     default_lights: bool = True
     strict: bool = False
@@ -116,6 +120,10 @@ class RenderRequest:
                 continue
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise RenderSettingsError(f"{name} must be an integer >= {low}, not {value!r}")
+        for name, allowed in (("index_mode", INDEX_MODES), ("index_covariance", COVARIANCE_MODES)):
+            if getattr(self, name) not in (None, *allowed):
+                raise RenderSettingsError(f"{name.replace('_', ' ')} must be one of {', '.join(allowed)}, "
+                                          f"not {getattr(self, name)!r}")
         if not 0 <= self.subdiv_level <= MAX_SUBDIV_LEVEL:
             raise RenderSettingsError(f"subdiv level must be 0 to {MAX_SUBDIV_LEVEL}, not {self.subdiv_level}")
         if self.resolution is not None and min(self.resolution) <= 0:

@@ -17,13 +17,14 @@ from pxr_layers.trace.integrator import TraceSettings
 from pxr_layers.trace.render import render
 
 RESOLUTION = (64, 48)
-SETTINGS = TraceSettings(spp=8, max_depth=5, seed=5, norm_bounces=5, record_paths=True)
+SETTINGS = TraceSettings(spp=8, max_depth=5, seed=5, norm_bounces=5, record_paths=True, merge_records=True)
 
 
 def indexed_render(stage, path, resolution=RESOLUTION, settings=SETTINGS):
     scene, spec = stage
     spec = dataclasses.replace(spec, resolution=resolution)
-    writer = PathIndexWriter(path, {"spp": settings.spp, "resolution": list(resolution)}, settings.norm_bounces)
+    writer = PathIndexWriter(path, {"spp": settings.spp, "resolution": list(resolution)}, settings.norm_bounces,
+                             mode="merged" if settings.merge_records else "records")
     result = render(scene, spec, settings, threads=2, show_progress=False,
                     on_batch=lambda batch: writer.add(batch.records))
     writer.close(result.vocabulary)

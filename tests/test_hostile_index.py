@@ -36,12 +36,13 @@ from pxr_layers.trace.integrator import TraceSettings
 from pxr_layers.trace.render import render
 
 RESOLUTION = (16, 12)
-SETTINGS = TraceSettings(spp=2, max_depth=3, seed=7, norm_bounces=2, record_paths=True)
+SETTINGS = TraceSettings(spp=2, max_depth=3, seed=7, norm_bounces=2, record_paths=True, merge_records=True)
 CHUNK_RECORDS = 48  # nine chunks: damage can land in any of them
 LAYERS = {"beauty": lpe.BEAUTY, "diffuse": "C<RD>.*", "flat": "C<R.>@(|S_C| = 0).*"}  # the last reads the norms
 PROPERTY = settings(deadline=None, derandomize=True, database=None)  # reproducible, leaves no .hypothesis/
-RECORD_BYTES = sum(dtype.itemsize * int(np.prod(shape))
-                   for _, dtype, shape in fmt.column_sizes(1, SETTINGS.norm_bounces))
+LAYOUT = fmt.column_layout("merged", 1, SETTINGS.norm_bounces, False)
+SUMS_BYTES = fmt.frame_bytes(LAYOUT[0])  # of one record, in each frame
+RECORD_BYTES = SUMS_BYTES + fmt.frame_bytes(LAYOUT[1])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,7 +51,7 @@ class Intact:
 
     data: bytes
     tables: dict
-    columns: list[bytes]  # per chunk, its decompressed columns
+    columns: list[bytes]  # per chunk, its decompressed columns (both frames, one after the other)
     layers: dict[str, np.ndarray]
 
     def __repr__(self) -> str:  # pytest and hypothesis print the arguments of a failing example
@@ -74,8 +75,11 @@ def cornell_index(shipped_scene, tmp_path_factory) -> Intact:
     writer.close(result.vocabulary)
     data = path.read_bytes()
     tables = footer_of(data)
-    columns = [zstandard.ZstdDecompressor().decompress(data[chunk["offset"] + fmt.CHUNK_HEADER.size:][:chunk["bytes"]])
-               for chunk in tables["chunks"]]
+    columns = []
+    for chunk in tables["chunks"]:
+        payload = data[chunk["offset"] + fmt.CHUNK_HEADER.size:][:chunk["bytes"]]
+        columns.append(b"".join(zstandard.ZstdDecompressor().decompress(frame) for frame in
+                                (payload[:chunk["sums_bytes"]], payload[chunk["sums_bytes"]:])))
     assert len(columns) >= 6, len(columns)
     return Intact(data, tables, columns, extract(PathIndex(path), LAYERS).layers)
 
@@ -101,14 +105,19 @@ def with_footer(data: bytes, tables) -> bytes:
 
 def forged(tables: dict, columns: list[bytes], *, compress=None) -> bytes:
     """An index of these tables and chunk columns with every offset, size and CRC-32 made
-    to agree: damage no checksum can catch. compress: bytes -> a chunk's payload."""
-    compress = compress or zstandard.ZstdCompressor(level=fmt.ZSTD_LEVEL).compress
+    to agree: damage no checksum can catch. compress: (chunk number, frame 0 or 1, its
+    columns' bytes) -> the frame as stored."""
+    default = zstandard.ZstdCompressor(level=fmt.ZSTD_LEVEL).compress
+    compress = compress or (lambda number, frame, data: default(data))
     tables = copy.deepcopy(tables)
     data = bytearray(fmt.HEADER.pack(fmt.HEADER_MAGIC, fmt.FORMAT_VERSION, 0))
-    for chunk, chunk_columns in zip(tables["chunks"], columns, strict=True):
-        payload = compress(chunk_columns)
-        chunk.update(offset=len(data), bytes=len(payload), crc32=zlib.crc32(payload))
-        data += fmt.CHUNK_HEADER.pack(fmt.CHUNK_MAGIC, len(payload), chunk["crc32"], chunk["records"]) + payload
+    for number, (chunk, chunk_columns) in enumerate(zip(tables["chunks"], columns, strict=True)):
+        split = chunk["records"] * SUMS_BYTES
+        sums = compress(number, 0, chunk_columns[:split])
+        payload = sums + compress(number, 1, chunk_columns[split:])
+        chunk.update(offset=len(data), bytes=len(payload), sums_bytes=len(sums), crc32=zlib.crc32(payload))
+        data += fmt.CHUNK_HEADER.pack(fmt.CHUNK_MAGIC, len(payload), chunk["crc32"], chunk["records"],
+                                      len(sums)) + payload
     data += fmt.TRAILER.pack(len(data), 0, 0, fmt.FORMAT_VERSION, fmt.TRAILER_MAGIC)  # where the footer goes
     return with_footer(bytes(data), tables)
 
@@ -117,7 +126,8 @@ def with_column(columns: list[bytes], number: int, name: str, change) -> list[by
     """`columns` with chunk `number`'s column `name` replaced by change(values) (a copy)."""
     records = len(columns[number]) // RECORD_BYTES
     start = 0
-    for column, dtype, shape in fmt.column_sizes(records, SETTINGS.norm_bounces):
+    sums, covariance = fmt.column_layout("merged", records, SETTINGS.norm_bounces, False)
+    for column, dtype, shape in sums + covariance:
         size = int(np.prod(shape)) * dtype.itemsize
         if column == name:
             values = change(fmt.unshuffle(columns[number][start:start + size], dtype, shape).copy())
@@ -244,14 +254,14 @@ def test_forged_records_are_refused_naming_the_chunk(cornell_index, folder, dama
 @pytest.mark.parametrize("payload, message", [
     (lambda columns: zstandard.ZstdCompressor().compress(columns[:-1]), "does not hold its"),
     (lambda columns: zstandard.ZstdCompressor(write_content_size=False).compress(columns), "does not hold its"),
-    (lambda columns: b"not zstd" + columns[:50], "is not a zstd frame of its records"),
-    (lambda columns: zstandard.ZstdCompressor().compress(columns) + b"extra", "is not a zstd frame of its records"),
+    (lambda columns: b"not zstd" + columns[:50], "is not two zstd frames of its records"),
+    (lambda columns: zstandard.ZstdCompressor().compress(columns) + b"extra", "is not two zstd frames of its records"),
 ])
 def test_a_payload_of_other_sizes_is_refused_naming_the_chunk(cornell_index, folder, payload, message):
     columns = cornell_index.columns
     path = folder / "sizes.pxlidx"
     path.write_bytes(forged(cornell_index.tables, columns,
-                            compress=lambda data: payload(data) if data is columns[1] else
+                            compress=lambda number, frame, data: payload(data) if (number, frame) == (1, 0) else
                             zstandard.ZstdCompressor().compress(data)))
     index = PathIndex(path)
     with pytest.raises(PathIndexError, match=f"chunk 1 at byte {index.chunks[1]['offset']} {message}"):

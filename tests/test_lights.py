@@ -361,7 +361,7 @@ def test_per_light_layers_still_sum_to_the_beauty_under_linking(tmp_path):
                    for light in scene.lights)
     scene = dataclasses.replace(scene, lights=lights)
     spec = dataclasses.replace(spec, resolution=(32, 32))
-    settings = TraceSettings(spp=4, max_depth=3, record_paths=True)
+    settings = TraceSettings(spp=4, max_depth=3, record_paths=True, merge_records=True)
     path = tmp_path / "linked.pxlidx"
     writer = PathIndexWriter(path, {"spp": settings.spp, "resolution": [32, 32]}, settings.norm_bounces)
     result = render(scene, spec, settings, show_progress=False, on_batch=lambda batch: writer.add(batch.records))

@@ -26,7 +26,8 @@ def render_with_index(scene_and_spec, path, *, threads=2, chunk_records=512, set
     scene, spec = scene_and_spec
     spec = dataclasses.replace(spec, resolution=RESOLUTION)
     writer = PathIndexWriter(path, {"stage": scene.stage_path, "spp": settings.spp}, settings.norm_bounces,
-                             buffer_records=20000, chunk_records=chunk_records)
+                             mode="merged" if settings.merge_records else "records", buffer_records=20000,
+                             chunk_records=chunk_records)
     batches = []
 
     def keep(batch):
@@ -70,23 +71,24 @@ def test_everything_stored_round_trips(rendered):
     path, result, batches = rendered
     index = PathIndex(path)
     written = {name: np.concatenate([getattr(b, name) for b in batches]) for name in ("pixel", "sample", "rgb", "norms")}
+    written["count"] = written.pop("sample")
     written_text = np.concatenate([
         np.array([path_text(tuple(result.vocabulary.event(e) for e in seq)) for seq in b.sequences])[b.path_class]
         for b in batches
     ])
     chunks = list(index.records())
-    read = {name: np.concatenate([getattr(c, name) for c in chunks]) for name in ("pixel", "sample", "rgb", "norms")}
+    read = {name: np.concatenate([getattr(c, name) for c in chunks]) for name in ("pixel", "count", "rgb", "norms")}
     class_text = np.array([path_text(c.events[1:]) for c in index.classes])
     read_text = class_text[np.concatenate([c.class_id for c in chunks])]
     assert index.record_count == len(written["pixel"]) == len(read["pixel"])
     assert all(c.events[0].type == "C" for c in index.classes)
 
     def order(columns, text):
-        return np.lexsort((columns["rgb"][:, 0], columns["sample"], columns["pixel"], text))
+        return np.lexsort((columns["rgb"][:, 0], columns["count"], columns["pixel"], text))
 
     a, b = order(written, written_text), order(read, read_text)
     np.testing.assert_array_equal(written_text[a], read_text[b])
-    for name in ("pixel", "sample", "rgb"):
+    for name in ("pixel", "count", "rgb"):
         np.testing.assert_array_equal(written[name][a], read[name][b])
     # norms are stored as float16: 11 significant bits
     np.testing.assert_allclose(read["norms"][b], written["norms"][a], rtol=2**-11, atol=0)
@@ -169,7 +171,7 @@ def test_an_interrupted_write_leaves_no_index(stage, tmp_path):
     scene, spec = stage
     spec = dataclasses.replace(spec, resolution=RESOLUTION)
     final = tmp_path / "shot.pxlidx"
-    writer = PathIndexWriter(final, {}, SETTINGS.norm_bounces, buffer_records=1000)
+    writer = PathIndexWriter(final, {}, SETTINGS.norm_bounces, mode="records", buffer_records=1000)
     seen = []
 
     def interrupt(batch):
@@ -206,30 +208,30 @@ def test_cli_render_writes_the_index_and_info_reads_it(tmp_path, shipped_scene):
     assert len(broken.stderr.strip().splitlines()) == 1 and "broken.pxlidx" in broken.stderr
 
 
-def test_aggregated_index_keeps_the_beauty_with_fewer_records(stage, rendered, tmp_path):
+def test_merged_index_keeps_the_beauty_with_fewer_records(stage, rendered, tmp_path):
+    """The same render merged in the tracer: the same light per pixel and per class, every
+    contribution counted once, fewer records, and norms in their bins."""
     path, _result, _batches = rendered
-    scene, spec = stage
-    spec = dataclasses.replace(spec, resolution=RESOLUTION)
-    writer = PathIndexWriter(tmp_path / "agg.pxlidx", {}, SETTINGS.norm_bounces, aggregate=True, chunk_records=512)
-    again = render(scene, spec, SETTINGS, threads=2, batch_paths=1024, show_progress=False,
-                   on_batch=lambda batch: writer.add(batch.records))
-    writer.close(again.vocabulary)
-    full, aggregated = PathIndex(path), PathIndex(tmp_path / "agg.pxlidx")
-    assert aggregated.manifest["aggregated"] and aggregated.manifest["contributions"] == full.record_count
-    assert aggregated.record_count < full.record_count
+    merged_path = tmp_path / "merged.pxlidx"
+    render_with_index(stage, merged_path, settings=dataclasses.replace(SETTINGS, merge_records=True))
+    full, merged = PathIndex(path), PathIndex(merged_path)
+    assert merged.manifest["mode"] == "merged" and merged.manifest["contributions"] == full.record_count
+    assert merged.record_count < full.record_count
     width, height = RESOLUTION
-    images = []
-    for index in (full, aggregated):
+    images, counted = [], 0
+    for index in (full, merged):
         image = np.zeros((width * height, 3))
-        merged = 0
         for chunk in index.records():
-            merged += chunk.sample.sum()
+            counted += chunk.count.sum() if index is merged else 0
             for channel in range(3):
                 image[:, channel] += np.bincount(chunk.pixel, weights=chunk.rgb[:, channel], minlength=width * height)
         images.append(image)
-    assert merged == full.record_count  # the sample column counts the merged contributions
+    assert counted == full.record_count  # the count column counts the merged contributions
     np.testing.assert_allclose(images[1], images[0], rtol=1e-6, atol=1e-7 * images[0].max())
-    assert [c.records for c in aggregated.classes] != [] and len(aggregated.classes) == len(full.classes)
+    assert [path_text(c.events) for c in merged.classes] == [path_text(c.events) for c in full.classes]
+    np.testing.assert_allclose([c.rgb for c in merged.classes], [c.rgb for c in full.classes], rtol=1e-6, atol=1e-9)
+    centres = fmt.NormBins.centres()
+    assert np.isin(np.concatenate([chunk.norms.reshape(-1) for chunk in merged.records()]), centres).all()
 
 
 @pytest.mark.parametrize("dtype", ["u1", "<i2", "<f2", "<u4", "<i4", "<f4", "<f8", "<i8"])

@@ -61,11 +61,12 @@ def info_lines(index: PathIndex, top: int, verified: int | None = None) -> list[
         (f"render       frame {manifest.get('frame', '?')}, camera {manifest.get('camera', '?')}, "
         f"{manifest.get('resolution', ['?', '?'])[0]}×{manifest.get('resolution', ['?', '?'])[1]}, "
         f"{manifest.get('spp', '?')} spp, seed {manifest.get('seed', '?')}"),
-        (f"norms        C, T, R of the first {manifest['norm_slots']} events "
-        f"({', '.join(f'{name} in {unit}' for name, unit in manifest['norms'].items())}; "
-        f"{manifest['norm_storage']})"),
-        f"records      {records:,}" + (f" (aggregated from {manifest['contributions']:,} contributions)"
-                                           if manifest.get("aggregated") else ""),
+        f"mode         {_mode(manifest)}",
+        (f"covariance   C, T, R of the first {manifest['norm_slots']} events "
+        f"({', '.join(f'{name} in {unit}' for name, unit in manifest['norms'].items())})"
+        + (", and each event's whole 4×4 Σ" if manifest["covariance"] == "sigma" else "")),
+        f"records      {records:,}" + (f" (merged from {manifest['contributions']:,} contributions)"
+                                           if manifest["mode"] == "merged" else ""),
         f"classes      {len(index.classes):,}",
         f"labels       {len(index.labels):,}",
         (f"size         {index.size:,} bytes ({index.size / max(records, 1):.2f} bytes per record, "
@@ -83,6 +84,17 @@ def info_lines(index: PathIndex, top: int, verified: int | None = None) -> list[
         path_class = index.classes[rank]
         lines.append(f"  {energy[rank] / total:7.2%}  {path_class.records:>10,}  {path_text(path_class.events)}")
     return lines
+
+
+def _mode(manifest) -> str:
+    """How the index keeps the light, and its bins."""
+    if manifest["mode"] != "merged":
+        return "records: one per contribution, norms as float16"
+    bins = manifest.get("bins", {})
+    per_octave = bins.get("bins_per_octave", "?")
+    width = f" (×{2 ** (1 / per_octave):.3f} per bin)" if isinstance(per_octave, int) and per_octave > 0 else ""
+    return (f"merged: one record per pixel, path class and covariance bin; {bins.get('kind', '?')} bins, "
+            f"{per_octave} per octave{width}, 0 exact, read as each bin's {bins.get('reads_as', '?')}")
 
 
 def _per_pixel(index: PathIndex) -> str:

@@ -14,7 +14,7 @@ from ..jobs.frame import FrameAssembler, plan_frame, prepare_frame
 from ..layers.debug import write_covariance_debug
 from ..layers.deliver import Delivered
 from ..progress import Progress
-from ..recipe.model import DEFAULT_INDEX_BOUNCES, MAX_INDEX_BOUNCES, PER_LIGHT_MODES
+from ..recipe.model import COVARIANCE_MODES, DEFAULT_INDEX_BOUNCES, INDEX_MODES, MAX_INDEX_BOUNCES, PER_LIGHT_MODES
 from ..recipe.presets import PRESETS, preset
 from ..request import (
     DEFAULT_MAX_DEPTH,
@@ -101,10 +101,15 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-index", action="store_true",
                         help="do not keep the path index STEM.pxlidx (it is what lets `pxr-layers extract` "
                         "cut new layers later without rendering again)")
-    parser.add_argument("--aggregate-index", action="store_true",
-                        help="merge the index records of one pixel that share their path class and "
-                        "norms (as stored, float16) into one: the index grows less than linearly with "
-                        "spp; layers are unchanged, the sample number of each record is lost")
+    parser.add_argument("--index-mode", choices=INDEX_MODES, default=None,
+                        help="merged (default): one index record per pixel, path class and covariance bin "
+                        "(bins of ratio 2^(1/4); the index grows with the distinct classes, not with spp); "
+                        "records: one per contribution with its sample number and float16 norms "
+                        "(default: the products' pxrLayers:index:mode)")
+    parser.add_argument("--index-covariance", choices=COVARIANCE_MODES, default=None,
+                        help="norms: the index keeps C, T, R per event; sigma: also the whole 4x4 "
+                        "covariance, for conditions on S11 ... S44 (default: the products' "
+                        "pxrLayers:index:covariance)")
     parser.add_argument("--no-previews", action="store_true", help="do not write the PNG previews and contact sheets")
     parser.add_argument("--debug-covariance", action="store_true",
                         help="also write the first bounce's covariance norms beside the index: "
@@ -124,7 +129,8 @@ def request_from_args(stage_path: Path, args: argparse.Namespace) -> RenderReque
         stage=stage_path, recipe_layers=tuple(preset_or_file(text) for text in args.recipe),
         variants=tuple(args.variant), settings=args.settings, camera=args.camera, per_light=args.per_light,
         resolution=tuple(args.resolution) if args.resolution else None, spp=args.spp, max_depth=args.max_depth,
-        seed=args.seed, norm_bounces=args.norm_bounces, subdiv_level=args.subdiv_level,
+        seed=args.seed, norm_bounces=args.norm_bounces, index_mode=args.index_mode,
+        index_covariance=args.index_covariance, subdiv_level=args.subdiv_level,
         default_lights=not args.no_default_lights, strict=args.strict,
     )
 
@@ -137,7 +143,7 @@ def render_stage(stage_path: Path, args: argparse.Namespace) -> list[Delivered]:
     request = request_from_args(stage_path, args)
     shot = open_request(request)  # the stage is composed and read once for the whole render
     plan = plan_frame(request, args.frame, shot=shot, directory=directory, exr=exr, keep_index=not args.no_index,
-                      aggregate_index=args.aggregate_index, previews=not args.no_previews)
+                      previews=not args.no_previews)
     if args.debug_covariance and plan.trace.norm_bounces == 0:
         plan = dataclasses.replace(plan, trace=dataclasses.replace(plan.trace, norm_bounces=1))
     integrator = prepare_frame(plan, shot)

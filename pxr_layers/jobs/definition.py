@@ -50,7 +50,7 @@ except ModuleNotFoundError:  # Python 3.10: the same parser, as a package
     import tomli as tomllib
 
 from ..errors import JobError, RenderSettingsError
-from ..recipe.model import MAX_INDEX_BOUNCES, PER_LIGHT_MODES
+from ..recipe.model import COVARIANCE_MODES, INDEX_MODES, MAX_INDEX_BOUNCES, PER_LIGHT_MODES
 from ..recipe.presets import PRESETS, preset
 from ..request import (
     DEFAULT_MAX_DEPTH,
@@ -160,7 +160,8 @@ class Job:
             "recipe_layers": [str(p) for p in request.recipe_layers], "per_light": request.per_light,
             "variants": [str(selection) for selection in request.variants],
             "spp": request.spp, "seed": request.seed, "max_depth": request.max_depth,
-            "norm_bounces": request.norm_bounces, "subdiv_level": request.subdiv_level,
+            "norm_bounces": request.norm_bounces, "index_mode": request.index_mode,
+            "index_covariance": request.index_covariance, "subdiv_level": request.subdiv_level,
             "default_lights": request.default_lights, "strict": request.strict,
             "resolution": list(request.resolution) if request.resolution else None,
             "output_directory": str(self.output_directory), "output_template": self.output_template,
@@ -386,6 +387,10 @@ KEYS: tuple[_Key, ...] = (
     _Key("render.norm_bounces", _integer(0, MAX_INDEX_BOUNCES), "the products'",
          "events per path whose covariance norms the index keeps (default: the products' "
          f"pxrLayers:index:bounces, raised to max_depth when a layer has a covariance condition; at most {MAX_INDEX_BOUNCES})"),
+    _Key("render.index_mode", _choice(INDEX_MODES), "the products'",
+         'how the index keeps the light: "merged" (per pixel, class and covariance bin) or "records" (per contribution)'),
+    _Key("render.index_covariance", _choice(COVARIANCE_MODES), "the products'",
+         'what the index keeps per event: "norms" (C, T, R) or "sigma" (also the whole 4x4 covariance)'),
     _Key("render.subdiv_level", _integer(0, MAX_SUBDIV_LEVEL), str(DEFAULT_SUBDIV_LEVEL),
          "uniform refinement level of subdivision surfaces (0 = the cage)"),
     _Key("render.default_lights", _boolean, "true", "a stage without any light gets the default rig"),
@@ -406,6 +411,7 @@ _REQUEST_FIELDS = {
     "variants": "variants", "settings": "settings", "recipe.per_light": "per_light",
     "render.resolution": "resolution", "render.spp": "spp", "render.seed": "seed",
     "render.max_depth": "max_depth", "render.norm_bounces": "norm_bounces",
+    "render.index_mode": "index_mode", "render.index_covariance": "index_covariance",
     "render.subdiv_level": "subdiv_level", "render.default_lights": "default_lights", "render.strict": "strict",
 }
 """Job keys → the RenderRequest fields they set."""

@@ -136,7 +136,7 @@ def _fingerprint(plan: FramePlan) -> str:
         "variants": [str(selection) for selection in plan.request.variants],
         "subdiv_level": plan.request.subdiv_level, "default_lights": plan.request.default_lights,
         "spp": trace.spp, "max_depth": trace.max_depth, "seed": trace.seed, "norm_bounces": trace.norm_bounces,
-        "record": trace.record_paths,
+        "record": trace.record_paths, "merge": trace.merge_records, "sigma": trace.record_sigma,
     }, sort_keys=True)
 
 
@@ -197,11 +197,12 @@ def render_tile(plan: FramePlan, first: int, stop: int, path: str, data_path: st
         render_frame_data(plan, data_path)
     integrator = _prepared(plan)
     from ..trace import trace_pixels
+    from ..trace.recorder import Contributions
 
     batches: list = []
 
     def keep(batch) -> None:
-        if batch.records is not None:  # norms as the index stores them: a quarter of the bytes to move
+        if isinstance(batch.records, Contributions):  # norms as the index stores them: a quarter of the bytes to move
             norms = stored_norms(batch.records.norms)
             batch = dataclasses.replace(batch, records=dataclasses.replace(batch.records, norms=norms))
         batches.append(batch)

@@ -70,7 +70,6 @@ class FramePlan:
     outputs: dict[str, Path]
     index_path: Path
     keep_index: bool = True
-    aggregate_index: bool = False
     previews: bool = True
     data_aovs: tuple[str, ...] = ()
     metadata: dict[str, str] = field(default_factory=dict)
@@ -99,7 +98,6 @@ def plan_frame(
     index_path: Path | None = None,
     product_path: Callable[[Product], Path] | None = None,
     keep_index: bool = True,
-    aggregate_index: bool = False,
     previews: bool = True,
     recipe: Recipe | None = None,
     stage_sha256: str | None = None,
@@ -135,8 +133,10 @@ def plan_frame(
         log.info("the recipe has covariance conditions: the index keeps the norms of all %d bounces", norm_bounces)
     # The layers are cut from the index, so lpe layers need one even when it is not kept.
     record = keep_index or any(product.expressions() for product in recipe.products)
+    index_mode, sigma = index_settings(request, recipe)
     trace = TraceSettings(spp=request.spp, max_depth=request.max_depth, seed=request.seed, norm_bounces=norm_bounces,
-                          record_paths=record)
+                          record_paths=record, merge_records=record and index_mode == "merged",
+                          record_sigma=record and sigma and norm_bounces > 0)
     metadata = {
         "version": __version__,
         "stage": str(stage.resolve()),
@@ -159,7 +159,18 @@ def plan_frame(
     }
     manifest.pop("index", None)
     return FramePlan(request, frame, view_camera, resolution, trace, recipe, outputs, index_path,
-                     keep_index, aggregate_index, previews, tuple(raw_sources(recipe)), metadata, manifest)
+                     keep_index, previews, tuple(raw_sources(recipe)), metadata, manifest)
+
+
+def index_settings(request: RenderRequest, recipe: Recipe) -> tuple[str, bool]:
+    """The frame's one index: its mode and whether it keeps Σ. The request's flags win;
+    else the products' (records if any product asks for per-contribution records, Σ if
+    any asks for it: the index serves them all)."""
+    products = [product.index for product in recipe.products]
+    mode = request.index_mode or ("records" if any(index.mode == "records" for index in products) else "merged")
+    covariance = request.index_covariance or (
+        "sigma" if any(index.covariance == "sigma" for index in products) else "norms")
+    return mode, covariance == "sigma"
 
 
 def resolve_recipe(request: RenderRequest, frame: float | None = None, shot=None) -> Recipe:
@@ -201,7 +212,8 @@ class FrameAssembler:
         width, height = plan.resolution
         self.film = Film(width * height, plan.trace.spp, plan.trace.norm_bounces > 0)
         self.writer = (PathIndexWriter(plan.index_path, plan.manifest, plan.trace.norm_bounces,
-                                       aggregate=plan.aggregate_index) if plan.trace.record_paths else None)
+                                       mode="merged" if plan.trace.merge_records else "records",
+                                       sigma=plan.trace.record_sigma) if plan.trace.record_paths else None)
 
     def __enter__(self) -> Self:
         return self

@@ -121,7 +121,8 @@ def check_available(layer: str, events: tuple, index: int, condition: cond.Condi
     if cond.reads_sigma(condition) and not has_sigma:
         raise LpeError(
             f"{where}{cond.canonical(condition)} at event {index}{event} reads entries of Σ, but the index "
-            "keeps only the norms (no sigma array)"
+            "keeps only the norms: render it with `--index-covariance sigma` (or pxrLayers:index:covariance = "
+            "\"sigma\")"
         )
 
 

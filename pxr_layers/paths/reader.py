@@ -79,15 +79,19 @@ class PathClass:
 class RecordChunk:
     """Records of one chunk (or the part of it in the classes asked for).
 
-    class_id : (r,) int64; pixel : (r,) int64 (y·width + x); sample : (r,) int64
-    rgb : (r, 3) float32, as the film added it; norms : (r, N, 3) float32 C, T, R
+    class_id : (r,) int64; pixel : (r,) int64 (y·width + x)
+    count : (r,) int64: contributions merged (merged index), sample index (records index)
+    rgb : (r, 3) float32, as the film added it
+    norms : (r, N, 3) float32 C, T, R (merged: each bin's centre, paths/format.py)
+    sigma : (r, N, 10) float32 upper triangles of Σ, or None (an index without Σ)
     """
 
     class_id: np.ndarray
     pixel: np.ndarray
-    sample: np.ndarray
+    count: np.ndarray
     rgb: np.ndarray
     norms: np.ndarray
+    sigma: np.ndarray | None = None
 
 
 class Manifest(dict):
@@ -221,8 +225,11 @@ class PathIndex:
         """The writer's own keys must be there; the render's (RENDER_KEYS, resolution) are
         checked when present. Sets _pixels, the image's pixel count (None: not given)."""
         for key, kind in (("norm_slots", int), ("records", int), ("classes", int), ("contributions", int),
-                          ("format_version", int), ("norms", dict), ("norm_storage", str), ("aggregated", bool)):
+                          ("format_version", int), ("norms", dict), ("norm_storage", str), ("mode", str),
+                          ("covariance", str)):
             _typed(manifest, key, kind, "the manifest's ")
+        if manifest["mode"] not in fmt.MODES or manifest["covariance"] not in ("norms", "sigma"):
+            raise _Malformed(f"the manifest's mode is {manifest['mode']!r} and covariance {manifest['covariance']!r}")
         if manifest["norm_slots"] < 0:
             raise _Malformed(f"the manifest's norm_slots is {manifest['norm_slots']}")
         if not all(type(name) is str and type(unit) is str for name, unit in manifest["norms"].items()):
@@ -249,15 +256,18 @@ class PathIndex:
         """Each chunk: its fields, its classes, its decoded size, and its bytes inside the
         file between the header and the footer, apart from the others."""
         self.norm_slots: int = self.manifest["norm_slots"]
-        self._record_bytes = sum(dtype.itemsize * int(np.prod(shape))  # the decoded bytes of one record
-                                 for _, dtype, shape in fmt.column_sizes(1, self.norm_slots))
+        self.mode: str = self.manifest["mode"]
+        self.has_sigma: bool = self.manifest["covariance"] == "sigma"
+        self._record_bytes = sum(fmt.frame_bytes(frame) for frame in self._layout(1))  # decoded bytes of one record
         end = fmt.HEADER.size
         for number, chunk in enumerate(self.chunks):
             if type(chunk) is not dict:
                 raise _Malformed(f"chunk {number} is not a JSON object")
-            for key in ("offset", "bytes", "crc32", "records"):
+            for key in ("offset", "bytes", "sums_bytes", "crc32", "records"):
                 if type(chunk.get(key)) is not int or chunk[key] < 0:
                     raise _Malformed(f"chunk {number}'s {key!r} is not a whole number >= 0")
+            if chunk["sums_bytes"] > chunk["bytes"]:
+                raise _Malformed(f"chunk {number}'s first frame is longer than the chunk")
             _id_lists([_typed(chunk, "classes", list, f"chunk {number}'s ")], len(self.classes),
                       f"chunk {number}'s classes")
             if chunk["records"] * self._record_bytes > MAX_CHUNK_BYTES:
@@ -291,7 +301,7 @@ class PathIndex:
                 decoded = self._read_chunk(file, number, norms)
                 if chunk_wanted is not None and not chunk_wanted.all():
                     keep = wanted[decoded.class_id]
-                    decoded = RecordChunk(*(column[keep] if len(column) else column
+                    decoded = RecordChunk(*(column[keep] if column is not None and len(column) else column
                                             for column in vars(decoded).values()))
                 yield decoded
 
@@ -346,7 +356,7 @@ class PathIndex:
             raise PathIndexError(f"cannot read ({error.strerror or error})", file=str(self.shown_as)) from error
 
     def _read_chunk(self, file, number: int, all_columns: bool) -> RecordChunk:
-        """Chunk `number`, read from `file` and checked (all_columns: with samples and norms)."""
+        """Chunk `number`, read from `file` and checked (all_columns: with its covariance frame)."""
         chunk = self.chunks[number]
         try:
             file.seek(chunk["offset"])
@@ -354,39 +364,49 @@ class PathIndex:
             payload = file.read(chunk["bytes"])
         except OSError as error:
             raise self._chunk_error(number, f"cannot be read ({error.strerror or error})") from error
-        magic, length, crc, records = fmt.CHUNK_HEADER.unpack(head) if len(head) == fmt.CHUNK_HEADER.size \
-            else (b"", 0, 0, 0)
+        magic, length, crc, records, sums_bytes = fmt.CHUNK_HEADER.unpack(head) \
+            if len(head) == fmt.CHUNK_HEADER.size else (b"", 0, 0, 0, 0)
         if magic != fmt.CHUNK_MAGIC or length != chunk["bytes"] or len(payload) != length \
-                or records != chunk["records"]:
+                or records != chunk["records"] or sums_bytes != chunk["sums_bytes"]:
             raise self._chunk_error(number, "has a bad header")
         if zlib.crc32(payload) != crc or crc != chunk["crc32"]:
             raise self._chunk_error(number, "fails its checksum")
-        size = records * self._record_bytes
-        try:
-            if zstandard.frame_content_size(payload) != size:
-                raise self._chunk_error(number, f"does not hold its {records} records")
-            data = zstandard.ZstdDecompressor().decompress(payload, allow_extra_data=False)
-        except zstandard.ZstdError as error:
-            raise self._chunk_error(number, f"is not a zstd frame of its records ({error})") from None
-        decoded = self._decode(data, fmt.column_sizes(records, self.norm_slots), all_columns)
+        layout = self._layout(records)
+        frames = (payload[:sums_bytes], payload[sums_bytes:])
+        columns = {}
+        for frame, frame_layout in zip(frames if all_columns else frames[:1], layout):
+            size = fmt.frame_bytes(frame_layout)
+            try:
+                if zstandard.frame_content_size(frame) != size:
+                    raise self._chunk_error(number, f"does not hold its {records} records")
+                data = zstandard.ZstdDecompressor().decompress(frame, allow_extra_data=False)
+            except zstandard.ZstdError as error:
+                raise self._chunk_error(number, f"is not two zstd frames of its records ({error})") from None
+            position = 0
+            for name, dtype, shape in frame_layout:
+                end = position + int(np.prod(shape)) * dtype.itemsize
+                columns[name] = fmt.unshuffle(data[position:end], dtype, shape)
+                position = end
+        decoded = self._decoded(columns, records)
         self._check_records(decoded, number)
         return decoded
 
-    def _decode(self, data: bytes, layout, all_columns: bool) -> RecordChunk:
-        columns = {}
-        position = 0
-        for name, dtype, shape in layout:
-            size = int(np.prod(shape)) * dtype.itemsize
-            if all_columns or name in ("class", "pixel", "rgb"):
-                columns[name] = fmt.unshuffle(data[position:position + size], dtype, shape)
-            position += size
-        records = layout[0][2][0]
+    def _layout(self, records: int):
+        return fmt.column_layout(self.mode, records, self.norm_slots, self.has_sigma)
+
+    def _decoded(self, columns: dict, records: int) -> RecordChunk:
+        """A RecordChunk of the columns as stored (norms and sigma when read: values)."""
+        norms, sigma = columns.get("norms"), columns.get("sigma")
+        if self.mode == "merged":
+            norms = None if norms is None else fmt.NormBins.decoded(norms)
+            sigma = None if sigma is None else fmt.NormBins.decoded(sigma)
         return RecordChunk(
             class_id=columns["class"].astype(np.int64),
             pixel=np.cumsum(columns["pixel"], dtype=np.int64),
-            sample=columns["sample"].astype(np.int64) if all_columns else np.zeros(0, np.int64),
+            count=columns["count"].astype(np.int64),
             rgb=columns["rgb"],
-            norms=columns["norms"].astype(np.float32) if all_columns else np.zeros((records, 0, 3), np.float32),
+            norms=np.zeros((records, 0, 3), np.float32) if norms is None else norms.astype(np.float32, copy=False),
+            sigma=sigma,
         )
 
     def _check_records(self, decoded: RecordChunk, number: int) -> None:
@@ -408,8 +428,8 @@ class PathIndex:
 
     def _check_version(self, version: int) -> None:
         if version != fmt.FORMAT_VERSION:
-            raise self._error(f"written in path index format version {version}; this pxr-layers reads version "
-                              f"{fmt.FORMAT_VERSION} only: render the shot again to rebuild its index")
+            raise self._error(f"written in format version {version} of the path index; this pxr-layers reads "
+                              f"version {fmt.FORMAT_VERSION} only: render the shot again to rebuild its index")
 
     def _chunk_error(self, number: int, message: str, *, damaged: bool = True) -> PathIndexError:
         return self._error(f"{'corrupted: ' if damaged else ''}chunk {number} at byte "

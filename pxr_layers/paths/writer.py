@@ -31,23 +31,25 @@ class PathIndexWriter:
     data goes to a temporary file beside it, removed by ``abort`` or on error).
     manifest : what was rendered (stage, frame, camera, resolution, spp, seed, ...), stored
     as given, plus the counts the writer knows. norm_slots : N.
+    mode : "merged" (records arrive as ``trace.merge.MergedContributions``, merged on the
+    tracer's threads) or "records" (``trace.recorder.Contributions``, one per
+    contribution); see paths/format.py. sigma : keep each event's Σ too (the records
+    carry it).
 
     Class ids are given in order of first appearance, and each flush sorts its records by
     class keeping the tracer's order within a class, so the same render (same settings
     and batch size) gives a byte-identical file whatever the thread count.
-
-    aggregate : merge, within each flush, the records of one pixel that share their class
-    and their norms as stored (float16): one record with the summed rgb (float64 sum,
-    stored float32) and, in the sample column, how many contributions it merges. Pixel
-    sums stay exact to float32 rounding; what is lost is which sample each came from.
     """
 
-    def __init__(self, path: str | os.PathLike, manifest: dict, norm_slots: int, *, aggregate: bool = False,
-                 buffer_records: int = BUFFER_RECORDS, chunk_records: int = CHUNK_RECORDS):
+    def __init__(self, path: str | os.PathLike, manifest: dict, norm_slots: int, *, mode: str = fmt.DEFAULT_MODE,
+                 sigma: bool = False, buffer_records: int = BUFFER_RECORDS, chunk_records: int = CHUNK_RECORDS):
+        if mode not in fmt.MODES:
+            raise ValueError(f"unknown index mode {mode!r} (allowed: {', '.join(fmt.MODES)})")
         self.path = Path(path)
         self.manifest = dict(manifest)
         self.norm_slots = norm_slots
-        self.aggregate = aggregate
+        self.mode = mode
+        self.sigma = sigma
         self._contributions = 0
         self.buffer_records = buffer_records
         self.chunk_records = chunk_records
@@ -68,19 +70,31 @@ class PathIndexWriter:
     # -- writing
 
     def add(self, records) -> None:
-        """Add one batch's ``Contributions`` (trace.integrator) in path order. Norms come as
-        the tracer makes them (float32, saturated and cast here) or already as stored
-        (float16, taken as they are); the arrays are kept, not copied, until the next flush."""
+        """Add one batch's records in path order: ``MergedContributions`` for a merged
+        index, ``Contributions`` for a records one. A records index takes norms as the
+        tracer makes them (float16 as stored; float32 are saturated and cast here). The
+        arrays are kept, not copied, until the next flush."""
         if records is None or not len(records.pixel):
             return
+        merged = self.mode == "merged"
+        if hasattr(records, "norm_codes") != merged:
+            raise ValueError(f"a {self.mode} index takes {'merged' if merged else 'unmerged'} records "
+                             "(TraceSettings.merge_records)")
+        norms = records.norm_codes if merged else fmt.stored_norms(records.norms)
+        if norms.shape[1:] != (self.norm_slots, 3):
+            raise ValueError(f"records carry norms of shape {norms.shape[1:]}, the index expects ({self.norm_slots}, 3)")
+        sigma = (records.sigma_codes if merged else records.sigma) if self.sigma else None
+        if self.sigma and sigma is None:
+            raise ValueError("the index keeps Σ but the records carry none (TraceSettings.record_sigma)")
         class_id = self._global_classes(records)
-        if records.norms.shape[1:] != (self.norm_slots, 3):
-            raise ValueError(f"records carry norms of shape {records.norms.shape[1:]}, the index expects "
-                             f"({self.norm_slots}, 3)")
-        self._buffer.append((class_id, records.pixel.astype(np.int64, copy=False),
-                             records.sample.astype(np.uint32, copy=False), records.rgb.astype(np.float32, copy=False),
-                             fmt.stored_norms(records.norms)))
+        count = records.count if merged else records.sample
+        columns = (class_id, records.pixel.astype(np.int64, copy=False), count.astype(np.uint32, copy=False),
+                   records.rgb.astype(np.float32, copy=False), norms)
+        if sigma is not None:
+            columns += (sigma if merged else sigma.astype(np.float32, copy=False),)
+        self._buffer.append(columns)
         self._buffered += len(class_id)
+        self._contributions += records.contributions if merged else len(class_id)
         if self._buffered >= self.buffer_records:
             self._flush()
 
@@ -103,24 +117,20 @@ class PathIndexWriter:
     def _flush(self) -> None:
         if not self._buffer:
             return
-        class_id, pixel, sample, rgb, norms = (np.concatenate(column) for column in zip(*self._buffer))
+        columns = [np.concatenate(column) for column in zip(*self._buffer)]
         self._buffer.clear()
         self._buffered = 0
-        self._contributions += len(class_id)
-        if self.aggregate:
-            class_id, pixel, sample, rgb, norms = _merged(class_id, pixel, rgb, norms)
         classes = len(self._class_keys)
-        order = _stable_order(class_id, classes)
-        class_id, pixel, sample, rgb, norms = (np.take(column, order, axis=0)  # take: 3x faster than [order] on (r, N, 3)
-                                               for column in (class_id, pixel, sample, rgb, norms))
+        order = _stable_order(columns[0], classes)
+        columns = [np.take(column, order, axis=0) for column in columns]  # take: 3x faster than [order] on (r, N, 3)
+        class_id, rgb = columns[0], columns[3]
         self._class_records = _grown(self._class_records, classes)
         self._class_rgb = _grown(self._class_rgb, classes)
         self._class_records += np.bincount(class_id, minlength=classes)
         for channel in range(3):
             self._class_rgb[:, channel] += np.bincount(class_id, weights=rgb[:, channel], minlength=classes)
         for start, stop in self._chunk_bounds(class_id):
-            self._write_chunk(class_id[start:stop], pixel[start:stop], sample[start:stop], rgb[start:stop],
-                              norms[start:stop])
+            self._write_chunk(*(column[start:stop] for column in columns))
 
     def _chunk_bounds(self, class_id: np.ndarray) -> list[tuple[int, int]]:
         """Cut sorted records into chunks: whole small classes together, large ones split."""
@@ -137,20 +147,22 @@ class PathIndexWriter:
             bounds.append((chunk_start, len(class_id)))
         return bounds
 
-    def _write_chunk(self, class_id, pixel, sample, rgb, norms) -> None:
+    def _write_chunk(self, class_id, pixel, count, rgb, *covariance) -> None:
+        """One chunk: the sums frame (class, pixel deltas, count, rgb), then the covariance
+        frame (norms, and Σ if kept), each column byte-shuffled (paths/format.py)."""
         pixel_delta = np.diff(pixel, prepend=0).astype(np.int32)
-        payload = self._compressor.compress(b"".join(
-            fmt.shuffle(column) for column in (class_id.astype(np.uint32), pixel_delta, sample, rgb, norms)
-        ))
+        sums = self._compressor.compress(b"".join(
+            fmt.shuffle(column) for column in (class_id.astype(np.uint32), pixel_delta, count, rgb)))
+        payload = sums + self._compressor.compress(b"".join(fmt.shuffle(column) for column in covariance))
         crc = zlib.crc32(payload)
         try:
             offset = self._file.tell()
-            self._file.write(fmt.CHUNK_HEADER.pack(fmt.CHUNK_MAGIC, len(payload), crc, len(class_id)))
+            self._file.write(fmt.CHUNK_HEADER.pack(fmt.CHUNK_MAGIC, len(payload), crc, len(class_id), len(sums)))
             self._file.write(payload)
         except OSError as error:  # a full disk mid-render: the caller aborts, nothing is left behind
             raise OutputError(f"{self.path}: cannot write the path index ({error.strerror or error})") from error
         self._chunks.append({
-            "offset": offset, "bytes": len(payload), "crc32": crc, "records": len(class_id),
+            "offset": offset, "bytes": len(payload), "sums_bytes": len(sums), "crc32": crc, "records": len(class_id),
             "classes": np.unique(class_id).tolist(),
         })
         self._records += len(class_id)
@@ -206,9 +218,10 @@ class PathIndexWriter:
             "format_version": fmt.FORMAT_VERSION,
             "norm_slots": self.norm_slots,
             "norms": {name: fmt.NORM_UNITS[name] for name in fmt.NORM_NAMES},
-            "norm_storage": "float16",
-            "stores_sigma": False,
-            "aggregated": self.aggregate,
+            "mode": self.mode,
+            "norm_storage": "bins" if self.mode == "merged" else "float16",
+            **({"bins": fmt.NormBins.manifest()} if self.mode == "merged" else {}),
+            "covariance": "sigma" if self.sigma else "norms",
             "contributions": self._contributions,
             "records": self._records,
             "classes": len(classes),
@@ -216,29 +229,6 @@ class PathIndexWriter:
         return {"manifest": manifest, "labels": list(labels), "events": events, "classes": classes,
                 "class_records": self._class_records.tolist(), "class_rgb": self._class_rgb.tolist(),
                 "chunks": self._chunks}
-
-
-def _merged(class_id, pixel, rgb, norms) -> tuple[np.ndarray, ...]:
-    """Records with equal (class, pixel, float16 norms) merged, in order of first
-    appearance: (class, pixel, count, summed rgb float32, norms)."""
-    columns = np.column_stack([class_id, pixel, norms.view(np.uint16).reshape(len(class_id), -1)]).astype(np.uint64)
-    # a 64-bit hash of each row, then an exact check that every group's rows are equal
-    multipliers = np.random.default_rng(0x5EED).integers(1, 2**63, columns.shape[1], dtype=np.uint64) | np.uint64(1)
-    with np.errstate(over="ignore"):
-        hashed = (columns * multipliers).sum(axis=1)
-    _, first, group = np.unique(hashed, return_index=True, return_inverse=True)
-    group = group.reshape(-1)
-    if not np.array_equal(columns, columns[first[group]]):  # a hash collision: fall back to exact rows
-        _, first, group = np.unique(columns, axis=0, return_index=True, return_inverse=True)
-        group = group.reshape(-1)
-    # number the groups in order of first appearance
-    rank = np.empty(len(first), np.int64)
-    rank[np.argsort(first, kind="stable")] = np.arange(len(first))
-    group = rank[group]
-    first = np.sort(first)
-    count = np.bincount(group, minlength=len(first)).astype(np.uint32)
-    summed = np.stack([np.bincount(group, weights=rgb[:, c], minlength=len(first)) for c in range(3)], axis=1)
-    return class_id[first], pixel[first], count, summed.astype(np.float32), norms[first]
 
 
 def _stable_order(class_id: np.ndarray, classes: int) -> np.ndarray:

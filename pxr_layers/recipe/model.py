@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import RecipeError
+from ..paths.format import MODES as INDEX_FORMAT_MODES
 
 PIXEL_TYPES = ("float", "half")
 COMPRESSIONS = ("none", "rle", "zips", "zip", "piz", "pxr24", "b44", "b44a", "dwaa", "dwab")
@@ -27,6 +28,8 @@ LOSSY_COMPRESSIONS = frozenset({"pxr24", "b44", "b44a", "dwaa", "dwab"})
 SOURCE_TYPES = ("lpe", "raw")
 """The RenderVar sourceTypes pxr-layers renders (UsdRender also has primvar, intrinsic)."""
 COVARIANCE_MODES = ("norms", "sigma")
+INDEX_MODES = INDEX_FORMAT_MODES
+"""How the path index keeps the light (paths/format.py): merged, the default, or records."""
 PER_LIGHT_MODES = ("none", "lights", "groups")
 
 DEFAULT_PIXEL_TYPE = "float"
@@ -194,10 +197,13 @@ class IndexSettings:
                  test events 1..N only); 0 keeps none
     covariance : "norms" (|S_C| 1/m, |S_T| cycles/m, |S_R| cycles/rad per event) or
                  "sigma" (also the whole 4×4 Σ, for conditions on S11, S22, ...)
+    mode       : "merged" (one record per pixel, path class and covariance bin) or
+                 "records" (one per contribution), paths/format.py
     """
 
     bounces: int = DEFAULT_INDEX_BOUNCES
     covariance: str = "norms"
+    mode: str = INDEX_MODES[0]
 
     def __post_init__(self):
         if not isinstance(self.bounces, int) or not 0 <= self.bounces <= MAX_INDEX_BOUNCES:
@@ -206,6 +212,9 @@ class IndexSettings:
         if self.covariance not in COVARIANCE_MODES:
             raise RecipeError(f"unknown covariance {self.covariance!r} (allowed: {', '.join(COVARIANCE_MODES)})",
                               attribute="pxrLayers:index:covariance")
+        if self.mode not in INDEX_MODES:
+            raise RecipeError(f"unknown index mode {self.mode!r} (allowed: {', '.join(INDEX_MODES)})",
+                              attribute="pxrLayers:index:mode")
 
 
 @dataclass(frozen=True)

@@ -184,10 +184,12 @@ class _Reader:
                 str(UsdRender.Var(var).GetSourceTypeAttr().Get()) == "lpe" for var in vars_)):
             per_light = self.per_light_override
         self.token(prim, schema.PRODUCT_API, "index:covariance", api)
+        self.token(prim, schema.PRODUCT_API, "index:mode", api)
         bounces = int(api["index:bounces"][0])
         if bounces < 0:
             raise self.error(f"must be >= 0, not {bounces}", prim, _PREFIX + "index:bounces")
-        index = IndexSettings(bounces=bounces, covariance=str(api["index:covariance"][0]))
+        index = IndexSettings(bounces=bounces, covariance=str(api["index:covariance"][0]),
+                              mode=str(api["index:mode"][0]))
 
         layers = [self.layer(target, prim, pixel_type, compression, index)
                   for target in vars_]

@@ -29,8 +29,10 @@ from .bounce_norms import BounceNorms
 from .camera import PinholeCamera
 from .embree import RayCaster
 from .lights import LightSampler
+from .merge import MergedContributions, merged
 from .recorder import Contributions, FirstBounceNorms, PathRecorder
 from .shading import MaterialTable
+from .sigma import SigmaInputs
 from .stages.queues import MAX_PASS_THROUGH
 from .stages.camera import camera_rays
 from .stages.emission import emission
@@ -52,6 +54,8 @@ class TraceSettings:
     norm_bounces : N, how many events after the camera keep their covariance norms C, T, R
                    (bounce_norms.py); 0 turns covariance off.
     record_paths : keep every contribution with its path class and norms (the path index).
+    merge_records : hand them on merged (``merge.MergedContributions``), as a merged index keeps them.
+    record_sigma : with them, each event's whole 4×4 Σ (``Contributions.sigma``, trace/sigma.py).
     """
 
     spp: int = 16
@@ -60,6 +64,8 @@ class TraceSettings:
     roulette_depth: int = 3  # Russian roulette from this many bounces on
     norm_bounces: int = 0
     record_paths: bool = False
+    merge_records: bool = False
+    record_sigma: bool = False
 
 
 @dataclass
@@ -71,7 +77,7 @@ class BatchResult:
     first_bounce_norms : (k, 3) float64 sums of the first bounce's C, T, R over the
             samples whose first event scatters, and first_bounce_count (k,) of them
             (None without covariance)
-    records : every contribution (None unless settings.record_paths)
+    records : every contribution, merged if settings.merge_records (None unless settings.record_paths)
     rays  : rays cast (camera + bounce + shadow), for throughput figures
     """
 
@@ -80,7 +86,7 @@ class BatchResult:
     alpha: np.ndarray
     first_bounce_norms: np.ndarray | None = None
     first_bounce_count: np.ndarray | None = None
-    records: Contributions | None = None
+    records: Contributions | MergedContributions | None = None
     rays: int = 0
 
 
@@ -115,8 +121,10 @@ class Integrator:
         """A batch's observers: its film, the first-bounce norms with covariance, the
         recorder with an index."""
         first_bounce = FirstBounceNorms(first_pixel, pixel_count) if self.bounce_norms else None
+        sigma = (SigmaInputs(self.world, self.lights, self.bounce_norms, self.pixel_angle)
+                 if self.settings.record_sigma and self.bounce_norms else None)
         recorder = (PathRecorder(self.vocabulary, self.triangle_subject,
-                                 self.settings.norm_bounces if self.bounce_norms else 0, paths)
+                                 self.settings.norm_bounces if self.bounce_norms else 0, paths, sigma)
                     if self.settings.record_paths else None)
         return BatchFilm(first_pixel, pixel_count), first_bounce, recorder
 
@@ -180,4 +188,8 @@ class Integrator:
         return BatchResult(first_pixel, film.rgb, film.alpha,
                            None if first_bounce is None else first_bounce.sums,
                            None if first_bounce is None else first_bounce.count,
-                           None if recorder is None else recorder.result(), rays)
+                           None if recorder is None else self._records(recorder, first_pixel, pixel_count), rays)
+
+    def _records(self, recorder: PathRecorder, first_pixel: int, pixel_count: int):
+        records = recorder.result()
+        return merged(records, first_pixel, pixel_count) if self.settings.merge_records else records
