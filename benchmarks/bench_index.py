@@ -2,15 +2,16 @@
 overhead, side by side.
 
     python benchmarks/bench_index.py [--resolution 256 256] [--spp 16 64 256] [--stages cornell showcase]
-                                     [--modes full aggregated]
+                                     [--modes merged records]
 
 For each stage, spp and index mode, in one run: a plain render (no covariance, no records)
 and a render that records every contribution with the norms of N = 5 events and writes the
-path index, as `pxr-layers render` does (``full``: one record per contribution, the
-default; ``aggregated``: --aggregate-index). Prints records, classes, size on disk, bytes
-per record, per pixel and per sample, and the overhead. Targets: ≤ 12 bytes per record and
-≤ 25 % render-time overhead (full); issue 19's: ≤ 150 bytes per pixel at 256 spp, ≤ 1.5×
-growth from 64 to 256 spp, ≤ 15 % write overhead.
+path index, as `pxr-layers render` does (``merged``: one record per pixel, path class and
+covariance bin, merged in the tracer, the default; ``records``: --index-mode records, one
+per contribution). Prints records, classes, size on disk, bytes per record, per pixel and
+per sample, and the overhead, then per stage and mode the growth of the size from 64 to
+256 spp. Targets (issue 19, merged): ≤ 150 bytes per pixel at 256 spp, ≤ 1.5× growth from
+64 to 256 spp, ≤ 15 % write overhead.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import time
 from importlib import resources
 from pathlib import Path
 
+from pxr_layers.paths import format as fmt
 from pxr_layers.paths.reader import PathIndex
 from pxr_layers.paths.writer import PathIndexWriter
 from pxr_layers.stage import load_stage
@@ -29,16 +31,16 @@ from pxr_layers.trace import TraceSettings
 from pxr_layers.trace.render import render
 
 NORM_BOUNCES = 5
-MODES = ("full", "aggregated")
+MODES = fmt.MODES
 
 
-def timed_pair(scene, spec, spp: int, folder: Path, aggregate: bool) -> tuple[float, float, PathIndex]:
+def timed_pair(scene, spec, spp: int, folder: Path, mode: str) -> tuple[float, float, PathIndex]:
     start = time.perf_counter()
     render(scene, spec, TraceSettings(spp=spp), show_progress=False)
     plain = time.perf_counter() - start
-    settings = TraceSettings(spp=spp, norm_bounces=NORM_BOUNCES, record_paths=True)
+    settings = TraceSettings(spp=spp, norm_bounces=NORM_BOUNCES, record_paths=True, merge_records=mode == "merged")
     start = time.perf_counter()
-    writer = PathIndexWriter(folder / "bench.pxlidx", {"spp": spp}, NORM_BOUNCES, aggregate=aggregate)
+    writer = PathIndexWriter(folder / "bench.pxlidx", {"spp": spp}, NORM_BOUNCES, mode=mode)
     result = render(scene, spec, settings, show_progress=False, on_batch=lambda batch: writer.add(batch.records))
     writer.close(result.vocabulary)
     indexed = time.perf_counter() - start
@@ -51,23 +53,30 @@ def main() -> None:
     parser.add_argument("--spp", type=int, nargs="+", default=[16, 64, 256])
     parser.add_argument("--stages", nargs="+", default=["cornell", "showcase"])
     parser.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES),
-                        help="index modes to measure (aggregated: pxr-layers render --aggregate-index)")
+                        help="index modes to measure (pxr-layers render --index-mode)")
     args = parser.parse_args()
     width, height = args.resolution
     print(f"{width}x{height}, N = {NORM_BOUNCES}; plain render vs render + path index, same run")
     print(f"{'stage':10} {'mode':10} {'spp':>4} {'records':>11} {'classes':>8} {'size MB':>8} {'B/record':>8} "
           f"{'B/pixel':>8} {'B/sample':>8} {'plain s':>8} {'index s':>8} {'overhead':>8}")
+    sizes = {}
     with tempfile.TemporaryDirectory() as folder:
         for name in args.stages:
             scene, spec = load_stage(str(resources.files("pxr_layers.render").joinpath(f"{name}.usda")))
+            for mode in args.modes:  # compile and warm every kernel first: the timings are the render's
+                timed_pair(scene, dataclasses.replace(spec, resolution=(16, 16)), 4, Path(folder), mode)
             spec = dataclasses.replace(spec, resolution=(width, height))
             for mode in args.modes:
                 for spp in args.spp:
-                    plain, indexed, index = timed_pair(scene, spec, spp, Path(folder), mode == "aggregated")
+                    plain, indexed, index = timed_pair(scene, spec, spp, Path(folder), mode)
+                    sizes[name, mode, spp] = index.size
                     print(f"{name:10} {mode:10} {spp:>4} {index.record_count:>11,} {len(index.classes):>8,} "
                           f"{index.size / 1e6:>8.1f} {index.size / index.record_count:>8.2f} "
                           f"{index.size / (width * height):>8.0f} {index.size / (width * height * spp):>8.2f} "
                           f"{plain:>8.2f} {indexed:>8.2f} {indexed / plain - 1:>+8.1%}", flush=True)
+    for (name, mode, spp), size in sizes.items():
+        if spp == 256 and (name, mode, 64) in sizes:
+            print(f"{name} {mode}: size grows {size / sizes[name, mode, 64]:.2f}x from 64 to 256 spp")
 
 
 if __name__ == "__main__":
