@@ -113,30 +113,52 @@ class BounceNorms:
         if not self.spectra:
             return
         scattering = np.flatnonzero(surfaces.scatters)
-        material = np.take(self.world.triangle_material, surfaces.triangle[scattering])
+        for chosen, block_uv, grad_s, grad_t in self._textured(surfaces.triangle[scattering], surfaces.st[scattering],
+                                                              footprint[scattering]):
+            lanes = scattering[chosen]
+            tx, ty = surfaces.frame[lanes, 0].T, surfaces.frame[lanes, 1].T
+            # J = ∂(u, v)/∂(t̂x, t̂y), texture units per metre
+            jacobian = np.stack([np.stack([dot(grad_s, tx), dot(grad_s, ty)], -1),
+                                 np.stack([dot(grad_t, tx), dot(grad_t, ty)], -1)], -2).astype(np.float64)
+            surfaces.texture[lanes] = texture_norm(texture_to_tangent(block_uv, jacobian))
+
+    def uv_texture(self, triangle: np.ndarray, st: np.ndarray, footprint: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The texture operator of hits in the texture's own uv, as ``texture`` looks it up.
+
+        triangle (n,), st (n, 2) the mesh's st, footprint (n,) metres. Returns block_uv
+        (n, 2, 2) float64 cycles² per texture unit² and the world gradients grad_u, grad_v
+        (3, n) float64 of the texture's uv, 1/m (zeros on untextured hits), so that
+        T = Jᵀ block_uv J with J = [[∇u·a, ∇u·b], [∇v·a, ∇v·b]] for any tangent axes a, b.
+        """
+        n = len(triangle)
+        block_uv, grad_u, grad_v = np.zeros((n, 2, 2)), np.zeros((3, n)), np.zeros((3, n))
+        for chosen, block, grad_s, grad_t in self._textured(triangle, st, footprint):
+            block_uv[chosen], grad_u[:, chosen], grad_v[:, chosen] = block, grad_s, grad_t
+        return block_uv, grad_u, grad_v
+
+    def _textured(self, triangle: np.ndarray, st: np.ndarray, footprint: np.ndarray):
+        """Per texture driving some of the hits (triangle (n,), st (n, 2), footprint (n,)
+        metres): (positions among the n, block_uv (k, 2, 2), ∇u, ∇v (3, k) of the texture's
+        own uv)."""
+        material = np.take(self.world.triangle_material, triangle)
         texture_index = np.take(self.material_texture, material)
         for index, spectrum in self.spectra.items():
-            chosen = texture_index == index
-            lanes = scattering[chosen]
-            if not len(lanes):
+            chosen = np.flatnonzero(texture_index == index)
+            if not len(chosen):
                 continue
-            tri = surfaces.triangle[lanes]
+            tri = triangle[chosen]
             uv_map = self.material_uv[material[chosen]]  # (k, 2, 3): the texture's uv from st
             grad_s = np.take(self.world.gradient_s, tri, axis=1)
             grad_t = np.take(self.world.gradient_t, tri, axis=1)
             # the gradients of the texture's own uv: A · ∇(s, t)
             grad_s, grad_t = (uv_map[:, 0, 0] * grad_s + uv_map[:, 0, 1] * grad_t,
                               uv_map[:, 1, 0] * grad_s + uv_map[:, 1, 1] * grad_t)
-            tx, ty = surfaces.frame[lanes, 0].T, surfaces.frame[lanes, 1].T
-            # J = ∂(u, v)/∂(t̂x, t̂y), texture units per metre
-            jacobian = np.stack([np.stack([dot(grad_s, tx), dot(grad_s, ty)], -1),
-                                 np.stack([dot(grad_t, tx), dot(grad_t, ty)], -1)], -2).astype(np.float64)
             texels_per_metre = np.maximum(np.linalg.norm(grad_s, axis=0) * spectrum.width,
                                           np.linalg.norm(grad_t, axis=0) * spectrum.height)
-            st = surfaces.st[lanes].astype(np.float64)
-            uv = np.einsum("kij,kj->ik", uv_map, np.concatenate([st, np.ones((len(st), 1))], axis=1))
-            block_uv = spectrum.lookup(uv, footprint[lanes] * texels_per_metre)
-            surfaces.texture[lanes] = texture_norm(texture_to_tangent(block_uv, jacobian))
+            hit_st = st[chosen].astype(np.float64)
+            uv = np.einsum("kij,kj->ik", uv_map, np.concatenate([hit_st, np.ones((len(hit_st), 1))], axis=1))
+            yield chosen, spectrum.lookup(uv, footprint[chosen] * texels_per_metre), grad_s, grad_t
 
 
 @inline

@@ -4,7 +4,9 @@ index's recorder and the first-bounce covariance pictures.
 ``PathRecorder`` owns the event vocabulary's ids, the prefix tree of path classes
 (``paths/trie.py``, compiled) and the per-event covariance norms (``EventNorms``): a path
 carries its class as one trie node and its norms as one row linked to its previous
-event's, both kept in the PathQueue's ``node`` and ``row`` columns.
+event's, both kept in the PathQueue's ``node`` and ``row`` columns. With Σ asked for, each
+row also keeps its vertex's world-space data and each record its light end (sigma.py),
+recorded beside the kernels' own rows (the kernels are the same either way).
 """
 
 from __future__ import annotations
@@ -25,6 +27,9 @@ from ..compiled import inline, kernel
 from .stages.observer import Observer
 from .stages.queues import PathQueue, ShadowQueue, Splats, SurfaceQueue
 from .stages.scatter import Scattering
+from .sigma import (EmitterTable, SigmaInputs, SigmaLightEnds, SigmaVertices, emitter_hit_distance, record_sigma,
+                    shadow_distance)
+from . import sigma as sigma_rows
 
 
 @dataclass
@@ -39,6 +44,18 @@ class Contributions:
              trie_parent, trie_event (m,) int64 (node 0 the camera; a parent's number is
              below its children's): plain arrays, so a writer merges them without
              building the event sequences of classes it already knows
+    sigma  : (r, N, 10) float32 or None (without ``TraceSettings.record_sigma``): for
+             events 1..N after the camera (the slots of ``norms``), the upper triangle
+             xx xy xu xv yy yu yv uu uv vv of the covariance Σ of the light LEAVING the
+             event's vertex toward the eye (after the inverse projection, before the
+             travel), in the amplitude convention of ``pxr_layers.covariance``:
+             cycles²/m² (x, y), cycles²/rad² (u, v), cycles²/(m·rad) mixed; zeros past the
+             path's last event and for pass-through and light events. Frame: ẑ = toward
+             the eye; x̂ ⟂ the plane of (ẑ, shading normal), a tangent direction not
+             foreshortened by the view; ŷ = ẑ × x̂ in that plane (the axis 1/|cos θo|
+             stretches); its sign is irrelevant to Σ. Head-on (ẑ ∥ normal) x̂ is the
+             arriving frame's. Each record is its own chain from its light end; emitter
+             and lobe models in trace/sigma.py
     """
 
     pixel: np.ndarray
@@ -49,6 +66,7 @@ class Contributions:
     class_nodes: np.ndarray
     trie_parent: np.ndarray
     trie_event: np.ndarray
+    sigma: np.ndarray | None = None
 
     @property
     def sequences(self) -> list[tuple[int, ...]]:
@@ -60,7 +78,8 @@ class PathRecorder(Observer):
     """Keeps every contribution of one batch with its path class and event norms; each
     stage's results are recorded by one compiled kernel."""
 
-    def __init__(self, vocabulary: EventVocabulary, triangle_subject: np.ndarray, slots: int, paths: int):
+    def __init__(self, vocabulary: EventVocabulary, triangle_subject: np.ndarray, slots: int, paths: int,
+                 sigma: SigmaInputs | None = None):
         self.triangle_subject = triangle_subject  # (t,) int64 surface subject of each triangle
         self.subject_count = vocabulary.subject_count
         self.light_offset = len(vocabulary.surface_objects)  # light L's subject: light_offset + L
@@ -70,6 +89,11 @@ class PathRecorder(Observer):
         self.classes = ClassTrie(paths)
         self.norms = EventNorms(4 * paths)
         self.records = RecordBuffer(2 * paths)
+        # Σ (sigma.py): only with norms to hang its rows on; nothing allocated otherwise
+        self.sigma = sigma if slots > 0 else None
+        if self.sigma is not None:
+            self.vertices = SigmaVertices(4 * paths)
+            self.light_ends = SigmaLightEnds(2 * paths)
 
     def wants_norms(self, step: int) -> bool:
         return self.slots > 0
@@ -79,27 +103,49 @@ class PathRecorder(Observer):
 
     def emitted(self, queue: PathQueue, splats: Splats) -> None:
         trie, records = self.classes.reserve(len(splats)), self.records.reserve(len(splats))
+        first_record = self.records.count
         self.classes.size, self.records.count = _record_emitted(
             splats.lane, splats.light, splats.triangle, splats.rgb, queue.pixel, queue.sample, queue.node, queue.row,
             self.triangle_subject, self.subject_count, self.light_offset, *trie, *records)
+        if self.sigma is not None and len(splats):  # a record per splat, in order
+            lane = splats.lane
+            direction = queue.direction[lane]
+            distance = emitter_hit_distance(self.sigma.world, splats.triangle, queue.origin[lane], direction,
+                                            queue.travelled[lane] - queue.vertex_travelled[lane])
+            self.light_ends.add(first_record, splats.light, splats.triangle, -direction, distance)
 
     def lit(self, queue: PathQueue, surfaces: SurfaceQueue, shadows: ShadowQueue) -> None:
         most = 3 * len(shadows)  # a record (and two classes) per glossy lobe
         trie, records = self.classes.reserve(2 * most), self.records.reserve(most)
         norms = self.norms.reserve(most)
+        first_row, first_record = self.norms.size, self.records.count
         self.classes.size, self.norms.size, self.records.count = _record_lit(
             shadows.lane, shadows.light, shadows.triangle, shadows.radiance, shadows.visible, surfaces.triangle,
             surfaces.lobes, surfaces.curvature, surfaces.texture, queue.pixel, queue.sample, queue.node, queue.row,
             self.triangle_subject, self.subject_count, self.light_offset, self.slots > 0, *trie, *norms, *records)
+        if self.sigma is not None and self.records.count > first_record:
+            # _record_lit's order: visible entries, then their lobes with light; a row per record
+            entry, _ = np.nonzero(shadows.visible[:, None] & (shadows.radiance != 0).any(axis=2))
+            lanes = shadows.lane[entry]
+            self.vertices.add(first_row, lanes, queue.travelled, surfaces, sigma_rows.REFLECT, self.sigma.pixel_angle)
+            self.light_ends.add(first_record, shadows.light[entry], shadows.triangle[entry],
+                                -shadows.direction[entry], shadow_distance(shadows.t_max[entry]))
 
     def scattered(self, queue: PathQueue, surfaces: SurfaceQueue, scattering: Scattering, step: int) -> None:
         """Append this vertex's event to every continuing path: its sampled lobe, or a
         straight pass (no operator, norms 0) for cut-outs."""
         trie, norms = self.classes.reserve(len(queue)), self.norms.reserve(len(queue))
+        first_row = self.norms.size
         self.classes.size, self.norms.size = _record_scattered(
             scattering.scattered, surfaces.cut, scattering.lobe, scattering.scatter, scattering.transmit,
             surfaces.triangle, surfaces.lobes, surfaces.curvature, surfaces.texture, queue.node, queue.row,
             self.triangle_subject, self.subject_count, self.slots > 0, *trie, *norms)
+        if self.sigma is not None and self.norms.size > first_row:  # a row per passing or scattered lane
+            passes = surfaces.cut
+            lanes = np.flatnonzero(passes | scattering.scattered)
+            kind = np.where(passes[lanes], sigma_rows.PASS,
+                            np.where(scattering.transmit[lanes], sigma_rows.TRANSMIT, sigma_rows.REFLECT))
+            self.vertices.add(first_row, lanes, queue.travelled, surfaces, kind, self.sigma.pixel_angle)
 
     def result(self) -> Contributions:
         """The batch's contributions; norms already as the index stores them (float16)."""
@@ -111,8 +157,13 @@ class PathRecorder(Observer):
         classes = _dense_classes(node, class_of_node, path_class)
         nodes = np.flatnonzero(class_of_node >= 0)[:classes]
         norms = self.norms.first_events(row, self.slots)
+        sigma = None
+        if self.sigma is not None:
+            sigma = record_sigma(self.sigma, EmitterTable(self.sigma.world, self.sigma.lights), row,
+                                 self.norms.parent[:self.norms.size], self.norms.values[:self.norms.size, 2],
+                                 self.vertices, self.light_ends.first(self.records.count), self.slots)
         return Contributions(pixel, sample, rgb, path_class, norms, nodes, trie.parent[:trie.size].copy(),
-                             trie.event[:trie.size].copy())
+                             trie.event[:trie.size].copy(), sigma)
 
 
 _event_id = inline(events.event_id)

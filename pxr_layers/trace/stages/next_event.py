@@ -16,6 +16,8 @@ from ..vectors import normalized, to_local
 from ..world import GeometryArrays
 from .queues import MAX_PASS_THROUGH, T_INFINITY, PathQueue, ShadowQueue, SurfaceQueue, trimmed
 
+SHADOW_SPAN = 1 - 1e-4  # a shadow ray's t_max over the span between its offset ends: stops short of the light
+
 
 def light_samples(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: float, geometry: GeometryArrays,
                   materials: MaterialArrays, lights: LightArrays) -> ShadowQueue:
@@ -145,7 +147,7 @@ def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, sc
             sx, sy, sz = qx - ox, qy - oy, qz - oz
             span = math.sqrt(sx * sx + sy * sy + sz * sz)
             direction_out[count, 0], direction_out[count, 1], direction_out[count, 2] = normalized(sx, sy, sz, 1e-30)
-            t_max_out[count] = span * (1 - 1e-4)
+            t_max_out[count] = span * SHADOW_SPAN
         else:
             direction_out[count, 0], direction_out[count, 1], direction_out[count, 2] = dx, dy, dz
             t_max_out[count] = T_INFINITY
