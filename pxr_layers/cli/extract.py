@@ -16,13 +16,13 @@ from ..jobs.frame import file_sha256
 from ..errors import OutputError, PathIndexError
 from ..layers.deliver import check_raw_sources, deliver, plan_outputs
 from ..layers.exr import METADATA_PREFIX
-from ..layers.extract import extract
+from ..layers.extract import extract, extraction_threads
 from ..outputs import OutputSet
 from ..paths.reader import PathIndex
 from ..recipe.model import PER_LIGHT_MODES, Layer, Product, Recipe
 from ..recipe.presets import PRESETS
 from ..request import VariantSelection
-from .render import output_target, preset_or_file
+from .render import _positive, output_target, preset_or_file
 
 HELP = "cut light layers out of a path index with Light Path Expressions"
 DESCRIPTION = (
@@ -60,10 +60,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a directory for the EXRs (recipe products by their productName, the "
                         "command-line layers as INDEX-stem.layers.exr), or the .exr path when one EXR "
                         "is written (default: the index's directory)")
+    parser.add_argument("--threads", type=_positive, metavar="N",
+                        help="threads that read and decode the index's chunks (default: every core this "
+                        "process may use); the layers are the same, bit for bit, whatever N is")
     parser.add_argument("--no-previews", action="store_true", help="do not write the PNG previews and contact sheets")
 
 
 def run(args: argparse.Namespace) -> int:
+    with extraction_threads(args.threads):  # the extractions of deliver and of _beauty
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     index = PathIndex(args.index)
     loaded = _recipe(index, args) if args.recipe else None
     products = list(loaded.products) if loaded else []

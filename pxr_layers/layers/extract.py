@@ -6,7 +6,15 @@ path classes), which says per layer: never, always, or depending on the covarian
 norms of given events. Only the classes some layer can match are read from disk
 (chunks of other classes are skipped), covariance conditions are evaluated only on the
 records of conditional classes, and every layer is accumulated per pixel in float64 in
-the same pass. Images are divided by spp like the beauty, and returned as float32.
+the same pass (``accumulate.LayerSums``). Images are divided by spp like the beauty, and
+returned as float32.
+
+Threads: the chunks are read, checked and decoded on ``threads`` threads
+(``PathIndex.records``: file reads, CRC-32, zstd and numpy's loops release the GIL) while
+this thread computes each chunk's layer keys and adds its records, in chunk order. Decoding
+is some 90 % of the work of a layer without conditions, so it is what is spread; the sums
+stay in one order (chunk, then record), which makes the images byte-identical whatever the
+thread count. Memory: the output's float64 sums plus a few chunks per thread in flight.
 
 ``extract_reference`` is the slow, obvious version (every record matched on its own by
 the tree-walking reference matcher) that the fast one is tested against.
@@ -14,6 +22,8 @@ the tree-walking reference matcher) that the fast one is tested against.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import itertools
 import logging
 from dataclasses import dataclass
@@ -26,6 +36,9 @@ from ..lpe.automaton import DEAD
 from ..paths.events import path_text
 from ..paths.reader import PathIndex
 from ..progress import Progress
+from .accumulate import LayerSums, distinct
+
+_Accumulator = LayerSums  # the name tests/test_extract.py patches (MAX_SETS)
 
 log = logging.getLogger(__name__)
 
@@ -41,13 +54,40 @@ class Extraction:
     classes_matched: int
 
 
-def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: bool = False) -> Extraction:
+_THREADS: contextvars.ContextVar[int | None] = contextvars.ContextVar("extraction_threads", default=None)
+
+
+@contextlib.contextmanager
+def extraction_threads(threads: int | None):
+    """Within it, ``extract`` reads with `threads` threads unless told otherwise (None: all
+    cores): how ``pxr-layers extract --threads`` reaches the extractions ``deliver`` runs."""
+    token = _THREADS.set(threads)
+    try:
+        yield
+    finally:
+        _THREADS.reset(token)
+
+
+def default_threads() -> int:
+    """Threads ``extract`` reads with when not told: ``extraction_threads``'s, else every
+    core this process may use."""
+    from ..jobs.definition import default_workers
+
+    return _THREADS.get() or default_workers()
+
+
+def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: bool = False,
+            threads: int | None = None) -> Extraction:
     """Every layer of `expressions` (name → extended LPE) from `index`, in one pass.
+
+    threads: how many threads read and decode the chunks (None: ``default_threads()``);
+    the images are the same, byte for byte, whatever it is (module docstring).
 
     An index holding NaN or infinite light (from a render that went wrong: ``render`` itself
     refuses to keep one) is refused, naming a path class that carries it: no layer of it
     could be trusted to sum to anything.
     """
+    threads = threads or default_threads()
     broken = np.flatnonzero(~index.finite_class)
     if len(broken):
         raise PathIndexError(f"{len(broken)} path classes carry NaN or infinite light (the first: "
@@ -100,7 +140,7 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     records_read = 0
     progress = Progress(sum(index.classes[c].records for c in wanted.tolist()), "extract", enabled=show_progress)
     every_class = len(wanted) == class_count  # then no chunk needs filtering by class
-    for chunk in index.records(None if every_class else wanted.tolist(), norms=bool(groups)):
+    for chunk in index.records(None if every_class else wanted.tolist(), norms=bool(groups), threads=threads):
         records_read += len(chunk.class_id)
         key = class_set[chunk.class_id]
         for bit, row in enumerate(conditional_rows):
@@ -122,7 +162,7 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
                 accumulator.add_to_layer(row, chunk.pixel[matching], chunk.rgb[matching])
         accumulator.add(key, chunk.pixel, chunk.rgb)
         progress.advance(len(chunk.class_id))
-    sums = accumulator.sums()
+    sums = accumulator.sums
     log.info("extracted %d layers from %d of %d records (%d of %d classes)", len(names), records_read,
              index.record_count, len(wanted), class_count)
     return Extraction(_images(sums, names, index), records_read, len(wanted))
@@ -177,7 +217,7 @@ def _plain_walk(dfa, symbols: list[int], classes) -> dict[frozenset, np.ndarray]
         moving = (events[:, position] >= 0) & (state != DEAD)
         if not moving.any():
             break
-        pairs, which = _distinct(state[moving] * event_count + events[moving, position])
+        pairs, which = distinct(state[moving] * event_count + events[moving, position])
         targets = np.array([dfa.step(pair // event_count, symbols[pair % event_count]) for pair in pairs.tolist()],
                            np.int64)
         state[moving] = targets[which]
@@ -209,75 +249,6 @@ def _conditional_walks(automaton: lpe.LayerAutomaton, symbols: list, deferred: l
         yield path_class.id, automaton.outcomes(walks[len(ids)], path_class.events, classified)
 
 
-class _Accumulator:
-    """Per-pixel float64 sums of many layers from records keyed by the set of layers they feed.
-
-    key (per record) = plain set id << C | conditional bits: ``plain_sets[id]`` are the
-    layers its class always feeds, bit j says it feeds ``conditional_rows[j]``. Records are
-    few distinct keys (the standard passes partition them), so per chunk one bincount per
-    colour channel over (key, pixel) serves every layer.
-    """
-
-    MAX_SETS = 64  # beyond this many distinct keys in a chunk, one bincount per layer
-
-    def __init__(self, plain_sets: np.ndarray, conditional_rows: list[int], pixels: int):
-        """plain_sets (S, layers) bool; conditional_rows: the layers of the key's low bits."""
-        self.plain_sets, self.conditional_rows, self.pixels = plain_sets, conditional_rows, pixels
-        self._by_key: dict[int, np.ndarray] = {}
-        self._per_layer = np.zeros((plain_sets.shape[1], 3, pixels))
-
-    def members(self, key: int) -> np.ndarray:
-        """(layers,) bool: the layers records of ``key`` feed."""
-        members = self.plain_sets[key >> len(self.conditional_rows)].copy()
-        for bit, row in enumerate(self.conditional_rows):
-            members[row] |= bool(key >> bit & 1)
-        return members
-
-    def add(self, key: np.ndarray, pixel: np.ndarray, rgb: np.ndarray) -> None:
-        """key (r,) int64; pixel (r,); rgb (r, 3)."""
-        keys, which = _distinct(key)
-        if len(keys) > self.MAX_SETS:
-            selected = np.stack([self.members(value) for value in keys.tolist()], axis=1)[:, which]  # (layers, r)
-            for layer, chosen in enumerate(selected):
-                if chosen.any():
-                    self.add_to_layer(layer, pixel[chosen], rgb[chosen])
-            return
-        flat = which * self.pixels + pixel
-        size = len(keys) * self.pixels
-        channels = [np.bincount(flat, weights=rgb[:, c], minlength=size).reshape(len(keys), self.pixels)
-                    for c in range(3)]
-        for number, value in enumerate(keys.tolist()):
-            image = np.stack([channel[number] for channel in channels])
-            if value in self._by_key:
-                self._by_key[value] += image
-            else:
-                self._by_key[value] = image
-
-    def add_to_layer(self, layer: int, pixel: np.ndarray, rgb: np.ndarray) -> None:
-        """Records (pixel (r,), rgb (r, 3)) that feed ``layer``, whatever their key says."""
-        for channel in range(3):
-            self._per_layer[layer, channel] += np.bincount(pixel, weights=rgb[:, channel], minlength=self.pixels)
-
-    def sums(self) -> np.ndarray:
-        """(layers, 3, pixels) float64."""
-        total = self._per_layer.copy()
-        for value, image in self._by_key.items():
-            total[self.members(value)] += image
-        return total
-
-
-def _distinct(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(sorted distinct values, index of each value among them), as ``np.unique`` with
-    ``return_inverse``; by counting instead of sorting when the values are small."""
-    top = int(key.max(initial=0))
-    if top >= 1 << 20 or key.min(initial=0) < 0:
-        keys, which = np.unique(key, return_inverse=True)
-        return keys, which.reshape(-1)
-    present = np.bincount(key, minlength=top + 1) > 0
-    number = np.cumsum(present) - 1
-    return np.flatnonzero(present), number[key]
-
-
 def _distinct_rows(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.unique(matrix, axis=0, return_inverse=True)`` for a (n, k) bool matrix, on its
     rows packed into bytes (sorting packed rows is far faster than sorting by columns)."""
@@ -293,7 +264,7 @@ def extract_reference(index: PathIndex, expressions: dict[str, str]) -> dict[str
     """The same layers, matching every record on its own with ``lpe.reference_match``."""
     trees = {name: lpe.parse(expression) for name, expression in expressions.items()}
     width, height = index.manifest["resolution"]
-    sums = np.zeros((len(trees), 3, width * height))
+    sums = np.zeros((len(trees), width * height, 3))
     class_events = [path_class.events for path_class in index.classes]
     for chunk in index.records():
         for record in range(len(chunk.class_id)):
@@ -301,7 +272,7 @@ def extract_reference(index: PathIndex, expressions: dict[str, str]) -> dict[str
             for layer, tree in enumerate(trees.values()):
                 sigma = None if chunk.sigma is None else chunk.sigma[record]
                 if lpe.reference_match(tree, events, chunk.norms[record], sigma):
-                    sums[layer, :, chunk.pixel[record]] += chunk.rgb[record]
+                    sums[layer, chunk.pixel[record]] += chunk.rgb[record]
     return _images(sums, list(trees), index)
 
 
@@ -319,7 +290,8 @@ def warn_unknown_labels(automaton: lpe.LayerAutomaton, index: PathIndex) -> None
 
 
 def _images(sums: np.ndarray, names: list[str], index: PathIndex) -> dict[str, np.ndarray]:
+    """name → (h, w, 3) float32 images of (layers, pixels, 3) float64 sums, / spp."""
     width, height = index.manifest["resolution"]
     spp = index.manifest["spp"]
-    return {name: (sums[layer] / spp).T.reshape(height, width, 3).astype(np.float32)
+    return {name: (sums[layer] / spp).astype(np.float32).reshape(height, width, 3)
             for layer, name in enumerate(names)}

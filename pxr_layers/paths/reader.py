@@ -13,18 +13,22 @@ records and summed rgb of each class what the footer says.
 
 from __future__ import annotations
 
+import collections
 import itertools
 import json
 import math
 import os
+import threading
 import zlib
 from collections.abc import Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import zstandard
 
+from ..compiled import inline, kernel
 from ..errors import PathIndexError
 from ..lpe.events import ALL_SCATTERINGS, EVENT_TYPES
 from ..progress import Progress
@@ -38,6 +42,11 @@ writer's chunks hold at most writer.CHUNK_RECORDS (2^16) records, 3.5 MB with N 
 MAX_FOOTER_BYTES = 1 << 28
 """The most the footer's JSON may take (256 MiB): bounds the memory of opening a file.
 A footer takes some 100 bytes per path class: 10 MB for a hundred thousand classes."""
+
+CHUNKS_IN_FLIGHT_PER_THREAD = 2
+"""Chunks read ahead per reading thread when records are streamed on threads: enough that a
+thread never waits for the consumer to take a chunk, few enough that memory stays a handful
+of chunks (each at most MAX_CHUNK_BYTES, in practice 1.5 MB of sums) whatever the file's size."""
 
 CHUNKS_NAMED = 8
 """How many of the chunks holding a class whose records disagree with the footer verify names."""
@@ -116,7 +125,8 @@ class _Malformed(ValueError):
 class PathIndex:
     """An open path index. Checks the header, trailer, version, footer checksum and tables
     at open; every chunk when it is read (module docstring). Memory: the tables, plus one
-    chunk at a time while streaming records."""
+    chunk at a time while streaming records (with threads: CHUNKS_IN_FLIGHT_PER_THREAD per
+    thread)."""
 
     def __init__(self, path: str | os.PathLike, *, shown_as: str | os.PathLike | None = None):
         """shown_as: the file's name in messages, when it is read under another (a render
@@ -282,28 +292,62 @@ class PathIndex:
     def record_count(self) -> int:
         return self.manifest["records"]
 
-    def records(self, classes: Iterable[int] | None = None, *, norms: bool = True) -> Iterator[RecordChunk]:
-        """Stream the records of `classes` (ids; all if None), one chunk at a time.
+    def records(self, classes: Iterable[int] | None = None, *, norms: bool = True,
+                threads: int = 1) -> Iterator[RecordChunk]:
+        """Stream the records of `classes` (ids; all if None), one chunk at a time, in the
+        file's chunk order whatever `threads` is.
 
         Only the chunks holding a wanted class are read and decompressed. norms=False
-        skips decoding the norms and samples (RecordChunk.norms is then (r, 0, 3) and
-        RecordChunk.sample empty).
+        skips the covariance frame (RecordChunk.norms is then (r, 0, 3) and sigma None).
+
+        threads > 1: chunks are read, checked and decoded on that many threads (file reads,
+        CRC-32, zstd and numpy's loops release the GIL), at most
+        CHUNKS_IN_FLIGHT_PER_THREAD per thread ahead of the consumer, and yielded in chunk
+        order: the same chunks, and the same first error (the first bad chunk in file order),
+        as with one thread. Closing the iterator early waits for the chunks being read.
         """
         wanted = None
         if classes is not None:  # a lookup table: wanted[class id]
             wanted = np.zeros(len(self.classes), bool)
             wanted[np.fromiter(classes, np.int64)] = True
+        numbers = []  # (chunk number, whether it holds classes that are not wanted)
+        for number, chunk in enumerate(self.chunks):
+            chunk_wanted = None if wanted is None else wanted[np.asarray(chunk["classes"], np.int64)]
+            if chunk_wanted is None or chunk_wanted.any():
+                numbers.append((number, chunk_wanted is not None and not chunk_wanted.all()))
         with self._open() as file:
-            for number, chunk in enumerate(self.chunks):
-                chunk_wanted = None if wanted is None else wanted[np.asarray(chunk["classes"], np.int64)]
-                if chunk_wanted is not None and not chunk_wanted.any():
-                    continue
-                decoded = self._read_chunk(file, number, norms)
-                if chunk_wanted is not None and not chunk_wanted.all():
-                    keep = wanted[decoded.class_id]
-                    decoded = RecordChunk(*(column[keep] if column is not None and len(column) else column
-                                            for column in vars(decoded).values()))
-                yield decoded
+            read = _ChunkReader(file)
+            if threads <= 1 or len(numbers) <= 1:
+                for number, mixed in numbers:
+                    yield self._wanted_records(read, number, norms, wanted if mixed else None)
+                return
+            window = threads * CHUNKS_IN_FLIGHT_PER_THREAD
+            with ThreadPoolExecutor(threads, thread_name_prefix="pxl-read") as pool:
+                queued = iter(numbers)
+                pending = collections.deque(
+                    pool.submit(self._wanted_records, read, number, norms, wanted if mixed else None)
+                    for number, mixed in itertools.islice(queued, window))
+                try:
+                    while pending:
+                        decoded = pending.popleft().result()
+                        for number, mixed in itertools.islice(queued, 1):
+                            pending.append(pool.submit(self._wanted_records, read, number, norms,
+                                                       wanted if mixed else None))
+                        yield decoded
+                finally:  # an error, or the consumer stopped: read nothing more (the pool waits for the rest)
+                    for future in pending:
+                        future.cancel()
+
+    def _wanted_records(self, read: "_ChunkReader", number: int, all_columns: bool,
+                        wanted: np.ndarray | None) -> RecordChunk:
+        """Chunk `number`, read and checked, keeping only the records of the classes
+        ``wanted`` marks (None: all of them)."""
+        decoded = self._read_chunk(read, number, all_columns)
+        if wanted is None:
+            return decoded
+        keep = wanted[decoded.class_id]
+        return RecordChunk(*(column[keep] if column is not None and len(column) else column
+                             for column in vars(decoded).values()))
 
     def verify(self, *, show_progress: bool = False) -> int:
         """Read every chunk and check all of it (module docstring), also that every rgb is
@@ -316,8 +360,9 @@ class PathIndex:
         sums, magnitudes = np.zeros((classes, 3)), np.zeros((classes, 3))  # float64 sums of rgb and |rgb|
         progress = Progress(self.record_count, "verify", enabled=show_progress)
         with self._open() as file:
+            read = _ChunkReader(file)
             for number in range(len(self.chunks)):
-                decoded = self._read_chunk(file, number, True)
+                decoded = self._read_chunk(read, number, True)
                 wrong = None if np.isfinite(decoded.rgb).all() else ~np.isfinite(decoded.rgb).all(axis=1)
                 if wrong is not None:
                     raise self._chunk_error(number, f"holds {int(wrong.sum())} records of NaN or infinite rgb "
@@ -355,13 +400,12 @@ class PathIndex:
         except OSError as error:
             raise PathIndexError(f"cannot read ({error.strerror or error})", file=str(self.shown_as)) from error
 
-    def _read_chunk(self, file, number: int, all_columns: bool) -> RecordChunk:
-        """Chunk `number`, read from `file` and checked (all_columns: with its covariance frame)."""
+    def _read_chunk(self, read: "_ChunkReader", number: int, all_columns: bool) -> RecordChunk:
+        """Chunk `number`, read and checked (all_columns: with its covariance frame). Safe to
+        call from several threads at once with one `read`."""
         chunk = self.chunks[number]
         try:
-            file.seek(chunk["offset"])
-            head = file.read(fmt.CHUNK_HEADER.size)
-            payload = file.read(chunk["bytes"])
+            head, payload = read(chunk["offset"], fmt.CHUNK_HEADER.size, chunk["bytes"])
         except OSError as error:
             raise self._chunk_error(number, f"cannot be read ({error.strerror or error})") from error
         magic, length, crc, records, sums_bytes = fmt.CHUNK_HEADER.unpack(head) \
@@ -382,6 +426,9 @@ class PathIndex:
                 data = zstandard.ZstdDecompressor().decompress(frame, allow_extra_data=False)
             except zstandard.ZstdError as error:
                 raise self._chunk_error(number, f"is not two zstd frames of its records ({error})") from None
+            if frame_layout is layout[0]:  # the sums: one compiled pass instead of numpy's dozen
+                columns.update(_sums_columns(data, records))
+                continue
             position = 0
             for name, dtype, shape in frame_layout:
                 end = position + int(np.prod(shape)) * dtype.itemsize
@@ -395,16 +442,14 @@ class PathIndex:
         return fmt.column_layout(self.mode, records, self.norm_slots, self.has_sigma)
 
     def _decoded(self, columns: dict, records: int) -> RecordChunk:
-        """A RecordChunk of the columns as stored (norms and sigma when read: values)."""
+        """A RecordChunk of the columns (the sums as RecordChunk holds them already; norms
+        and sigma, when read, as stored: turned into values here)."""
         norms, sigma = columns.get("norms"), columns.get("sigma")
         if self.mode == "merged":
             norms = None if norms is None else fmt.NormBins.decoded(norms)
             sigma = None if sigma is None else fmt.NormBins.decoded(sigma)
         return RecordChunk(
-            class_id=columns["class"].astype(np.int64),
-            pixel=np.cumsum(columns["pixel"], dtype=np.int64),
-            count=columns["count"].astype(np.int64),
-            rgb=columns["rgb"],
+            class_id=columns["class"], pixel=columns["pixel"], count=columns["count"], rgb=columns["rgb"],
             norms=np.zeros((records, 0, 3), np.float32) if norms is None else norms.astype(np.float32, copy=False),
             sigma=sigma,
         )
@@ -437,6 +482,80 @@ class PathIndex:
 
     def _error(self, message: str) -> PathIndexError:
         return PathIndexError(message, file=str(self.shown_as))
+
+
+SUMS_LAYOUT = [("class", "<u4", 1), ("pixel", "<i4", 1), ("count", "<u4", 1), ("rgb", "<f4", 3)]
+"""The sums frame's columns as ``_unshuffle_sums`` reads them: (name, dtype, values per
+record). Checked against format.column_layout at import: a change of the format must
+change the kernel too, not decode garbage."""
+assert [(name, dtype.str, int(np.prod(shape))) for name, dtype, shape in fmt.column_layout("merged", 1, 0, False)[0]] \
+    == SUMS_LAYOUT, "paths/format.py's sums columns are not what reader._unshuffle_sums decodes"
+SUMS_RECORD_BYTES = fmt.frame_bytes(fmt.column_layout("merged", 1, 0, False)[0])
+
+
+def _sums_columns(data: bytes, records: int) -> dict[str, np.ndarray]:
+    """The sums frame's columns (format.column_layout), as RecordChunk holds them: class,
+    pixel (absolute: the deltas summed) and count (r,) int64, rgb (r, 3) float32.
+
+    One compiled pass over the byte planes (``_unshuffle_sums``): unshuffling each column
+    with numpy (format.unshuffle), widening and summing the deltas took 8 ns a record, a
+    third of a chunk's decoding; this takes about 1.
+    """
+    planes = np.frombuffer(data, np.uint8)
+    if len(planes) != SUMS_RECORD_BYTES * records:  # the caller checked the frame's size: a bug
+        raise AssertionError(f"a sums frame of {len(planes)} bytes for {records} records")
+    class_id, pixel, count = (np.empty(records, np.int64) for _ in range(3))
+    rgb_bits = np.empty((records, 3), np.uint32)
+    _unshuffle_sums(planes, records, class_id, pixel, count, rgb_bits.reshape(-1))
+    return {"class": class_id, "pixel": pixel, "count": count, "rgb": rgb_bits.view(np.float32)}
+
+
+@kernel
+def _unshuffle_sums(planes, records, class_id, pixel, count, rgb_bits):
+    """Decode a sums frame: planes (24 r,) uint8, each column's byte planes one after the
+    other (least significant first), class u32 | pixel delta i32 | count u32 | rgb f32 (3 r).
+    Writes class_id, pixel (the running sum of the deltas, from 0), count (r,) int64 and
+    rgb_bits (3 r,) uint32 (the floats' bits)."""
+    r = records
+    running = np.int64(0)
+    for record in range(r):
+        class_id[record] = _word(planes, record, r, 0)
+        delta = _word(planes, record, r, 4 * r)
+        if delta >= 2 ** 31:  # two's complement of a negative int32
+            delta -= 2 ** 32
+        running += delta
+        pixel[record] = running
+        count[record] = _word(planes, record, r, 8 * r)
+    values = 3 * r
+    for value in range(values):
+        rgb_bits[value] = _word(planes, value, values, 12 * r)
+
+
+@inline
+def _word(planes, item, stride, start):
+    """The little-endian 32-bit unsigned word of `item` from 4 byte planes of `stride` bytes at `start`."""
+    return (np.int64(planes[start + item]) | np.int64(planes[start + stride + item]) << 8
+            | np.int64(planes[start + 2 * stride + item]) << 16 | np.int64(planes[start + 3 * stride + item]) << 24)
+
+
+class _ChunkReader:
+    """Reads a chunk's header and payload from an open file, from any number of threads:
+    with ``os.pread`` (no shared file position) where the system has it, else seek and read
+    under a lock."""
+
+    def __init__(self, file):
+        self._file = file
+        self._descriptor = file.fileno() if hasattr(os, "pread") else None
+        self._lock = threading.Lock()
+
+    def __call__(self, offset: int, head_bytes: int, payload_bytes: int) -> tuple[bytes, bytes]:
+        """(the head_bytes at `offset`, the payload_bytes after them): shorter at the end of the file."""
+        if self._descriptor is not None:
+            data = os.pread(self._descriptor, head_bytes + payload_bytes, offset)
+            return data[:head_bytes], data[head_bytes:]
+        with self._lock:
+            self._file.seek(offset)
+            return self._file.read(head_bytes), self._file.read(payload_bytes)
 
 
 def _typed(table: dict, key: str, kind: type, owner: str = ""):
