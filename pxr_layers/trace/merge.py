@@ -54,7 +54,7 @@ def merged(records: Contributions, first_pixel: int, pixel_count: int) -> Merged
     [first_pixel, first_pixel + pixel_count)."""
     count, slots = len(records.pixel), records.norms.shape[1]
     norm_codes = _CODE_OF_HALF[np.ascontiguousarray(records.norms).view(np.uint16)].reshape(count, 3 * slots)
-    sigma = getattr(records, "sigma", None)
+    sigma = records.sigma
     sigma_codes = None if sigma is None else NormBins.signed_code(sigma).reshape(count, sigma.shape[1] * sigma.shape[2])
     key = norm_codes if sigma_codes is None else np.concatenate([norm_codes, sigma_codes.view(np.uint8)], axis=1)
     key = np.ascontiguousarray(key)
