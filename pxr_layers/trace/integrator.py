@@ -30,6 +30,7 @@ from .camera import PinholeCamera
 from .embree import RayCaster
 from .lights import LightSampler
 from .merge import MergedContributions, merged
+from .sigma import ray_cone_footprint
 from .recorder import Contributions, FirstBounceNorms, PathRecorder
 from .shading import MaterialTable
 from .sigma import SigmaInputs
@@ -169,7 +170,7 @@ class Integrator:
                                self.key, spp)
             film.add_coverage(queue, hit & unscattered & ~surfaces.cut)
             if wants_norms and self.bounce_norms:
-                footprint = queue.travelled * self.pixel_angle / np.maximum(np.abs(surfaces.wo[:, 2]), 0.05)
+                footprint = ray_cone_footprint(queue.travelled, surfaces.wo[:, 2], self.pixel_angle)
                 self.bounce_norms.texture(surfaces, footprint)
 
             if lights.has_lights:

@@ -112,9 +112,9 @@ class SigmaInputs:
 
 
 def ray_cone_footprint(travelled: np.ndarray, cos_out: np.ndarray, pixel_angle) -> np.ndarray:
-    """The footprint (n,) float32 metres T is looked up with: Integrator.trace's formula
-    (the distance travelled times the pixel angle over max(|cos θo|, 0.05)), kept equal to
-    it so that Σ's texture block is the one behind the stored T."""
+    """The footprint (n,) float32 metres the texture is looked up with, for T
+    (Integrator.trace) and for Σ's texture block alike: the distance travelled times the
+    pixel angle over max(|cos θo|, 0.05)."""
     return travelled * pixel_angle / np.maximum(np.abs(cos_out), 0.05)
 
 
