@@ -147,7 +147,7 @@ def test_a_condition_on_a_bounce_the_index_did_not_keep_is_an_error():
 
 def test_a_condition_on_an_entry_without_sigma_is_an_error():
     outcome = lpe.compile("C D@(S11 >> S22) L").outcome(events("C RD L"))
-    with pytest.raises(LpeError, match="reads entries of Σ.*no sigma"):
+    with pytest.raises(LpeError, match="reads entries of Σ.*--index-covariance sigma"):
         outcome.mask(np.zeros((2, 5, 3), np.float32))
 
 
