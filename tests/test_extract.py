@@ -98,7 +98,7 @@ def test_fast_extraction_matches_the_reference_on_random_expressions(stages, tmp
 def test_many_conditional_layers_match_the_reference(stages, tmp_path, monkeypatch, max_sets):
     """More conditional layers than a record's int64 key has bits for, and (max_sets=2)
     more distinct layer sets per chunk than one bincount per set: both fall back, same sums."""
-    monkeypatch.setattr(extract_module._Accumulator, "MAX_SETS", max_sets)
+    monkeypatch.setattr(extract_module.LayerSums, "MAX_SETS", max_sets)
     _, index = indexed_render(stages["showcase"], tmp_path / "many.pxlidx", resolution=(16, 12),
                               settings=dataclasses.replace(SETTINGS, spp=2))
     expressions = {f"texture{number}": f"C<R.>@(|S_T| > {number / 10:g}).*" for number in range(70)}

@@ -38,7 +38,6 @@ from ..paths.reader import PathIndex
 from ..progress import Progress
 from .accumulate import LayerSums, distinct
 
-_Accumulator = LayerSums  # the name tests/test_extract.py patches (MAX_SETS)
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +45,8 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class Extraction:
     """layers : name → (h, w, 3) float32 linear images (same scale as the beauty)
-    records_read : records decoded from disk; classes_matched : classes some layer can use
+    records_read : records of the classes some layer can use (the chunks holding them are
+    read whole: their other records are decoded too, and skipped); classes_matched : those classes
     """
 
     layers: dict[str, np.ndarray]
@@ -136,12 +136,14 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     keyed = conditional_rows[:63 - max(1, len(plain_sets)).bit_length()]
     class_set = class_set << len(keyed)
     width, height = index.manifest["resolution"]
-    accumulator = _Accumulator(plain_sets, keyed, width * height)
-    records_read = 0
-    progress = Progress(sum(index.classes[c].records for c in wanted.tolist()), "extract", enabled=show_progress)
-    every_class = len(wanted) == class_count  # then no chunk needs filtering by class
-    for chunk in index.records(None if every_class else wanted.tolist(), norms=bool(groups), threads=threads):
-        records_read += len(chunk.class_id)
+    accumulator = LayerSums(plain_sets, keyed, width * height)
+    records_read = sum(index.classes[c].records for c in wanted.tolist())
+    # Chunks holding a wanted class are read whole: the records of other classes in them
+    # have the empty plain set and no group, and feed nothing (cheaper than cutting them out).
+    selected = None if len(wanted) == class_count else wanted.tolist()
+    progress = Progress(sum(index.chunks[number]["records"] for number in index.chunks_holding(selected)),
+                        "extract", enabled=show_progress)
+    for chunk in index.records(selected, norms=bool(groups), threads=threads, whole_chunks=True):
         key = class_set[chunk.class_id]
         for bit, row in enumerate(conditional_rows):
             # The chunk's records of each group of the layer, from one sort by group.

@@ -235,7 +235,7 @@ class PathIndex:
         """The writer's own keys must be there; the render's (RENDER_KEYS, resolution) are
         checked when present. Sets _pixels, the image's pixel count (None: not given)."""
         for key, kind in (("norm_slots", int), ("records", int), ("classes", int), ("contributions", int),
-                          ("format_version", int), ("norms", dict), ("norm_storage", str), ("mode", str),
+                          ("format_version", int), ("norms", dict), ("mode", str),
                           ("covariance", str)):
             _typed(manifest, key, kind, "the manifest's ")
         if manifest["mode"] not in fmt.MODES or manifest["covariance"] not in ("norms", "sigma"):
@@ -292,13 +292,16 @@ class PathIndex:
     def record_count(self) -> int:
         return self.manifest["records"]
 
-    def records(self, classes: Iterable[int] | None = None, *, norms: bool = True,
-                threads: int = 1) -> Iterator[RecordChunk]:
+    def records(self, classes: Iterable[int] | None = None, *, norms: bool = True, threads: int = 1,
+                whole_chunks: bool = False) -> Iterator[RecordChunk]:
         """Stream the records of `classes` (ids; all if None), one chunk at a time, in the
         file's chunk order whatever `threads` is.
 
-        Only the chunks holding a wanted class are read and decompressed. norms=False
-        skips the covariance frame (RecordChunk.norms is then (r, 0, 3) and sigma None).
+        Only the chunks holding a wanted class are read and decompressed (``chunks_holding``).
+        norms=False skips the covariance frame (RecordChunk.norms is then (r, 0, 3) and sigma
+        None). whole_chunks: those chunks are yielded whole, with the records of the other
+        classes they hold, for a caller that ignores those itself (cutting them out costs a
+        fifth of decoding a chunk).
 
         threads > 1: chunks are read, checked and decoded on that many threads (file reads,
         CRC-32, zstd and numpy's loops release the GIL), at most
@@ -306,15 +309,10 @@ class PathIndex:
         order: the same chunks, and the same first error (the first bad chunk in file order),
         as with one thread. Closing the iterator early waits for the chunks being read.
         """
-        wanted = None
-        if classes is not None:  # a lookup table: wanted[class id]
-            wanted = np.zeros(len(self.classes), bool)
-            wanted[np.fromiter(classes, np.int64)] = True
-        numbers = []  # (chunk number, whether it holds classes that are not wanted)
-        for number, chunk in enumerate(self.chunks):
-            chunk_wanted = None if wanted is None else wanted[np.asarray(chunk["classes"], np.int64)]
-            if chunk_wanted is None or chunk_wanted.any():
-                numbers.append((number, chunk_wanted is not None and not chunk_wanted.all()))
+        wanted = self._wanted(classes)
+        numbers = self._chunks_holding(wanted)
+        if whole_chunks:
+            numbers = [(number, False) for number, _ in numbers]
         with self._open() as file:
             read = _ChunkReader(file)
             if threads <= 1 or len(numbers) <= 1:
@@ -337,6 +335,29 @@ class PathIndex:
                 finally:  # an error, or the consumer stopped: read nothing more (the pool waits for the rest)
                     for future in pending:
                         future.cancel()
+
+    def chunks_holding(self, classes: Iterable[int] | None = None) -> list[int]:
+        """Numbers of the chunks holding a record of `classes` (ids; all if None): the
+        chunks ``records`` reads."""
+        return [number for number, _ in self._chunks_holding(self._wanted(classes))]
+
+    def _wanted(self, classes: Iterable[int] | None) -> np.ndarray | None:
+        """(classes,) bool lookup table of `classes` (ids), or None for all."""
+        if classes is None:
+            return None
+        wanted = np.zeros(len(self.classes), bool)
+        wanted[np.fromiter(classes, np.int64)] = True
+        return wanted
+
+    def _chunks_holding(self, wanted: np.ndarray | None) -> list[tuple[int, bool]]:
+        """(number, whether it also holds classes not wanted) of each chunk holding a class
+        `wanted` ((classes,) bool; None: all) marks."""
+        numbers = []
+        for number, chunk in enumerate(self.chunks):
+            chunk_wanted = None if wanted is None else wanted[np.asarray(chunk["classes"], np.int64)]
+            if chunk_wanted is None or chunk_wanted.any():
+                numbers.append((number, chunk_wanted is not None and not chunk_wanted.all()))
+        return numbers
 
     def _wanted_records(self, read: "_ChunkReader", number: int, all_columns: bool,
                         wanted: np.ndarray | None) -> RecordChunk:
