@@ -67,6 +67,8 @@ import sys
 
 import numpy as np
 
+from ..lpe.conditions import SIGMA_ENTRY_COUNT  # Σ's upper triangle, in the order conditions read
+
 FORMAT_VERSION = 2
 MODES = ("merged", "records")
 """Index modes (module docstring); the first is the default."""
@@ -136,17 +138,13 @@ def column_layout(mode: str, records: int, norm_slots: int, sigma: bool) -> tupl
     covariance = [("norms", np.dtype(np.uint8 if merged else NORM_DTYPE), (records, norm_slots, 3))]
     if sigma:
         covariance.append(("sigma", np.dtype(np.int16 if merged else np.float32),
-                           (records, norm_slots, SIGMA_ENTRIES)))
+                           (records, norm_slots, SIGMA_ENTRY_COUNT)))
     return sums, covariance
 
 
 def frame_bytes(columns: list[Column]) -> int:
     """Decoded bytes of a frame of these columns."""
     return sum(dtype.itemsize * int(np.prod(shape)) for _, dtype, shape in columns)
-
-
-SIGMA_ENTRIES = 10
-"""Σ's independent entries, its upper triangle (lpe/conditions.py reads them in this order)."""
 
 
 class NormBins:

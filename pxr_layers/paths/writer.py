@@ -219,7 +219,6 @@ class PathIndexWriter:
             "norm_slots": self.norm_slots,
             "norms": {name: fmt.NORM_UNITS[name] for name in fmt.NORM_NAMES},
             "mode": self.mode,
-            "norm_storage": "bins" if self.mode == "merged" else "float16",
             **({"bins": fmt.NormBins.manifest()} if self.mode == "merged" else {}),
             "covariance": "sigma" if self.sigma else "norms",
             "contributions": self._contributions,

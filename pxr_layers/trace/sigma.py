@@ -74,6 +74,7 @@ from ..covariance.path import (
     dome_covariance,
     path_covariance,
 )
+from ..lpe.conditions import SIGMA_ENTRY_COUNT
 from ..scene import FLOAT
 from .bounce_norms import SINGULAR_REFLECTANCE, BounceNorms
 from .lights import LightSampler
@@ -81,7 +82,6 @@ from .stages.next_event import SHADOW_SPAN
 from .stages.queues import T_INFINITY
 from .world import World
 
-SIGMA_ENTRIES = 10  # the upper triangle of Σ (covariance.PACKED_ENTRY_NAMES)
 
 # Columns of SigmaVertices.values.
 TRAVELLED = 0  # metres from the camera along the path to the vertex
@@ -275,7 +275,7 @@ def record_sigma(inputs: SigmaInputs, emitters: EmitterTable, rows: np.ndarray, 
     rows (r,) each record's last event row (−1: none); parent (rows,) the norms rows'
     links; reflectance (rows,) float32 each row's R; vertices and ends as recorded."""
     count = len(rows)
-    out = np.zeros((count, slots, SIGMA_ENTRIES), FLOAT)
+    out = np.zeros((count, slots, SIGMA_ENTRY_COUNT), FLOAT)
     if not count or not slots:
         return out
     # Each record's rows from its light end to the camera: chain[:, 0] is its last event.

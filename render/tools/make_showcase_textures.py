@@ -49,14 +49,13 @@ def quantise(values: np.ndarray) -> np.ndarray:
     return np.round(np.clip(values, 0.0, 1.0) * 65535.0).astype(np.uint16)
 
 
-def write(out_dir: Path) -> Path:
+def write_png(path: Path, values: np.ndarray) -> Path:
+    """(h, w, 3) linear [0, 1] values as a 16-bit PNG tagged linear (gAMA 1.0, not OIIO's
+    default sRGB chunk). make_striped_textures.py writes its textures with it too."""
     import OpenImageIO as oiio
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / FILENAME
-    pixels = quantise(two_frequencies())
-    spec = oiio.ImageSpec(WIDTH, HEIGHT, 3, oiio.UINT16)
-    # Declare the data linear (PNG gAMA 1.0) instead of OIIO's default sRGB chunk.
+    pixels = quantise(values)
+    spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], 3, oiio.UINT16)
     spec.attribute("oiio:ColorSpace", "lin_rec709_scene")
     out = oiio.ImageOutput.create(str(path))
     if out is None:
@@ -67,6 +66,11 @@ def write(out_dir: Path) -> Path:
     finally:
         out.close()
     return path
+
+
+def write(out_dir: Path) -> Path:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return write_png(out_dir / FILENAME, two_frequencies())
 
 
 def main(argv: list[str] | None = None) -> int:

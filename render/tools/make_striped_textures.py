@@ -27,6 +27,7 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from make_showcase_textures import write_png  # the same 16-bit linear PNG writer (this folder)
 
 SIZE = 256
 CYCLES = 6.0
@@ -54,28 +55,6 @@ def checker(size: int = SIZE) -> np.ndarray:
     s, t = coordinates(size)
     values = MEAN + AMPLITUDE * np.sin(2.0 * np.pi * CYCLES * s) * np.sin(2.0 * np.pi * CYCLES * t)
     return np.repeat(values[..., None], 3, axis=2)
-
-
-def quantise(values: np.ndarray) -> np.ndarray:
-    """Linear [0, 1] values to uint16 codes."""
-    return np.round(np.clip(values, 0.0, 1.0) * 65535.0).astype(np.uint16)
-
-
-def write_png(path: Path, values: np.ndarray) -> Path:
-    import OpenImageIO as oiio
-
-    pixels = quantise(values)
-    spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], 3, oiio.UINT16)
-    spec.attribute("oiio:ColorSpace", "lin_rec709_scene")  # PNG gAMA 1.0, not sRGB
-    out = oiio.ImageOutput.create(str(path))
-    if out is None:
-        raise RuntimeError(f"OpenImageIO cannot write {path}: {oiio.geterror()}")
-    try:
-        if not out.open(str(path), spec) or not out.write_image(pixels):
-            raise RuntimeError(f"writing {path} failed: {out.geterror()}")
-    finally:
-        out.close()
-    return path
 
 
 def write(out_dir: Path) -> list[Path]:
