@@ -12,7 +12,6 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__, lpe
-from ..jobs.frame import file_sha256
 from ..errors import OutputError, PathIndexError
 from ..layers.deliver import check_raw_sources, deliver, plan_outputs
 from ..layers.exr import METADATA_PREFIX
@@ -137,6 +136,8 @@ def _recipe(index: PathIndex, args: argparse.Namespace) -> Recipe:
     layers = [preset_or_file(text) for text in args.recipe]
     stage = Path(index.manifest.get("stage", ""))
     if stage.is_file():
+        from ..jobs.frame import file_sha256  # here: jobs.frame pulls in the tracer, which extract does not need
+
         if index.manifest.get("stage_sha256") not in (None, file_sha256(stage)):
             log.warning("%s has changed since %s was rendered: the recipe is read against today's stage",
                         stage, index.path)

@@ -8,11 +8,10 @@ import logging
 import math
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..errors import PxrLayersError, RecipeError
-from ..jobs.frame import FrameAssembler, plan_frame, prepare_frame
-from ..layers.debug import write_covariance_debug
-from ..layers.deliver import Delivered
+
 from ..progress import Progress
 from ..recipe.model import COVARIANCE_MODES, DEFAULT_INDEX_BOUNCES, INDEX_MODES, MAX_INDEX_BOUNCES, PER_LIGHT_MODES
 from ..recipe.presets import PRESETS, preset
@@ -30,7 +29,9 @@ from ..request import (
     RenderRequest,
     VariantSelection,
 )
-from ..trace import render_data_aovs, trace_pixels
+
+if TYPE_CHECKING:
+    from ..layers.deliver import Delivered
 
 HELP = "render a USD stage: beauty, path index, and the layers of its recipe"
 DESCRIPTION = (
@@ -137,6 +138,11 @@ def request_from_args(stage_path: Path, args: argparse.Namespace) -> RenderReque
 
 def render_stage(stage_path: Path, args: argparse.Namespace) -> list[Delivered]:
     """Plan, render, index and deliver every product of the recipe; returns what was written."""
+    # Imported here, not with the module: every command's parser imports this module, and
+    # these pull in numba, Embree and the tracer (0.7 s an `extract` or `index` need not pay).
+    from ..jobs.frame import FrameAssembler, plan_frame, prepare_frame
+    from ..layers.debug import write_covariance_debug
+    from ..trace import render_data_aovs, trace_pixels
     from ..stage import open_request
 
     directory, exr = output_target(args.output, Path("."))
