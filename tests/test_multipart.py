@@ -12,7 +12,7 @@ import pytest
 from pxr_layers import __version__
 from pxr_layers.errors import OutputError, RecipeError
 from pxr_layers.layers.exr import REC709_CHROMATICITIES
-from pxr_layers.layers.multipart import write_multipart
+from pxr_layers.layers.multipart import read_multipart, write_multipart
 from pxr_layers.layers.previews import (
     check_colour_settings,
     display_processor,
@@ -242,3 +242,26 @@ def test_a_png_keeps_its_description(tmp_path):
         assert (image.spec().width, image.spec().height, image.spec().nchannels) == (5, 4, 3)
     finally:
         image.close()
+
+
+def test_read_multipart_gives_back_what_was_written(tmp_path, delivery):
+    beauty, images, product = delivery
+    recipe = Recipe((product,), settings_path="/Render/Settings")
+    read = read_multipart(write_multipart(tmp_path / "shot.exr", beauty, images, product, recipe=recipe))
+    np.testing.assert_array_equal(read.beauty, beauty)
+    assert list(read.parts) == list(images)
+    for name, image in images.items():
+        expected = np.asarray(image, np.float32).reshape(read.parts[name].shape)
+        if name == "key_half":  # half, DWAA (lossy)
+            np.testing.assert_allclose(read.parts[name], expected, rtol=0.02, atol=1e-3)
+        else:
+            np.testing.assert_array_equal(read.parts[name], expected)
+    assert read.metadata["key_half"]["expression"] == "C.*<L.'key'>"
+    assert read.recipe == recipe
+
+
+def test_read_multipart_names_a_file_it_cannot_read(tmp_path):
+    bad = tmp_path / "bad.exr"
+    bad.write_bytes(b"not an exr")
+    with pytest.raises(OutputError, match="bad.exr"):
+        read_multipart(bad)

@@ -9,13 +9,9 @@ import os
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from .. import __version__, lpe
-from ..errors import OutputError, PathIndexError
-from ..layers.deliver import check_raw_sources, deliver, plan_outputs
-from ..layers.exr import METADATA_PREFIX
-from ..layers.extract import extract, extraction_threads
+from ..layers.deliver import beauty_beside, check_raw_sources, deliver, plan_outputs
+from ..layers.extract import extraction_threads
 from ..outputs import OutputSet
 from ..paths.reader import PathIndex
 from ..recipe.model import PER_LIGHT_MODES, Layer, Product, Recipe
@@ -66,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    with extraction_threads(args.threads):  # the extractions of deliver and of _beauty
+    with extraction_threads(args.threads):  # the extractions of deliver and of beauty_beside
         return _run(args)
 
 
@@ -98,7 +94,7 @@ def _run(args: argparse.Namespace) -> int:
     metadata["index"] = os.path.relpath(index.path, directory)
     if "render_id" in index.manifest:
         metadata["renderId"] = index.manifest["render_id"]
-    beauty = _beauty(index)
+    beauty = beauty_beside(index)
     with OutputSet():  # every EXR and preview of the command, or none
         delivered = deliver(index, recipe, beauty, outputs, metadata=metadata, previews=not args.no_previews,
                             show_progress=args.show_progress)
@@ -163,37 +159,6 @@ def _at_index_view(product: Product, index: PathIndex) -> Product:
 def _manifest_frame(index: PathIndex) -> float | None:
     frame = index.manifest.get("frame", "default")
     return None if frame == "default" else float(frame)
-
-
-def _beauty(index: PathIndex) -> np.ndarray:
-    """The render's beauty EXR beside the index, else C.* from the index with alpha 1.
-
-    An EXR beside the index that another render wrote (its ``pxrLayers/renderId`` is not the
-    index's ``render_id``: two renders into one folder) is refused: layers cut from this
-    index would not sum to that beauty.
-    """
-    import OpenEXR
-
-    height_width = tuple(reversed(index.manifest["resolution"]))
-    beside = index.path.parent / index.manifest.get("beauty", index.path.stem + ".exr")
-    if beside.exists():
-        try:
-            exr = OpenEXR.File(str(beside))
-        except Exception as error:  # the binding raises RuntimeError and others for a damaged file
-            raise OutputError(f"{beside}: the beauty beside {index.path.name} cannot be read ({error}); "
-                              "remove it to rebuild the beauty from the index") from error
-        expected = index.manifest.get("render_id")
-        found = exr.header().get(METADATA_PREFIX + "renderId")
-        if expected is not None and found != expected:
-            raise PathIndexError(f"{beside.name} beside it comes from another render (renderId {found or 'none'}, "
-                                 f"the index's is {expected}): two renders wrote into this folder; render "
-                                 "again, or move that EXR away to rebuild the beauty from the index",
-                                 file=str(index.path))
-        rgba = exr.channels().get("RGBA")
-        if rgba is not None and rgba.pixels.shape[:2] == height_width:
-            return np.ascontiguousarray(rgba.pixels, dtype=np.float32)
-    rgb = extract(index, {"beauty": lpe.BEAUTY}).layers["beauty"]
-    return np.concatenate([rgb, np.ones((*rgb.shape[:2], 1), np.float32)], axis=2)
 
 
 def _layer(text: str) -> tuple[str, str]:

@@ -26,11 +26,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import OpenEXR
 
-from ..errors import RecipeError
+from .. import lpe
+from ..errors import OutputError, PathIndexError, RecipeError
 from ..paths.reader import PathIndex
 from ..recipe.model import Layer, Product, Recipe
 from .extract import extract
+from .exr import METADATA_PREFIX
 from .multipart import write_multipart
 from .previews import energy_shares, write_previews
 
@@ -139,3 +142,32 @@ def deliver(
 
 def _key(product: Product, layer: Layer) -> str:
     return f"{product.name}/{layer.name}"
+
+
+def beauty_beside(index: PathIndex) -> np.ndarray:
+    """The render's beauty EXR beside the index, else C.* from the index with alpha 1.
+
+    An EXR beside the index that another render wrote (its ``pxrLayers/renderId`` is not the
+    index's ``render_id``: two renders into one folder) is refused: layers cut from this
+    index would not sum to that beauty.
+    """
+    height_width = tuple(reversed(index.manifest["resolution"]))
+    beside = index.path.parent / index.manifest.get("beauty", index.path.stem + ".exr")
+    if beside.exists():
+        try:
+            exr = OpenEXR.File(str(beside))
+        except Exception as error:  # the binding raises RuntimeError and others for a damaged file
+            raise OutputError(f"{beside}: the beauty beside {index.path.name} cannot be read ({error}); "
+                              "remove it to rebuild the beauty from the index") from error
+        expected = index.manifest.get("render_id")
+        found = exr.header().get(METADATA_PREFIX + "renderId")
+        if expected is not None and found != expected:
+            raise PathIndexError(f"{beside.name} beside it comes from another render (renderId {found or 'none'}, "
+                                 f"the index's is {expected}): two renders wrote into this folder; render "
+                                 "again, or move that EXR away to rebuild the beauty from the index",
+                                 file=str(index.path))
+        rgba = exr.channels().get("RGBA")
+        if rgba is not None and rgba.pixels.shape[:2] == height_width:
+            return np.ascontiguousarray(rgba.pixels, dtype=np.float32)
+    rgb = extract(index, {"beauty": lpe.BEAUTY}).layers["beauty"]
+    return np.concatenate([rgb, np.ones((*rgb.shape[:2], 1), np.float32)], axis=2)

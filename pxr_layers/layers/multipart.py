@@ -25,6 +25,7 @@ import json
 import logging
 import os
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +34,7 @@ import OpenEXR
 from .. import __version__
 from ..errors import OutputError
 from ..outputs import write_atomically
-from ..recipe.model import BEAUTY_EXPRESSION, BEAUTY_PART, Layer, Product, Recipe
+from ..recipe.model import BEAUTY_EXPRESSION, BEAUTY_PART, Layer, Product, Recipe, channels_for
 from .exr import METADATA_PREFIX, header
 
 logger = logging.getLogger(__name__)
@@ -166,3 +167,52 @@ def _pixels(values: np.ndarray, pixel_type: str) -> np.ndarray:
     if dtype is np.float16:
         values = np.clip(values, -HALF_MAX, HALF_MAX)
     return np.ascontiguousarray(values, dtype=dtype)
+
+
+@dataclass(frozen=True)
+class MultipartImage:
+    """A product written by :func:`write_multipart`, read back.
+
+    beauty : (h, w, 4) float32, part 0
+    parts  : layer name → (h, w, c) float32 in channel order (``Layer.channels``), in part order
+    metadata : layer name → its ``pxrLayers/`` attributes without the prefix (sourceType,
+               expression or source, dataType, group, ...)
+    recipe : the resolved Recipe stored on part 0, or None (a file written without one)
+    """
+
+    path: Path
+    beauty: np.ndarray
+    parts: dict[str, np.ndarray]
+    metadata: dict[str, dict[str, str]]
+    recipe: Recipe | None
+
+
+def read_multipart(path: str | os.PathLike) -> MultipartImage:
+    """Read a multipart EXR of pxr-layers (any part types, as float32).
+
+    Raises OutputError naming the file when OpenEXR cannot read it or part 0 is not an
+    RGBA beauty.
+    """
+    path = Path(path)
+    try:
+        exr = OpenEXR.File(str(path), separate_channels=True)
+    except Exception as error:  # the binding raises RuntimeError and others for a damaged file
+        raise OutputError(f"{path}: OpenEXR cannot read the file ({error})") from None
+    first = exr.parts[0]
+    if sorted(first.channels) != ["A", "B", "G", "R"]:
+        raise OutputError(f"{path}: part 0 is not an RGBA beauty (channels {', '.join(sorted(first.channels))})")
+    beauty = np.stack([first.channels[c].pixels for c in "RGBA"], axis=-1).astype(np.float32)
+    parts, metadata = {}, {}
+    for part in exr.parts[1:]:
+        name = part.name()
+        attributes = {key[len(METADATA_PREFIX):]: str(value) for key, value in part.header.items()
+                      if key.startswith(METADATA_PREFIX)}
+        suffixes = channels_for(attributes.get("sourceType", "raw"), attributes.get("expression")
+                                or attributes.get("source", name), attributes.get("dataType", "color3f"))
+        channels = [f"{name}.{suffix}" for suffix in suffixes]
+        if not all(channel in part.channels for channel in channels):  # not our layout: file order
+            channels = sorted(part.channels)
+        parts[name] = np.stack([part.channels[c].pixels for c in channels], axis=-1).astype(np.float32)
+        metadata[name] = attributes
+    stored = first.header.get(METADATA_PREFIX + "recipe")
+    return MultipartImage(path, beauty, parts, metadata, Recipe.from_json(stored) if stored else None)

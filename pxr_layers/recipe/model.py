@@ -354,6 +354,20 @@ class Recipe:
         """Compact, key-sorted JSON of the whole recipe (the EXR's ``pxrLayers/recipe``)."""
         return json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
 
+    @classmethod
+    def from_json(cls, text: str) -> Recipe:
+        """The recipe :meth:`to_json` wrote (validated again). Raises RecipeError on JSON that
+        is not such a recipe."""
+        try:
+            values = json.loads(text)
+            products = tuple(
+                Product(**{**product, "layers": tuple(Layer(**layer) for layer in product["layers"]),
+                           "index": IndexSettings(**product["index"])})
+                for product in values.pop("products"))
+            return cls(products, **values)
+        except (ValueError, TypeError, KeyError, AttributeError) as error:
+            raise RecipeError(f"not a recipe written by pxr-layers ({error})") from None
+
     def with_layers(self, layers, product: str | None = None) -> Recipe:
         """A copy with ``layers`` appended to a product (None: every product).
 
