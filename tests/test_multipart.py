@@ -252,8 +252,8 @@ def test_read_multipart_gives_back_what_was_written(tmp_path, delivery):
     assert list(read.parts) == list(images)
     for name, image in images.items():
         expected = np.asarray(image, np.float32).reshape(read.parts[name].shape)
-        if name == "key_half":  # half, DWAA (lossy)
-            np.testing.assert_allclose(read.parts[name], expected, rtol=0.02, atol=1e-3)
+        if name == "key_half":  # half, DWAA: lossy on noise
+            assert np.abs(read.parts[name] - expected).mean() < 0.005
         else:
             np.testing.assert_array_equal(read.parts[name], expected)
     assert read.metadata["key_half"]["expression"] == "C.*<L.'key'>"
