@@ -40,6 +40,9 @@ RECIPES = {
                 Layer("depth", "raw", "depth", data_type="float", preview=False, group="data")),
         pixel_type="half", compression="dwaa", index=IndexSettings(bounces=8, covariance="sigma", mode="records"),
         view="Un-tone-mapped", contact_sheet=False),)),
+    "colour settings": Recipe(products=(product(
+        ocio_config="ocio://cg-config-v2.2.0_aces-v1.3_ocio-v2.4", display="Display P3 - Display",
+        rendering_space="lin_srgb"),)),
     "two products": Recipe(products=(
         product("passes", layers=(Layer("diffuse", source_name="C<RD>.*"), Layer("key", source_name="C.*"))),
         product("split", layers=(Layer("diffuse", source_name="C<RD>.*"), Layer("key", source_name="C<RD>[LO]")),
@@ -74,6 +77,18 @@ def test_a_written_recipe_reads_back_as_the_same_products(tmp_path, case):
     assert [unplaced(p) for p in back.products] == [unplaced(p) for p in recipe.products]
     assert back.settings_path == "/Render/my_look/Settings"
     assert all(layer.prim_path.startswith("/Render/my_look/Vars/") for p in back.products for layer in p.layers)
+
+
+def test_the_cases_author_every_attribute_of_the_schema(tmp_path):
+    """So that an attribute added to schemas/schema.usda cannot be left out of the writer
+    unnoticed (perLight aside: per-light layers are written as vars)."""
+    from pxr_layers.stage import schema
+
+    text = "".join(write_recipe(tmp_path / f"case{number}.usda", recipe).read_text()
+                   for number, recipe in enumerate(RECIPES.values()))
+    for api in (schema.VAR_API, schema.PRODUCT_API):
+        for name in set(schema.property_names(api)) - {"pxrLayers:perLight"}:
+            assert f" {name} = " in text, name
 
 
 def test_products_with_different_layers_of_one_name_get_a_scope_each_and_shared_ones_one_var(tmp_path):

@@ -1,0 +1,291 @@
+"""A Nuke script (.nk, plain text) that rebuilds a graded stack of layers from a multipart EXR.
+
+The script computes the inspector's composite rule (pxr_layers/view/composite.py), so a
+look saved from ``pxr-layers view`` opens in Nuke as it was seen::
+
+    no layer soloed:   out = beauty + Σ_i (gain_i · tint_i − 1) · layer_i      (muted: gain_i = 0)
+    some layer soloed: out = Σ_{i soloed, not muted} gain_i · tint_i · layer_i
+    then · 2^exposure                                              gain_i = 2^stops_i
+
+as a graph a compositor knows (Nuke's stack syntax: a node takes its inputs from the top of
+the stack, input 0 = B from the top; ``set N [stack 0]`` names the top, ``push $N`` pushes
+it again)::
+
+    Read ─┬─ Shuffle_<layer> (in <layer>, alpha black) ─ Grade_<layer> (multiply 2^stops·tint) ─┐ A
+          │                                                                                     │
+          ├─ Grade Black_base ─ Merge2 plus Rest ─ Merge2 plus Merge_<layer> ─ … ─ Grade Exposure
+          │   (rgb × 0, the     (rgb only) │ A      B
+          │   beauty's alpha)              │
+          └─ Merge2 from Rest_of_beauty ───┘   beauty − Σ ungraded layers; both only when the
+                                               layers do not partition the beauty
+
+Each layer is added by its own ``Merge2 operation plus``; a muted layer, and when some
+layer is soloed every other layer and the rest branch, has that Merge disabled (a disabled
+Merge passes B, the trunk, through): its Grade keeps the artist's values and enabling the
+Merge brings it back. When the layers partition the beauty there is no rest branch (their
+sum is the beauty within 1e-4); otherwise the rest makes unit gains give the beauty again
+(exactly but for float32 rounding of the subtraction and the sums). The trunk starts from
+the beauty with black RGB, so the result carries the beauty's alpha (every layer's alpha
+is black) and a disabled first Merge still leaves a black base.
+
+Knobs and node types are those of every Nuke since 12.0 (the classic Shuffle, not
+Shuffle2). Every Grade has ``black_clamp false`` (Nuke's default clamps negatives to 0,
+which the composite does not do). Nuke reads our channels ``NAME.R/G/B`` as the layer
+``NAME`` with channels ``NAME.red/green/blue`` and part 0's ``R G B A`` as ``rgba``
+(its exrReader takes the layer from the channel name whenever a channel name holds a
+``.``, and maps R, G, B, A to red, green, blue, alpha); ``add_layer`` declares each layer so
+the Shuffles parse before the Read has opened the file. Layers that Nuke would read as
+something else are refused: its own layers (``rgb``, ``alpha``, ``depth``, ...), ``main``
+(the default view) and ``Ci`` (RenderMan's beauty, read into ``rgba``).
+
+The Root sets Nuke's own colour management with the nuke-default config, whose ``linear``
+is the EXR's colour space (linear, Rec.709 primaries), so the Read converts nothing; the
+inspector's OCIO display and view are for the viewer to choose.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from .. import __version__
+from ..errors import OutputError
+from ..outputs import write_atomically
+from ..recipe.model import BEAUTY_PART
+
+logger = logging.getLogger(__name__)
+
+NUKE_VERSION = "12.0 v1"
+"""The oldest Nuke the script is written for (its ``version`` line)."""
+NUKE_RESERVED_LAYERS = frozenset({"rgba", "rgb", "alpha", "depth", "motion", "forward", "backward", "mask",
+                                  "mask_extra", "main", "Ci"})
+"""Part names Nuke does not read as a layer of their own: its built-in layers, the default
+view ``main`` and RenderMan's ``Ci`` (both read into ``rgba``)."""
+_NUKE_LAYER_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+"""What Nuke keeps of a channel name's layer as is (it drops leading digits and turns other
+characters into ``_``)."""
+_COLUMN = 150  # node graph spacing, Nuke units
+_ROW = 80
+
+
+@dataclass(frozen=True)
+class LayerGrade:
+    """How the inspector shows one layer.
+
+    stops : exposure in stops (gain 2^stops)
+    tint  : linear RGB multiplier, each >= 0
+    mute  : the layer counts with gain 0
+    solo  : when any layer is soloed, only the soloed layers (not muted) are shown
+    """
+
+    stops: float = 0.0
+    tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    mute: bool = False
+    solo: bool = False
+
+    @property
+    def multiply(self) -> tuple[float, float, float]:
+        """The Grade's multiply: 2^stops · tint (the mute is the disabled Merge, not this)."""
+        gain = 2.0 ** self.stops
+        return tuple(gain * float(channel) for channel in self.tint)
+
+
+def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mapping[str, LayerGrade], *,
+                resolution: tuple[int, int], partition: bool, beauty_part: str = BEAUTY_PART,
+                exposure: float = 0.0) -> str:
+    """The text of a Nuke script rebuilding ``parts`` of ``exr_path`` graded by ``grades``.
+
+    exr_path    : the Read's file: relative (to the script's folder, read through
+                  ``[file dirname [value root.name]]``) or absolute
+    parts       : the layer parts, in stack order (each a colour layer ``NAME.R/G/B``)
+    grades      : part → its grade; a part without one is ungraded (LayerGrade())
+    resolution  : (width, height) in pixels, the Root's and the Read's format
+    partition   : the parts sum to the beauty (no rest branch)
+    beauty_part : the Nuke layer of the beauty: ``rgba`` (part 0 ``R G B A``), or another
+                  part, shuffled out like a layer
+    exposure    : stops of the final Grade (the inspector's viewing exposure)
+
+    Raises OutputError for a part Nuke would not read as its own layer, a part given twice
+    or a grade that is not finite; ValueError for a grade of a part not in ``parts``.
+    """
+    parts = list(parts)
+    _check(parts, grades, beauty_part, exposure)
+    width, height = (int(value) for value in resolution)
+    writer = _Script()
+    writer.comment(f"pxr-layers {__version__}: {len(parts)} layers of {os.fspath(exr_path)} graded as in "
+                   "`pxr-layers view`")
+    writer.line(f"version {NUKE_VERSION}")
+    frame_format = f"{width} {height} 0 0 {width} {height} 1 pxrLayers_{width}x{height}"
+    writer.node("Root", {"inputs": "0", "first_frame": "1", "last_frame": "1", "format": _quoted(frame_format),
+                         "colorManagement": "Nuke", "OCIO_config": "nuke-default", "workingSpaceLUT": "linear"})
+    for part in parts:
+        writer.line(f"add_layer {{{part} {part}.red {part}.green {part}.blue}}")
+    if beauty_part != BEAUTY_PART:
+        writer.line(f"add_layer {{{beauty_part} {beauty_part}.red {beauty_part}.green {beauty_part}.blue "
+                    f"{beauty_part}.alpha}}")
+
+    writer.node("Read", {"inputs": "0", "file_type": "exr", "file": _file_knob(exr_path),
+                         "format": _quoted(f"{width} {height} 0 0 {width} {height} 1 "), "first": "1",
+                         "last": "1", "origfirst": "1", "origlast": "1", "origset": "true",
+                         "colorspace": "linear", "name": "Read_layers", "xpos": "0", "ypos": "0"})
+    writer.set("Read_layers")
+    beauty = "Read_layers"
+    if beauty_part != BEAUTY_PART:  # its own alpha: the classic Shuffle's default
+        beauty = "Beauty"  # not Shuffle_…: no layer's node can take its name
+        writer.node("Shuffle", {"in": beauty_part, "name": beauty, **_at(-1, 1)})
+        writer.set(beauty)
+    for column, part in enumerate(parts, start=1):
+        writer.push("Read_layers")
+        writer.node("Shuffle", {"in": part, "alpha": "black", "name": f"Shuffle_{part}", **_at(column, 1)})
+        writer.set(f"Shuffle_{part}")
+
+    soloing = any(grades.get(part, LayerGrade()).solo for part in parts)
+    if not partition:
+        # The rest: beauty − ((l0 + l1) + l2 ...), the ungraded layers taken off the beauty.
+        if parts:
+            writer.push(f"Shuffle_{parts[0]}")
+            for column, part in enumerate(parts[1:], start=2):
+                writer.push(f"Shuffle_{part}")
+                writer.node("Merge2", {"inputs": "2", "operation": "plus", "name": f"Sum_{part}",
+                                       **_at(column, 2)})
+        writer.push(beauty)
+        if parts:
+            writer.node("Merge2", {"inputs": "2", "operation": "from", "name": "Rest_of_beauty",
+                                   "label": _quoted("beauty - the sum of the ungraded layers"), **_at(1, 3)})
+    writer.push(beauty)
+    writer.node("Grade", {"multiply": "{0 0 0 1}", "black_clamp": "false", "name": "Black_base",
+                          "label": _quoted("black rgb, the beauty's alpha"), **_at(0, 4)})
+    trunk = "Black_base"
+    if not partition:  # B: the black base on top; A: the rest beneath it
+        # On rgb only: the rest's alpha is the beauty's too, and the base already holds it.
+        trunk = "Rest"
+        writer.node("Merge2", {"inputs": "2", "operation": "plus", "Achannels": "rgb", "Bchannels": "rgb",
+                               "output": "rgb", **_disabled(soloing), "name": trunk, **_at(0, 5)})
+    writer.set(trunk)
+
+    for column, part in enumerate(parts, start=1):
+        grade = grades.get(part, LayerGrade())
+        writer.push(f"Shuffle_{part}")
+        writer.node("Grade", {"multiply": _vector(*grade.multiply, 1.0), "black_clamp": "false",
+                              "name": f"Grade_{part}", **_at(column, 5 + column)})
+        writer.push(trunk)
+        off = grade.mute or (soloing and not grade.solo)
+        trunk = f"Merge_{part}"
+        writer.node("Merge2", {"inputs": "2", "operation": "plus", **_disabled(off), "name": trunk,
+                               **_at(0, 5 + column)})
+        writer.set(trunk)
+    writer.node("Grade", {"multiply": _vector(*(2.0 ** exposure,) * 3, 1.0), "black_clamp": "false",
+                          "name": "Exposure", "label": _quoted(f"viewing exposure {exposure:+g} stops"),
+                          **_at(0, 6 + len(parts))})
+    return writer.text()
+
+
+def write_nuke_script(path: str | os.PathLike, exr_path: str | os.PathLike, parts: Sequence[str],
+                      grades: Mapping[str, LayerGrade], *, resolution: tuple[int, int], partition: bool,
+                      beauty_part: str = BEAUTY_PART, exposure: float = 0.0) -> Path:
+    """Write :func:`nuke_script` at ``path`` (atomically); returns where the file is now
+    (its temporary while an OutputSet holds it).
+
+    ``exr_path`` is the EXR as this process sees it (absolute, or relative to the working
+    directory); the script reads it relative to its own folder when it lies in that folder
+    or below (the two can move together), else by its absolute path.
+    """
+    path = Path(path)
+    exr = Path(exr_path).absolute()
+    folder = path.absolute().parent
+    file_name = exr.relative_to(folder) if exr.is_relative_to(folder) else exr
+    text = nuke_script(file_name, parts, grades, resolution=resolution, partition=partition,
+                       beauty_part=beauty_part, exposure=exposure)
+    written = write_atomically(path, lambda temporary: temporary.write_text(text, encoding="utf-8"))
+    logger.info("wrote the Nuke script %s: %d layers of %s", path, len(parts), exr)
+    return written
+
+
+def _check(parts: list[str], grades: Mapping[str, LayerGrade], beauty_part: str, exposure: float) -> None:
+    for part in [*parts, beauty_part]:
+        if not _NUKE_LAYER_NAME.match(part):
+            raise OutputError(f"Nuke script: the part {part!r} is not a name Nuke keeps as a layer "
+                              "(letters, digits, _; not starting with a digit)")
+    for part in parts:
+        if part in NUKE_RESERVED_LAYERS:
+            raise OutputError(f"Nuke script: Nuke does not read a part named {part!r} as a layer of its own "
+                              "(it is one of Nuke's layers, its default view, or RenderMan's beauty): "
+                              "rename the layer")
+        if part == beauty_part:
+            raise OutputError(f"Nuke script: the part {part!r} is the beauty, not a layer")
+        if parts.count(part) > 1:
+            raise OutputError(f"Nuke script: the part {part!r} is given twice")
+    unknown = sorted(set(grades) - set(parts))
+    if unknown:
+        raise ValueError(f"grades of parts that are not in the stack: {', '.join(unknown)}")
+    for part, grade in grades.items():
+        if not math.isfinite(grade.stops) or len(grade.tint) != 3 or not all(
+                math.isfinite(c) and c >= 0 for c in grade.tint):
+            raise OutputError(f"Nuke script: the grade of {part!r} must have finite stops and three finite "
+                              f"tints >= 0, not stops {grade.stops}, tint {tuple(grade.tint)}")
+    if not math.isfinite(exposure):
+        raise OutputError(f"Nuke script: the exposure must be finite, not {exposure}")
+
+
+class _Script:
+    """Lines of a .nk script, with Nuke's node block and stack command syntax."""
+
+    def __init__(self) -> None:
+        self._lines: list[str] = []
+
+    def line(self, text: str) -> None:
+        self._lines.append(text)
+
+    def comment(self, text: str) -> None:
+        self._lines.append(f"# {text}")
+
+    def node(self, kind: str, knobs: Mapping[str, str]) -> None:
+        self._lines.append(f"{kind} {{")
+        self._lines.extend(f" {name} {value}" for name, value in knobs.items())
+        self._lines.append("}")
+
+    def set(self, name: str) -> None:
+        self._lines.append(f"set N_{name} [stack 0]")
+
+    def push(self, name: str) -> None:
+        self._lines.append(f"push $N_{name}")
+
+    def text(self) -> str:
+        return "\n".join(self._lines) + "\n"
+
+
+def _at(column: int, row: int) -> dict[str, str]:
+    return {"xpos": str(column * _COLUMN), "ypos": str(row * _ROW)}
+
+
+def _disabled(off: bool) -> dict[str, str]:
+    return {"disable": "true"} if off else {}
+
+
+def _number(value: float) -> str:
+    """Shortest text that reads back as the same double (``1``, ``0.5``, ``1.4142135623730951``)."""
+    text = repr(float(value))
+    return text[:-2] if text.endswith(".0") else text
+
+
+def _vector(*values: float) -> str:
+    return "{" + " ".join(_number(value) for value in values) + "}"
+
+
+def _quoted(text: str) -> str:
+    """A Tcl double-quoted word: backslash, quote, ``$`` and ``[`` escaped (no substitution)."""
+    return '"' + re.sub(r'([\\"$\[])', r"\\\1", text) + '"'
+
+
+def _file_knob(exr_path: str | os.PathLike) -> str:
+    """The Read's ``file``: an absolute path as is, a relative one after the script's folder
+    (``[file dirname [value root.name]]``, evaluated by Nuke when it reads the file)."""
+    path = Path(exr_path)
+    if path.is_absolute():
+        return _quoted(path.as_posix())
+    return '"' + r"\[file dirname \[value root.name]]/" + _quoted(path.as_posix())[1:]
