@@ -23,9 +23,9 @@ What reads back differently:
   shortest decimal of its float32 (0.1 stays 0.1, 1/3 becomes 0.33333334);
 * per-light layers are written as the vars they resolved to (the light list frozen when
   the recipe is written), so such a product reads back with ``per_light`` "none";
-* a layer two products share (equal in every field) is one var both target; when two
-  products have different layers of one name, every product's vars get their own scope,
-  ``/Render/<scope>/Vars/<product>/<layer>``;
+* a layer two products share (equal, in products of equal pixel type and compression) is
+  one var both target; when two products have different vars of one name, every
+  product's vars get their own scope, ``/Render/<scope>/Vars/<product>/<layer>``;
 * ``prim_path`` is where the writer put the prim.
 
 The camera is a relationship to the shot's camera prim: read the recipe composed over the
