@@ -5,7 +5,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench clean
+.PHONY: demo test view bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -15,6 +15,11 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(BIN)/pxr-layers demo -o demo
+
+# The layer inspector on the demo's output (renders it first if it is not there).
+view: $(STAMP)
+	test -f demo/cornell.pxlidx || $(BIN)/pxr-layers demo -o demo
+	$(BIN)/pxr-layers view demo
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

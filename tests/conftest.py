@@ -49,3 +49,20 @@ def _shared_folder(name: str) -> Path:
     if os.environ.get(REQUIRE_SHARED):
         pytest.fail(f"{folder} is missing and {REQUIRE_SHARED} is set")
     pytest.skip(f"{folder} is not here (the workplace's shared assets)")
+
+
+DEMO_RESOLUTION, DEMO_SPP = (64, 64), 16
+
+
+@pytest.fixture(scope="session")
+def demo_output(tmp_path_factory) -> Path:
+    """A small `pxr-layers demo` output folder (the Cornell box's light passes, its index and
+    previews), rendered once for the inspector's tests by the real console script. Tests
+    that write into it copy it first."""
+    import subprocess
+    import sys
+
+    folder = tmp_path_factory.mktemp("demo")
+    subprocess.run([sys.executable, "-m", "pxr_layers.cli.main", "demo", "-o", str(folder), "-q",
+                    "--resolution", *map(str, DEMO_RESOLUTION), "--spp", str(DEMO_SPP)], check=True)
+    return folder

@@ -5,12 +5,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
-import os
 import sys
 from pathlib import Path
 
-from .. import __version__, lpe
-from ..layers.deliver import beauty_beside, check_raw_sources, deliver, plan_outputs
+from .. import lpe
+from ..layers.deliver import beauty_beside, check_raw_sources, deliver, index_metadata, plan_outputs
 from ..layers.extract import extraction_threads
 from ..outputs import OutputSet
 from ..paths.reader import PathIndex
@@ -89,11 +88,7 @@ def _run(args: argparse.Namespace) -> int:
     frame = _manifest_frame(index)
     directory, exr = output_target(args.output, index.path.parent)
     outputs = plan_outputs(recipe, frame, directory, exr)
-    metadata = {"version": __version__, **{key: index.manifest[key] for key in
-                                           ("stage", "camera", "frame", "spp", "maxDepth", "seed") if key in index.manifest}}
-    metadata["index"] = os.path.relpath(index.path, directory)
-    if "render_id" in index.manifest:
-        metadata["renderId"] = index.manifest["render_id"]
+    metadata = index_metadata(index, directory)
     beauty = beauty_beside(index)
     with OutputSet():  # every EXR and preview of the command, or none
         delivered = deliver(index, recipe, beauty, outputs, metadata=metadata, previews=not args.no_previews,

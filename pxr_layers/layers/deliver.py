@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 
-from .. import lpe
+from .. import __version__, lpe
 from ..errors import OutputError, PathIndexError, RecipeError
 from ..paths.reader import PathIndex
 from ..recipe.model import Layer, Product, Recipe
@@ -142,6 +143,17 @@ def deliver(
 
 def _key(product: Product, layer: Layer) -> str:
     return f"{product.name}/{layer.name}"
+
+
+def index_metadata(index: PathIndex, directory: Path) -> dict[str, object]:
+    """The ``pxrLayers/`` metadata of products cut from `index` into `directory`: the
+    render's facts, the index's path relative to the products, and its render id."""
+    metadata = {"version": __version__, **{key: index.manifest[key] for key in
+                                           ("stage", "camera", "frame", "spp", "maxDepth", "seed") if key in index.manifest}}
+    metadata["index"] = os.path.relpath(index.path, directory)
+    if "render_id" in index.manifest:
+        metadata["renderId"] = index.manifest["render_id"]
+    return metadata
 
 
 def beauty_beside(index: PathIndex) -> np.ndarray:

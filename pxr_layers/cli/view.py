@@ -1,0 +1,68 @@
+"""`pxr-layers view PATH`: the layer inspector, a local web page over one render."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from ..errors import Terminated
+from .render import _positive
+
+HELP = "inspect a render in the browser: its layers, regraded live, its light paths, new layers"
+DESCRIPTION = (
+    "Open the layer inspector on PATH: an output folder (its path index and the products of that "
+    "render), an .exr product (and the index it names), or a .pxlidx index (and the products beside "
+    "it). Starts a local web server, prints its URL (with a random access token: anyone with the URL "
+    "can use the page) and opens the browser. The page shows the beauty and every layer through the "
+    "products' OCIO display and view, regrades the layers live (gain, tint, mute, solo), lists the "
+    "light paths of a clicked pixel or a dragged region, makes new layers from the index, and saves "
+    "the stack as a USD recipe (NAME.usda), its EXR (NAME.exr) and a Nuke script (NAME.nk) in PATH's "
+    "folder. Only the files of that folder are served. Ctrl-C stops it. docs/inspector.md tells more."
+)
+log = logging.getLogger(__name__)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("path", metavar="PATH", help="an output folder, an .exr product or a .pxlidx")
+    parser.add_argument("--host", default="127.0.0.1",
+                        help="the address to listen on (default 127.0.0.1: this machine only; another "
+                        "address lets anyone who can reach it and has the URL use the page)")
+    parser.add_argument("--port", type=_port, default=0,
+                        help="the port to listen on (default 0: a free one)")
+    parser.add_argument("--no-browser", action="store_true", help="print the URL, do not open a browser")
+    parser.add_argument("--threads", type=_positive, metavar="N",
+                        help="threads that read the index (default: every core this process may use)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..layers.extract import default_threads
+    from ..view.server import serve
+    from ..view.session import Session
+
+    session = Session.open(args.path, threads=args.threads or default_threads())
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        log.warning("listening on %s: the page is reachable from other machines (with the token)", args.host)
+
+    def announce(url: str) -> None:
+        print(url, flush=True)  # stdout's first line: what scripts and tests read
+        log.info("serving %s at %s (Ctrl-C stops)", session.folder, url)
+
+    try:
+        serve(session, host=args.host, port=args.port, open_browser=not args.no_browser, announce=announce)
+    except OSError as error:
+        print(f"pxr-layers view: error: cannot listen on {args.host}:{args.port} ({error.strerror or error})",
+              file=sys.stderr)
+        return 1
+    except KeyboardInterrupt as interrupt:
+        if isinstance(interrupt, Terminated):
+            raise
+        log.info("stopped")
+    return 0
+
+
+def _port(text: str) -> int:
+    value = int(text)
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a port number 0..65535, got {text}")
+    return value

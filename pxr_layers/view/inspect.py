@@ -1,0 +1,229 @@
+"""What a pixel or a region is made of: the path classes of its records, grouped, with the
+distribution of each bounce's covariance norms, and LPEs that select them.
+
+Plain functions over a :class:`~pxr_layers.paths.reader.PathIndex`; the server turns their
+results into JSON. A selection's records are found by one pass over the index (every
+chunk holds pixels all over the image: chunks are cut by class), so inspecting costs about
+one full read of the index: instant for the demo, about a second for a 1080p, 64 spp one.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from ..paths.events import Event, path_text
+from ..paths.reader import PathClass, PathIndex
+from ..scene import REC709_LUMINANCE
+
+LUMINANCE = np.asarray(REC709_LUMINANCE, np.float64)
+TOP_CLASSES = 50
+"""Classes listed for a selection, by share."""
+NORM_OCTAVES = (-32, 32)
+"""The norm histograms' range, as powers of 2 (paths/format.py NormBins' range): one bin an
+octave, values outside counted in the first and last bins, 0 on its own."""
+NORM_QUANTITIES = ("C", "T", "R")
+ASPECTS = ("light", "first_object", "first_material", "first_scattering", "bounces")
+"""What :func:`generalise` can keep of the classes it is given."""
+BOUNCE_TYPES = frozenset("RTV")
+
+
+@dataclass(frozen=True)
+class ClassInfo:
+    """One path class as the inspector shows it.
+
+    path : the path notation (``C RD'redWall' L'ceilingLight'``); lpe : an expression that
+    matches it (its events' types, scatterings and names); light : the name of its last
+    event (light, emissive object; "" for the background); first_object, first_material :
+    of its first bounce ("" when it has none, or no material); scattering : the bounces'
+    scattering letters, camera first (``"D G"``); bounces : R/T/V events
+    """
+
+    id: int
+    path: str
+    lpe: str
+    light: str
+    end_type: str
+    first_type: str
+    first_object: str
+    first_material: str
+    scattering: str
+    bounces: int
+
+
+def describe(path_class: PathClass) -> ClassInfo:
+    events = path_class.events
+    middle = [event for event in events[1:-1] if event.type in BOUNCE_TYPES]
+    first = middle[0] if middle else None
+    end = events[-1]
+    return ClassInfo(
+        id=path_class.id, path=path_text(events), lpe="".join(_event_lpe(event) for event in events),
+        light=end.name, end_type=end.type, first_type=first.type if first else "",
+        first_object=first.name if first else "", first_material=_material(first) if first else "",
+        scattering=" ".join(event.scatter for event in middle), bounces=len(middle))
+
+
+def _event_lpe(event: Event) -> str:
+    """``<RD'redWall'>``, ``<L.'key'>``, ``B``: one event, by type, scattering and name."""
+    if event.type == "C" or (event.type == "B" and not event.name):
+        return event.type
+    name = f"'{event.name}'" if event.name else ""
+    return f"<{event.type}{event.scatter or '.'}{name}>"
+
+
+def _material(event: Event) -> str:
+    """The bound material's name: an event carries its object's name and path and its
+    material's name and path (paths/events.py), so the path label that is not the
+    object's names the material."""
+    paths = [label for label in event.labels if label.startswith("/")]
+    others = [path for path in paths if path.rsplit("/", 1)[-1] != event.name] or paths[1:]
+    return others[0].rsplit("/", 1)[-1] if others else ""
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The records of a pixel rectangle. class_id : (r,) int64; rgb : (r, 3) float64 summed
+    film contributions; norms : (r, N, 3) float32 per bounce C, T, R; pixels : its pixel count."""
+
+    class_id: np.ndarray
+    rgb: np.ndarray
+    norms: np.ndarray
+    pixels: int
+
+
+def select(index: PathIndex, x0: int, y0: int, x1: int, y1: int, *, threads: int = 1) -> Selection:
+    """The records of pixels x0 ≤ x < x1, y0 ≤ y < y1 (image coordinates, top row 0),
+    clipped to the image. One pass over the index."""
+    width, height = index.manifest["resolution"]
+    x0, x1 = max(0, x0), min(width, x1)
+    y0, y1 = max(0, y0), min(height, y1)
+    pixels = max(0, x1 - x0) * max(0, y1 - y0)
+    slots = index.norm_slots
+    kept: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    if pixels:
+        for chunk in index.records(threads=threads, whole_chunks=True):
+            column, row = chunk.pixel % width, chunk.pixel // width
+            inside = (column >= x0) & (column < x1) & (row >= y0) & (row < y1)
+            if inside.any():
+                kept.append((chunk.class_id[inside], chunk.rgb[inside], chunk.norms[inside]))
+    if not kept:
+        return Selection(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, slots, 3), np.float32), pixels)
+    return Selection(np.concatenate([k[0] for k in kept]), np.concatenate([k[1] for k in kept]).astype(np.float64),
+                     np.concatenate([k[2] for k in kept]), pixels)
+
+
+def summary(selection: Selection, infos: Sequence[ClassInfo]) -> dict:
+    """The inspector's view of a selection (JSON-able): classes by share, groups, norms.
+
+    Shares are of the selection's summed Rec.709 luminance; ``rgb`` and ``energy`` are per
+    pixel, on the beauty's scale only up to the index's spp (the caller divides).
+    """
+    ids, inverse = np.unique(selection.class_id, return_inverse=True)
+    luminance = selection.rgb @ LUMINANCE
+    class_energy = np.bincount(inverse, weights=luminance, minlength=len(ids))
+    class_records = np.bincount(inverse, minlength=len(ids))
+    class_rgb = np.stack([np.bincount(inverse, weights=selection.rgb[:, c], minlength=len(ids)) for c in range(3)], -1)
+    total = float(class_energy.sum())
+
+    def share(energy: float) -> float:
+        return energy / total if total > 0 else 0.0
+
+    order = np.argsort(-class_energy, kind="stable")
+    classes = [
+        {"id": int(ids[k]), "path": infos[ids[k]].path, "lpe": infos[ids[k]].lpe, "share": share(class_energy[k]),
+         "records": int(class_records[k]), "rgb": class_rgb[k].tolist(), "light": infos[ids[k]].light,
+         "first_object": infos[ids[k]].first_object, "first_material": infos[ids[k]].first_material,
+         "scattering": infos[ids[k]].scattering, "bounces": infos[ids[k]].bounces}
+        for k in order[:TOP_CLASSES]]
+    groups = {}
+    for aspect in ("light", "first_object", "first_material", "scattering"):
+        energy: dict[str, float] = defaultdict(float)
+        records: dict[str, int] = defaultdict(int)
+        members: dict[str, list[int]] = defaultdict(list)
+        for k, class_id in enumerate(ids.tolist()):
+            key = getattr(infos[class_id], aspect)
+            energy[key] += class_energy[k]
+            records[key] += int(class_records[k])
+            members[key].append(class_id)
+        keep = {"light": ["light"], "first_object": ["first_object"], "first_material": ["first_material"],
+                "scattering": ["first_scattering", "bounces"]}[aspect]
+        groups[aspect] = [
+            {"key": key, "share": share(energy[key]), "records": records[key],
+             "lpe": generalise([infos[i] for i in members[key]], keep)}
+            for key in sorted(energy, key=lambda key: -energy[key])]
+    return {"records": int(len(selection.class_id)), "energy_total": total, "rgb_total": class_rgb.sum(0).tolist(),
+            "classes": classes, "groups": groups, "norms": norm_histograms(selection, infos, luminance)}
+
+
+def norm_histograms(selection: Selection, infos: Sequence[ClassInfo], weights: np.ndarray) -> dict:
+    """Energy-weighted histograms of each kept bounce's C, T, R over the selection: one bin
+    an octave over NORM_OCTAVES (``edges``: 2^k), exact zeros apart. A record counts at
+    bounce b only if its path has a b-th event after the camera."""
+    low, high = NORM_OCTAVES
+    edges = [2.0 ** k for k in range(low, high + 1)]
+    lengths = np.array([info.bounces + 1 for info in infos], np.int64)  # the bounces and the end event
+    events_after_camera = lengths[selection.class_id]
+    bounces = []
+    for slot in range(selection.norms.shape[1]):
+        has_event = events_after_camera > slot
+        entry = {"bounce": slot + 1, "zero": {}}
+        for q, quantity in enumerate(NORM_QUANTITIES):
+            values = selection.norms[has_event, slot, q].astype(np.float64)
+            weight = weights[has_event]
+            zero = values == 0
+            octave = np.clip(np.floor(np.log2(np.where(zero, 1.0, values))), low, high - 1).astype(np.int64) - low
+            entry[quantity] = np.bincount(octave[~zero], weights=weight[~zero], minlength=high - low).tolist()
+            entry["zero"][quantity] = float(weight[zero].sum())
+        bounces.append(entry)
+    return {"edges": edges, "bounces": bounces}
+
+
+def generalise(infos: Iterable[ClassInfo], keep: Iterable[str]) -> str:
+    """One LPE matching every class of `infos`, keeping only the aspects in `keep`
+    (ASPECTS); nothing kept: the union of their own LPEs.
+
+    Each class becomes ``C <first bounce> <middle> <end>`` where the first bounce keeps its
+    type and scattering (first_scattering) and its object/material names (first_object,
+    first_material), the middle is ``.{n-1}`` (bounces) or ``.*``, and the end keeps its
+    light's name (light) or is any event. Distinct patterns are joined with ``|``, in the
+    order of the classes.
+    """
+    keep = set(keep)
+    unknown = keep - set(ASPECTS)
+    if unknown:
+        raise ValueError(f"cannot keep {', '.join(sorted(unknown))} (aspects: {', '.join(ASPECTS)})")
+    patterns: list[str] = []
+    for info in infos:
+        pattern = info.lpe if not keep else _generalised(info, keep)
+        if pattern not in patterns:
+            patterns.append(pattern)
+    return "|".join(patterns)
+
+
+def _generalised(info: ClassInfo, keep: set[str]) -> str:
+    end = _end_pattern(info, "light" in keep)
+    if info.bounces == 0:
+        return "C" + end
+    labels = "".join(f"'{name}'" for aspect, name in (("first_object", info.first_object),
+                                                        ("first_material", info.first_material))
+                     if aspect in keep and name)
+    if "first_scattering" in keep:
+        first = f"<{info.first_type}{info.scattering.split(' ')[0]}{labels}>"
+    else:
+        first = f"<..{labels}>" if labels else "."
+    if "bounces" in keep:
+        return "C" + first + (f".{{{info.bounces - 1}}}" if info.bounces > 1 else "") + end
+    if first == ".":  # only the light kept: every path to it, a class without bounces too
+        return "C.*" + end
+    return "C" + first + (".+" if end == "." else ".*" + end)
+
+
+def _end_pattern(info: ClassInfo, keep_light: bool) -> str:
+    if not keep_light:
+        return "."
+    if info.end_type == "B":
+        return "B"
+    return f"<{info.end_type}.'{info.light}'>" if info.light else f"<{info.end_type}.>"

@@ -1,0 +1,237 @@
+"""The inspector's local HTTP server (aiohttp): the page, its API over one :class:`Session`,
+and the files of the session's folder. The API is written down in docs/inspector.md.
+
+Security, as Jupyter does it: the server binds 127.0.0.1 unless told otherwise; every
+request carries a random token (``?token=`` in the URL the command prints, then the
+``X-Pxr-Token`` header; requests that change anything take the header only, which a page
+of another site cannot set); a request naming another host is refused (DNS rebinding); the
+only files served are the page's own and the regular files inside the session's folder.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import hmac
+import json
+import logging
+import secrets
+import socket
+import webbrowser
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from importlib import resources
+from pathlib import Path, PurePosixPath
+
+from aiohttp import web
+
+from ..errors import PxrLayersError
+from .session import Session, ViewError
+
+log = logging.getLogger(__name__)
+
+TOKEN_HEADER = "X-Pxr-Token"
+TOKEN_PLACEHOLDER = "{{TOKEN}}"
+"""Replaced by the token in index.html, so the page's own assets carry it."""
+LOOPBACK = ("127.0.0.1", "localhost", "[::1]")
+MAX_BODY_BYTES = 1 << 20
+SESSION_KEY = web.AppKey("session", Session)
+POOL_KEY = web.AppKey("pool", ThreadPoolExecutor)
+
+
+def static_files() -> dict[str, Path]:
+    """The page's files (pxr_layers/view/static), by name: nothing else is served from there."""
+    folder = resources.files("pxr_layers.view").joinpath("static")
+    return {entry.name: Path(str(entry)) for entry in folder.iterdir() if entry.is_file()}
+
+
+def make_app(session: Session, token: str, allowed_hosts: frozenset[str] | None) -> web.Application:
+    """The application. allowed_hosts: the Host headers accepted (None: any, when the user
+    binds a non-loopback address on purpose)."""
+    app = web.Application(middlewares=[_guard(token, allowed_hosts), _errors], client_max_size=MAX_BODY_BYTES)
+    app[SESSION_KEY] = session
+    app[POOL_KEY] = ThreadPoolExecutor(2, thread_name_prefix="pxl-view")
+    app.on_cleanup.append(_stop_pool)
+    files = static_files()
+    page = files["index.html"].read_text(encoding="utf-8").replace(TOKEN_PLACEHOLDER, token)
+
+    async def index(request: web.Request) -> web.Response:
+        return web.Response(text=page, content_type="text/html", headers={"Cache-Control": "no-store"})
+
+    async def static(request: web.Request) -> web.StreamResponse:
+        path = files.get(request.match_info["name"])
+        if path is None or request.match_info["name"] == "index.html":
+            raise web.HTTPNotFound()
+        return web.FileResponse(path, headers={"Cache-Control": "no-store"})
+
+    app.router.add_get("/", index)
+    app.router.add_get("/static/{name}", static)
+    app.router.add_get("/files/{name:.+}", _folder_file)
+    app.router.add_get("/api/session", _session_description)
+    app.router.add_get("/api/lut", _lut)
+    app.router.add_get("/api/image/{layer}", _image)
+    app.router.add_get("/api/inspect", _inspect)
+    app.router.add_post("/api/check", _check)
+    app.router.add_post("/api/generalise", _generalise)
+    app.router.add_post("/api/layer", _layer)
+    app.router.add_post("/api/save", _save)
+    return app
+
+
+def _guard(token: str, allowed_hosts: frozenset[str] | None):
+    @web.middleware
+    async def guard(request: web.Request, handler):
+        if allowed_hosts is not None and request.host not in allowed_hosts:
+            return _error(f"host {request.host!r} is not this server", 403)
+        given = request.headers.get(TOKEN_HEADER)
+        if given is None and request.method in ("GET", "HEAD"):
+            given = request.query.get("token")
+        if given is None or not hmac.compare_digest(given.encode(), token.encode()):
+            return _error("a valid access token is needed (open the URL `pxr-layers view` printed)", 403)
+        return await handler(request)
+
+    return guard
+
+
+@web.middleware
+async def _errors(request: web.Request, handler):
+    try:
+        return await handler(request)
+    except web.HTTPException:
+        raise
+    except ViewError as error:
+        return _error(str(error), error.status, error.position)
+    except PxrLayersError as error:
+        return _error(str(error).splitlines()[0], 400)
+    except Exception:  # a bug: logged whole, one line to the page
+        log.exception("internal error serving %s", request.path)
+        return _error("internal error (the server's log has the details)", 500)
+
+
+def _error(message: str, status: int, position: int | None = None) -> web.Response:
+    body = {"error": message} if position is None else {"error": message, "position": position}
+    return web.json_response(body, status=status)
+
+
+async def _stop_pool(app: web.Application) -> None:
+    app[POOL_KEY].shutdown(wait=False, cancel_futures=True)
+
+
+async def _blocking(request: web.Request, function: Callable, *args):
+    """Run session work (index reads, extraction, file writes) off the event loop."""
+    loop = asyncio.get_running_loop()
+    return await loop.run_in_executor(request.app[POOL_KEY], functools.partial(function, *args))
+
+
+async def _json_body(request: web.Request) -> dict:
+    try:
+        body = await request.json()
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise ViewError("the request body is not JSON") from None
+    if not isinstance(body, dict):
+        raise ViewError("the request body is not a JSON object")
+    return body
+
+
+# --- handlers -------------------------------------------------------------------------------
+
+
+async def _session_description(request: web.Request) -> web.Response:
+    return web.json_response(request.app[SESSION_KEY].description())
+
+
+async def _lut(request: web.Request) -> web.Response:
+    return web.Response(body=request.app[SESSION_KEY].lut_pixels(), content_type="application/octet-stream")
+
+
+async def _image(request: web.Request) -> web.Response:
+    session = request.app[SESSION_KEY]
+    layer = session.layer(request.match_info["layer"])
+    return web.Response(body=layer.pixels(), content_type="application/octet-stream",
+                        headers={"X-Width": str(session.width), "X-Height": str(session.height),
+                                 "Cache-Control": "no-store"})
+
+
+async def _inspect(request: web.Request) -> web.Response:
+    try:
+        x0, y0, x1, y1 = (int(request.query[key]) for key in ("x0", "y0", "x1", "y1"))
+    except (KeyError, ValueError):
+        raise ViewError("inspect needs integer x0, y0, x1, y1 (pixels, x1 and y1 exclusive)") from None
+    return web.json_response(await _blocking(request, request.app[SESSION_KEY].inspect, x0, y0, x1, y1))
+
+
+async def _check(request: web.Request) -> web.Response:
+    body = await _json_body(request)
+    try:
+        request.app[SESSION_KEY].check(body.get("expression"))
+    except ViewError as error:
+        return web.json_response({"ok": False, "error": str(error), "position": error.position})
+    return web.json_response({"ok": True})
+
+
+async def _generalise(request: web.Request) -> web.Response:
+    body = await _json_body(request)
+    session = request.app[SESSION_KEY]
+    return web.json_response({"lpe": session.generalise(body.get("classes"), body.get("keep") or [])})
+
+
+async def _layer(request: web.Request) -> web.Response:
+    body = await _json_body(request)
+    layer, facts = await _blocking(request, request.app[SESSION_KEY].add_layer, body.get("name"),
+                                   body.get("expression"))
+    return web.json_response({**layer.description(), **facts})
+
+
+async def _save(request: web.Request) -> web.Response:
+    body = await _json_body(request)
+    session = request.app[SESSION_KEY]
+    written = await _blocking(request, session.save, body.get("name"), body.get("layers"),
+                              body.get("exposure", 0.0), bool(body.get("overwrite", False)))
+    return web.json_response(written)
+
+
+async def _folder_file(request: web.Request) -> web.StreamResponse:
+    """A regular file inside the session's folder, by its relative path: no absolute path,
+    no ``..``, nothing a symbolic link takes outside the folder."""
+    folder = request.app[SESSION_KEY].folder
+    name = request.match_info["name"]
+    relative = PurePosixPath(name)
+    if relative.is_absolute() or ".." in relative.parts or "\\" in name or "\x00" in name:
+        return _error(f"{name!r}: only files inside {folder.name}/ are served", 403)
+    path = (folder / relative).resolve()
+    if not path.is_relative_to(folder) or not path.is_file():
+        return _error(f"{name!r}: no such file inside {folder.name}/", 404)
+    return web.FileResponse(path)
+
+
+# --- running ---------------------------------------------------------------------------------
+
+
+def serve(session: Session, *, host: str = "127.0.0.1", port: int = 0, open_browser: bool = True,
+          announce: Callable[[str], None] = print) -> None:
+    """Serve `session` until interrupted. `announce` gets the URL (with its token) once the
+    socket listens; port 0 takes a free one. Raises OSError when the address is taken."""
+    token = secrets.token_urlsafe(24)
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    listening = socket.socket(family, socket.SOCK_STREAM)
+    listening.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    listening.bind((host, port))
+    port = listening.getsockname()[1]
+    loopback = host in ("127.0.0.1", "::1", "localhost")
+    allowed = frozenset(f"{name}:{port}" for name in (*LOOPBACK, host)) if loopback else None
+    url = f"http://{'[' + host + ']' if ':' in host else host}:{port}/?token={token}"
+    asyncio.run(_run(make_app(session, token, allowed), listening, url, open_browser, announce))
+
+
+async def _run(app: web.Application, listening: socket.socket, url: str, open_browser: bool,
+               announce: Callable[[str], None]) -> None:
+    runner = web.AppRunner(app, access_log=None)
+    await runner.setup()
+    try:
+        await web.SockSite(runner, listening).start()
+        announce(url)
+        if open_browser:
+            await asyncio.get_running_loop().run_in_executor(None, webbrowser.open, url)
+        await asyncio.Event().wait()  # until Ctrl-C or SIGTERM
+    finally:
+        await runner.cleanup()

@@ -1,0 +1,382 @@
+"""One inspector session: the products and the index of one render, in memory, and what the
+page asks of them (inspect a selection, make a layer, save the stack).
+
+A session opens PATH once (:meth:`Session.open`):
+
+* a folder: its path index (one ``.pxlidx``; several are refused, name one) and the
+  products of that render (the multipart EXRs whose ``pxrLayers/renderId`` is the
+  index's); without an index, every product EXR of the folder;
+* an ``.exr`` product: it, and the index it names (``pxrLayers/index``) if that is beside it;
+* a ``.pxlidx``: it, and the products of its render beside it (else its beauty only).
+
+The colour layers of the products make the stack (data layers, depth or ids, are not
+composited and are left out); the beauty is part 0 of the first product, or the render's
+beauty EXR beside the index, or ``C.*`` from the index. Everything the page writes lands in
+the session's folder.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from .. import lpe
+from ..errors import LpeSyntaxError, PxrLayersError, RecipeError
+from ..layers.deliver import beauty_beside, deliver, index_metadata
+from ..layers.display_lut import DisplayLut, bake_display_lut, lut_bytes, lut_description
+from ..layers.extract import extract
+from ..layers.multipart import MultipartImage, read_multipart
+from ..layers.nuke import LayerGrade, write_nuke_script
+from ..layers.previews import energy_shares
+from ..outputs import OutputSet
+from ..paths.format import NormBins
+from ..paths.reader import PathIndex
+from ..recipe.model import (
+    DEFAULT_DISPLAY,
+    DEFAULT_OCIO_CONFIG,
+    DEFAULT_VIEW,
+    RENDERING_SPACE,
+    IndexSettings,
+    Layer,
+    Product,
+    Recipe,
+)
+from . import inspect
+
+log = logging.getLogger(__name__)
+
+LAYER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+"""A layer the page makes: a RenderVar prim name and an EXR part name."""
+SAVE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*")
+"""What /api/save writes: NAME.usda, NAME.exr (and its previews), NAME.nk, in the folder."""
+PARTITION_TOLERANCE = 1e-4
+"""The layers partition the beauty when they sum to it within this, relative to its peak."""
+
+
+class ViewError(PxrLayersError):
+    """A request the session cannot serve: ``status`` is its HTTP status (400 a bad request,
+    404 an unknown layer, 409 a conflict with what is there); ``position`` the LPE position."""
+
+    def __init__(self, message: str, status: int = 400, position: int | None = None):
+        super().__init__(message)
+        self.status, self.position = status, position
+
+
+@dataclass
+class ViewLayer:
+    """A layer of the stack. image : (h, w, 3) float32 linear, the beauty's scale."""
+
+    id: str
+    name: str
+    kind: str  # "beauty" or "layer"
+    product: str  # the EXR it came from ("" for a layer made in the page)
+    expression: str | None
+    image: np.ndarray
+    share: float | None
+    exposure: float = 0.0
+    tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    _bytes: bytes | None = field(default=None, repr=False)
+
+    def pixels(self) -> bytes:
+        """Little-endian float32 h × w × 3, top row first (/api/image)."""
+        if self._bytes is None:
+            self._bytes = np.ascontiguousarray(self.image, dtype="<f4").tobytes()
+        return self._bytes
+
+    def description(self) -> dict:
+        return {"id": self.id, "name": self.name, "kind": self.kind, "product": self.product,
+                "expression": self.expression, "share": self.share, "exposure": self.exposure,
+                "tint": list(self.tint)}
+
+
+class Session:
+    """The state behind one ``pxr-layers view``; thread-safe (one lock around the index and
+    the stack: the server runs requests on a thread pool)."""
+
+    def __init__(self, folder: Path, title: str, beauty: np.ndarray, layers: list[ViewLayer],
+                 index: PathIndex | None, product: Product | None, threads: int):
+        self.folder, self.title, self.beauty, self.index, self.threads = folder, title, beauty, index, threads
+        self.base_product = product
+        self.height, self.width = beauty.shape[:2]
+        self.layers: dict[str, ViewLayer] = {layer.id: layer for layer in layers}
+        settings = (product.ocio_config, product.display, product.view, product.rendering_space) if product else \
+            (DEFAULT_OCIO_CONFIG, DEFAULT_DISPLAY, DEFAULT_VIEW, RENDERING_SPACE)
+        self.lut: DisplayLut = bake_display_lut(*settings)
+        self._lock = threading.Lock()
+        self._infos = [inspect.describe(path_class) for path_class in index.classes] if index else []
+
+    # -- opening
+
+    @classmethod
+    def open(cls, path: str | Path, *, threads: int = 1) -> Session:
+        """The session of PATH (module docstring). Raises PxrLayersError naming the file."""
+        path = Path(path)
+        if not path.exists():
+            raise ViewError(f"{path}: no such file or folder")
+        if path.is_dir():
+            folder, index, products = path, _folder_index(path), []
+        elif path.suffix == ".pxlidx":
+            folder, index, products = path.parent, PathIndex(path), []
+        elif path.suffix.lower() == ".exr":
+            folder, products = path.parent, [read_multipart(path)]
+            named = _index_named(products[0])
+            index = PathIndex(folder / named) if named and (folder / named).is_file() else None
+        else:
+            raise ViewError(f"{path}: not a folder, an .exr product or a .pxlidx index")
+        folder = folder.resolve()
+        if not products:
+            products = _products_beside(folder, index)
+        if index is not None and not products:
+            beauty = beauty_beside(index)
+        elif products:
+            beauty = products[0].beauty
+        else:
+            raise ViewError(f"{path}: holds neither a path index nor a pxr-layers product EXR")
+        if index is not None and tuple(index.manifest["resolution"]) != (beauty.shape[1], beauty.shape[0]):
+            raise ViewError(f"{products[0].path}: {beauty.shape[1]}x{beauty.shape[0]}, its index "
+                            f"{index.path.name} {'x'.join(map(str, index.manifest['resolution']))}")
+        layers = [ViewLayer("beauty", "beauty", "beauty", products[0].path.name if products else "", lpe.BEAUTY,
+                            np.ascontiguousarray(beauty[..., :3]), 1.0)]
+        layers += _product_layers(products, beauty)
+        product = _base_product(products, index, beauty)
+        title = products[0].path.stem if products else index.path.stem
+        log.info("%s: %d layers, %s", folder, len(layers) - 1,
+                 f"index {index.path.name} ({index.record_count:,} records)" if index else "no index")
+        return cls(folder, title, beauty, layers, index, product, threads)
+
+    # -- what the page reads
+
+    def description(self) -> dict:
+        """/api/session."""
+        layers = [layer for layer in self.layers.values() if layer.kind == "layer"]
+        return {"title": self.title, "width": self.width, "height": self.height,
+                "layers": [layer.description() for layer in self.layers.values()],
+                "partition": self._partition(layers), "index": self._index_description(),
+                "display": {"config": self.lut.config, "display": self.lut.display, "view": self.lut.view,
+                            "lut": lut_description(self.lut)}}
+
+    def lut_pixels(self) -> bytes:
+        return lut_bytes(self.lut)
+
+    def layer(self, layer_id: str) -> ViewLayer:
+        try:
+            return self.layers[layer_id]
+        except KeyError:
+            raise ViewError(f"no layer {layer_id!r}", 404) from None
+
+    def _partition(self, layers: list[ViewLayer]) -> bool:
+        if not layers:
+            return False
+        total = np.sum([layer.image for layer in layers], axis=0, dtype=np.float64)
+        peak = float(np.abs(self.beauty[..., :3]).max()) or 1.0
+        return bool(np.abs(total - self.beauty[..., :3]).max() <= PARTITION_TOLERANCE * peak)
+
+    def _index_description(self) -> dict | None:
+        index = self.index
+        if index is None:
+            return None
+        lights = sorted({info.light for info in self._infos if info.end_type == "L" and info.light})
+        objects = sorted({event.name for event in index.events if event.type in "RTO" and event.name})
+        materials = sorted({inspect._material(event) for event in index.events if event.type in "RT"} - {""})
+        return {"file": index.path.name, "spp": index.manifest["spp"], "records": index.record_count,
+                "classes": len(index.classes), "bounces": index.norm_slots, "has_sigma": index.has_sigma,
+                "labels": sorted(index.labels), "lights": lights, "objects": objects, "materials": materials,
+                "norm_bins": {"min": NormBins.LOWEST, "max": NormBins.LOWEST * NormBins.WIDTH ** (NormBins.CODES - 2),
+                              "per_octave": NormBins.BINS_PER_OCTAVE}}
+
+    # -- inspect
+
+    def inspect(self, x0: int, y0: int, x1: int, y1: int) -> dict:
+        """/api/inspect: the path classes of a pixel rectangle (x1, y1 exclusive)."""
+        index = self._need_index("inspect a selection")
+        if not (x0 < x1 and y0 < y1):
+            raise ViewError(f"an empty selection ({x0}, {y0}) – ({x1}, {y1})")
+        start = time.perf_counter()
+        with self._lock:
+            selection = inspect.select(index, x0, y0, x1, y1, threads=self.threads)
+        result = inspect.summary(selection, self._infos)
+        spp = index.manifest["spp"]
+        pixels = max(selection.pixels, 1)
+        result.update(pixels=selection.pixels, rgb=[value / spp / pixels for value in result.pop("rgb_total")],
+                      energy=result.pop("energy_total") / spp / pixels, seconds=time.perf_counter() - start)
+        return result
+
+    def generalise(self, class_ids: list[int], keep: list[str]) -> str:
+        self._need_index("generalise path classes")
+        if not all(isinstance(i, int) and 0 <= i < len(self._infos) for i in class_ids) or not class_ids:
+            raise ViewError("classes must be a non-empty list of the index's class ids")
+        try:
+            return inspect.generalise([self._infos[i] for i in class_ids], keep)
+        except ValueError as error:
+            raise ViewError(str(error)) from None
+
+    # -- layers
+
+    def check(self, expression: str) -> None:
+        """Raise ViewError (with the position) unless `expression` compiles."""
+        try:
+            lpe.compile(expression)
+        except LpeSyntaxError as error:
+            raise ViewError(error.message, position=error.position) from None
+        except PxrLayersError as error:
+            raise ViewError(str(error)) from None
+
+    def add_layer(self, name: str, expression: str) -> tuple[ViewLayer, dict]:
+        """Extract a new layer from the index into the stack: /api/layer."""
+        index = self._need_index("make a layer")
+        if not isinstance(name, str) or not LAYER_NAME.fullmatch(name):
+            raise ViewError(f"layer name {name!r}: letters, digits and _, not starting with a digit")
+        if not isinstance(expression, str):
+            raise ViewError("the expression must be a string")
+        self.check(expression)
+        start = time.perf_counter()
+        with self._lock:
+            if name in self.layers or name == "beauty":
+                raise ViewError(f"there is a layer {name!r} already", 409)
+            try:
+                extraction = extract(index, {name: expression}, threads=self.threads)
+            except PxrLayersError as error:
+                raise ViewError(str(error).splitlines()[0]) from None
+            image = extraction.layers[name]
+            share = energy_shares(self.beauty, {name: image})[name]
+            layer = ViewLayer(name, name, "layer", "", expression, image, share)
+            self.layers[name] = layer
+        seconds = time.perf_counter() - start
+        log.info("layer %s = %s: %.2f s", name, expression, seconds)
+        return layer, {"classes": extraction.classes_matched, "seconds": seconds}
+
+    # -- save
+
+    def save(self, name: str, stack: list[dict], exposure: float = 0.0, overwrite: bool = False) -> dict:
+        """/api/save: NAME.usda (the recipe), NAME.exr and its previews (extracted from the
+        index), NAME.nk (the grade), all in the folder, together or not at all."""
+        from ..stage.recipe_writer import write_recipe  # USD is imported only when saving
+
+        index = self._need_index("save the stack (its layers are extracted from it)")
+        if not isinstance(name, str) or not SAVE_NAME.fullmatch(name):
+            raise ViewError(f"save name {name!r}: letters, digits, _ and -, not starting with a digit or -")
+        chosen, grades = self._stack(stack)
+        recipe = Recipe((replace(self.base_product, name=name.replace("-", "_"), output_name=f"{name}.exr", prim_path="",
+                                 layers=tuple(chosen), per_light="none"),))
+        paths = {"recipe": self.folder / f"{name}.usda", "exr": self.folder / f"{name}.exr",
+                 "nuke": self.folder / f"{name}.nk"}
+        existing = [path.name for path in paths.values() if path.exists()]
+        if existing and not overwrite:
+            raise ViewError(f"{', '.join(existing)} exist in {self.folder}: save under another name, "
+                            "or overwrite", 409)
+        partition = self._partition([self.layers[entry["id"]] for entry in stack if entry["id"] != "beauty"])
+        with self._lock, OutputSet():
+            deliver(index, recipe, self.beauty, {recipe.products[0].name: paths["exr"]},
+                    metadata=index_metadata(index, self.folder))
+            write_recipe(paths["recipe"], recipe)
+            write_nuke_script(paths["nuke"], paths["exr"].name, [layer.name for layer in chosen], grades,
+                              resolution=(self.width, self.height), exposure=float(exposure), partition=partition)
+        log.info("saved %s", ", ".join(str(path) for path in paths.values()))
+        return {key: path.name for key, path in paths.items()}
+
+    def _stack(self, stack: list[dict]) -> tuple[list[Layer], dict[str, LayerGrade]]:
+        """The recipe layers and the grades of the page's stack entries ({id, stops, tint, mute, solo})."""
+        if not isinstance(stack, list) or not stack:
+            raise ViewError("the stack to save holds no layers")
+        layers, grades = [], {}
+        for entry in stack:
+            if not isinstance(entry, dict):
+                raise ViewError("each stack entry is an object {id, stops, tint, mute, solo}")
+            layer = self.layer(entry.get("id"))
+            if layer.kind == "beauty":
+                continue
+            if layer.name in grades:
+                raise ViewError(f"two layers of the stack are named {layer.name!r}")
+            try:
+                grade = LayerGrade(stops=float(entry.get("stops", 0.0)), tint=tuple(map(float, entry.get("tint", (1, 1, 1)))),
+                                   mute=bool(entry.get("mute", False)), solo=bool(entry.get("solo", False)))
+                layers.append(Layer(layer.name, "lpe", layer.expression, exposure=grade.stops, tint=grade.tint,
+                                    group="inspector"))
+            except (TypeError, ValueError, RecipeError) as error:
+                raise ViewError(f"layer {layer.name!r}: {error}") from None
+            grades[layer.name] = grade
+        if not layers:
+            raise ViewError("the stack to save holds no layers (the beauty is always part 0)")
+        return layers, grades
+
+    def _need_index(self, what: str) -> PathIndex:
+        if self.index is None:
+            raise ViewError(f"cannot {what}: {self.folder} has no path index of this render "
+                            "(render with an index, and view its folder)", 409)
+        return self.index
+
+
+# --- opening helpers ----------------------------------------------------------------------
+
+
+def _folder_index(folder: Path) -> PathIndex | None:
+    indexes = sorted(folder.glob("*.pxlidx"))
+    if len(indexes) > 1:
+        raise ViewError(f"{folder} holds {len(indexes)} path indexes ({', '.join(p.name for p in indexes)}): "
+                        "view one of them")
+    return PathIndex(indexes[0]) if indexes else None
+
+
+def _index_named(product: MultipartImage) -> str | None:
+    """The index a product names (``pxrLayers/index`` on its layer parts)."""
+    for attributes in product.metadata.values():
+        if attributes.get("index"):
+            return attributes["index"]
+    return None
+
+
+def _products_beside(folder: Path, index: PathIndex | None) -> list[MultipartImage]:
+    """The product EXRs of the folder that `index`'s render wrote (all of them without an
+    index), in name order; EXRs that are not pxr-layers products are skipped."""
+    render_id = index.manifest.get("render_id") if index else None
+    products = []
+    for path in sorted(folder.glob("*.exr")):
+        try:
+            product = read_multipart(path)
+        except PxrLayersError as error:
+            log.info("skipping %s: %s", path.name, error)
+            continue
+        ids = {attributes.get("renderId") for attributes in product.metadata.values()}
+        if product.parts and (render_id is None or render_id in ids):
+            products.append(product)
+    return products
+
+
+def _product_layers(products: list[MultipartImage], beauty: np.ndarray) -> list[ViewLayer]:
+    """The colour layers of the products, in product then part order; a name seen in an
+    earlier product gets its product's stem as a prefix."""
+    layers: list[ViewLayer] = []
+    seen: set[str] = {"beauty"}
+    for product in products:
+        grades = {layer.name: layer for product_ in (product.recipe.products if product.recipe else ())
+                  for layer in product_.layers}
+        colour = {name: image for name, image in product.parts.items()
+                  if image.shape[-1] == 3 and not (grades.get(name) and grades[name].is_data)}
+        shares = energy_shares(beauty, colour)
+        for name, image in colour.items():
+            layer_id = name if name not in seen else f"{product.path.stem}.{name}"
+            seen.add(layer_id)
+            recipe_layer = grades.get(name)
+            attributes = product.metadata[name]
+            layers.append(ViewLayer(layer_id, name, "layer", product.path.name, attributes.get("expression"), image,
+                                    shares[name], recipe_layer.exposure if recipe_layer else 0.0,
+                                    recipe_layer.tint if recipe_layer else (1.0, 1.0, 1.0)))
+    return layers
+
+
+def _base_product(products: list[MultipartImage], index: PathIndex | None, beauty: np.ndarray) -> Product:
+    """What a saved recipe inherits: the first product's colour and index settings, else
+    the defaults at the index's camera and resolution."""
+    for product in products:
+        if product.recipe is not None:
+            return product.recipe.products[0]
+    camera = index.manifest.get("camera", "") if index else ""
+    bounces = index.norm_slots if index else IndexSettings().bounces
+    return Product("inspector", "inspector.exr", camera or "/camera", (beauty.shape[1], beauty.shape[0]),
+                   (Layer("beauty", "raw", "color"),), index=IndexSettings(bounces=bounces))  # save() sets the layers
