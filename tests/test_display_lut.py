@@ -1,0 +1,156 @@
+"""The inspector's display LUT (layers/display_lut.py) against the previews' OCIO transform.
+
+Tolerance: one 8-bit code per channel between ``_quantise(apply_display_lut(...))`` (what the
+browser shows) and ``to_display(...)`` (the preview PNGs); the LUT's measured worst is 0.80
+codes, so a code is only ever off by rounding.
+"""
+
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from pxr_layers.layers.display_lut import (
+    DEFAULT_SIZE,
+    apply_display_lut,
+    bake_display_lut,
+    lut_bytes,
+    lut_description,
+    lut_glsl,
+)
+from pxr_layers.layers.previews import ColourError, _quantise, display_processor, to_display
+
+PRIMARIES_AND_SECONDARIES = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0], [0, 1, 1], [1, 0, 1], [1, 1, 1]],
+                                     dtype=np.float32)
+
+
+@pytest.fixture(scope="module")
+def lut():
+    return bake_display_lut()
+
+
+def codes_off(lut, image: np.ndarray) -> np.ndarray:
+    """|browser − preview| per pixel and channel, in 8-bit codes: (h, w, 3) int."""
+    shown = _quantise(apply_display_lut(lut, image)).astype(int)
+    return np.abs(shown - to_display(image).astype(int))
+
+
+def hdr_ramps() -> np.ndarray:
+    """0..2^8 linearly, in each primary, secondary and grey: (7, 4096, 3)."""
+    ramp = np.linspace(0.0, 256.0, 4096, dtype=np.float32)
+    return ramp[None, :, None] * PRIMARIES_AND_SECONDARIES[:, None, :]
+
+
+def saturated_log_ramps() -> np.ndarray:
+    """2^-14..2^16 (past the previews' largest half, 65504) in each primary, secondary and
+    grey: (7, 4096, 3)."""
+    ramp = np.float32(2.0) ** np.linspace(-14.0, 16.0, 4096, dtype=np.float32)
+    return ramp[None, :, None] * PRIMARIES_AND_SECONDARIES[:, None, :]
+
+
+def random_colours(seed: int, zeros: float = 0.0) -> np.ndarray:
+    """Each channel log2-uniform over −14..8, a ``zeros`` share of them 0: (256, 256, 3)."""
+    rng = np.random.default_rng(seed)
+    image = np.float32(2.0) ** rng.uniform(-14.0, 8.0, (256, 256, 3)).astype(np.float32)
+    image[rng.random(image.shape) < zeros] = 0.0
+    return image
+
+
+def special_values() -> np.ndarray:
+    """Zeros, float noise below zero, negative pixels, NaN and ±inf among ordinary colours:
+    (8, 64, 3)."""
+    rng = np.random.default_rng(5)
+    base = np.float32(2.0) ** rng.uniform(-8.0, 4.0, (8, 64, 3)).astype(np.float32)
+    base[0] = 0.0
+    base[1] -= np.float32(1e-3)                     # noise around small values
+    base[2] = -base[2]                              # every channel negative
+    base[3, :, 1] = -rng.uniform(0.0, 1e-3, 64)     # one channel slightly negative
+    base[4, ::2, 0] = np.nan
+    base[4, 1::2] = np.nan
+    base[5, ::2, 2] = np.inf
+    base[5, 1::2] = np.inf
+    base[6, ::2, 1] = -np.inf
+    base[6, 1::2] = -np.inf
+    base[7, :, 0] = np.nan
+    base[7, :, 2] = np.inf
+    return base
+
+
+@pytest.mark.parametrize("image", [
+    pytest.param(hdr_ramps(), id="hdr-ramps"),
+    pytest.param(saturated_log_ramps(), id="saturated-log-ramps"),
+    pytest.param(random_colours(1), id="random-1"),
+    pytest.param(random_colours(2), id="random-2"),
+    pytest.param(random_colours(3, zeros=0.3), id="random-with-zeros"),
+    pytest.param(special_values(), id="zeros-negatives-nan-inf"),
+])
+def test_the_browser_shows_the_previews_within_one_code(lut, image):
+    off = codes_off(lut, image)
+    worst = np.unravel_index(np.argmax(off), off.shape)
+    assert off.max() <= 1, f"{off.max()} codes off at {worst[:2]}: {image[worst[:2]]}"
+
+
+def test_alpha_is_ignored(lut):
+    rgb = random_colours(4)[:16, :16]
+    rgba = np.concatenate([rgb, np.full(rgb.shape[:2] + (1,), 0.25, np.float32)], axis=-1)
+    assert apply_display_lut(lut, rgba).shape == rgb.shape
+    np.testing.assert_array_equal(apply_display_lut(lut, rgba), apply_display_lut(lut, rgb))
+
+
+def test_lattice_points_are_the_processor_exactly_and_in_the_served_layout(lut):
+    """At a lattice point (distinct r, g, b indices, so a transposed layout would show)
+    interpolation adds nothing: the shader gives the processor's value; and that point is
+    element ((b·size + g)·size + r) of /api/lut's bytes."""
+    size = lut.size
+    r, g, b = 40, 33, 21
+    axis = lut.shaper.invert(np.linspace(0.0, 1.0, size))
+    colour = np.linalg.solve(np.asarray(lut.shaper.basis), axis[[r, g, b]]).astype(np.float32)
+    expected = colour.copy()[None, None, :]
+    display_processor().applyRGB(expected)
+    np.testing.assert_allclose(apply_display_lut(lut, colour[None, None, :]), np.clip(expected, 0, 1), atol=1e-5)
+    served = np.frombuffer(lut_bytes(lut), dtype="<f4")
+    element = ((b * size + g) * size + r) * 3
+    np.testing.assert_array_equal(served[element : element + 3], lut.table[b, g, r])
+
+
+def test_bake_is_cached_and_measured(lut):
+    assert bake_display_lut() is lut
+    assert lut.size == DEFAULT_SIZE
+    assert lut.table.shape == (DEFAULT_SIZE,) * 3 + (3,) and lut.table.dtype == np.float32
+    assert not lut.table.flags.writeable
+    assert 0.0 < lut.max_error < 1.0
+
+
+def test_unknown_colour_settings_are_the_previews_errors():
+    with pytest.raises(ColourError) as raised:
+        bake_display_lut(view="No Such View")
+    assert raised.value.setting == "view"
+
+
+def test_description_agrees_with_the_bytes(lut):
+    description = json.loads(json.dumps(lut_description(lut)))
+    assert description["url"] == "/api/lut"
+    assert description["size"] == lut.size
+    assert len(lut_bytes(lut)) == description["size"] ** 3 * 3 * 4
+    assert description["shaper"]["lo"] == lut.shaper.lo and description["shaper"]["hi"] == lut.shaper.hi
+    glsl = description["glsl"]
+    assert "vec3 displayLut(vec3 linearRgb, highp sampler3D lut)" in glsl
+    assert glsl.count("texelFetch(lut, ") == 8
+    assert "#version" not in glsl  # the frontend's shader starts with its own
+
+
+@pytest.mark.skipif(shutil.which("glslangValidator") is None, reason="glslangValidator is not installed")
+def test_glsl_compiles_as_glsl_es_300(lut, tmp_path):
+    shader = tmp_path / "display.frag"
+    shader.write_text("#version 300 es\n" + lut_glsl(lut) + """
+uniform highp sampler3D u_lut;
+uniform highp sampler2D u_image;
+out vec4 colour;
+void main() {
+    colour = vec4(displayLut(texelFetch(u_image, ivec2(gl_FragCoord.xy), 0).rgb, u_lut), 1.0);
+}
+""")
+    result = subprocess.run(["glslangValidator", str(shader)], capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr
