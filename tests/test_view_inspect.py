@@ -33,7 +33,8 @@ def test_each_class_s_lpe_matches_it_and_says_its_parts(index, infos):
 
 
 @pytest.mark.parametrize("keep", [(), ("light",), ("first_object",), ("first_material", "light"),
-                                  ("first_scattering", "bounces"), ("light", "first_object", "bounces")])
+                                  ("first_scattering", "bounces"), ("light", "first_object", "bounces"),
+                                  ("scattering",), ("scattering", "first_object", "light")])
 def test_a_generalised_lpe_matches_every_class_it_came_from(index, infos, keep):
     groups = itertools.islice((infos[i:i + 7] for i in range(0, len(infos), 997)), 40)
     for group in groups:

@@ -26,7 +26,7 @@ NORM_OCTAVES = (-32, 32)
 """The norm histograms' range, as powers of 2 (paths/format.py NormBins' range): one bin an
 octave, values outside counted in the first and last bins, 0 on its own."""
 NORM_QUANTITIES = ("C", "T", "R")
-ASPECTS = ("light", "first_object", "first_material", "first_scattering", "bounces")
+ASPECTS = ("light", "first_object", "first_material", "first_scattering", "scattering", "bounces")
 """What :func:`generalise` can keep of the classes it is given."""
 BOUNCE_TYPES = frozenset("RTV")
 
@@ -165,7 +165,7 @@ def summary(selection: Selection, infos: Sequence[ClassInfo]) -> dict:
             records[key] += int(class_records[k])
             members[key].append(class_id)
         keep = {"light": ["light"], "first_object": ["first_object"], "first_material": ["first_material"],
-                "scattering": ["first_scattering", "bounces"]}[aspect]
+                "scattering": ["scattering"]}[aspect]
         groups[aspect] = [
             {"key": key, "share": share(energy[key]), "records": records[key],
              "lpe": generalise([infos[i] for i in members[key]], keep)}
@@ -203,8 +203,8 @@ def generalise(infos: Iterable[ClassInfo], keep: Iterable[str]) -> str:
 
     Each class becomes ``C <first bounce> <middle> <end>`` where the first bounce keeps its
     type and scattering (first_scattering) and its object/material names (first_object,
-    first_material), the middle is ``.{n-1}`` (bounces) or ``.*``, and the end keeps its
-    light's name (light) or is any event. Distinct patterns are joined with ``|``, in the
+    first_material), the middle is every bounce's scattering (scattering), ``.{n-1}``
+    (bounces) or ``.*``, and the end keeps its light's name (light) or is any event. Distinct patterns are joined with ``|``, in the
     order of the classes.
     """
     keep = set(keep)
@@ -226,10 +226,15 @@ def _generalised(info: ClassInfo, keep: set[str]) -> str:
     labels = "".join(f"'{name}'" for aspect, name in (("first_object", info.first_object),
                                                         ("first_material", info.first_material))
                      if aspect in keep and name)
+    scatterings = info.scattering.split(" ")
     if "first_scattering" in keep:
-        first = f"<{info.first_type}{info.scattering.split(' ')[0]}{labels}>"
+        first = f"<{info.first_type}{scatterings[0]}{labels}>"
+    elif "scattering" in keep:
+        first = f"<.{scatterings[0]}{labels}>"
     else:
         first = f"<..{labels}>" if labels else "."
+    if "scattering" in keep:  # every bounce's scattering, so their number too
+        return "C" + first + "".join(f"<.{scattering}>" for scattering in scatterings[1:]) + end
     if "bounces" in keep:
         return "C" + first + (f".{{{info.bounces - 1}}}" if info.bounces > 1 else "") + end
     if first == ".":  # only the light kept: every path to it, a class without bounces too
