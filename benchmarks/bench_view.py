@@ -1,0 +1,186 @@
+"""The layer inspector (`pxr-layers view`) in headless Chromium: frames per second of the
+live regrade, and the time from "add layer" to the new layer's picture (issue 20's targets).
+
+    python benchmarks/bench_view.py [--regrade PATH] [--index FILE] [--frames 120] [--repeats 3]
+                                    [--screenshot PNG]
+
+1. Regrade: the page on a 960×540 output with at least REGRADE_LAYERS layers (``--regrade``:
+   an output folder, .exr or .pxlidx; default: ``pxr-layers demo`` rendered at 960×540, 4 spp,
+   whose 8 light passes are topped up with layers made on the page). The image is shown at 1:1;
+   each frame sets every layer's gain and tint from JavaScript (as the controls do), so that
+   every layer enters the composite, draws, and waits for the GPU (``gl.finish()``). Frames per
+   second = frames / their time. Headless Chromium has no GPU here: WebGL2 runs on SwiftShader,
+   on the CPU; a desktop GPU is much faster.
+2. Click to layer: the page on a 1920×1080, 64 spp index with its beauty beside it (``--index``;
+   default: ``render/showcase.usda`` rendered so, which takes minutes on 2 cores). Time from the
+   "add layer" click to the new layer's picture drawn (it is soloed) and finished on the GPU, as
+   the page measures it (``pxrViewer.timings.layer``: the server's extraction request, the image's
+   fetch, the upload and the frame), best and median of ``--repeats`` new layers. Also the time
+   of a click on a pixel to its classes listed (one pass over the index on the server).
+3. ``--screenshot PNG``: the page on the regrade output (the Cornell box unless ``--regrade``)
+   after a click on the red wall and a layer made from it, at 1600×900: docs/inspector.png.
+
+Targets: click to picture ≤ 1 s at 1080p, 64 spp; the regrade ≥ 30 frames per second at
+960×540 with 10 layers. A figure that misses is printed as missed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from importlib import resources
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from test_view_browser import SCRIPT, launch, open_inspector, serving  # noqa: E402  (one place for how to run them)
+
+REGRADE_RESOLUTION = (960, 540)
+REGRADE_LAYERS = 10
+EXTRA_LAYERS = ("C<RD'redWall'>.*", "C<RD'greenWall'>.*", "C<RD'floor'>.*", "C<RD'backWall'>.*")
+"""Layers the page makes to reach REGRADE_LAYERS when the output has fewer (the demo's labels)."""
+NEW_LAYER = "C<RD>.*<L.'key'>"
+"""The layer made at 1080p, as benchmarks/bench_extract.py times it on the command line."""
+CLICK_TO_PICTURE_TARGET = 1.0
+FPS_TARGET = 30.0
+REGRADE_VIEWPORT = {"width": 1760, "height": 720}  # a canvas wider and taller than 960×540 between the panels
+HD_VIEWPORT = {"width": 1600, "height": 900}
+SCREENSHOT_VIEWPORT = {"width": 1600, "height": 900}
+
+
+def verdict(met: bool) -> str:
+    return "met" if met else "MISSED"
+
+
+def render(command: list[str], what: str) -> None:
+    start = time.perf_counter()
+    subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+    print(f"{what}: {time.perf_counter() - start:.0f} s", flush=True)
+
+
+def make_layer(page, name: str, expression: str) -> dict:
+    """Through the page's controls; the page's timings of it (milliseconds)."""
+    page.fill("#expression", expression)
+    page.fill("#layer-name", name)
+    page.click("#add-layer")
+    page.wait_for_function("name => pxrViewer.timings.layer && pxrViewer.timings.layer.name === name", arg=name,
+                           timeout=120_000)
+    return page.evaluate("pxrViewer.timings.layer")
+
+
+def regrade(context, url: str, frames: int) -> None:
+    page = open_inspector(context, url)
+    for n, expression in enumerate(EXTRA_LAYERS):
+        if len(page.evaluate("pxrViewer.state().layers")) > REGRADE_LAYERS:
+            break
+        make_layer(page, f"bench_{n}", expression)
+    page.keyboard.press("1")
+    state = page.evaluate("pxrViewer.state()")
+    layers = [layer["id"] for layer in state["layers"] if layer["kind"] != "beauty"]
+    milliseconds = page.evaluate("""([layers, frames]) => {
+      for (const id of layers) pxrViewer.setGrade(id, { solo: false, mute: false });
+      pxrViewer.drawFinished();  // warm: the first frame may compile or upload
+      const start = performance.now();
+      for (let frame = 0; frame < frames; ++frame) {
+        layers.forEach((id, at) => pxrViewer.setGrade(id, {
+          stops: Math.sin(frame * 0.1 + at), tint: [1, 0.9 + 0.1 * Math.cos(frame * 0.2 + at), 1] }));
+        pxrViewer.drawFinished();
+      }
+      return performance.now() - start;
+    }""", [layers, frames])
+    fps = frames * 1000 / milliseconds
+    width, height = state["width"], state["height"]
+    print(f"regrade {width}x{height}, {len(layers)} layers + beauty, 1:1 on a {state['canvas'][0]}x{state['canvas'][1]} "
+          f"canvas: {fps:.1f} frames/s ({milliseconds / frames:.1f} ms a frame over {frames}; target ≥ {FPS_TARGET:.0f}: "
+          f"{verdict(fps >= FPS_TARGET and len(layers) >= REGRADE_LAYERS)})", flush=True)
+    page.close()
+
+
+def click_to_layer(context, url: str, repeats: int) -> None:
+    page = open_inspector(context, url)
+    state = page.evaluate("pxrViewer.state()")
+    page.keyboard.press("f")
+    start = time.perf_counter()
+    page.mouse.click(*page.evaluate("([x, y]) => pxrViewer.imageToClient(x, y)", [state["width"] // 2, state["height"] // 2]))
+    page.wait_for_selector("#tab-body tr[data-path]", timeout=120_000)
+    inspected = time.perf_counter() - start
+    runs = []
+    for n in range(repeats):
+        start = time.perf_counter()
+        timing = make_layer(page, f"click_{n}", NEW_LAYER)
+        timing["wall"] = time.perf_counter() - start
+        runs.append(timing)
+    totals = [run["total"] / 1000 for run in runs]
+    best = min(runs, key=lambda run: run["total"])
+    print(f"click to layer {state['width']}x{state['height']} ({NEW_LAYER}): best {min(totals):.3f} s, median "
+          f"{statistics.median(totals):.3f} s of {repeats} (target ≤ {CLICK_TO_PICTURE_TARGET:.0f} s: "
+          f"{verdict(min(totals) <= CLICK_TO_PICTURE_TARGET)})")
+    print(f"  best: extraction request {best['extract'] / 1000:.3f} s (server's own {best['server_seconds']:.3f} s), "
+          f"image fetch {best['fetch'] / 1000:.3f} s, upload + frame {best['show'] / 1000:.3f} s; "
+          f"Playwright's wall time {best['wall']:.3f} s")
+    print(f"  a click on a pixel to its classes listed: {inspected:.3f} s", flush=True)
+    page.close()
+
+
+def screenshot(context, url: str, path: Path) -> None:
+    page = open_inspector(context, url)
+    state = page.evaluate("pxrViewer.state()")
+    page.keyboard.press("f")
+    x, y = state["width"] // 12, state["height"] // 2  # the red wall, left of the Cornell box
+    page.mouse.click(*page.evaluate("([x, y]) => pxrViewer.imageToClient(x, y)", [x, y]))
+    page.wait_for_selector("#tab-body tr[data-path]")
+    page.locator("#tab-body input[data-class]").first.check()
+    page.click("#generalise")
+    page.wait_for_function("document.querySelector('#expression').value !== ''")
+    page.uncheck("#solo-new")
+    make_layer(page, "red_bounce", page.input_value("#expression"))
+    page.evaluate("pxrViewer.setGrade('red_bounce', { stops: 1, tint: [1, 0.55, 0.3] })")
+    page.wait_for_timeout(200)
+    page.screenshot(path=str(path))
+    print(f"screenshot: {path}")
+    page.close()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--regrade", type=Path, help="a 960×540 output (folder, .exr or .pxlidx) to regrade")
+    parser.add_argument("--index", type=Path, help="a 1920×1080, 64 spp showcase index, its beauty beside it")
+    parser.add_argument("--frames", type=int, default=120, help="frames timed for the regrade")
+    parser.add_argument("--repeats", type=int, default=3, help="new layers timed at 1080p")
+    parser.add_argument("--screenshot", type=Path, help="also write a screenshot of the page here")
+    args = parser.parse_args()
+    from playwright.sync_api import sync_playwright
+
+    with tempfile.TemporaryDirectory(prefix="bench_view.") as scratch, sync_playwright() as playwright:
+        folder = Path(scratch)
+        regrade_path = args.regrade
+        if regrade_path is None:
+            regrade_path = folder / "demo"
+            render([SCRIPT, "demo", "-o", str(regrade_path), "--resolution", *map(str, REGRADE_RESOLUTION),
+                    "--spp", "4", "-q"], "demo 960x540 4 spp")
+        hd = args.index
+        if hd is None:
+            hd = folder / "hd" / "showcase.pxlidx"
+            stage = resources.files("pxr_layers.render").joinpath("showcase.usda")
+            render([SCRIPT, "render", str(stage), "--resolution", "1920", "1080", "--spp", "64", "--no-previews", "-q",
+                    "-o", str(hd.parent)], "render + index 1920x1080 64 spp")
+        if args.screenshot:
+            with serving(regrade_path) as url:
+                context = launch(playwright, folder / "profile-shot", SCREENSHOT_VIEWPORT)
+                screenshot(context, url, args.screenshot)
+                context.close()
+        with serving(regrade_path) as url:
+            context = launch(playwright, folder / "profile-regrade", REGRADE_VIEWPORT)
+            regrade(context, url, args.frames)
+            context.close()
+        with serving(hd) as url:
+            context = launch(playwright, folder / "profile-hd", HD_VIEWPORT)
+            click_to_layer(context, url, args.repeats)
+            context.close()
+
+
+if __name__ == "__main__":
+    main()
