@@ -1,4 +1,4 @@
-"""The embedded scenes ship inside a non-editable install (a built wheel)."""
+"""The embedded scenes and the inspector's page ship inside a non-editable install (a built wheel)."""
 
 from __future__ import annotations
 
@@ -22,4 +22,7 @@ def test_wheel_carries_the_render_data(tmp_path):
     names = set(zipfile.ZipFile(wheel).namelist())
     for data in ("cornell.usda", "showcase.usda", "textures/two_frequencies.png", "ies/spot_cos8.ies"):
         assert f"pxr_layers/render/{data}" in names
+    for page in ("index.html", "app.js", "style.css"):  # the inspector's page
+        assert f"pxr_layers/view/static/{page}" in names
+    assert "pxr_layers/view/server.py" in names
     assert any(name.endswith("entry_points.txt") for name in names)
