@@ -1,0 +1,192 @@
+"""Path space cut into atoms: the finest pieces any split of the hierarchy can tell apart.
+
+Every split of :mod:`.search` looks at a path through a few attributes only (ATTRIBUTES):
+the emitter it ends at, how many bounces it has (none, one, more), and the first bounce's
+type, scattering, object, material and covariance bins (curvature, texture, reflectance
+zero or not). An **atom** is one combination of these values; a path class is one atom,
+except that the covariance bins are per record. One read of each index sums every atom's
+light per image tile: the tile maps the objective compares (docs/suggest.md).
+
+Values are strings that mean the same in every frame of a shot (prim paths, letters), so
+the atoms of several indexes are merged by value, and each atom's maps of every frame are
+kept side by side (a shot's frames are separate tiles, not added together).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..paths.events import Event
+from ..paths.reader import PathIndex
+from ..scene import REC709_LUMINANCE
+
+log = logging.getLogger(__name__)
+
+ATTRIBUTES = ("light", "depth", "object", "material", "scatter", "type", "curved", "textured", "shiny")
+"""What an atom is made of, in the order splits are preferred when they score the same.
+light: the emitter ("L:<light path>", "O:<object path>", "B"); depth: 0 (seen directly),
+1 (direct: one bounce), 2 (indirect: more); then the first bounce's type (R, T, V),
+scattering (D, G, S, s), object path, material path (None: no material), and "1" where its |S_C|,
+|S_T|, |S_R| is not 0, "0" where it is. First-bounce values are None on a path without
+bounces."""
+FIRST_BOUNCE = ATTRIBUTES[2:]
+COVARIANCE = {"curved": 0, "textured": 1, "shiny": 2}
+"""Covariance attribute → its column of the index's norms (C, T, R)."""
+TILES = 16
+"""Tiles along each side of the image: the maps are TILES × TILES × RGB per frame."""
+LUMINANCE = np.asarray(REC709_LUMINANCE, np.float64)
+COVARIANCE_BITS = 1 << len(COVARIANCE)
+
+
+@dataclass(frozen=True)
+class Atoms:
+    """The atoms of one or more indexes.
+
+    keys  : (a,) tuples of ATTRIBUTES values, sorted (so the same input gives the same order)
+    maps  : (a, f) float64: each atom's light per frame, tile and channel, every frame
+            scaled so that its beauty's luminance sums to 1 (f = frames · TILES² · 3)
+    names : value → display name (a light's or object's prim name, a material's)
+    labels: value → the label an LPE tests for it (the prim path)
+    covariance : whether the indexes keep first-bounce norms (covariance splits possible)
+    frames : the frames' descriptions, in feature order
+    """
+
+    keys: tuple[tuple, ...]
+    maps: np.ndarray
+    names: dict[str, str]
+    labels: dict[str, str]
+    covariance: bool
+    frames: tuple[str, ...]
+
+    def values(self, attribute: str) -> list:
+        column = ATTRIBUTES.index(attribute)
+        return [key[column] for key in self.keys]
+
+
+@dataclass(frozen=True)
+class _FrameAtoms:
+    sums: dict[tuple, np.ndarray]  # atom key → (TILES², 3) float64 rgb, scaled
+    names: dict[str, str]
+    labels: dict[str, str]
+
+
+def gather(indexes: Sequence[PathIndex], *, threads: int = 1) -> Atoms:
+    """The atoms of every index, in a fixed order whatever the order of `indexes`
+    (sorted by frame, then path)."""
+    ordered = sorted(indexes, key=_frame_order)
+    covariance = all(index.norm_slots >= 1 for index in ordered)
+    frames = [_frame_atoms(index, covariance, threads) for index in ordered]
+    keys = sorted({key for frame in frames for key in frame.sums}, key=_sortable)
+    row = {key: number for number, key in enumerate(keys)}
+    width = TILES * TILES * 3
+    maps = np.zeros((len(keys), width * len(frames)))
+    names, labels = {}, {}
+    for number, frame in enumerate(frames):
+        for key, tile_rgb in frame.sums.items():
+            maps[row[key], number * width:(number + 1) * width] = tile_rgb.reshape(-1)
+        names.update(frame.names)
+        labels.update(frame.labels)
+    return Atoms(tuple(keys), maps, names, labels, covariance, tuple(_frame_order(index)[2] for index in ordered))
+
+
+def _frame_order(index: PathIndex) -> tuple:
+    frame = index.manifest.get("frame", "default")
+    number = float(frame) if frame != "default" else float("-inf")
+    return number, str(index.path), f"{index.path.name} (frame {frame})"
+
+
+def _sortable(key: tuple) -> tuple:
+    """None first, then values as strings: keys mix None, ints and strings."""
+    return tuple(("", "") if value is None else ("~", str(value)) for value in key)
+
+
+def _frame_atoms(index: PathIndex, covariance: bool, threads: int) -> _FrameAtoms:
+    """One read of `index`: every atom's rgb per tile, scaled so the beauty's luminance is 1."""
+    names: dict[str, str] = {}
+    labels: dict[str, str] = {}
+    material_names = _shared_paths(index.events)
+    event_values = [_event_values(event, material_names, names, labels) for event in index.events]
+    # Classes that agree on (first bounce, emitter, depth) are one atom up to the covariance
+    # bits: group them once, so that records are keyed with one lookup.
+    triples = np.array([(ids[1] if len(ids) > 2 else -1, ids[-1], min(len(ids) - 2, 2))
+                        for ids in (path_class.event_ids for path_class in index.classes)], np.int64).reshape(-1, 3)
+    groups, class_group = np.unique(triples, axis=0, return_inverse=True)
+    class_group = class_group.reshape(-1)
+    group_depth = groups[:, 2]
+    width, height = index.manifest["resolution"]
+    tiles = TILES * TILES
+    pixel_tile = ((np.arange(height) * TILES // height)[:, None] * TILES
+                  + (np.arange(width) * TILES // width)[None, :]).reshape(-1)
+    bins = len(groups) * COVARIANCE_BITS * tiles
+    sums = np.zeros((3, bins))
+    for chunk in index.records(norms=covariance, threads=threads, whole_chunks=True):
+        group = class_group[chunk.class_id]
+        local = group * COVARIANCE_BITS
+        if covariance:
+            first = chunk.norms[:, 0, :] != 0  # event 1's C, T, R (NaN counts as not 0, as != does)
+            bits = first[:, 0] | (first[:, 1] << 1) | (first[:, 2] << 2)
+            local += np.where(group_depth[group] > 0, bits, 0)
+        key = local * tiles + pixel_tile[chunk.pixel]
+        for channel in range(3):
+            sums[channel] += np.bincount(key, chunk.rgb[:, channel], bins)
+    sums = sums.T.reshape(len(groups), COVARIANCE_BITS, tiles, 3)
+    total = float(np.einsum("gbtc,c->", sums, LUMINANCE))
+    if total > 0:
+        sums /= total
+    atoms: dict[tuple, np.ndarray] = {}
+    for number, (first, end, depth) in enumerate(groups.tolist()):
+        light = event_values[end]["light"]
+        first_values = event_values[first] if depth > 0 else {}
+        for bits in range(COVARIANCE_BITS if covariance and depth > 0 else 1):
+            values = {"light": light, "depth": depth, **{name: first_values.get(name) for name in FIRST_BOUNCE}}
+            for attribute, column in COVARIANCE.items():
+                values[attribute] = (str(bits >> column & 1) if covariance else None) if depth > 0 else None
+            key = tuple(values[name] for name in ATTRIBUTES)
+            tile_rgb = sums[number, bits]
+            if key in atoms:
+                atoms[key] = atoms[key] + tile_rgb
+            else:
+                atoms[key] = tile_rgb
+    log.debug("%s: %d atoms from %d classes", index.path.name, len(atoms), len(index.classes))
+    return _FrameAtoms(atoms, names, labels)
+
+
+def _shared_paths(events: Sequence[Event]) -> set[str]:
+    """Path labels carried by surface events of two or more names: materials (an object's
+    path is carried by its own events only)."""
+    carriers: dict[str, set[str]] = {}
+    for event in events:
+        if event.type in "RTVO":
+            for label in event.labels:
+                if label.startswith("/"):
+                    carriers.setdefault(label, set()).add(event.name)
+    return {label for label, carried_by in carriers.items() if len(carried_by) > 1}
+
+
+def _event_values(event: Event, materials: set[str], names: dict[str, str], labels: dict[str, str]) -> dict:
+    """The ATTRIBUTES values an event gives as a first bounce ("object", ...) or as the end
+    ("light"); records each value's display name and LPE label in `names`, `labels`."""
+    paths = sorted(label for label in event.labels if label.startswith("/"))
+    own = [path for path in paths if path.rsplit("/", 1)[-1] == event.name and path not in materials]
+    own_path = (own or paths or [event.name])[0]
+    if event.type in "LO":
+        value = f"{event.type}:{own_path}"
+        names[value], labels[value] = event.name or own_path.rsplit("/", 1)[-1], own_path
+        return {"light": value}
+    if event.type == "B":
+        names["B"] = "background"
+        return {"light": "B"}
+    material = next((path for path in paths if path != own_path), None)
+    if material:
+        names[material], labels[material] = material.rsplit("/", 1)[-1], material
+    names[own_path], labels[own_path] = event.name or own_path.rsplit("/", 1)[-1], own_path
+    return {"type": event.type, "scatter": event.scatter, "object": own_path, "material": material}
+
+
+def luminance(maps: np.ndarray) -> np.ndarray:
+    """(…, f) rgb features → (…, f / 3) luminance per frame and tile."""
+    return maps.reshape(*maps.shape[:-1], -1, 3) @ LUMINANCE

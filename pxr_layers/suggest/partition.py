@@ -1,0 +1,67 @@
+"""Check with the LPE automaton that suggested layers partition an index's paths.
+
+Every path class must be matched by exactly one layer; a class that some layer matches
+only under covariance conditions must be matched by exactly one layer for every record.
+The suggested expressions test covariance on the first bounce only, and only against 0
+(``= 0`` / ``!= 0``, complementary for any float, NaN included), so the records of a class
+can differ in 2³ ways only: each is checked, which covers every record there is.
+
+Classes are checked once per distinct sequence of automaton symbols: the automaton's
+answer depends on nothing else, and a scene's tens of thousands of classes have a few
+hundred such sequences.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Mapping
+
+import numpy as np
+
+from .. import lpe
+from ..errors import PxrLayersError
+from ..paths.events import path_text
+from ..paths.reader import PathIndex
+
+
+class SuggestError(PxrLayersError):
+    """Suggested layers that do not partition an index (a bug, or labels the index makes
+    ambiguous), or a suggestion asked of nothing."""
+
+    def __init__(self, message: str, *, file: str | None = None):
+        super().__init__(f"{file}: {message}" if file else message)
+        self.file = file
+
+
+def first_bounce_combinations(norm_slots: int) -> np.ndarray:
+    """(8, N, 3) float32 norms: every zero / non-zero combination of event 1's C, T, R."""
+    norms = np.zeros((8, max(norm_slots, 1), 3), np.float32)
+    for row, bits in enumerate(itertools.product((0.0, 1.0), repeat=3)):
+        norms[row, 0] = bits
+    return norms
+
+
+def check_partition(index: PathIndex, expressions: Mapping[str, str]) -> int:
+    """Raise SuggestError naming the first class of `index` that no layer, or more than
+    one, matches (for some record); returns how many distinct symbol sequences were checked."""
+    automaton = lpe.compile_layers(dict(expressions))
+    symbol_of: dict = {}
+    event_symbol = [symbol_of.setdefault(automaton.alphabet.classify(event), len(symbol_of)) for event in index.events]
+    combinations = first_bounce_combinations(index.norm_slots)
+    checked: set[tuple] = set()
+    for path_class in index.classes:
+        sequence = tuple(event_symbol[event] for event in path_class.event_ids)
+        if sequence in checked:
+            continue
+        checked.add(sequence)
+        matches = np.zeros(len(combinations), np.int64)
+        for outcome in automaton.match(path_class.events).values():
+            if outcome.kind == "always":
+                matches += 1
+            elif outcome.kind == "conditional":
+                matches += outcome.mask(combinations)
+        if not (matches == 1).all():
+            how = "no layer" if matches.min() == 0 else f"{int(matches.max())} layers"
+            raise SuggestError(f"the class {path_text(path_class.events)} is matched by {how} "
+                               f"(layers: {', '.join(expressions)})", file=str(index.shown_as))
+    return len(checked)
