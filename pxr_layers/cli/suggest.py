@@ -1,0 +1,83 @@
+"""`pxr-layers suggest`: find light layers automatically, as a USD recipe and its EXRs."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+from ..recipe.model import Layer, Product, Recipe
+from ..suggest import DEFAULT_K, STRATEGIES
+from .render import _positive
+
+HELP = "suggest K light layers that partition the beauty, for one index or a shot's frames"
+DESCRIPTION = (
+    "Cluster the light paths of INDEX (one or more .pxlidx: the frames of one shot give one set of layers "
+    "for all of them) into K layers, each an LPE named after what it holds (key_on_floor, fill_glossy, ...), "
+    "chosen by splitting path space by light, bounce count, and the first bounce's object, material, type, "
+    "scattering and covariance (flat/curved, plain/textured, matte/shiny) under the objective of "
+    "docs/suggest.md. The layers partition the beauty (checked with the LPE automaton on every path class). "
+    "Writes a USD recipe (-o) that `extract --recipe` and `render --recipe` accept, and beside it, per index, "
+    "the multipart EXR, previews and contact sheet with each layer's share."
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("indexes", nargs="+", metavar="INDEX", help="path indexes (.pxlidx) of one shot")
+    parser.add_argument("-k", "--layers", type=_positive, default=DEFAULT_K, metavar="N",
+                        help=f"how many layers (default {DEFAULT_K}; fewer when path space cannot be split further)")
+    parser.add_argument("-o", "--output", metavar="RECIPE",
+                        help="the recipe to write (.usda); the EXRs go beside it "
+                        "(default: suggested.usda beside the first index)")
+    parser.add_argument("--strategy", choices=STRATEGIES, default=STRATEGIES[0],
+                        help=f"how the layers are searched for (default {STRATEGIES[0]}; docs/suggest.md)")
+    parser.add_argument("--threads", type=_positive, default=2, metavar="N",
+                        help="threads that read and decode each index's chunks (default 2)")
+    parser.add_argument("--no-exr", action="store_true", help="write the recipe only, not the EXRs and previews")
+    parser.add_argument("--no-previews", action="store_true", help="do not write the PNG previews and contact sheets")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..layers.deliver import beauty_beside, deliver, index_metadata, plan_outputs
+    from ..layers.extract import extraction_threads
+    from ..outputs import OutputSet
+    from ..paths.reader import PathIndex
+    from ..stage.recipe_writer import write_recipe
+    from ..suggest import suggest
+
+    indexes = [PathIndex(path) for path in args.indexes]
+    suggestion = suggest(indexes, args.layers, strategy=args.strategy, threads=args.threads)
+    target = Path(args.output) if args.output else indexes[0].path.parent / "suggested.usda"
+    recipe = suggested_recipe(suggestion.layers, indexes[0], target.stem)
+    width = max(len(name) for name in suggestion.layers)
+    for name, expression in suggestion.layers.items():
+        print(f"{name:<{width}}  {suggestion.shares[name]:6.1%}  {expression}")
+    print(f"objective {suggestion.objective:.4f} ({suggestion.strategy}; splits: {', '.join(suggestion.splits) or 'none'})")
+    with OutputSet(), extraction_threads(args.threads):  # the recipe and every EXR of the command, or none
+        write_recipe(target, recipe)
+        if not args.no_exr:
+            for index in indexes:
+                product = dataclasses.replace(recipe.products[0], resolution=tuple(index.manifest["resolution"]),
+                                              camera=index.manifest.get("camera", recipe.products[0].camera))
+                at_index = dataclasses.replace(recipe, products=(product,))
+                frame = index.manifest.get("frame", "default")
+                outputs = plan_outputs(at_index, None if frame == "default" else float(frame), target.parent)
+                for delivered in deliver(index, at_index, beauty_beside(index), outputs,
+                                         metadata=index_metadata(index, target.parent), previews=not args.no_previews):
+                    print(delivered.exr)
+    print(target)
+    return 0
+
+
+def suggested_recipe(layers: dict[str, str], index, name: str) -> Recipe:
+    """One product of the suggested layers at the view of `index` (its camera and resolution).
+
+    name : the recipe file's stem, also the EXRs' (``<name>.exr``, a frame number added per frame)
+    """
+    product_name = "".join(c if c.isalnum() or c == "_" else "_" for c in name) or "suggested"
+    if product_name[0].isdigit():
+        product_name = "_" + product_name
+    return Recipe(products=(Product(
+        name=product_name, output_name=f"{name}.exr", camera=index.manifest.get("camera", "/World/Camera"),
+        resolution=tuple(index.manifest["resolution"]),
+        layers=tuple(Layer(layer, "lpe", expression, group="suggested") for layer, expression in layers.items())),))
