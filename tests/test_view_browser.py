@@ -20,6 +20,7 @@ import queue
 import subprocess
 import threading
 import urllib.parse
+from dataclasses import replace
 from pathlib import Path
 from typing import Iterator
 
@@ -28,9 +29,12 @@ import OpenImageIO as oiio
 import pytest
 from test_cli import SCRIPT
 
+from pxr_layers.layers.nuke import LayerGrade
+from pxr_layers.layers.previews import to_display
 from pxr_layers.paths.events import path_text
 from pxr_layers.paths.reader import PathIndex
 from pxr_layers.scene import REC709_LUMINANCE
+from pxr_layers.view.composite import composite
 
 CHROMIUM = Path("/usr/bin/chromium")
 REQUIRE_BROWSER = "PXR_LAYERS_REQUIRE_BROWSER"
@@ -63,8 +67,8 @@ def _sync_playwright():
 
 def launch(playwright, profile: Path, viewport: dict = VIEWPORT):
     """Chromium as the tests run it: headless, software WebGL, a new empty profile."""
-    return playwright.chromium.launch_persistent_context(str(profile), executable_path=str(CHROMIUM), args=CHROMIUM_ARGS,
-                                                         headless=True, viewport=viewport)
+    return playwright.chromium.launch_persistent_context(
+        str(profile), executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True, viewport=viewport)
 
 
 @contextlib.contextmanager
@@ -82,7 +86,8 @@ def serving(path: Path) -> Iterator[str]:
             url = ""
         if not url.startswith("http://127.0.0.1:"):
             process.kill()
-            raise RuntimeError(f"`pxr-layers view` printed {url!r} first, not its URL: {process.communicate()[1][-2000:]}")
+            stderr = process.communicate()[1]
+            raise RuntimeError(f"`pxr-layers view` printed {url!r} first, not its URL: {stderr[-2000:]}")
         yield url
     finally:
         if process.poll() is None:
@@ -183,23 +188,29 @@ def read_part(path: Path, name: str) -> np.ndarray | None:
         image.close()
 
 
-@pytest.fixture(scope="module")
-def red_wall(demo) -> tuple[int, int, int, float]:
-    """(x, y, class id, share): the pixel where the red wall's direct light is brightest, and
-    that class's share of the pixel's energy (Rec.709 luminance), from the index's records."""
-    index = PathIndex(demo / "cornell.pxlidx")
-    target = next(c.id for c in index.classes if path_text(c.events) == RED_DIRECT)
+def brightest_pixel(index_path: Path, path: str) -> tuple[int, int, int, float]:
+    """(x, y, class id, share): the pixel where the class of `path` (path notation) brings the
+    most energy, and its share of that pixel's energy (Rec.709 luminance), from the records."""
+    index = PathIndex(index_path)
+    width, height = index.manifest["resolution"]
+    target = next(c.id for c in index.classes if path_text(c.events) == path)
     luminance = np.asarray(REC709_LUMINANCE, np.float64)
-    pixel_energy = np.zeros(RESOLUTION * RESOLUTION)
-    class_energy = np.zeros(RESOLUTION * RESOLUTION)
+    pixel_energy = np.zeros(width * height)
+    class_energy = np.zeros(width * height)
     for chunk in index.records(norms=False):
         energy = chunk.rgb.astype(np.float64) @ luminance
         np.add.at(pixel_energy, chunk.pixel, energy)
         mine = chunk.class_id == target
         np.add.at(class_energy, chunk.pixel[mine], energy[mine])
     pixel = int(np.argmax(class_energy))
-    y, x = divmod(pixel, RESOLUTION)
+    y, x = divmod(pixel, width)
     return x, y, target, class_energy[pixel] / pixel_energy[pixel]
+
+
+@pytest.fixture(scope="module")
+def red_wall(demo) -> tuple[int, int, int, float]:
+    """Where the red wall's direct light is brightest, its class and share there."""
+    return brightest_pixel(demo / "cornell.pxlidx", RED_DIRECT)
 
 
 def click_pixel(page, x: int, y: int) -> None:
@@ -261,6 +272,31 @@ def test_a_layer_made_from_the_click_and_saved_extracts_to_the_same_pixels(page,
     np.testing.assert_array_equal(parts[0], made)  # the demo's products are float: bit for bit
 
 
+def test_the_query_builder_writes_the_expression_and_the_server_checks_it(page):
+    page.click("#builder-box summary")
+    page.click("#add-bounce")
+    bounce = '#builder .bounce[data-bounce="1"]'
+    page.select_option(f"{bounce} select[title='event type']", "R")
+    page.select_option(f"{bounce} select[title='scattering']", "D")
+    page.fill(f"{bounce} input.label-input", "redWall")
+    page.fill(f'{bounce} input[data-quantity="C"][data-bound="max"]', "0")
+    page.fill(f'{bounce} input[data-quantity="T"][data-bound="min"]', "0.5")
+    page.fill("#end-label", "ceilingLight")
+    expected = "C<RD'redWall'>@(|S_C| = 0 and |S_T| >= 0.5).*<L.'ceilingLight'>"
+    assert page.input_value("#expression") == expected
+    page.wait_for_function("document.querySelector('#expression-error').textContent === 'valid expression'")
+
+    unclosed = "C<RD'redWall'>.*<L.'ceilingLight'"
+    page.fill("#expression", unclosed)
+    page.wait_for_function("document.querySelector('#expression-error').textContent.includes('^')")
+    text, caret, message = page.text_content("#expression-error").split("\n", 2)
+    reply = page.evaluate("""expression => fetch('/api/check', {method: 'POST', body: JSON.stringify({expression}),
+        headers: {'X-Pxr-Token': new URLSearchParams(location.search).get('token')}}).then(r => r.json())""", unclosed)
+    assert not reply["ok"] and (text, message) == (unclosed, reply["error"])
+    assert caret == " " * reply["position"] + "^"
+
+
+
 def test_keys_and_the_wheel_move_the_view_and_reset_the_grades(page):
     page.keyboard.press("1")
     assert page.evaluate("pxrViewer.state().view.scale") == 1
@@ -277,6 +313,28 @@ def test_keys_and_the_wheel_move_the_view_and_reset_the_grades(page):
     assert page.evaluate("pxrViewer.state().layers.find(l => l.id === 'diffuse_direct')") | {"share": None} == {
         "id": "diffuse_direct", "name": "diffuse_direct", "kind": "layer", "share": None, "stops": 0,
         "tint": [1, 1, 1], "mute": False, "solo": False}
+
+
+REGRADE = {"diffuse_direct": LayerGrade(stops=1.5, tint=(1.0, 0.5, 0.25)), "diffuse_indirect": LayerGrade(stops=-2.0),
+           "emission": LayerGrade(mute=True)}
+"""A grade of the demo's passes: a gain and a tint, a cut, a mute."""
+
+
+@pytest.mark.parametrize("soloed", [(), ("diffuse_direct", "emission")])
+def test_a_regrade_is_the_numpy_composite_through_the_display(page, soloed):
+    """The canvas against view/composite.py's rule and the previews' OCIO processor, within
+    1/255 (a muted layer stays out of the solo)."""
+    grades = {name: replace(grade, solo=name in soloed) for name, grade in REGRADE.items()}
+    for name, grade in grades.items():
+        page.evaluate("([id, grade]) => pxrViewer.setGrade(id, grade)",
+                      [name, {"stops": grade.stops, "tint": list(grade.tint), "mute": grade.mute, "solo": grade.solo}])
+    page.fill("#exposure-number", "0.5")
+    shown = canvas_image(page).astype(int)
+    stack = [layer["id"] for layer in page.evaluate("pxrViewer.state().layers")]
+    layers = stack[1:]
+    expected = to_display(composite(layer_pixels(page, stack[0]), [layer_pixels(page, name) for name in layers],
+                                    [grades.get(name, LayerGrade()) for name in layers], exposure=0.5))
+    assert np.abs(shown - expected).max() <= 1
 
 
 def test_gain_to_zero_and_back_restores_the_picture_exactly(page):
@@ -296,9 +354,10 @@ def test_gain_to_zero_and_back_restores_the_picture_exactly(page):
 
 
 @pytest.mark.parametrize("target", [
-    "/static/../../pyproject.toml", "/static/%2e%2e/%2e%2e/pyproject.toml", "/static/%2e%2e/", "/static/..%2f..%2fpyproject.toml",
-    "/static//etc/passwd", "/etc/passwd", "//etc/passwd", "/../../../../etc/passwd", "/api/image/..%2f..%2f..%2fetc%2fpasswd",
-    "/static/%2fetc%2fpasswd", "/cornell.pxlidx/../../../etc/passwd",
+    "/static/../../pyproject.toml", "/static/%2e%2e/%2e%2e/pyproject.toml", "/static/%2e%2e/",
+    "/static/..%2f..%2fpyproject.toml", "/static//etc/passwd", "/etc/passwd", "//etc/passwd", "/../../../../etc/passwd",
+    "/api/image/..%2f..%2f..%2fetc%2fpasswd", "/static/%2fetc%2fpasswd", "/cornell.pxlidx/../../../etc/passwd",
+    "/files/../pyproject.toml", "/files/%2e%2e/%2e%2e/pyproject.toml", "/files//etc/passwd", "/files/%2fetc%2fpasswd",
 ])
 def test_paths_outside_the_served_files_are_refused(server, target):
     """Sent byte for byte (http.client does not normalise), with the right token."""

@@ -192,6 +192,9 @@ class Renderer {
     this.capacity = 0;
     this.grade = new Float32Array(this.maxLayers * 3);
     this.flags = new Int32Array(this.maxLayers);
+    this.onePixel = new Uint8Array(4);
+    const debug = gl.getExtension('WEBGL_debug_renderer_info');
+    this.gpu = gl.getParameter(debug ? debug.UNMASKED_RENDERER_WEBGL : gl.RENDERER);  // for the benchmark's report
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 4);
   }
 
@@ -275,7 +278,20 @@ class Renderer {
       this.flags[slot] = (layer.mute ? MUTED : 0) | (layer.solo ? SOLOED : 0);
       anySolo ||= slot > 0 && layer.solo;
     });
-    gl.viewport(0, 0, this.canvas.width, this.canvas.height);
+    // The background is cleared; the shader runs on the image's pixels only (a software
+    // WebGL pays for every fragment, early return or not).
+    const { width, height } = this.canvas;
+    gl.viewport(0, 0, width, height);
+    gl.disable(gl.SCISSOR_TEST);
+    gl.clearColor(...BACKGROUND, 1);
+    gl.clear(gl.COLOR_BUFFER_BIT);
+    const left = Math.max(0, Math.floor(view.x));
+    const top = Math.max(0, Math.floor(view.y));
+    const right = Math.min(width, Math.ceil(view.x + this.width * view.scale));
+    const bottom = Math.min(height, Math.ceil(view.y + this.height * view.scale));
+    if (right <= left || bottom <= top) return;
+    gl.enable(gl.SCISSOR_TEST);
+    gl.scissor(left, height - bottom, right - left, bottom - top);
     gl.useProgram(this.program);
     gl.activeTexture(gl.TEXTURE0);
     gl.bindTexture(gl.TEXTURE_2D_ARRAY, this.array);
@@ -290,9 +306,15 @@ class Renderer {
     gl.uniform1f(u.u_exposure_gain, 2 ** exposure);
     gl.uniform2f(u.u_origin, view.x, view.y);
     gl.uniform1f(u.u_scale, view.scale);
-    gl.uniform1f(u.u_canvas_height, this.canvas.height);
+    gl.uniform1f(u.u_canvas_height, height);
     gl.uniform3fv(u.u_background, BACKGROUND);
     gl.drawArrays(gl.TRIANGLES, 0, 3);
+  }
+
+  /** Wait until the GPU has drawn what was asked. gl.finish() returns at once in Chromium (its
+   *  GPU process runs the commands later); reading a pixel back waits for them. */
+  finish() {
+    this.gl.readPixels(0, 0, 1, 1, this.gl.RGBA, this.gl.UNSIGNED_BYTE, this.onePixel);
   }
 
   /** RGBA bytes of a canvas rectangle (device pixels, top-left origin), top row first. Call
@@ -340,7 +362,7 @@ function requestDraw() {
     drawNow();
     placeSelection();
     if (afterDraw.length) {
-      renderer.gl.finish();
+      renderer.finish();
       const callbacks = afterDraw;
       afterDraw = [];
       for (const callback of callbacks) callback(performance.now());
@@ -541,7 +563,7 @@ function layerRow(layer) {
   }, letter);
   head.append(toggle('S', 'solo', 'solo: show only the soloed layers'), toggle('M', 'mute', 'mute: gain 0'),
     el('span', { class: 'layer-name', title: layer.expression ? `${layer.name}: ${layer.expression}` : layer.name },
-      layer.name), share);
+      layer.name), el('span', { class: 'tint-value mono', title: 'the linear tint' }), share);
   const slider = el('input', {
     type: 'range', class: 'gain', min: -10, max: 10, step: 0.05, value: layer.stops, title: 'gain (stops)',
     oninput: (event) => setGrade(layer, { stops: Number(event.target.value) }),
@@ -554,8 +576,7 @@ function layerRow(layer) {
     type: 'color', class: 'tint', value: linearToHex(layer.tint), title: 'tint: a linear RGB multiplier',
     oninput: (event) => setGrade(layer, { tint: hexToLinear(event.target.value) }),
   });
-  row.append(el('div', { class: 'layer-grade' }, el('span', { class: 'dim' }, 'gain'), slider, field, colour,
-    el('span', { class: 'tint-value mono', title: 'linear tint' })));
+  row.append(el('div', { class: 'layer-grade' }, el('span', { class: 'dim' }, 'gain'), slider, field, colour));
   return row;
 }
 
@@ -633,7 +654,7 @@ function renderInspection() {
     el('span', {}, `${reply.records.toLocaleString()} records`),
     el('span', {}, `energy ${number(reply.energy)}`),
     el('span', { class: 'mono' }, `rgb ${rgb.map((v) => number(v)).join(' ')}`),
-    el('span', {}, `${reply.classes.length} classes shown`),
+    el('span', {}, `${reply.classes.length} classes listed`),
   );
   showTab(state.tab);
 }
@@ -1025,7 +1046,8 @@ async function save() {
   list.replaceChildren(el('li', { class: 'dim' }, 'writing…'));
   try {
     const written = await api('/api/save', { method: 'POST', body });
-    list.replaceChildren(...Object.entries(written).map(([what, file]) => el('li', { dataset: { kind: what } }, file)));
+    list.replaceChildren(...Object.entries(written).map(([what, file]) => el('li', { dataset: { kind: what } },
+      el('a', { href: `/files/${encodeURIComponent(file)}?token=${encodeURIComponent(TOKEN)}`, download: file }, file))));
   } catch (error) {
     const hint = error.status === 409 ? ' (tick overwrite to replace it)' : '';
     list.replaceChildren(el('li', { class: 'error' }, `${error.message}${hint}`));
@@ -1121,7 +1143,7 @@ const pxrViewer = {
   frames: () => framesDrawn,
   state: () => ({
     width: state.width, height: state.height, exposure: state.exposure, view: { ...state.view },
-    canvas: [canvas.width, canvas.height], selection: state.selection,
+    canvas: [canvas.width, canvas.height], selection: state.selection, gpu: renderer?.gpu,
     layers: state.layers.map(({ id, name, kind, share, stops, tint, mute, solo }) => ({ id, name, kind, share, stops, tint, mute, solo })),
   }),
   /** The client (CSS) coordinates of image pixel (x, y)'s centre, for a mouse click. */
@@ -1152,7 +1174,7 @@ const pxrViewer = {
   drawFinished() {
     const begin = performance.now();
     drawNow();
-    renderer.gl.finish();
+    renderer.finish();
     return performance.now() - begin;
   },
 };
