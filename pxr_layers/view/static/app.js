@@ -746,7 +746,7 @@ function renderNorms(body, norms) {
       const zeroShare = total > 0 ? percent((entry.zero?.[quantity] ?? 0) / total) : '–';
       grid.append(el('div', {}, histogram, el('div', { class: 'norms-axis' },
         el('span', { class: 'zero', title: 'energy at exactly 0' }, `=0 ${zeroShare}`),
-        high > low ? el('span', {}, `${number(edges[low], 2)}…${number(edges[high], 2)}`) : null)));
+        high > low ? el('span', {}, `${number(edges[low])}…${number(edges[high])}`) : null)));
       pending.push([histogram, entry, quantity, low, high]);
     }
   }
@@ -1095,7 +1095,7 @@ async function start() {
   const { display } = session;
   $('#display').textContent = `${display.display} · ${display.view}`;
   $('#display').title = `OCIO ${display.config}: the previews' display and view, baked into a ${display.lut.size}³ LUT`;
-  $('#partition-note').hidden = session.partition !== false;
+  $('#partition-note').hidden = session.partition !== false || session.layers.length < 2;
 
   renderer = new Renderer(canvas, display.lut.glsl);
   canvas.addEventListener('webglcontextlost', () => setStatus('the GPU context was lost: reload the page', true));
@@ -1123,7 +1123,7 @@ async function start() {
     fillDatalist($('#end-labels'), state.index.lights ?? []);
     $('#selection-info').textContent = `click a pixel or drag a region · ${state.index.file}, ${state.index.spp} spp`;
   } else {
-    $('#make-panel').classList.add('disabled');
+    for (const panel of ['#make-panel', '#save-panel']) $(panel).classList.add('disabled');
     $('#selection-info').textContent = 'no path index beside this product';
   }
   $('#layer-name').placeholder = freeLayerName();
