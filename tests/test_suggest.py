@@ -1,5 +1,7 @@
 """`pxr-layers suggest`: known light touches recovered, partitions exact, names stable,
-recipes that round-trip through `extract --recipe`, one layer set for a shot's frames."""
+recipes that round-trip through `extract --recipe` (and that `render --recipe` takes), one
+layer set for a shot's frames. The subcommand runs in-process through its module's
+add_arguments / run (the console script reaches it once main.py lists it)."""
 
 from __future__ import annotations
 
@@ -158,3 +160,8 @@ def test_the_recipe_round_trips_through_extract_bit_for_bit(touches, tmp_path, c
     for one, other in zip(first, second):
         for name, channel in one.channels.items():
             assert channel.pixels.tobytes() == other.channels[name].pixels.tobytes()
+    rendered = cli("render", str(RENDER_DIR / "touches.usda"), "--recipe", str(recipe), "-o", str(tmp_path / "render"),
+                   "-q", "--resolution", "24", "16", "--spp", "2", "--no-previews")
+    assert rendered.returncode == 0, rendered.stderr
+    parts = OpenEXR.File(str(tmp_path / "render" / "touch_layers.exr")).parts
+    assert [part.name() for part in parts] == [part.name() for part in first]

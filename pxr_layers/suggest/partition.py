@@ -46,14 +46,12 @@ def check_partition(index: PathIndex, expressions: Mapping[str, str]) -> int:
     one, matches (for some record); returns how many distinct symbol sequences were checked."""
     automaton = lpe.compile_layers(dict(expressions))
     symbol_of: dict = {}
-    event_symbol = [symbol_of.setdefault(automaton.alphabet.classify(event), len(symbol_of)) for event in index.events]
+    event_symbol = np.array([symbol_of.setdefault(automaton.alphabet.classify(event), len(symbol_of))
+                             for event in index.events] + [-1], np.int64)  # the last: padding
     combinations = first_bounce_combinations(index.norm_slots)
-    checked: set[tuple] = set()
-    for path_class in index.classes:
-        sequence = tuple(event_symbol[event] for event in path_class.event_ids)
-        if sequence in checked:
-            continue
-        checked.add(sequence)
+    representatives = _distinct_sequences(index, event_symbol)
+    for class_id in representatives.tolist():
+        path_class = index.classes[class_id]
         matches = np.zeros(len(combinations), np.int64)
         for outcome in automaton.match(path_class.events).values():
             if outcome.kind == "always":
@@ -64,4 +62,20 @@ def check_partition(index: PathIndex, expressions: Mapping[str, str]) -> int:
             how = "no layer" if matches.min() == 0 else f"{int(matches.max())} layers"
             raise SuggestError(f"the class {path_text(path_class.events)} is matched by {how} "
                                f"(layers: {', '.join(expressions)})", file=str(index.shown_as))
-    return len(checked)
+    return len(representatives)
+
+
+def _distinct_sequences(index: PathIndex, event_symbol: np.ndarray) -> np.ndarray:
+    """(s,) ids of one class per distinct sequence of symbols (event_symbol: event id →
+    symbol, its last entry the padding), the first of each in class order."""
+    classes = index.classes
+    if not classes:
+        return np.zeros(0, np.int64)
+    lengths = np.fromiter((len(path_class.event_ids) for path_class in classes), np.int64, len(classes))
+    flat = np.fromiter(itertools.chain.from_iterable(path_class.event_ids for path_class in classes), np.int64,
+                       int(lengths.sum()))
+    padded = np.full((len(classes), int(lengths.max())), len(event_symbol) - 1, np.int64)
+    rows = np.repeat(np.arange(len(classes)), lengths)
+    padded[rows, np.arange(len(flat)) - np.repeat(np.cumsum(lengths) - lengths, lengths)] = flat
+    _, first = np.unique(event_symbol[padded], axis=0, return_index=True)
+    return np.sort(first)
