@@ -385,3 +385,21 @@ def test_the_token_is_required(server):
             assert response.status == 403, target
     finally:
         connection.close()
+
+
+def test_suggest_layers_fills_the_stack_with_a_partition(page):
+    """The "suggest layers" action: K layers that add up to the beauty join the stack at unit
+    gain, so the picture does not change; muting one of them does."""
+    before = canvas_image(page)
+    count = len(page.evaluate("pxrViewer.state().layers"))
+    page.fill("#suggest-k", "3")
+    page.click("#suggest")
+    page.wait_for_function("pxrViewer.timings.suggest !== undefined", timeout=60_000)
+    added = page.evaluate("pxrViewer.timings.suggest.layers")
+    assert 1 <= len(added) <= 3 and len(page.evaluate("pxrViewer.state().layers")) == count + len(added)
+    np.testing.assert_array_equal(canvas_image(page), before)
+    total = sum(layer_pixels(page, layer_id).astype(np.float64) for layer_id in added)
+    beauty = layer_pixels(page, "beauty").astype(np.float64)
+    np.testing.assert_allclose(total, beauty, rtol=1e-5, atol=1e-6 * beauty.max())
+    page.click(f'#stack li[data-id="{added[0]}"] button.mute')
+    assert np.abs(canvas_image(page).astype(int) - before).max() > 0

@@ -290,3 +290,17 @@ def test_bad_paths_get_one_line(tmp_path):
                                 timeout=60)
         assert result.returncode == 1 and message in result.stderr and "Traceback" not in result.stderr
         assert len(result.stderr.strip().splitlines()) == 1
+
+
+def test_suggested_layers_partition_the_beauty(server, folder):
+    suggested = server.json("/api/suggest", {"k": 4})
+    names = [layer["id"] for layer in suggested["layers"]]
+    assert 1 <= len(names) <= 4 and suggested["strategy"] in ("beam", "greedy")
+    shape = parts(folder / "light_passes.exr")["rgba"].shape[:2] + (3,)
+    total = sum(np.frombuffer(server.request(f"/api/image/{name}")[1], "<f4").reshape(shape).astype(np.float64)
+                for name in names)
+    beauty = np.frombuffer(server.request("/api/image/beauty")[1], "<f4").reshape(shape)
+    np.testing.assert_allclose(total, beauty, rtol=1e-5, atol=1e-6 * beauty.max())
+    again = [layer["id"] for layer in server.json("/api/suggest", {"k": 4})["layers"]]
+    assert not set(again) & set(names) and not set(again) & {"emission", "beauty"}  # numbered, not clashing
+    assert server.request("/api/suggest", {"k": 0})[0] == 400

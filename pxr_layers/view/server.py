@@ -74,6 +74,7 @@ def make_app(session: Session, token: str, allowed_hosts: frozenset[str] | None)
     app.router.add_post("/api/check", _check)
     app.router.add_post("/api/generalise", _generalise)
     app.router.add_post("/api/layer", _layer)
+    app.router.add_post("/api/suggest", _suggest)
     app.router.add_post("/api/save", _save)
     return app
 
@@ -180,6 +181,12 @@ async def _layer(request: web.Request) -> web.Response:
     layer, facts = await _blocking(request, request.app[SESSION_KEY].add_layer, body.get("name"),
                                    body.get("expression"))
     return web.json_response({**layer.description(), **facts})
+
+
+async def _suggest(request: web.Request) -> web.Response:
+    body = await _json_body(request)
+    layers, facts = await _blocking(request, request.app[SESSION_KEY].suggest_layers, body.get("k"))
+    return web.json_response({"layers": [layer.description() for layer in layers], **facts})
 
 
 async def _save(request: web.Request) -> web.Response:

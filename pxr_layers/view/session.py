@@ -55,6 +55,8 @@ LAYER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 """A layer the page makes: a RenderVar prim name and an EXR part name."""
 SAVE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*")
 """What /api/save writes: NAME.usda, NAME.exr (and its previews), NAME.nk, in the folder."""
+MAX_SUGGESTED = 32
+"""Most layers /api/suggest makes at once."""
 PARTITION_TOLERANCE = 1e-4
 """The layers partition the beauty when they sum to it within this, relative to its peak."""
 
@@ -250,6 +252,39 @@ class Session:
         seconds = time.perf_counter() - start
         log.info("layer %s = %s: %.2f s", name, expression, seconds)
         return layer, {"classes": extraction.classes_matched, "seconds": seconds}
+
+    def suggest_layers(self, k: int) -> tuple[list[ViewLayer], dict]:
+        """Layers found automatically (pxr_layers.suggest, docs/suggest.md): K layers that
+        partition the beauty, extracted in one pass and added to the stack. /api/suggest."""
+        from ..suggest import suggest
+
+        index = self._need_index("suggest layers")
+        if not isinstance(k, int) or isinstance(k, bool) or not 1 <= k <= MAX_SUGGESTED:
+            raise ViewError(f"suggest asks for 1 to {MAX_SUGGESTED} layers, not {k!r}")
+        start = time.perf_counter()
+        with self._lock:
+            suggestion = suggest([index], k, threads=self.threads)
+            expressions = {self._free_name(name, suggestion.layers): expression
+                           for name, expression in suggestion.layers.items()}
+            extraction = extract(index, expressions, threads=self.threads)
+            shares = energy_shares(self.beauty, extraction.layers)
+            added = [ViewLayer(name, name, "layer", "", expression, extraction.layers[name], shares[name])
+                     for name, expression in expressions.items()]
+            self.layers.update((layer.id, layer) for layer in added)
+        seconds = time.perf_counter() - start
+        log.info("suggested %d layers in %.2f s", len(added), seconds)
+        return added, {"objective": suggestion.objective, "strategy": suggestion.strategy,
+                       "splits": list(suggestion.splits), "seconds": seconds}
+
+    def _free_name(self, name: str, others) -> str:
+        """`name`, or `name_2`, `name_3`… when the stack (or `others`) has it already."""
+        taken = set(self.layers) | {"beauty"}
+        if name not in taken:
+            return name
+        number = 2
+        while f"{name}_{number}" in taken or f"{name}_{number}" in others:
+            number += 1
+        return f"{name}_{number}"
 
     # -- save
 

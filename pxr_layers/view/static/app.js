@@ -1014,7 +1014,35 @@ async function addLayer() {
   }
 }
 
+/** Layers found automatically (POST /api/suggest): K layers that partition the beauty, added to
+ * the stack at unit gain (the picture does not change until they are regraded). */
+async function suggestLayers() {
+  const k = Number($('#suggest-k').value);
+  const status = $('#suggest-status');
+  const button = $('#suggest');
+  button.disabled = true;
+  status.textContent = `finding ${k} layers…`;
+  try {
+    const found = await api('/api/suggest', { method: 'POST', body: { k } });
+    for (const made of found.layers) {
+      const entry = stackEntry({ kind: 'layer', ...made });
+      entry.data = await fetchImage(made.id, state.width, state.height);
+      renderer.setImage(state.layers.length, entry.data, state.width, state.height);
+      state.layers.push(entry);
+    }
+    renderStack();
+    requestDraw();
+    status.textContent = `${found.layers.length} layers (${found.strategy}) in ${number(found.seconds)} s`;
+    timings.suggest = { layers: found.layers.map((layer) => layer.id), server_seconds: found.seconds };
+  } catch (error) {
+    status.textContent = `not suggested: ${error.message}`;
+  } finally {
+    button.disabled = false;
+  }
+}
+
 function setupMake() {
+  $('#suggest').addEventListener('click', suggestLayers);
   $('#generalise').addEventListener('click', generalise);
   $('#expression').addEventListener('input', scheduleCheck);
   $('#expression').addEventListener('keydown', (event) => { if (event.key === 'Enter') addLayer(); });
@@ -1123,7 +1151,7 @@ async function start() {
     fillDatalist($('#end-labels'), state.index.lights ?? []);
     $('#selection-info').textContent = `click a pixel or drag a region · ${state.index.file}, ${state.index.spp} spp`;
   } else {
-    for (const panel of ['#make-panel', '#save-panel']) $(panel).classList.add('disabled');
+    for (const panel of ['#make-panel', '#save-panel', '#suggest-row']) $(panel).classList.add('disabled');
     $('#selection-info').textContent = 'no path index beside this product';
   }
   $('#layer-name').placeholder = freeLayerName();
