@@ -16,7 +16,8 @@ DESCRIPTION = (
     "it). Starts a local web server, prints its URL (with a random access token: anyone with the URL "
     "can use the page) and opens the browser. The page shows the beauty and every layer through the "
     "products' OCIO display and view, regrades the layers live (gain, tint, mute, solo), lists the "
-    "light paths of a clicked pixel or a dragged region, makes new layers from the index, and saves "
+    "light paths of a clicked pixel or a dragged region, makes new layers from the index (or suggests "
+    "K of them that add up to the beauty), and saves "
     "the stack as a USD recipe (NAME.usda), its EXR (NAME.exr) and a Nuke script (NAME.nk) in PATH's "
     "folder. Only the files of that folder are served. Ctrl-C stops it. docs/inspector.md tells more."
 )
