@@ -13,7 +13,16 @@ from typing import TYPE_CHECKING
 from ..errors import PxrLayersError, RecipeError
 
 from ..progress import Progress
-from ..recipe.model import COVARIANCE_MODES, DEFAULT_INDEX_BOUNCES, INDEX_MODES, MAX_INDEX_BOUNCES, PER_LIGHT_MODES
+from ..recipe.model import (
+    COVARIANCE_MODES,
+    CRYPTOMATTE_KINDS,
+    DEFAULT_CRYPTOMATTE_DEPTH,
+    DEFAULT_INDEX_BOUNCES,
+    INDEX_MODES,
+    MAX_CRYPTOMATTE_DEPTH,
+    MAX_INDEX_BOUNCES,
+    PER_LIGHT_MODES,
+)
 from ..recipe.presets import PRESETS, preset
 from ..request import (
     DEFAULT_MAX_DEPTH,
@@ -112,6 +121,14 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
                         "covariance, for conditions on S11 ... S44 (default: the products' "
                         "pxrLayers:index:covariance)")
     parser.add_argument("--no-previews", action="store_true", help="do not write the PNG previews and contact sheets")
+    parser.add_argument("--cryptomatte", type=cryptomatte_list, default=(), metavar="TYPES",
+                        help="add Cryptomatte layers to every product, a comma-separated list of "
+                        f"{', '.join(CRYPTOMATTE_KINDS)}: CryptoObject (prim paths), CryptoMaterial (bound "
+                        "materials), CryptoAsset (model roots by kind, else top-level prims); recipes ask "
+                        "with raw RenderVars of those sourceNames (docs/compositing.md)")
+    parser.add_argument("--cryptomatte-depth", type=_cryptomatte_depth, default=DEFAULT_CRYPTOMATTE_DEPTH,
+                        metavar="N", help="ids per pixel of every Cryptomatte layer, two per part NAME00, NAME01, "
+                        f"... (default {DEFAULT_CRYPTOMATTE_DEPTH}, at most {MAX_CRYPTOMATTE_DEPTH})")
     parser.add_argument("--debug-covariance", action="store_true",
                         help="also write the first bounce's covariance norms beside the index: "
                         "STEM.covariance.exr (channels C 1/m, T cycles/m, R cycles/rad) and "
@@ -142,14 +159,16 @@ def render_stage(stage_path: Path, args: argparse.Namespace) -> list[Delivered]:
     # these pull in numba, Embree and the tracer (0.7 s an `extract` or `index` need not pay).
     from ..jobs.frame import FrameAssembler, plan_frame, prepare_frame
     from ..layers.debug import write_covariance_debug
-    from ..trace import render_data_aovs, trace_pixels
+    from ..jobs.frame import frame_data
+    from ..trace import trace_pixels
     from ..stage import open_request
 
     directory, exr = output_target(args.output, Path("."))
     request = request_from_args(stage_path, args)
     shot = open_request(request)  # the stage is composed and read once for the whole render
     plan = plan_frame(request, args.frame, shot=shot, directory=directory, exr=exr, keep_index=not args.no_index,
-                      previews=not args.no_previews)
+                      previews=not args.no_previews, cryptomattes=args.cryptomatte,
+                      cryptomatte_depth=args.cryptomatte_depth)
     if args.debug_covariance and plan.trace.norm_bounces == 0:
         plan = dataclasses.replace(plan, trace=dataclasses.replace(plan.trace, norm_bounces=1))
     integrator = prepare_frame(plan, shot)
@@ -162,7 +181,7 @@ def render_stage(stage_path: Path, args: argparse.Namespace) -> list[Delivered]:
 
         trace_pixels(integrator, 0, plan.pixels, add, threads=args.threads)
         log.info("rendered %d×%d at %d spp in %.1fs", *plan.resolution, plan.trace.spp, time.perf_counter() - start)
-        data = render_data_aovs(integrator, plan.data_aovs, threads=args.threads)
+        data = frame_data(plan, integrator, threads=args.threads)
         delivered = frame.deliver(integrator.vocabulary, data, integrator.world.object_paths,
                                   show_progress=args.show_progress)
     if args.debug_covariance:
@@ -186,6 +205,23 @@ def output_target(output: str | None, default: Path) -> tuple[Path, Path | None]
     if output and output.lower().endswith(".exr"):
         return Path(output).parent, Path(output)
     return Path(output) if output else default, None
+
+
+def cryptomatte_list(text: str) -> tuple[str, ...]:
+    """``object,material,asset`` → the Cryptomatte sources (CryptoObject, ...)."""
+    words = [word.strip() for word in text.split(",") if word.strip()]
+    unknown = [word for word in words if word not in CRYPTOMATTE_KINDS]
+    if unknown or not words:
+        raise argparse.ArgumentTypeError(f"expected a comma-separated list of {', '.join(CRYPTOMATTE_KINDS)}, "
+                                         f"got {text!r}")
+    return tuple(dict.fromkeys(CRYPTOMATTE_KINDS[word] for word in words))
+
+
+def _cryptomatte_depth(text: str) -> int:
+    value = _positive(text)
+    if value > MAX_CRYPTOMATTE_DEPTH:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_CRYPTOMATTE_DEPTH}, got {text}")
+    return value
 
 
 def _positive(text: str) -> int:

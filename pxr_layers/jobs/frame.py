@@ -38,7 +38,7 @@ from ..paths.events import path_text
 from ..paths.format import SUFFIX as INDEX_SUFFIX
 from ..paths.reader import PathIndex
 from ..paths.writer import PathIndexWriter
-from ..recipe.model import Product, Recipe
+from ..recipe.model import CRYPTOMATTE_SOURCES, DEFAULT_CRYPTOMATTE_DEPTH, MAX_CRYPTOMATTE_DEPTH, Product, Recipe
 from ..request import RenderRequest
 from ..trace import DATA_AOVS, Film, TraceSettings
 
@@ -59,6 +59,9 @@ class FramePlan:
     data_aovs      : the raw sources the tracer renders beside the beauty (depth, ...)
     metadata       : ``pxrLayers/`` attributes of every EXR part
     manifest       : the path index's manifest
+    cryptomattes   : the Cryptomatte sources of the recipe (CryptoObject, ...)
+    cryptomatte_depth : ranks per pixel of each
+    model_paths    : the stage's models (kind component, group, assembly), CryptoAsset's roots
     """
 
     request: RenderRequest
@@ -74,6 +77,9 @@ class FramePlan:
     data_aovs: tuple[str, ...] = ()
     metadata: dict[str, str] = field(default_factory=dict)
     manifest: dict = field(default_factory=dict)
+    cryptomattes: tuple[str, ...] = ()
+    cryptomatte_depth: int = DEFAULT_CRYPTOMATTE_DEPTH
+    model_paths: tuple[str, ...] = ()
 
     @property
     def stage(self) -> Path:
@@ -102,6 +108,8 @@ def plan_frame(
     recipe: Recipe | None = None,
     stage_sha256: str | None = None,
     shot=None,
+    cryptomattes: tuple[str, ...] = (),
+    cryptomatte_depth: int = DEFAULT_CRYPTOMATTE_DEPTH,
 ) -> FramePlan:
     """Resolve one frame of ``request``. ``recipe``: an already resolved recipe, else read
     from ``shot`` (an open :class:`pxr_layers.stage.Shot`, else the request's stage is
@@ -111,13 +119,27 @@ def plan_frame(
     Outputs: ``product_path(product)`` if given, else :func:`plan_outputs` (``exr``: one
     product's explicit file). The index: ``index_path``, else beside ``exr``, else
     ``directory/STEM[.FFFF].pxlidx``. Norm bounces: :meth:`RenderRequest.resolved_norm_bounces`.
+    ``cryptomattes``: Cryptomatte sources added to every product (``--cryptomatte``), each of
+    ``cryptomatte_depth`` ranks (those the recipe asks for too).
     """
     stage = request.stage
     if recipe is None:
         recipe = resolve_recipe(request, frame, shot)
+    if cryptomattes:
+        recipe = recipe.with_cryptomattes(cryptomattes)
     view_camera, view_resolution = recipe.view()
     resolution = tuple(request.resolution or view_resolution)
-    check_raw_sources(recipe, DATA_AOVS, "the renderer does not produce")
+    check_raw_sources(recipe, (*DATA_AOVS, *CRYPTOMATTE_SOURCES), "the renderer does not produce")
+    sources = raw_sources(recipe)
+    crypto_sources = tuple(source for source in sources if source in CRYPTOMATTE_SOURCES)
+    if not 1 <= cryptomatte_depth <= MAX_CRYPTOMATTE_DEPTH:
+        raise RenderSettingsError(f"the Cryptomatte depth must be 1 to {MAX_CRYPTOMATTE_DEPTH}, not {cryptomatte_depth}")
+    model_paths: tuple[str, ...] = ()
+    if "CryptoAsset" in crypto_sources:
+        from ..stage import open_request
+        from ..stage.recipe_reader import model_prim_paths
+
+        model_paths = model_prim_paths((shot or open_request(request)).stage)
 
     if product_path is not None:
         outputs = {product.name: Path(product_path(product)) for product in recipe.products}
@@ -159,7 +181,8 @@ def plan_frame(
     }
     manifest.pop("index", None)
     return FramePlan(request, frame, view_camera, resolution, trace, recipe, outputs, index_path,
-                     keep_index, previews, tuple(raw_sources(recipe)), metadata, manifest)
+                     keep_index, previews, tuple(source for source in sources if source not in CRYPTOMATTE_SOURCES),
+                     metadata, manifest, crypto_sources, cryptomatte_depth, model_paths)
 
 
 def index_settings(request: RenderRequest, recipe: Recipe) -> tuple[str, bool]:
@@ -198,6 +221,22 @@ def prepare_frame(plan: FramePlan, shot=None):
     shot = shot or open_request(plan.request)
     spec = shot.spec(plan.frame, plan.recipe, camera=plan.camera, resolution=plan.resolution)
     return prepare(shot.scene(spec, subdiv_level=plan.request.subdiv_level), spec, plan.trace)
+
+
+def frame_data(plan: FramePlan, integrator, threads: int | None = None) -> dict:
+    """What the frame's raw vars need from the tracer besides the beauty: the data AOVs
+    (name → image) and the Cryptomattes (source → layers.cryptomatte.Cryptomatte, from the
+    beauty's own camera samples)."""
+    from ..layers.cryptomatte import asset_roots, rank
+    from ..trace import render_data_aovs
+    from ..trace.cryptomatte import render_coverage
+
+    data: dict = render_data_aovs(integrator, plan.data_aovs, threads=threads)
+    roots = asset_roots(integrator.world.object_paths, plan.model_paths) if "CryptoAsset" in plan.cryptomattes else None
+    for source, coverage in render_coverage(integrator, plan.cryptomattes, asset_paths=roots, threads=threads).items():
+        data[source] = rank(coverage.names, coverage.pixel, coverage.name, coverage.weight, plan.resolution,
+                            plan.cryptomatte_depth)
+    return data
 
 
 class FrameAssembler:

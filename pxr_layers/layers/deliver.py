@@ -13,8 +13,9 @@ product. Previews go beside each EXR as ``<exr stem>.<layer>.png`` plus
 
 A product's layers come from three places: ``lpe`` layers from the index (one automaton,
 one read of the index for all products), the raw ``color`` var is the beauty (part 0,
-not written twice), and the other raw vars (depth, normal, ids) from ``data``, the
-images the tracer rendered beside the beauty.
+not written twice), and the other raw vars (depth, normal, ids, Cryptomattes) from
+``data``, the images the tracer rendered beside the beauty. Cryptomatte layers get no
+preview and no energy share.
 """
 
 from __future__ import annotations
@@ -33,9 +34,10 @@ from .. import __version__, lpe
 from ..errors import OutputError, PathIndexError, RecipeError
 from ..paths.reader import PathIndex
 from ..recipe.model import Layer, Product, Recipe
+from .cryptomatte import Cryptomatte
 from .extract import extract
 from .exr import METADATA_PREFIX
-from .multipart import write_multipart
+from .multipart import read_multipart, write_multipart
 from .previews import energy_shares, write_previews
 
 log = logging.getLogger(__name__)
@@ -105,7 +107,7 @@ def deliver(
     beauty: np.ndarray,
     outputs: Mapping[str, Path],
     *,
-    data: Mapping[str, np.ndarray] | None = None,
+    data: Mapping[str, np.ndarray | Cryptomatte] | None = None,
     metadata: Mapping[str, object] | None = None,
     previews: bool = True,
     show_progress: bool = False,
@@ -116,7 +118,8 @@ def deliver(
               the recipe has no lpe layer
     beauty  : (h, w, 4) float32 linear RGBA, part 0 of every product
     outputs : product name → EXR path (see :func:`plan_outputs`)
-    data    : raw source name → (h, w) or (h, w, c) float32 image (depth, normal, ...)
+    data    : raw source name → (h, w) or (h, w, c) float32 image (depth, normal, ...), or
+              the Cryptomatte of a Cryptomatte source (CryptoObject, ...)
     metadata: ``pxrLayers/<key>`` attributes on every part (stage, camera, spp, seed...)
     """
     data = dict(data or {})
@@ -135,8 +138,9 @@ def deliver(
             elif not layer.is_beauty:
                 images[layer.name] = data[layer.source_name]
         path = write_multipart(outputs[product.name], beauty, images, product, recipe=recipe, metadata=metadata)
-        shares = energy_shares(beauty, images, {layer.name: layer for layer in product.layers})
-        written = write_previews(path.parent, path.stem, beauty, images, product, shares) if previews else {}
+        shown = {name: image for name, image in images.items() if not isinstance(image, Cryptomatte)}
+        shares = energy_shares(beauty, shown, {layer.name: layer for layer in product.layers})
+        written = write_previews(path.parent, path.stem, beauty, shown, product, shares) if previews else {}
         delivered.append(Delivered(product, path, written, shares))
     return delivered
 
@@ -154,6 +158,24 @@ def index_metadata(index: PathIndex, directory: Path) -> dict[str, object]:
     if "render_id" in index.manifest:
         metadata["renderId"] = index.manifest["render_id"]
     return metadata
+
+
+def cryptomattes_beside(index: PathIndex) -> dict[str, Cryptomatte]:
+    """The Cryptomattes of the render's EXR beside the index (its first product), by source
+    (CryptoObject, ...): the index cannot give them (it keeps the light paths' records, not
+    every camera sample's first hit). Empty when that EXR is missing or holds none; refused
+    (PathIndexError) when another render wrote it."""
+    beside = index.path.parent / index.manifest.get("beauty", index.path.stem + ".exr")
+    if not beside.exists():
+        return {}
+    image = read_multipart(beside)
+    expected = index.manifest.get("render_id")
+    found = next(iter(image.metadata.values()), {}).get("renderId") if image.metadata else None
+    if expected is not None and image.cryptomattes and found != expected:
+        raise PathIndexError(f"{beside.name} beside it comes from another render (renderId {found or 'none'}, "
+                             f"the index's is {expected}): its Cryptomattes do not belong to this index",
+                             file=str(index.path))
+    return {image.metadata[name]["source"]: matte for name, matte in image.cryptomattes.items()}
 
 
 def beauty_beside(index: PathIndex) -> np.ndarray:

@@ -13,6 +13,11 @@ string metadata under ``pxrLayers/``:
 * part 0 also: ``pxrLayers/recipe`` (the resolved recipe as JSON) and
   ``pxrLayers/expressions`` (JSON layer name → expression).
 
+A Cryptomatte layer ``NAME`` (layers/cryptomatte.py) is written as the parts ``NAME00``,
+``NAME01``, ... (channels ``NAME00.R/G/B/A``, float32), each with ``pxrLayers/cryptomatte``
+= NAME and the type's ``cryptomatte/<key>/name|hash|conversion|manifest`` attributes, which
+part 0 carries too (the Nuke gizmo reads the first part's metadata).
+
 Written with ``OpenEXR.File([OpenEXR.Part(...), ...])`` under a temporary name, then renamed.
 Note: the OpenEXR 3.5 Python binding ignores numpy strides (a non-contiguous view such as
 ``rgb[..., 0]`` is written as if it were contiguous, i.e. wrong pixels, silently), so every
@@ -25,7 +30,7 @@ import json
 import logging
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +39,8 @@ import OpenEXR
 from .. import __version__
 from ..errors import OutputError
 from ..outputs import write_atomically
-from ..recipe.model import BEAUTY_EXPRESSION, BEAUTY_PART, Layer, Product, Recipe, channels_for
+from ..recipe.model import BEAUTY_EXPRESSION, BEAUTY_PART, Layer, Product, Recipe, channels_for, cryptomatte_parts
+from .cryptomatte import ATTRIBUTE_PREFIX, Cryptomatte, header_attributes, type_key
 from .exr import METADATA_PREFIX, header
 
 logger = logging.getLogger(__name__)
@@ -72,7 +78,8 @@ def write_multipart(
 
     beauty   : (h, w, 4) float32 linear RGBA (part 0 ``rgba``)
     layers   : layer name → (h, w, c) float32 (c = the layer's channel count, 3 for a
-               colour layer) or (h, w) for one channel; same h, w as the beauty
+               colour layer) or (h, w) for one channel; same h, w as the beauty; a
+               :class:`~pxr_layers.layers.cryptomatte.Cryptomatte` for a Cryptomatte layer
     product  : the recipe product: part order, channel names, pixel types, compressions
                and expressions. With a product, ``layers`` must hold exactly its layers
                but the beauty's raw ``color`` var, which is part 0 (not written twice).
@@ -108,6 +115,20 @@ def write_multipart(
     parts = [OpenEXR.Part(head, {"RGBA": _pixels(beauty, beauty_type)}, BEAUTY_PART)]
 
     for spec in specs:
+        if spec.is_cryptomatte:
+            attributes = _cryptomatte_attributes(spec, layers[spec.name], (height, width))
+            head.update(attributes)
+            for number, part in enumerate(cryptomatte_parts(spec.name, layers[spec.name].depth)):
+                part_header = header(COMPRESSION[spec.compression], common)
+                part_header.update({METADATA_PREFIX + "sourceType": spec.source_type,
+                                    METADATA_PREFIX + "source": spec.source_name,
+                                    METADATA_PREFIX + "dataType": spec.data_type, METADATA_PREFIX + "group": spec.group,
+                                    METADATA_PREFIX + "cryptomatte": spec.name, **attributes})
+                pixels = layers[spec.name].part_pixels(number)
+                channels = {f"{part}.{suffix}": _pixels(pixels[..., index], "float")
+                            for index, suffix in enumerate(spec.channels)}
+                parts.append(OpenEXR.Part(part_header, channels, part))
+            continue
         image = np.asarray(layers[spec.name])
         if image.ndim == 2:
             image = image[..., None]
@@ -161,6 +182,15 @@ def _layer_specs(layers: Mapping[str, np.ndarray], product: Product | None) -> l
     return parts
 
 
+def _cryptomatte_attributes(spec: Layer, image, size: tuple[int, int]) -> dict[str, str]:
+    """The header attributes of the Cryptomatte layer ``spec``; ValueError if ``image`` is not
+    a Cryptomatte of the image's size."""
+    if not isinstance(image, Cryptomatte) or image.ids.shape[:2] != size or image.coverage.shape != image.ids.shape:
+        found = image.ids.shape if isinstance(image, Cryptomatte) else type(image).__name__
+        raise ValueError(f"layer {spec.name!r}: expected a Cryptomatte of {size[1]}x{size[0]} pixels, got {found}")
+    return header_attributes(spec.name, image.manifest)
+
+
 def _pixels(values: np.ndarray, pixel_type: str) -> np.ndarray:
     """A C-contiguous array of the part's pixel type (the binding ignores strides)."""
     dtype = DTYPE[pixel_type]
@@ -176,8 +206,10 @@ class MultipartImage:
     beauty : (h, w, 4) float32, part 0
     parts  : layer name → (h, w, c) float32 in channel order (``Layer.channels``), in part order
     metadata : layer name → its ``pxrLayers/`` attributes without the prefix (sourceType,
-               expression or source, dataType, group, ...)
+               expression or source, dataType, group, ...); a Cryptomatte layer's are its first part's
     recipe : the resolved Recipe stored on part 0, or None (a file written without one)
+    cryptomattes : Cryptomatte layer name → its ranks and manifest (its parts ``NAME00``, ...
+               are not in ``parts``)
     """
 
     path: Path
@@ -185,6 +217,7 @@ class MultipartImage:
     parts: dict[str, np.ndarray]
     metadata: dict[str, dict[str, str]]
     recipe: Recipe | None
+    cryptomattes: dict[str, Cryptomatte] = field(default_factory=dict)
 
 
 def read_multipart(path: str | os.PathLike) -> MultipartImage:
@@ -203,10 +236,19 @@ def read_multipart(path: str | os.PathLike) -> MultipartImage:
         raise OutputError(f"{path}: part 0 is not an RGBA beauty (channels {', '.join(sorted(first.channels))})")
     beauty = np.stack([first.channels[c].pixels for c in "RGBA"], axis=-1).astype(np.float32)
     parts, metadata = {}, {}
+    crypto_parts: dict[str, list[np.ndarray]] = {}
+    manifests: dict[str, dict[str, str]] = {}
     for part in exr.parts[1:]:
         name = part.name()
         attributes = {key[len(METADATA_PREFIX):]: str(value) for key, value in part.header.items()
                       if key.startswith(METADATA_PREFIX)}
+        if "cryptomatte" in attributes:
+            layer = attributes["cryptomatte"]
+            metadata.setdefault(layer, attributes)
+            manifests[layer] = json.loads(part.header.get(f"{ATTRIBUTE_PREFIX}{type_key(layer)}/manifest", "{}"))
+            crypto_parts.setdefault(layer, []).append(
+                np.stack([part.channels[f"{name}.{c}"].pixels for c in "RGBA"], axis=-1).astype(np.float32))
+            continue
         suffixes = channels_for(attributes.get("sourceType", "raw"), attributes.get("expression")
                                 or attributes.get("source", name), attributes.get("dataType", "color3f"))
         channels = [f"{name}.{suffix}" for suffix in suffixes]
@@ -215,4 +257,5 @@ def read_multipart(path: str | os.PathLike) -> MultipartImage:
         parts[name] = np.stack([part.channels[c].pixels for c in channels], axis=-1).astype(np.float32)
         metadata[name] = attributes
     stored = first.header.get(METADATA_PREFIX + "recipe")
-    return MultipartImage(path, beauty, parts, metadata, Recipe.from_json(stored) if stored else None)
+    cryptomattes = {layer: Cryptomatte.from_parts(pieces, manifests[layer]) for layer, pieces in crypto_parts.items()}
+    return MultipartImage(path, beauty, parts, metadata, Recipe.from_json(stored) if stored else None, cryptomattes)

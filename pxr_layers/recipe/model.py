@@ -73,7 +73,18 @@ RAW_CHANNELS = {
     "elementId": ("id",),
 }
 """Channel names of the Hydra AOVs a renderer fills for ``raw`` vars (``depth.Z``, ...)."""
-KNOWN_RAW_SOURCES = frozenset({BEAUTY_RAW_SOURCE, *RAW_CHANNELS})
+CRYPTOMATTE_SOURCES = ("CryptoObject", "CryptoMaterial", "CryptoAsset")
+"""The raw sources of Cryptomatte layers (ids of the prim path, the bound material's path,
+the model root's path; docs/compositing.md). Such a layer ``NAME`` is written as the parts
+``NAME00``, ``NAME01``, ... (channels R G B A = id, coverage, id, coverage)."""
+DEFAULT_CRYPTOMATTE_DEPTH = 6
+"""Ranks (ids per pixel) of a Cryptomatte layer: 6, three parts (the specification's suggestion)."""
+MAX_CRYPTOMATTE_DEPTH = 24
+"""The most ranks the Nuke gizmo keys (its 12 input layers ``in00`` ... ``in11``)."""
+KNOWN_RAW_SOURCES = frozenset({BEAUTY_RAW_SOURCE, *RAW_CHANNELS, *CRYPTOMATTE_SOURCES})
+CRYPTOMATTE_KINDS = {"object": "CryptoObject", "material": "CryptoMaterial", "asset": "CryptoAsset"}
+"""The words of ``--cryptomatte object,material,asset`` and their sources."""
+CRYPTOMATTE_DATA_TYPE = "float4"
 
 _LAYER_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
@@ -82,8 +93,11 @@ def channels_for(source_type: str, source_name: str, data_type: str) -> tuple[st
     """EXR channel suffixes of a layer: ``("R", "G", "B")`` for colour, ``("Z",)`` for depth...
 
     lpe and colour dataTypes: R G B (A for color4*). raw: the Hydra AOV's convention
-    (RAW_CHANNELS), else by dataType: X Y Z for vectors, Y for scalars.
+    (RAW_CHANNELS), R G B A for each part of a Cryptomatte source, else by dataType: X Y Z
+    for vectors, Y for scalars.
     """
+    if source_type == "raw" and source_name in CRYPTOMATTE_SOURCES:
+        return ("R", "G", "B", "A")
     if source_type == "lpe" or data_type in COLOUR_DATA_TYPES:
         return ("R", "G", "B", "A") if data_type.startswith("color4") else ("R", "G", "B")
     if source_name in RAW_CHANNELS:
@@ -91,6 +105,11 @@ def channels_for(source_type: str, source_name: str, data_type: str) -> tuple[st
     if data_type in VECTOR_DATA_TYPES:
         return ("X", "Y", "Z")
     return ("Y",)
+
+
+def cryptomatte_parts(name: str, depth: int) -> tuple[str, ...]:
+    """The EXR parts of the Cryptomatte layer ``name`` at ``depth`` ranks: ``NAME00``, ... (two ranks each)."""
+    return tuple(f"{name}{part:02d}" for part in range((depth + 1) // 2))
 
 
 def layer_problems(layer: Layer) -> list[tuple[str, str]]:
@@ -170,8 +189,14 @@ class Layer:
 
     @property
     def is_data(self) -> bool:
-        """A data layer (raw var of a non-colour dataType): float, lossless, no energy share."""
-        return self.data_type not in COLOUR_DATA_TYPES
+        """A data layer (raw var of a non-colour dataType, or a Cryptomatte): float, lossless,
+        no energy share."""
+        return self.data_type not in COLOUR_DATA_TYPES or self.is_cryptomatte
+
+    @property
+    def is_cryptomatte(self) -> bool:
+        """A Cryptomatte layer (raw var of a CRYPTOMATTE_SOURCES source): parts ``NAME00``, ..."""
+        return self.source_type == "raw" and self.source_name in CRYPTOMATTE_SOURCES
 
     @property
     def is_beauty(self) -> bool:
@@ -367,6 +392,17 @@ class Recipe:
             return cls(products, **values)
         except (ValueError, TypeError, KeyError, AttributeError) as error:
             raise RecipeError(f"not a recipe written by pxr-layers ({error})") from None
+
+    def with_cryptomattes(self, sources) -> Recipe:
+        """A copy in which every product has a Cryptomatte layer of each of ``sources``
+        (CRYPTOMATTE_SOURCES), named after it, unless it already has a layer of that source."""
+        products = []
+        for product in self.products:
+            have = {layer.source_name for layer in product.layers if layer.is_cryptomatte}
+            added = tuple(Layer(source, "raw", source, data_type=CRYPTOMATTE_DATA_TYPE, preview=False)
+                          for source in dict.fromkeys(sources) if source not in have)
+            products.append(dataclasses.replace(product, layers=product.layers + added))
+        return dataclasses.replace(self, products=tuple(products))
 
     def with_layers(self, layers, product: str | None = None) -> Recipe:
         """A copy with ``layers`` appended to a product (None: every product).

@@ -16,7 +16,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, UsdRender
+from pxr import Kind, Sdf, Usd, UsdGeom, UsdRender
 
 from ..errors import RecipeError
 from ..recipe.expressions import check_expression, covariance_needs, normalise_expression
@@ -24,6 +24,7 @@ from ..recipe.lights import per_light_layers
 from ..recipe.model import (
     BEAUTY_RAW_SOURCE,
     COLOUR_DATA_TYPES,
+    CRYPTOMATTE_SOURCES,
     KNOWN_RAW_SOURCES,
     LOSSY_COMPRESSIONS,
     PER_LIGHT_MODES,
@@ -240,7 +241,7 @@ class _Reader:
         if source_type == "lpe":
             source_name = normalise_expression(source_name)
         data_type = str(var.GetDataTypeAttr().Get())
-        if data_type not in COLOUR_DATA_TYPES:
+        if data_type not in COLOUR_DATA_TYPES or (source_type == "raw" and source_name in CRYPTOMATTE_SOURCES):
             # A data layer inherits only the product defaults that keep data exact.
             product_pixel_type = "float"
             if product_compression in LOSSY_COMPRESSIONS:
@@ -397,6 +398,18 @@ class _Reader:
         if stage_settings is not None and (settings is None or stage_settings.GetPath() != settings.GetPath()):
             owners.append(UsdRender.SettingsBase(stage_settings.GetPrim()))
         return owners
+
+
+def model_prim_paths(stage: Usd.Stage) -> tuple[str, ...]:
+    """The paths of the stage's models: prims (instance proxies included) whose ``kind`` is
+    a model kind (component, group, assembly or one derived from them), in traversal order.
+    CryptoAsset names each object after the nearest of them above it (or itself)."""
+    models = []
+    for prim in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies(Usd.PrimAllPrimsPredicate)):
+        kind = Usd.ModelAPI(prim).GetKind()
+        if kind and Kind.Registry.IsA(kind, Kind.Tokens.model):
+            models.append(str(prim.GetPath()))
+    return tuple(models)
 
 
 def _closest(name: str, known: Sequence[str]) -> str | None:
