@@ -66,6 +66,15 @@ class Atoms:
         column = ATTRIBUTES.index(attribute)
         return [key[column] for key in self.keys]
 
+    def mattes(self) -> np.ndarray:
+        """(a,) int64: each atom's ID matte, numbered in order of first appearance. What an
+        ID matte (Cryptomatte) of the beauty tells apart is what the camera ray hits first:
+        the first bounce's object, or for a path without bounces the emitter it sees."""
+        light, depth, first = (ATTRIBUTES.index(name) for name in ("light", "depth", "object"))
+        numbers: dict[tuple, int] = {}
+        return np.array([numbers.setdefault(("object", key[first]) if key[depth] > 0 else ("emitter", key[light]),
+                                            len(numbers)) for key in self.keys], np.int64)
+
 
 @dataclass(frozen=True)
 class _FrameAtoms:

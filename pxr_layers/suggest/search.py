@@ -2,15 +2,18 @@
 
 The objective of a partition into layers l (docs/suggest.md, "The objective")::
 
-    J = Σ_l ‖x_l − s_l·b‖₁ / ‖b‖₁  −  OVERLAP_WEIGHT · Σ_{l<m} Σ_t min(e_l(t), e_m(t)) / Σ_t e(t)
-        −  TERM_WEIGHT · Σ_l terms_l
+    J = Σ_l ‖x_l − s_l·b‖₁ / ‖b‖₁                                  what a grade of the beauty cannot do
+        + UNMATTED_WEIGHT · Σ_l Σ_m ‖min(x_lm, b_m − x_lm)‖₁ / ‖b‖₁   what an ID matte cannot do
+        − TERM_WEIGHT · Σ_l terms_l                                   long expressions
 
 x_l : the layer's rgb per frame and tile (atoms.Atoms.maps summed over its atoms), b the
-beauty's, s_l = ‖x_l‖₁ / ‖b‖₁ its share; e_l its luminance per tile; terms_l the number of
-terms of its expression. The first sum is the light each layer puts where a proportional
-slice of the beauty would not (what regrading it can change that regrading the beauty
-cannot): it never decreases when a layer is split. The second penalises layers lighting
-the same tiles; the third, long expressions.
+beauty's, s_l = ‖x_l‖₁ / ‖b‖₁ its share; x_lm, b_m the same under the ID matte m (the
+atoms whose camera ray first hits m: Atoms.mattes); terms_l the number of terms of its
+expression. The first sum is the light each layer puts where a proportional slice of the
+beauty would not; the second, the light it separates *within* the pixels of one matte:
+x_lm's distance to the nearest all-or-nothing cut of b_m, which is 0 for a layer made of
+whole objects (a Cryptomatte gives that already) and large for a light, a lobe or a
+bounce count that shares its pixels with others. Neither decreases when a layer is split.
 
 Strategies: ``greedy`` takes, K − 1 times, the split of one leaf that raises J most;
 ``beam`` keeps the BEAM_WIDTH best partitions at each step (greedy is beam of width 1).
@@ -28,7 +31,9 @@ from .layers import Node
 
 log = logging.getLogger(__name__)
 
-OVERLAP_WEIGHT = 0.25
+UNMATTED_WEIGHT = 3.0
+"""Calibrated (docs/suggest.md): from 1.25 the showcase's first split is by light; above
+3.25 the known-answer stage splits its glossy box into lobes before its lights apart."""
 TERM_WEIGHT = 0.002
 BEAM_WIDTH = 6
 STRATEGIES = ("beam", "greedy")
@@ -38,13 +43,15 @@ STRATEGIES = ("beam", "greedy")
 @dataclass(frozen=True)
 class Leaf:
     """A node and what it holds. atoms : (n,) int64 rows of Atoms; rgb : (f,) its light;
-    energy : (f/3,) its luminance per frame and tile; isolated : its term of the first sum."""
+    energy : its luminance summed over frames and tiles; isolated, unmatted : its terms of
+    the first two sums."""
 
     node: Node
     atoms: np.ndarray
     rgb: np.ndarray
-    energy: np.ndarray
+    energy: float
     isolated: float
+    unmatted: float
 
 
 @dataclass(frozen=True)
@@ -59,29 +66,39 @@ class Partition:
 class Searcher:
     """The objective over one set of atoms, with each leaf's candidate splits cached."""
 
-    def __init__(self, atoms: Atoms, *, overlap_weight: float = OVERLAP_WEIGHT, term_weight: float = TERM_WEIGHT):
+    def __init__(self, atoms: Atoms, *, unmatted_weight: float = UNMATTED_WEIGHT, term_weight: float = TERM_WEIGHT):
         self.atoms = atoms
         self.beauty = atoms.maps.sum(axis=0)
         self.total = float(self.beauty.sum()) or 1.0
         self.energy_total = float(luminance(self.beauty).sum()) or 1.0
-        self.overlap_weight, self.term_weight = overlap_weight, term_weight
+        mattes = atoms.mattes()
+        self.matte_of = np.zeros((mattes.max(initial=-1) + 1, len(mattes)))  # (m, a) one-hot: atom → its matte
+        self.matte_of[mattes, np.arange(len(mattes))] = 1
+        self.matte_beauty = self.matte_of @ atoms.maps  # (m, f): the beauty under each matte
+        self.unmatted_weight, self.term_weight = unmatted_weight, term_weight
         self.columns = {attribute: np.array(atoms.values(attribute), dtype=object) for attribute in ATTRIBUTES}
         self._candidates: dict[Node, list[tuple[tuple[str, object], Leaf, Leaf]]] = {}
 
     def leaf(self, node: Node, rows: np.ndarray) -> Leaf:
-        rgb = self.atoms.maps[rows].sum(axis=0)
+        maps = self.atoms.maps[rows]
+        rgb = maps.sum(axis=0)
         share = rgb.sum() / self.total
-        return Leaf(node, rows, rgb, luminance(rgb), float(np.abs(rgb - share * self.beauty).sum() / self.total))
+        by_matte = self.matte_of[:, rows] @ maps  # (m, f): the leaf's light under each matte
+        # clipped: rounding can leave the beauty a hair below a leaf that holds all of it
+        unmatted = np.minimum(by_matte, self.matte_beauty - by_matte).clip(min=0).sum() / self.total
+        isolated = np.abs(rgb - share * self.beauty).sum() / self.total
+        return Leaf(node, rows, rgb, float(luminance(rgb).sum()), float(isolated), float(unmatted))
 
     def root(self) -> Partition:
         leaf = self.leaf(Node(), np.arange(len(self.atoms.keys)))
         return Partition((leaf,), self.objective((leaf,)), ())
 
     def objective(self, leaves: tuple[Leaf, ...]) -> float:
-        energy = np.stack([leaf.energy for leaf in leaves])
-        overlap = sum(float(np.minimum(energy[i], energy[i + 1:]).sum()) for i in range(len(leaves) - 1))
-        return (sum(leaf.isolated for leaf in leaves) - self.overlap_weight * overlap / self.energy_total
-                - self.term_weight * sum(leaf.node.terms for leaf in leaves))
+        return sum(self._value(leaf) for leaf in leaves)
+
+    def _value(self, leaf: Leaf) -> float:
+        """A leaf's part of J: J is a sum over the leaves."""
+        return leaf.isolated + self.unmatted_weight * leaf.unmatted - self.term_weight * leaf.node.terms
 
     def candidates(self, leaf: Leaf) -> list[tuple[tuple[str, object], Leaf, Leaf]]:
         """Every split of `leaf` whose sides both carry light: ((attribute, value), equal
@@ -109,22 +126,14 @@ class Searcher:
                     continue
                 node_equal, node_other = leaf.node.split(attribute, value)
                 first, second = self.leaf(node_equal, leaf.atoms[equal]), self.leaf(node_other, leaf.atoms[~equal])
-                if first.energy.sum() > 0 and second.energy.sum() > 0:
+                if first.energy > 0 and second.energy > 0:
                     found.append(((attribute, value), first, second))
         self._candidates[leaf.node] = found
         return found
 
-    def gain(self, leaves: tuple[Leaf, ...], position: int, first: Leaf, second: Leaf) -> float:
-        """J after replacing leaves[position] by `first` and `second`, minus J before."""
-        parent = leaves[position]
-        others = [leaf.energy for number, leaf in enumerate(leaves) if number != position]
-        overlap = float(np.minimum(first.energy, second.energy).sum())
-        if others:
-            stacked = np.stack(others)
-            overlap += float((np.minimum(first.energy, stacked).sum() + np.minimum(second.energy, stacked).sum()
-                              - np.minimum(parent.energy, stacked).sum()))
-        return (first.isolated + second.isolated - parent.isolated - self.overlap_weight * overlap / self.energy_total
-                - self.term_weight * (first.node.terms + second.node.terms - parent.node.terms))
+    def gain(self, parent: Leaf, first: Leaf, second: Leaf) -> float:
+        """J after replacing `parent` by `first` and `second`, minus J before."""
+        return self._value(first) + self._value(second) - self._value(parent)
 
     def search(self, k: int, strategy: str, width: int = BEAM_WIDTH) -> Partition:
         """The best partition into at most `k` leaves the strategy finds (fewer when no
@@ -145,7 +154,7 @@ class Searcher:
                         if identity in seen:
                             continue
                         seen.add(identity)
-                        value = state.objective + self.gain(state.leaves, position, first, second)
+                        value = state.objective + self.gain(leaf, first, second)
                         grown.append((value, order, Partition(leaves, value, state.splits + (split,))))
                         order += 1
             if not grown:

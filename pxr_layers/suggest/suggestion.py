@@ -12,7 +12,7 @@ import numpy as np
 from ..paths.reader import PathIndex
 from .atoms import ATTRIBUTES, gather
 from .partition import SuggestError, check_partition
-from .search import OVERLAP_WEIGHT, STRATEGIES, TERM_WEIGHT, Leaf, Searcher
+from .search import STRATEGIES, TERM_WEIGHT, UNMATTED_WEIGHT, Leaf, Searcher
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +42,7 @@ class Suggestion:
 
 
 def suggest(indexes: Sequence[PathIndex], k: int = DEFAULT_K, *, strategy: str = STRATEGIES[0],
-            threads: int = 2, overlap_weight: float = OVERLAP_WEIGHT, term_weight: float = TERM_WEIGHT) -> Suggestion:
+            threads: int = 2, unmatted_weight: float = UNMATTED_WEIGHT, term_weight: float = TERM_WEIGHT) -> Suggestion:
     """The K layers (fewer when path space cannot be split further) that maximise the
     objective over every index at once, checked to partition each index's paths.
 
@@ -57,11 +57,11 @@ def suggest(indexes: Sequence[PathIndex], k: int = DEFAULT_K, *, strategy: str =
     started = time.perf_counter()
     atoms = gather(indexes, threads=threads)
     gathered = time.perf_counter()
-    searcher = Searcher(atoms, overlap_weight=overlap_weight, term_weight=term_weight)
+    searcher = Searcher(atoms, unmatted_weight=unmatted_weight, term_weight=term_weight)
     best = searcher.search(k, strategy)
     searched = time.perf_counter()
     named = _named(best.leaves, atoms, searcher)
-    shares = {name: float(leaf.energy.sum() / searcher.energy_total) for name, leaf in named.items()}
+    shares = {name: float(leaf.energy / searcher.energy_total) for name, leaf in named.items()}
     order = sorted(named, key=lambda name: (-shares[name], name))
     layers = {name: named[name].node.expression(atoms.labels) for name in order}
     checked = tuple(check_partition(index, layers) for index in indexes)
