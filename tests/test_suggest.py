@@ -1,7 +1,8 @@
 """`pxr-layers suggest`: known light touches recovered, lights split first where they share
 pixels, partitions exact, names stable, recipes that round-trip through `extract
---recipe` (and that `render --recipe` takes), one layer set for a shot's frames. The subcommand runs in-process through its module's
-add_arguments / run (the console script reaches it once main.py lists it)."""
+--recipe` (and that `render --recipe` takes), one layer set for a shot's frames. The
+subcommand runs in-process through its module's add_arguments / run (the console script
+reaches it once main.py lists it)."""
 
 from __future__ import annotations
 
