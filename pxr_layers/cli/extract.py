@@ -9,14 +9,21 @@ import sys
 from pathlib import Path
 
 from .. import lpe
-from ..layers.deliver import beauty_beside, check_raw_sources, deliver, index_metadata, plan_outputs
+from ..layers.deliver import (
+    beauty_beside,
+    check_raw_sources,
+    cryptomattes_beside,
+    deliver,
+    index_metadata,
+    plan_outputs,
+)
 from ..layers.extract import extraction_threads
 from ..outputs import OutputSet
 from ..paths.reader import PathIndex
 from ..recipe.model import PER_LIGHT_MODES, Layer, Product, Recipe
 from ..recipe.presets import PRESETS
 from ..request import VariantSelection
-from .render import _positive, output_target, preset_or_file
+from .render import _positive, cryptomatte_list, output_target, preset_or_file
 
 HELP = "cut light layers out of a path index with Light Path Expressions"
 DESCRIPTION = (
@@ -26,7 +33,10 @@ DESCRIPTION = (
     "channels NAME.R/G/B. Layers come from USD recipes (--recipe: every RenderProduct is written, as "
     "`pxr-layers render` would have written it) and/or from the command line (--layer, --passes, --lights: "
     "one EXR). Expressions are OSL Light Path Expressions with covariance conditions (docs/lpe.md), "
-    "e.g. --layer key_diffuse=\"C<RD>'key'\" --layer flat=\"C<R.>@(|S_C| = 0).*\"."
+    "e.g. --layer key_diffuse=\"C<RD>'key'\" --layer flat=\"C<R.>@(|S_C| = 0).*\". "
+    "Cryptomatte layers cannot be cut from the index (it keeps the light paths' records, merged per "
+    "pixel and class, not every camera sample's first hit): they are copied from the render's EXR "
+    "beside the index, which has them when the render was asked for them."
 )
 log = logging.getLogger(__name__)
 
@@ -54,6 +64,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a directory for the EXRs (recipe products by their productName, the "
                         "command-line layers as INDEX-stem.layers.exr), or the .exr path when one EXR "
                         "is written (default: the index's directory)")
+    parser.add_argument("--cryptomatte", type=cryptomatte_list, default=(), metavar="TYPES",
+                        help="add the Cryptomatte layers (comma-separated: object, material, asset) to every "
+                        "EXR, copied from the render's EXR beside the index (render it with --cryptomatte); "
+                        "the index itself cannot give them exactly")
     parser.add_argument("--threads", type=_positive, metavar="N",
                         help="threads that read and decode the index's chunks (default: every core this "
                         "process may use); the layers are the same, bit for bit, whatever N is")
@@ -84,14 +98,20 @@ def _run(args: argparse.Namespace) -> int:
         return 2
     recipe = Recipe(products=tuple(_at_index_view(product, index) for product in products),
                     settings_path=loaded.settings_path if loaded else "", file=loaded.file if loaded else "")
-    check_raw_sources(recipe, (), "the path index does not hold (it keeps light paths; data AOVs need a render)")
+    if args.cryptomatte:
+        recipe = recipe.with_cryptomattes(args.cryptomatte)
+    copied = cryptomattes_beside(index) if any(layer.is_cryptomatte for product in recipe.products
+                                               for layer in product.layers) else {}
+    check_raw_sources(recipe, tuple(copied), "the path index does not hold (it keeps light paths; data AOVs need "
+                      "a render; Cryptomattes are copied from the render's EXR beside the index, and it has none "
+                      "of that source)")
     frame = _manifest_frame(index)
     directory, exr = output_target(args.output, index.path.parent)
     outputs = plan_outputs(recipe, frame, directory, exr)
     metadata = index_metadata(index, directory)
     beauty = beauty_beside(index)
     with OutputSet():  # every EXR and preview of the command, or none
-        delivered = deliver(index, recipe, beauty, outputs, metadata=metadata, previews=not args.no_previews,
+        delivered = deliver(index, recipe, beauty, outputs, data=copied, metadata=metadata, previews=not args.no_previews,
                             show_progress=args.show_progress)
     for product in delivered:
         print(product.exr)

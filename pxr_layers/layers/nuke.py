@@ -38,6 +38,13 @@ the Shuffles parse before the Read has opened the file. Layers that Nuke would r
 something else are refused: its own layers (``rgb``, ``alpha``, ``depth``, ...), ``main``
 (the default view) and ``Ci`` (RenderMan's beauty, read into ``rgba``).
 
+Cryptomatte layers (``cryptomattes``: NAME → depth, its parts ``NAME00``, ``NAME01``, ...) get a
+Cryptomatte node each (Psyop's gizmo, ``nuke/Cryptomatte.gizmo``) on the Read, beside the
+trunk: ``cryptoLayer`` NAME with ``cryptoLayerLock`` so the gizmo keeps it, its hidden
+``in00`` ... knobs naming the parts as its own update would, and an empty ``matteList`` for
+the artist to pick names into (a comma-separated list; the gizmo writes the matte into
+alpha). The gizmo finds the manifest in the Read's metadata, i.e. part 0's header.
+
 The Root sets Nuke's own colour management with the nuke-default config, whose ``linear``
 is the EXR's colour space (linear, Rec.709 primaries), so the Read converts nothing; the
 inspector's OCIO display and view are for the viewer to choose.
@@ -56,7 +63,7 @@ from pathlib import Path
 from .. import __version__
 from ..errors import OutputError
 from ..outputs import write_atomically
-from ..recipe.model import BEAUTY_PART
+from ..recipe.model import BEAUTY_PART, cryptomatte_parts
 
 logger = logging.getLogger(__name__)
 
@@ -69,6 +76,8 @@ view ``main`` and RenderMan's ``Ci`` (both read into ``rgba``)."""
 _NUKE_LAYER_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 """What Nuke keeps of a channel name's layer as is (it drops leading digits and turns other
 characters into ``_``)."""
+CRYPTOMATTE_INPUTS = 12
+"""The gizmo's hidden input-layer knobs ``in00`` ... ``in11``: the most parts it keys."""
 _COLUMN = 150  # node graph spacing, Nuke units
 _ROW = 80
 
@@ -97,7 +106,7 @@ class LayerGrade:
 
 def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mapping[str, LayerGrade], *,
                 resolution: tuple[int, int], partition: bool, beauty_part: str = BEAUTY_PART,
-                exposure: float = 0.0) -> str:
+                exposure: float = 0.0, cryptomattes: Mapping[str, int] | None = None) -> str:
     """The text of a Nuke script rebuilding ``parts`` of ``exr_path`` graded by ``grades``.
 
     exr_path    : the Read's file: relative (to the script's folder, read through
@@ -109,12 +118,19 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
     beauty_part : the Nuke layer of the beauty: ``rgba`` (part 0 ``R G B A``), or another
                   part, shuffled out like a layer
     exposure    : stops of the final Grade (the inspector's viewing exposure)
+    cryptomattes: Cryptomatte layer name → its depth (ranks): a Cryptomatte gizmo on the Read for each
 
     Raises OutputError for a part Nuke would not read as its own layer, a part given twice
     or a grade that is not finite; ValueError for a grade of a part not in ``parts``.
     """
     parts = list(parts)
-    _check(parts, grades, beauty_part, exposure)
+    cryptomattes = dict(cryptomattes or {})
+    _check(parts + [part for name, depth in cryptomattes.items() for part in cryptomatte_parts(name, depth)],
+           grades, beauty_part, exposure)
+    for name, depth in cryptomattes.items():
+        if not _NUKE_LAYER_NAME.match(name) or not 1 <= (depth + 1) // 2 <= CRYPTOMATTE_INPUTS:
+            raise OutputError(f"Nuke script: the Cryptomatte {name!r} of depth {depth} is not one the gizmo keys "
+                              f"(a name Nuke keeps, 1 to {CRYPTOMATTE_INPUTS} parts)")
     width, height = (int(value) for value in resolution)
     writer = _Script()
     writer.comment(f"pxr-layers {__version__}: {len(parts)} layers of {os.fspath(exr_path)} graded as in "
@@ -128,6 +144,9 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
     if beauty_part != BEAUTY_PART:
         writer.line(f"add_layer {{{beauty_part} {beauty_part}.red {beauty_part}.green {beauty_part}.blue "
                     f"{beauty_part}.alpha}}")
+    for name, depth in cryptomattes.items():
+        for part in cryptomatte_parts(name, depth):
+            writer.line(f"add_layer {{{part} {part}.red {part}.green {part}.blue {part}.alpha}}")
 
     writer.node("Read", {"inputs": "0", "file_type": "exr", "file": _file_knob(exr_path),
                          "format": _quoted(f"{width} {height} 0 0 {width} {height} 1 "), "first": "1",
@@ -143,6 +162,12 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
         writer.push("Read_layers")
         writer.node("Shuffle", {"in": part, "alpha": "black", "name": f"Shuffle_{part}", **_at(column, 1)})
         writer.set(f"Shuffle_{part}")
+
+    for column, (name, depth) in enumerate(cryptomattes.items(), start=len(parts) + 1):
+        writer.push("Read_layers")
+        inputs = {f"in{number:02d}": part for number, part in enumerate(cryptomatte_parts(name, depth))}
+        writer.node("Cryptomatte", {"name": f"Cryptomatte_{name}", "cryptoLayer": name, "cryptoLayerLock": "true",
+                                    "matteList": '""', **inputs, **_at(column, 1)})
 
     soloing = any(grades.get(part, LayerGrade()).solo for part in parts)
     if not partition:
@@ -187,7 +212,8 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
 
 def write_nuke_script(path: str | os.PathLike, exr_path: str | os.PathLike, parts: Sequence[str],
                       grades: Mapping[str, LayerGrade], *, resolution: tuple[int, int], partition: bool,
-                      beauty_part: str = BEAUTY_PART, exposure: float = 0.0) -> Path:
+                      beauty_part: str = BEAUTY_PART, exposure: float = 0.0,
+                      cryptomattes: Mapping[str, int] | None = None) -> Path:
     """Write :func:`nuke_script` at ``path`` (atomically); returns where the file is now
     (its temporary while an OutputSet holds it).
 
@@ -200,7 +226,7 @@ def write_nuke_script(path: str | os.PathLike, exr_path: str | os.PathLike, part
     folder = path.absolute().parent
     file_name = exr.relative_to(folder) if exr.is_relative_to(folder) else exr
     text = nuke_script(file_name, parts, grades, resolution=resolution, partition=partition,
-                       beauty_part=beauty_part, exposure=exposure)
+                       beauty_part=beauty_part, exposure=exposure, cryptomattes=cryptomattes)
     written = write_atomically(path, lambda temporary: temporary.write_text(text, encoding="utf-8"))
     logger.info("wrote the Nuke script %s: %d layers of %s", path, len(parts), exr)
     return written

@@ -1,0 +1,52 @@
+"""`pxr-layers nuke`: a Nuke script that rebuilds a product's beauty from its layers."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+HELP = "write a Nuke script (.nk) that rebuilds a product's beauty from its layers"
+DESCRIPTION = (
+    "Write a Nuke script for PRODUCT (a multipart EXR of `pxr-layers render` or `extract`): a Read of the "
+    "EXR, a Shuffle and a Grade (unit gain) per colour layer, a Merge (plus) chain that adds them up to "
+    "the beauty (with a 'rest of the beauty' branch when the layers do not sum to it), and a "
+    "Cryptomatte gizmo per Cryptomatte layer (CryptoObject, ...) ready for picking. Data layers "
+    "(depth, normals, ids) stay in the Read's channels. The script reads the EXR relative to its own "
+    "folder when it lies there or below. docs/compositing.md shows how Nuke reads every part."
+)
+
+PARTITION_TOLERANCE = 1e-4
+"""The colour layers partition the beauty when they sum to it within this, relative to its peak."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("product", metavar="PRODUCT", help="the multipart EXR (.exr)")
+    parser.add_argument("-o", "--output", metavar="SCRIPT",
+                        help="the .nk file to write (default: PRODUCT with .nk instead of .exr)")
+
+
+def run(args: argparse.Namespace) -> int:
+    product = Path(args.product)
+    output = Path(args.output) if args.output else product.with_suffix(".nk")
+    print(write_product_script(product, output))
+    return 0
+
+
+def write_product_script(product: Path, output: Path) -> Path:
+    """Write the Nuke script of the EXR ``product`` at ``output``; returns ``output``."""
+    import numpy as np
+
+    from ..layers.multipart import read_multipart
+    from ..layers.nuke import write_nuke_script
+    from ..recipe.model import COLOUR_DATA_TYPES
+
+    image = read_multipart(product)
+    colour = [name for name, meta in image.metadata.items() if name in image.parts and (
+        meta.get("sourceType") == "lpe" or meta.get("dataType", "color3f") in COLOUR_DATA_TYPES)]
+    total = sum((image.parts[name][..., :3].astype(np.float64) for name in colour), np.zeros(1))
+    peak = max(float(np.abs(image.beauty[..., :3]).max(initial=0.0)), np.finfo(np.float32).tiny)
+    partition = bool(colour) and bool(np.abs(total - image.beauty[..., :3]).max() <= PARTITION_TOLERANCE * peak)
+    height, width = image.beauty.shape[:2]
+    write_nuke_script(output, product, colour, {}, resolution=(width, height), partition=partition,
+                      cryptomattes={name: matte.depth for name, matte in image.cryptomattes.items()})
+    return output
