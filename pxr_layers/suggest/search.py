@@ -71,23 +71,30 @@ class Searcher:
         self.beauty = atoms.maps.sum(axis=0)
         self.total = float(self.beauty.sum()) or 1.0
         self.energy_total = float(luminance(self.beauty).sum()) or 1.0
-        mattes = atoms.mattes()
-        self.matte_of = np.zeros((mattes.max(initial=-1) + 1, len(mattes)))  # (m, a) one-hot: atom → its matte
-        self.matte_of[mattes, np.arange(len(mattes))] = 1
-        self.matte_beauty = self.matte_of @ atoms.maps  # (m, f): the beauty under each matte
+        self.mattes = atoms.mattes()
+        self.matte_beauty = self._by_matte(np.arange(len(atoms.keys)))[1]  # (m, f): the beauty under each matte
         self.unmatted_weight, self.term_weight = unmatted_weight, term_weight
         self.columns = {attribute: np.array(atoms.values(attribute), dtype=object) for attribute in ATTRIBUTES}
         self._candidates: dict[Node, list[tuple[tuple[str, object], Leaf, Leaf]]] = {}
 
     def leaf(self, node: Node, rows: np.ndarray) -> Leaf:
-        maps = self.atoms.maps[rows]
-        rgb = maps.sum(axis=0)
+        present, by_matte = self._by_matte(rows)
+        rgb = by_matte.sum(axis=0)
         share = rgb.sum() / self.total
-        by_matte = self.matte_of[:, rows] @ maps  # (m, f): the leaf's light under each matte
+        beauty = self.matte_beauty[present]
         # clipped: rounding can leave the beauty a hair below a leaf that holds all of it
-        unmatted = np.minimum(by_matte, self.matte_beauty - by_matte).clip(min=0).sum() / self.total
+        unmatted = np.minimum(by_matte, beauty - by_matte).clip(min=0).sum() / self.total
         isolated = np.abs(rgb - share * self.beauty).sum() / self.total
         return Leaf(node, rows, rgb, float(luminance(rgb).sum()), float(isolated), float(unmatted))
+
+    def _by_matte(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(p,) the mattes the atoms `rows` fall under, ascending; (p, f) their light under each.
+        A sum per run of one matte (np.add.reduceat), not a product with a one-hot matrix:
+        BLAS threads make products this small slower, not faster, on a busy machine."""
+        rows = rows[np.argsort(self.mattes[rows], kind="stable")]
+        mattes = self.mattes[rows]
+        starts = np.flatnonzero(np.r_[True, mattes[1:] != mattes[:-1]])
+        return mattes[starts], np.add.reduceat(self.atoms.maps[rows], starts, axis=0)
 
     def root(self) -> Partition:
         leaf = self.leaf(Node(), np.arange(len(self.atoms.keys)))
