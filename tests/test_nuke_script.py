@@ -18,13 +18,18 @@ not from pxr_layers/layers/nuke.py:
   (``multiply`` on ``channels``, default rgb, ``black_clamp`` default true), Merge2
   (B = input 0, A = input 1; plus A+B, from B−A, minus A−B on its channels, rgba unless
   ``Achannels``/``Bchannels``/``output`` say otherwise; the rest of B kept),
-  and ``disable true``: the node passes its input 0.
+  and ``disable true``: the node passes its input 0;
+* Psyop's Cryptomatte gizmo (nuke/Cryptomatte.gizmo, cryptomatte_utilities.py): ``matteList``
+  a comma-separated list of names (quoted when they hold a space or a comma), each keyed
+  by its id (test_cryptomatte.spec_id); the matte, Σ over the ``in00`` ... layers of
+  ``green`` where ``red`` is an id and ``alpha`` where ``blue`` is, goes into alpha.
 
 Pixels are float32, as Nuke computes them.
 """
 
 from __future__ import annotations
 
+import csv
 import math
 import re
 import shutil
@@ -301,6 +306,25 @@ class Nuke:
         return image
 
 
+    def cryptomatte(self, node: Node, source: Image) -> Image:
+        assert set(node.knobs) <= {"name", "cryptoLayer", "cryptoLayerLock", "matteList", "xpos", "ypos",
+                                   *(f"in{number:02d}" for number in range(12))}
+        from test_cryptomatte import spec_id
+
+        text = tcl_value(node.knob("matteList", '""'), self.script_path)
+        names = next(csv.reader([text.strip('"')], skipinitialspace=True), []) if text.strip('"') else []
+        ids = np.array([spec_id(name) for name in names], np.float32)
+        zeros = np.zeros_like(next(iter(source.values())))
+        total = zeros.copy()
+        for number in range(12):
+            layer = node.knob(f"in{number:02d}")
+            if layer is None:
+                break
+            red, green, blue, alpha = (source.get(channel, zeros) for channel in self.layers[layer])
+            total = total + np.where(np.isin(red, ids), green, 0) + np.where(np.isin(blue, ids), alpha, 0)
+        return {**source, "rgba.alpha": total}
+
+
 def evaluate(script: str, script_path: Path) -> tuple[np.ndarray, Nuke]:
     """(the script's (h, w, 4) rgba, the interpreter: its nodes) for a script saved at script_path."""
     nuke = Nuke(script_path)
@@ -506,3 +530,54 @@ def test_the_script_uses_nuke_12_nodes_and_knobs(stack, tmp_path):
     assert 'format "5 6 0 0 5 6 1 pxrLayers_5x6"' in text
     assert "add_layer {key key.red key.green key.blue}" in text
     assert text.isascii()
+
+
+def test_the_nuke_command_rebuilds_a_product_and_wires_its_cryptomattes(tmp_path, monkeypatch):
+    """`pxr-layers nuke` on a render with passes and Cryptomattes: a Shuffle, Grade and Merge
+    per colour layer whose sum is part 0, and a Cryptomatte gizmo per type on the Read whose
+    matte of a picked name is that name's coverage in the EXR."""
+    from test_cryptomatte import matte, read_cryptomattes
+
+    import pxr_layers.cli.main as cli
+
+    if "nuke" not in cli.SUBCOMMAND_NAMES:
+        monkeypatch.setattr(cli, "SUBCOMMAND_NAMES", (*cli.SUBCOMMAND_NAMES, "nuke"))
+    assert main(["render", str(ROOT / "render" / "cornell.usda"), "-o", str(tmp_path), "--spp", "4",
+                 "--resolution", "16", "12", "--quiet", "--no-previews", "--cryptomatte", "object,material"]) == 0
+    exr = tmp_path / "passes.exr"
+    assert main(["extract", str(tmp_path / "cornell.pxlidx"), "--passes", "--cryptomatte", "object,material",
+                 "-o", str(exr), "--no-previews", "--quiet"]) == 0
+    script = tmp_path / "comp" / "passes.nk"
+    script.parent.mkdir()
+    assert main(["nuke", str(exr), "-o", str(script), "--quiet"]) == 0
+    text = script.read_text()
+    items = parse(text)
+    nodes = [item for item in items if isinstance(item, Node)]
+    file = OpenEXR.File(str(exr))
+    layers = [part.name() for part in file.parts[1:] if not part.name().startswith("Crypto")]
+    assert len(layers) == 8
+    for layer in layers:
+        assert {f"Shuffle_{layer}", f"Grade_{layer}", f"Merge_{layer}"} <= {node.knob("name") for node in nodes}
+    gizmos = [node for node in nodes if node.kind == "Cryptomatte"]
+    assert [node.knob("cryptoLayer") for node in gizmos] == ["CryptoObject", "CryptoMaterial"]
+    assert [gizmos[0].knob(f"in0{n}") for n in range(3)] == [f"CryptoObject0{n}" for n in range(3)]
+    for gizmo in gizmos:  # on the Read
+        position = items.index(gizmo)
+        assert items[position - 1].words == ["push", "$N_Read_layers"]
+
+    out, nuke = evaluate(text, script)
+    beauty = file.parts[0].channels["RGBA"].pixels
+    np.testing.assert_allclose(out[..., :3], beauty[..., :3], rtol=1e-5, atol=1e-6)  # the parts sum to part 0
+    np.testing.assert_array_equal(out[..., 3], beauty[..., 3])
+
+    picked = "/World/Geometry/tallBox"
+    keyed = text.replace(' cryptoLayer CryptoObject\n cryptoLayerLock true\n matteList ""',
+                         f' cryptoLayer CryptoObject\n cryptoLayerLock true\n matteList "{picked}, /World/Geometry/floor"')
+    assert keyed != text
+    nuke = Nuke(script)
+    nuke.run(parse(keyed))
+    gizmo_alpha = next(image for node, image in (entry for entry in nuke.stack if entry)
+                       if node.kind == "Cryptomatte" and node.knob("cryptoLayer") == "CryptoObject")["rgba.alpha"]
+    expected = matte(read_cryptomattes(exr)[0]["CryptoObject"], [picked, "/World/Geometry/floor"])
+    np.testing.assert_allclose(gizmo_alpha, expected, atol=1e-7)
+    assert expected.max() == 1.0 and expected.min() == 0.0

@@ -72,7 +72,7 @@ def render_coverage(integrator: Integrator, sources: Iterable[str], *, asset_pat
                                   f"{', '.join(CRYPTOMATTE_SOURCES)}")
     if not wanted:
         return {}
-    tables = _name_tables(integrator, wanted, asset_paths)
+    subject, tables = _name_tables(integrator, wanted, asset_paths)
     spp = integrator.settings.spp
     pixels = integrator.width * integrator.height
     step = batch_pixels(spp, BATCH_PATHS)
@@ -80,7 +80,9 @@ def render_coverage(integrator: Integrator, sources: Iterable[str], *, asset_pat
 
     def run(first: int):
         triangle = _first_visible(integrator, first * spp, min(first + step, pixels) * spp)
-        return [_pixel_counts(triangle, first, spp, table, len(names)) for names, table in tables.values()]
+        # one histogram of (pixel, subject), then each type's names from those few entries
+        pixel, subjects, counts = _pixel_counts(triangle, first, spp, subject, int(subject.max(initial=-1)) + 1)
+        return [_regrouped(pixel, table[subjects], counts, len(names)) for names, table in tables.values()]
 
     workers = min(threads or os.cpu_count() or 1, len(starts))
     with ThreadPoolExecutor(max_workers=workers) as pool:
@@ -98,25 +100,29 @@ def render_coverage(integrator: Integrator, sources: Iterable[str], *, asset_pat
 
 
 def _name_tables(integrator: Integrator, sources: Sequence[str], asset_paths: Sequence[str] | None
-                 ) -> dict[str, tuple[tuple[str, ...], np.ndarray]]:
-    """source → (its names, sorted, (t,) int32 the name of each triangle)."""
+                 ) -> tuple[np.ndarray, dict[str, tuple[tuple[str, ...], np.ndarray]]]:
+    """((t,) int32 the subject of each triangle: its distinct (object, material) pair,
+    {source → (its names, sorted, (subjects,) int32 the name of each subject)})."""
     world, vocabulary = integrator.world, integrator.vocabulary
     obj = np.asarray(world.triangle_object, np.int64)
+    material = np.where(world.triangle_light >= 0, -1, world.triangle_material).astype(np.int64)
+    pairs, subject = np.unique(obj * (len(vocabulary.material_paths) + 1) + material + 1, return_inverse=True)
+    pair_object = pairs // (len(vocabulary.material_paths) + 1)
+    pair_material = pairs % (len(vocabulary.material_paths) + 1) - 1  # −1: a light shape
     tables = {}
     for source in sources:
         if source == "CryptoObject":
-            labels, code = world.object_paths, obj
-        elif source == "CryptoMaterial":  # codes: the materials, then the objects (light shapes)
-            labels = vocabulary.material_paths + world.object_paths
-            code = np.where(world.triangle_light >= 0, len(vocabulary.material_paths) + obj, world.triangle_material)
+            labels = np.asarray(world.object_paths, str)[pair_object]
+        elif source == "CryptoMaterial":  # a light shape is named by its light
+            labels = np.where(pair_material >= 0, np.asarray(vocabulary.material_paths + ("",), str)[pair_material],
+                              np.asarray(world.object_paths, str)[pair_object])
         else:
             if asset_paths is None or len(asset_paths) != len(world.object_paths):
                 raise RenderSettingsError("CryptoAsset needs the asset root of every object")
-            labels, code = tuple(asset_paths), obj
-        used, code_index = np.unique(code, return_inverse=True)  # the labels some triangle has
-        names, name_index = np.unique(np.asarray(labels, str)[used], return_inverse=True)
-        tables[source] = (tuple(str(name) for name in names), name_index.astype(np.int32)[code_index.reshape(-1)])
-    return tables
+            labels = np.asarray(tuple(asset_paths), str)[pair_object]
+        names, name_of_subject = np.unique(labels, return_inverse=True)
+        tables[source] = (tuple(str(name) for name in names), name_of_subject.astype(np.int32).reshape(-1))
+    return subject.astype(np.int32).reshape(-1), tables
 
 
 def _first_visible(integrator: Integrator, first_path: int, stop_path: int) -> np.ndarray:
@@ -131,10 +137,12 @@ def _first_visible(integrator: Integrator, first_path: int, stop_path: int) -> n
     for step in range(settings.max_depth + MAX_PASS_THROUGH + 1):  # the integrator's bound on a path's steps
         hits = intersect(integrator.caster, queue, geometry.triangle_light, integrator.hidden_lights,
                          integrator.epsilon)
+        if not see_through:  # without see-through materials the first hit is it (−1 for a miss)
+            seen[lanes] = hits.triangle
+            break
         hit = np.flatnonzero(hits.triangle >= 0)
         queue, hits, lanes = queue.take(hit), hits.take(hit), lanes[hit]
-        if not len(queue) or not see_through:  # without see-through materials the first hit is it
-            seen[lanes] = hits.triangle
+        if not len(queue):
             break
         surfaces = surface(queue, hits, np.take(geometry.triangle_light, hits.triangle) < 0, step, geometry,
                            integrator.materials.arrays, integrator.curvature[:0], settings.max_depth,
@@ -155,8 +163,22 @@ def _pixel_counts(triangle: np.ndarray, first_pixel: int, spp: int, table: np.nd
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(pixel (k,) int64, name (k,) int32, samples (k,) int64) of a batch's covered samples,
     pixels ascending. triangle: (pixels · spp,) as _first_visible gives it; table: (t,) the
-    name of each triangle, of ``names``."""
+    label of each triangle, of ``names`` labels."""
     covered = np.flatnonzero(triangle >= 0)
-    keys = (covered // spp) * names + table[triangle[covered]]
-    unique, counts = np.unique(keys, return_counts=True)
+    keys = (covered // spp) * names + np.take(table, triangle[covered])
+    bins = (len(triangle) // spp) * names
+    if bins <= 4 * len(triangle):  # a histogram of every (pixel, name): linear, no sort
+        histogram = np.bincount(keys, minlength=bins)
+        unique = np.flatnonzero(histogram)
+        counts = histogram[unique]
+    else:  # too many names for one: sort the keys
+        unique, counts = np.unique(keys, return_counts=True)
     return first_pixel + unique // names, (unique % names).astype(np.int32), counts
+
+
+def _regrouped(pixel: np.ndarray, name: np.ndarray, counts: np.ndarray, names: int
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The (pixel, name) entries summed where several subjects share a name (an object of two
+    materials in CryptoObject, ...), pixels ascending."""
+    keys, inverse = np.unique(pixel * names + name, return_inverse=True)
+    return keys // names, (keys % names).astype(np.int32), np.bincount(inverse.reshape(-1), counts).astype(np.int64)
