@@ -228,3 +228,42 @@ def test_a_user_error_in_a_task_is_raised_once_not_retried(tmp_path, client):
         run_job(job, client=client)
     assert time.perf_counter() - started < 60
     assert not list((tmp_path / "out").glob("*.exr")) and not list((tmp_path / "out").glob("*.pxlidx"))
+
+
+CRYPTO_RECIPE = """#usda 1.0
+(
+    renderSettingsPrimPath = "/Render/Shot010/Settings"
+)
+
+over Scope "Render"
+{
+    over Scope "Shot010"
+    {
+        over RenderProduct "sphere"
+        {
+            rel orderedVars = [</Render/Shot010/Vars/sphere>, </Render/Shot010/Vars/CryptoObject>]
+        }
+
+        over Scope "Vars"
+        {
+            def RenderVar "CryptoObject"
+            {
+                uniform token sourceType = "raw"
+                uniform string sourceName = "CryptoObject"
+                uniform token dataType = "float4"
+            }
+        }
+    }
+}
+"""
+
+
+def test_a_job_delivers_the_cryptomattes_its_recipe_asks_for(tmp_path, client):
+    """A job renders a frame's Cryptomattes as `pxr-layers render` does (frame_data)."""
+    recipe = tmp_path / "crypto.usda"
+    recipe.write_text(CRYPTO_RECIPE)
+    out = tmp_path / "out"
+    job = job_at(out, frames="1", **{"recipe.add_layers": [str(recipe)]})
+    run_job(job, client=client)
+    parts = [part.name() for part in OpenEXR.File(str(out / "shot010.0001.sphere.exr")).parts]
+    assert [part for part in parts if part.startswith("Crypto")] == ["CryptoObject00", "CryptoObject01", "CryptoObject02"]

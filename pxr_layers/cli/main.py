@@ -19,7 +19,7 @@ from ..errors import PxrLayersError, Terminated
 from ..interrupts import sigterm_raises
 from . import logging_flags
 
-SUBCOMMAND_NAMES = ("render", "demo", "index", "extract", "lpe", "job", "view", "suggest")
+SUBCOMMAND_NAMES = ("render", "demo", "index", "extract", "lpe", "job", "view", "suggest", "nuke")
 EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE, EXIT_INTERNAL_ERROR = 0, 1, 2, 3
 EXIT_INTERRUPTED = 130
 """128 + SIGINT: what a shell reports for a command stopped by Ctrl-C (SIGTERM: 143)."""

@@ -60,6 +60,7 @@ from .frame import (
     FrameAssembler,
     FramePlan,
     file_sha256,
+    frame_data,
     plan_frame,
     prepare_frame,
     resolve_recipe,
@@ -213,11 +214,10 @@ def render_tile(plan: FramePlan, first: int, stop: int, path: str, data_path: st
 
 
 def render_frame_data(plan: FramePlan, path: str) -> None:
-    """The frame's data AOVs, event vocabulary and object paths, committed to ``path``."""
-    from ..trace import render_data_aovs
-
+    """The frame's data AOVs and Cryptomattes, event vocabulary and object paths, committed
+    to ``path``."""
     integrator = _prepared(plan)
-    data = render_data_aovs(integrator, plan.data_aovs, threads=TASK_THREADS)
+    data = frame_data(plan, integrator, TASK_THREADS)
     payload = (data, integrator.vocabulary, tuple(integrator.world.object_paths))
     _pickle_atomically(Path(path), payload)
 
