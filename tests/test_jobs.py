@@ -232,19 +232,25 @@ def test_a_user_error_in_a_task_is_raised_once_not_retried(tmp_path, client):
 
 CRYPTO_RECIPE = """#usda 1.0
 (
-    renderSettingsPrimPath = "/Render/Shot010/Settings"
+    renderSettingsPrimPath = "/Render/Crypto/Settings"
 )
 
-over Scope "Render"
+def Scope "Render"
 {
-    over Scope "Shot010"
+    def Scope "Crypto"
     {
-        over RenderProduct "sphere"
+        def RenderSettings "Settings"
         {
-            rel orderedVars = [</Render/Shot010/Vars/sphere>, </Render/Shot010/Vars/CryptoObject>]
+            rel products = </Render/Crypto/ids>
         }
 
-        over Scope "Vars"
+        def RenderProduct "ids"
+        {
+            rel orderedVars = </Render/Crypto/Vars/CryptoObject>
+            token productName = "ids.exr"
+        }
+
+        def Scope "Vars"
         {
             def RenderVar "CryptoObject"
             {
@@ -265,5 +271,5 @@ def test_a_job_delivers_the_cryptomattes_its_recipe_asks_for(tmp_path, client):
     out = tmp_path / "out"
     job = job_at(out, frames="1", **{"recipe.add_layers": [str(recipe)]})
     run_job(job, client=client)
-    parts = [part.name() for part in OpenEXR.File(str(out / "shot010.0001.sphere.exr")).parts]
+    parts = [part.name() for part in OpenEXR.File(str(out / "shot010.0001.ids.exr")).parts]
     assert [part for part in parts if part.startswith("Crypto")] == ["CryptoObject00", "CryptoObject01", "CryptoObject02"]
