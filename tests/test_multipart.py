@@ -265,3 +265,42 @@ def test_read_multipart_names_a_file_it_cannot_read(tmp_path):
     bad.write_bytes(b"not an exr")
     with pytest.raises(OutputError, match="bad.exr"):
         read_multipart(bad)
+
+
+def _damaged_cryptomatte(tmp_path, change):
+    """A product with a Cryptomatte layer, rewritten with ``change(header, channels)`` applied
+    to its Cryptomatte part."""
+    from pxr_layers.layers.cryptomatte import Cryptomatte, manifest
+
+    height, width = 4, 5
+    table = manifest(["/World/a", "/World/b"])
+    matte = Cryptomatte(np.zeros((height, width, 2), np.float32), np.zeros((height, width, 2), np.float32), table)
+    product = Product("mattes", "mattes.exr", "/camera", (width, height),
+                      (Layer("CryptoObject", "raw", "CryptoObject", data_type="float4", preview=False),))
+    path = write_multipart(tmp_path / "mattes.exr", np.zeros((height, width, 4), np.float32),
+                           {"CryptoObject": matte}, product)
+    assert read_multipart(path).cryptomattes["CryptoObject"].manifest == table
+    exr = OpenEXR.File(str(path), separate_channels=True)
+    part = exr.parts[1]
+    header, channels = dict(part.header), {name: channel.pixels for name, channel in part.channels.items()}
+    change(header, channels)
+    OpenEXR.File([OpenEXR.Part(dict(exr.parts[0].header), {c: exr.parts[0].channels[c].pixels for c in "RGBA"},
+                               "rgba"), OpenEXR.Part(header, channels, part.name())]).write(str(path))
+    return path
+
+
+def test_read_multipart_names_the_file_of_a_damaged_cryptomatte_manifest(tmp_path):
+    def damage(header, channels):
+        key = next(key for key in header if key.endswith("/manifest"))
+        header[key] = '{"/World/a": "0'
+
+    path = _damaged_cryptomatte(tmp_path, damage)
+    with pytest.raises(OutputError, match=r"mattes\.exr: the Cryptomatte manifest of part 'CryptoObject00' is not JSON"):
+        read_multipart(path)
+
+
+def test_read_multipart_names_the_file_of_a_cryptomatte_part_without_a_channel(tmp_path):
+    path = _damaged_cryptomatte(tmp_path, lambda header, channels: channels.pop("CryptoObject00.A"))
+    with pytest.raises(OutputError, match=r"mattes\.exr: the Cryptomatte part 'CryptoObject00' has no channel "
+                       r"CryptoObject00\.A"):
+        read_multipart(path)

@@ -223,8 +223,8 @@ class MultipartImage:
 def read_multipart(path: str | os.PathLike) -> MultipartImage:
     """Read a multipart EXR of pxr-layers (any part types, as float32).
 
-    Raises OutputError naming the file when OpenEXR cannot read it or part 0 is not an
-    RGBA beauty.
+    Raises OutputError naming the file when OpenEXR cannot read it, part 0 is not an RGBA
+    beauty, or a Cryptomatte part lacks a channel ``NAME.R/G/B/A`` or a readable manifest.
     """
     path = Path(path)
     try:
@@ -245,7 +245,12 @@ def read_multipart(path: str | os.PathLike) -> MultipartImage:
         if "cryptomatte" in attributes:
             layer = attributes["cryptomatte"]
             metadata.setdefault(layer, attributes)
-            manifests[layer] = json.loads(part.header.get(f"{ATTRIBUTE_PREFIX}{type_key(layer)}/manifest", "{}"))
+            stored = part.header.get(f"{ATTRIBUTE_PREFIX}{type_key(layer)}/manifest", "{}")
+            manifests[layer] = _manifest(path, name, stored)
+            missing = [f"{name}.{c}" for c in "RGBA" if f"{name}.{c}" not in part.channels]
+            if missing:
+                raise OutputError(f"{path}: the Cryptomatte part {name!r} has no channel {', '.join(missing)} "
+                                  f"(it has {', '.join(sorted(part.channels)) or 'none'})")
             crypto_parts.setdefault(layer, []).append(
                 np.stack([part.channels[f"{name}.{c}"].pixels for c in "RGBA"], axis=-1).astype(np.float32))
             continue
@@ -259,3 +264,15 @@ def read_multipart(path: str | os.PathLike) -> MultipartImage:
     stored = first.header.get(METADATA_PREFIX + "recipe")
     cryptomattes = {layer: Cryptomatte.from_parts(pieces, manifests[layer]) for layer, pieces in crypto_parts.items()}
     return MultipartImage(path, beauty, parts, metadata, Recipe.from_json(stored) if stored else None, cryptomattes)
+
+
+def _manifest(path: Path, part: str, text: str) -> dict[str, str]:
+    """A Cryptomatte part's manifest (JSON name → id hex); OutputError naming the file and part
+    when it is not a JSON object."""
+    try:
+        manifest = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise OutputError(f"{path}: the Cryptomatte manifest of part {part!r} is not JSON ({error})") from None
+    if not isinstance(manifest, dict):
+        raise OutputError(f"{path}: the Cryptomatte manifest of part {part!r} is not a JSON object of names")
+    return manifest
