@@ -32,6 +32,9 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_multipart.py
 	$(BIN)/python benchmarks/bench_jobs.py
 	$(BIN)/python benchmarks/bench_stage.py
+	$(BIN)/python benchmarks/bench_suggest.py
+	$(BIN)/python benchmarks/bench_cryptomatte.py
+	$(BIN)/python benchmarks/bench_view.py || test $$? -eq 2  # 2: no Chromium (the browser benchmark)
 	$(BIN)/python benchmarks/bench_looks.py || test $$? -eq 2  # 2: no ../shared (the OpenChessSet)
 	$(BIN)/python benchmarks/bench_lights.py
 	$(BIN)/python benchmarks/luxtest_table.py || test $$? -eq 2  # 2: no ../shared (the luxtest stages)

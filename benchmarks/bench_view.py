@@ -158,6 +158,9 @@ def main() -> None:
     parser.add_argument("--screenshot-of", type=Path, metavar="PATH",
                         help="a Cornell box demo output to take it of (default: the regrade's)")
     args = parser.parse_args()
+    if not CHROMIUM.exists():
+        print(f"bench_view: {CHROMIUM} is not here (apt install chromium): no browser to measure in", file=sys.stderr)
+        sys.exit(2)
     from playwright.sync_api import sync_playwright
 
     with tempfile.TemporaryDirectory(prefix="bench_view.") as scratch, sync_playwright() as playwright:

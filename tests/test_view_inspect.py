@@ -8,7 +8,7 @@ import itertools
 import pytest
 
 from pxr_layers import lpe
-from pxr_layers.paths.events import path_text
+from pxr_layers.paths.events import event_paths, path_text
 from pxr_layers.paths.reader import PathIndex
 from pxr_layers.view import inspect
 
@@ -20,7 +20,8 @@ def index(demo_output) -> PathIndex:
 
 @pytest.fixture(scope="module")
 def infos(index):
-    return [inspect.describe(path_class) for path_class in index.classes]
+    paths = event_paths(index.events)
+    return [inspect.describe(path_class, paths) for path_class in index.classes]
 
 
 def test_each_class_s_lpe_matches_it_and_says_its_parts(index, infos):

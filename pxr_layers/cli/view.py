@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 
 from ..errors import Terminated
 from .render import _positive
@@ -38,11 +37,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..layers.extract import default_threads
-    from ..view.server import serve
+    from ..view.server import is_loopback, serve
     from ..view.session import Session
 
     session = Session.open(args.path, threads=args.threads or default_threads())
-    if args.host not in ("127.0.0.1", "localhost", "::1"):
+    if not is_loopback(args.host):
         log.warning("listening on %s: the page is reachable from other machines (with the token)", args.host)
 
     def announce(url: str) -> None:
@@ -50,11 +49,7 @@ def run(args: argparse.Namespace) -> int:
         log.info("serving %s at %s (Ctrl-C stops)", session.folder, url)
 
     try:
-        serve(session, host=args.host, port=args.port, open_browser=not args.no_browser, announce=announce)
-    except OSError as error:
-        print(f"pxr-layers view: error: cannot listen on {args.host}:{args.port} ({error.strerror or error})",
-              file=sys.stderr)
-        return 1
+        serve(session, announce, host=args.host, port=args.port, open_browser=not args.no_browser)
     except KeyboardInterrupt as interrupt:
         if isinstance(interrupt, Terminated):
             raise

@@ -29,6 +29,9 @@ ALL_SCATTERINGS = (NO_SCATTERING, *SCATTERINGS)
 NON_SCATTERING_TYPES = "CLOB"
 """Event types that carry no scattering letter in the path notation."""
 
+SCATTERING_TYPES = "RTV"
+"""Event types that scatter (the bounces of a path): every type but NON_SCATTERING_TYPES."""
+
 GLOB_CHARACTERS = frozenset("*?[")
 
 

@@ -15,6 +15,7 @@ of event ids (``trace/recorder.py``'s ``ClassTrie``), whose nodes are the path c
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,3 +105,29 @@ def path_text(events: tuple[Event, ...], all_labels: bool = False) -> str:
         return sorted(event.labels) if all_labels or not event.name else [event.name]
 
     return " ".join(e.type + e.scatter + "".join(f"'{label}'" for label in labels(e)) for e in events)
+
+
+def event_paths(events: Sequence[Event]) -> list[tuple[str, str]]:
+    """(own path, material path) of each event of an index's event table: the prim path of
+    the object or light it names, and the bound material's path ("" without one, and for
+    lights, C and B).
+
+    An event carries its object's name and path and its material's name and path
+    (EventVocabulary.event) without saying which path is which: a material's path is the one
+    events of several names carry, or else the path whose last element is not the event's name.
+    """
+    carriers: dict[str, set[str]] = {}
+    for event in events:
+        for label in event.labels:
+            if label.startswith("/"):
+                carriers.setdefault(label, set()).add(event.name)
+    shared = {label for label, names in carriers.items() if len(names) > 1}
+    paths_of = []
+    for event in events:
+        paths = sorted(label for label in event.labels if label.startswith("/"))
+        own = [path for path in paths if path.rsplit("/", 1)[-1] == event.name and path not in shared] or \
+            [path for path in paths if path.rsplit("/", 1)[-1] == event.name] or paths
+        own_path = own[0] if own else ""
+        material = "" if event.type in ("L", "C", "B") else next((path for path in paths if path != own_path), "")
+        paths_of.append((own_path, material))
+    return paths_of

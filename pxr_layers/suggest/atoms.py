@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..paths.events import Event
+from ..paths.events import Event, event_paths
 from ..paths.reader import PathIndex
-from ..scene import REC709_LUMINANCE
+from ..layers.previews import LUMINANCE_WEIGHTS as LUMINANCE
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +38,6 @@ COVARIANCE = {"curved": 0, "textured": 1, "shiny": 2}
 """Covariance attribute → its column of the index's norms (C, T, R)."""
 TILES = 16
 """Tiles along each side of the image: the maps are TILES × TILES × RGB per frame."""
-LUMINANCE = np.asarray(REC709_LUMINANCE, np.float64)
 COVARIANCE_BITS = 1 << len(COVARIANCE)
 
 
@@ -117,8 +116,8 @@ def _frame_atoms(index: PathIndex, covariance: bool, threads: int) -> _FrameAtom
     """One read of `index`: every atom's rgb per tile, scaled so the beauty's luminance is 1."""
     names: dict[str, str] = {}
     labels: dict[str, str] = {}
-    material_names = _shared_paths(index.events)
-    event_values = [_event_values(event, material_names, names, labels) for event in index.events]
+    event_values = [_event_values(event, paths, names, labels)
+                    for event, paths in zip(index.events, event_paths(index.events))]
     # Classes that agree on (first bounce, emitter, depth) are one atom up to the covariance
     # bits: group them once, so that records are keyed with one lookup.
     triples = np.array([(ids[1] if len(ids) > 2 else -1, ids[-1], min(len(ids) - 2, 2))
@@ -164,24 +163,12 @@ def _frame_atoms(index: PathIndex, covariance: bool, threads: int) -> _FrameAtom
     return _FrameAtoms(atoms, names, labels)
 
 
-def _shared_paths(events: Sequence[Event]) -> set[str]:
-    """Path labels carried by surface events of two or more names: materials (an object's
-    path is carried by its own events only)."""
-    carriers: dict[str, set[str]] = {}
-    for event in events:
-        if event.type in "RTVO":
-            for label in event.labels:
-                if label.startswith("/"):
-                    carriers.setdefault(label, set()).add(event.name)
-    return {label for label, carried_by in carriers.items() if len(carried_by) > 1}
-
-
-def _event_values(event: Event, materials: set[str], names: dict[str, str], labels: dict[str, str]) -> dict:
+def _event_values(event: Event, paths: tuple[str, str], names: dict[str, str], labels: dict[str, str]) -> dict:
     """The ATTRIBUTES values an event gives as a first bounce ("object", ...) or as the end
-    ("light"); records each value's display name and LPE label in `names`, `labels`."""
-    paths = sorted(label for label in event.labels if label.startswith("/"))
-    own = [path for path in paths if path.rsplit("/", 1)[-1] == event.name and path not in materials]
-    own_path = (own or paths or [event.name])[0]
+    ("light"); records each value's display name and LPE label in `names`, `labels`.
+    paths : the event's (own path, material path), paths.events.event_paths."""
+    own_path, material = paths
+    own_path = own_path or event.name
     if event.type in "LO":
         value = f"{event.type}:{own_path}"
         names[value], labels[value] = event.name or own_path.rsplit("/", 1)[-1], own_path
@@ -189,7 +176,7 @@ def _event_values(event: Event, materials: set[str], names: dict[str, str], labe
     if event.type == "B":
         names["B"] = "background"
         return {"light": "B"}
-    material = next((path for path in paths if path != own_path), None)
+    material = material or None
     if material:
         names[material], labels[material] = material.rsplit("/", 1)[-1], material
     names[own_path], labels[own_path] = event.name or own_path.rsplit("/", 1)[-1], own_path

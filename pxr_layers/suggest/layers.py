@@ -16,11 +16,10 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 
+from ..lpe.events import SCATTERING_TYPES, SCATTERINGS
 from .atoms import ATTRIBUTES, COVARIANCE, FIRST_BOUNCE
 
 ALL_DEPTHS = frozenset({0, 1, 2})
-BOUNCE_TYPES = "RTV"
-SCATTERINGS = "DGSs"
 NORM_NAMES = {"curved": "|S_C|", "textured": "|S_T|", "shiny": "|S_R|"}
 COVARIANCE_WORDS = {"curved": ("curved", "flat"), "textured": ("textured", "plain"), "shiny": ("shiny", "matte")}
 """Covariance attribute → the names of its sides (norm not 0, norm 0)."""
@@ -155,7 +154,7 @@ def _first(include: dict, exclude: dict, labels: dict[str, str]) -> str:
             return wildcard
         return allowed[0] if len(allowed) == 1 else "[" + "".join(allowed) + "]"
 
-    slots = [letters("type", BOUNCE_TYPES, "[RTV]"), letters("scatter", SCATTERINGS, ".")]
+    slots = [letters("type", SCATTERING_TYPES, f"[{SCATTERING_TYPES}]"), letters("scatter", SCATTERINGS, ".")]
     for attribute in ("object", "material"):
         if attribute in include:
             slots.append(f"'{labels[include[attribute]]}'")

@@ -9,26 +9,28 @@ one full read of the index: instant for the demo, about a second for a 1080p, 64
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 import numpy as np
 
+from ..lpe.events import SCATTERING_TYPES
 from ..paths.events import Event, path_text
+from ..paths.format import NormBins
 from ..paths.reader import PathClass, PathIndex
-from ..scene import REC709_LUMINANCE
+from ..layers.previews import LUMINANCE_WEIGHTS as LUMINANCE
 
-LUMINANCE = np.asarray(REC709_LUMINANCE, np.float64)
 TOP_CLASSES = 50
 """Classes listed for a selection, by share."""
-NORM_OCTAVES = (-32, 32)
-"""The norm histograms' range, as powers of 2 (paths/format.py NormBins' range): one bin an
+NORM_OCTAVES = (int(math.log2(NormBins.LOWEST)),
+                int(math.ceil(math.log2(NormBins.LOWEST) + (NormBins.CODES - 2) / NormBins.BINS_PER_OCTAVE)))
+"""The norm histograms' range, as powers of 2: NormBins' range (2^-32 to 2^31.5), one bin an
 octave, values outside counted in the first and last bins, 0 on its own."""
 NORM_QUANTITIES = ("C", "T", "R")
 ASPECTS = ("light", "first_object", "first_material", "first_scattering", "scattering", "bounces")
 """What :func:`generalise` can keep of the classes it is given."""
-BOUNCE_TYPES = frozenset("RTV")
 
 
 @dataclass(frozen=True)
@@ -54,16 +56,19 @@ class ClassInfo:
     bounces: int
 
 
-def describe(path_class: PathClass) -> ClassInfo:
+def describe(path_class: PathClass, paths: Sequence[tuple[str, str]]) -> ClassInfo:
+    """paths : paths.events.event_paths of the index's event table."""
     events = path_class.events
-    middle = [event for event in events[1:-1] if event.type in BOUNCE_TYPES]
-    first = middle[0] if middle else None
+    middle = [(event, event_id) for event, event_id in zip(events[1:-1], path_class.event_ids[1:-1])
+              if event.type in SCATTERING_TYPES]
+    first, first_id = middle[0] if middle else (None, None)
     end = events[-1]
     return ClassInfo(
         id=path_class.id, path=path_text(events), lpe="".join(_event_lpe(event) for event in events),
         light=end.name, end_type=end.type, first_type=first.type if first else "",
-        first_object=first.name if first else "", first_material=_material(first) if first else "",
-        scattering=" ".join(event.scatter for event in middle), bounces=len(middle))
+        first_object=first.name if first else "",
+        first_material=paths[first_id][1].rsplit("/", 1)[-1] if first else "",
+        scattering=" ".join(event.scatter for event, _ in middle), bounces=len(middle))
 
 
 def _event_lpe(event: Event) -> str:
@@ -72,15 +77,6 @@ def _event_lpe(event: Event) -> str:
         return event.type
     name = f"'{event.name}'" if event.name else ""
     return f"<{event.type}{event.scatter or '.'}{name}>"
-
-
-def _material(event: Event) -> str:
-    """The bound material's name: an event carries its object's name and path and its
-    material's name and path (paths/events.py), so the path label that is not the
-    object's names the material."""
-    paths = [label for label in event.labels if label.startswith("/")]
-    others = [path for path in paths if path.rsplit("/", 1)[-1] != event.name] or paths[1:]
-    return others[0].rsplit("/", 1)[-1] if others else ""
 
 
 @dataclass(frozen=True)
@@ -164,11 +160,9 @@ def summary(selection: Selection, infos: Sequence[ClassInfo]) -> dict:
             energy[key] += class_energy[k]
             records[key] += int(class_records[k])
             members[key].append(class_id)
-        keep = {"light": ["light"], "first_object": ["first_object"], "first_material": ["first_material"],
-                "scattering": ["scattering"]}[aspect]
         groups[aspect] = [
             {"key": key, "share": share(energy[key]), "records": records[key],
-             "lpe": generalise([infos[i] for i in members[key]], keep)}
+             "lpe": generalise([infos[i] for i in members[key]], [aspect])}
             for key in sorted(energy, key=lambda key: -energy[key])]
     return {"records": int(len(selection.class_id)), "energy_total": total, "rgb_total": class_rgb.sum(0).tolist(),
             "classes": classes, "groups": groups, "norms": norm_histograms(selection, infos, luminance)}

@@ -1,5 +1,5 @@
 """The inspector's local HTTP server (aiohttp): the page, its API over one :class:`Session`,
-and the files of the session's folder. The API is written down in docs/inspector.md.
+and the files of the session's folder. The API is written down in docs/inspector-api.md.
 
 Security, as Jupyter does it: the server binds 127.0.0.1 unless told otherwise; every
 request carries a random token (``?token=`` in the URL the command prints, then the
@@ -33,7 +33,8 @@ log = logging.getLogger(__name__)
 TOKEN_HEADER = "X-Pxr-Token"
 TOKEN_PLACEHOLDER = "{{TOKEN}}"
 """Replaced by the token in index.html, so the page's own assets carry it."""
-LOOPBACK = ("127.0.0.1", "localhost", "[::1]")
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+"""The names of this machine the server answers to when it listens on one of them."""
 MAX_BODY_BYTES = 1 << 20
 SESSION_KEY = web.AppKey("session", Session)
 POOL_KEY = web.AppKey("pool", ThreadPoolExecutor)
@@ -214,18 +215,26 @@ async def _folder_file(request: web.Request) -> web.StreamResponse:
 # --- running ---------------------------------------------------------------------------------
 
 
-def serve(session: Session, *, host: str = "127.0.0.1", port: int = 0, open_browser: bool = True,
-          announce: Callable[[str], None] = print) -> None:
+def is_loopback(host: str) -> bool:
+    return host in LOOPBACK
+
+
+def serve(session: Session, announce: Callable[[str], None], *, host: str = "127.0.0.1", port: int = 0,
+          open_browser: bool = True) -> None:
     """Serve `session` until interrupted. `announce` gets the URL (with its token) once the
-    socket listens; port 0 takes a free one. Raises OSError when the address is taken."""
+    socket listens; port 0 takes a free one. Raises ViewError when the address cannot be had."""
     token = secrets.token_urlsafe(24)
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     listening = socket.socket(family, socket.SOCK_STREAM)
     listening.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    listening.bind((host, port))
+    try:
+        listening.bind((host, port))
+    except OSError as error:
+        listening.close()
+        raise ViewError(f"cannot listen on {host}:{port} ({error.strerror or error})") from None
     port = listening.getsockname()[1]
-    loopback = host in ("127.0.0.1", "::1", "localhost")
-    allowed = frozenset(f"{name}:{port}" for name in (*LOOPBACK, host)) if loopback else None
+    allowed = frozenset(f"[{name}]:{port}" if ":" in name else f"{name}:{port}" for name in LOOPBACK) \
+        if is_loopback(host) else None  # another address is the user's choice: any name may reach it
     url = f"http://{'[' + host + ']' if ':' in host else host}:{port}/?token={token}"
     asyncio.run(_run(make_app(session, token, allowed), listening, url, open_browser, announce))
 

@@ -18,6 +18,7 @@ the session's folder.
 from __future__ import annotations
 
 import logging
+import math
 import re
 import threading
 import time
@@ -35,6 +36,7 @@ from ..layers.multipart import MultipartImage, read_multipart
 from ..layers.nuke import LayerGrade, write_nuke_script
 from ..layers.previews import energy_shares
 from ..outputs import OutputSet
+from ..paths.events import event_paths
 from ..paths.format import NormBins
 from ..paths.reader import PathIndex
 from ..recipe.model import (
@@ -111,7 +113,8 @@ class Session:
             (DEFAULT_OCIO_CONFIG, DEFAULT_DISPLAY, DEFAULT_VIEW, RENDERING_SPACE)
         self.lut: DisplayLut = bake_display_lut(*settings)
         self._lock = threading.Lock()
-        self._infos = [inspect.describe(path_class) for path_class in index.classes] if index else []
+        self._event_paths = event_paths(index.events) if index else []
+        self._infos = [inspect.describe(path_class, self._event_paths) for path_class in index.classes] if index else []
 
     # -- opening
 
@@ -133,7 +136,7 @@ class Session:
             raise ViewError(f"{path}: not a folder, an .exr product or a .pxlidx index")
         folder = folder.resolve()
         if not products:
-            products = _products_beside(folder, index)
+            products = _same_size(_products_beside(folder, index), index)
         if index is not None and not products:
             beauty = beauty_beside(index)
         elif products:
@@ -185,7 +188,7 @@ class Session:
             return None
         lights = sorted({info.light for info in self._infos if info.end_type == "L" and info.light})
         objects = sorted({event.name for event in index.events if event.type in "RTO" and event.name})
-        materials = sorted({inspect._material(event) for event in index.events if event.type in "RT"} - {""})
+        materials = sorted({material.rsplit("/", 1)[-1] for _, material in self._event_paths} - {""})
         return {"file": index.path.name, "spp": index.manifest["spp"], "records": index.record_count,
                 "classes": len(index.classes), "bounces": index.norm_slots, "has_sigma": index.has_sigma,
                 "labels": sorted(index.labels), "lights": lights, "objects": objects, "materials": materials,
@@ -211,8 +214,11 @@ class Session:
 
     def generalise(self, class_ids: list[int], keep: list[str]) -> str:
         self._need_index("generalise path classes")
-        if not all(isinstance(i, int) and 0 <= i < len(self._infos) for i in class_ids) or not class_ids:
+        if not isinstance(class_ids, list) or not class_ids or \
+                not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i < len(self._infos) for i in class_ids):
             raise ViewError("classes must be a non-empty list of the index's class ids")
+        if not isinstance(keep, list) or not all(isinstance(aspect, str) for aspect in keep):
+            raise ViewError(f"keep must be a list of aspects ({', '.join(inspect.ASPECTS)})")
         try:
             return inspect.generalise([self._infos[i] for i in class_ids], keep)
         except ValueError as error:
@@ -222,6 +228,8 @@ class Session:
 
     def check(self, expression: str) -> None:
         """Raise ViewError (with the position) unless `expression` compiles."""
+        if not isinstance(expression, str):
+            raise ViewError("the expression must be a string")
         try:
             lpe.compile(expression)
         except LpeSyntaxError as error:
@@ -234,8 +242,6 @@ class Session:
         index = self._need_index("make a layer")
         if not isinstance(name, str) or not LAYER_NAME.fullmatch(name):
             raise ViewError(f"layer name {name!r}: letters, digits and _, not starting with a digit")
-        if not isinstance(expression, str):
-            raise ViewError("the expression must be a string")
         self.check(expression)
         start = time.perf_counter()
         with self._lock:
@@ -296,6 +302,8 @@ class Session:
         index = self._need_index("save the stack (its layers are extracted from it)")
         if not isinstance(name, str) or not SAVE_NAME.fullmatch(name):
             raise ViewError(f"save name {name!r}: letters, digits, _ and -, not starting with a digit or -")
+        if isinstance(exposure, bool) or not isinstance(exposure, (int, float)) or not math.isfinite(exposure):
+            raise ViewError(f"exposure must be a number of stops, not {exposure!r}")
         chosen, grades = self._stack(stack)
         recipe = Recipe((replace(self.base_product, name=name.replace("-", "_"), output_name=f"{name}.exr", prim_path="",
                                  layers=tuple(chosen), per_light="none"),))
@@ -381,6 +389,21 @@ def _products_beside(folder: Path, index: PathIndex | None) -> list[MultipartIma
         if product.parts and (render_id is None or render_id in ids):
             products.append(product)
     return products
+
+
+def _same_size(products: list[MultipartImage], index: PathIndex | None) -> list[MultipartImage]:
+    """The products of the index's size (of the first product's, without an index); the
+    others, from another render, are left out with a warning."""
+    if not products:
+        return products
+    size = tuple(index.manifest["resolution"]) if index else products[0].beauty.shape[1::-1]
+    kept = []
+    for product in products:
+        if product.beauty.shape[1::-1] == size:
+            kept.append(product)
+        else:
+            log.warning("leaving out %s: %dx%d, not %dx%d", product.path.name, *product.beauty.shape[1::-1], *size)
+    return kept
 
 
 def _product_layers(products: list[MultipartImage], beauty: np.ndarray) -> list[ViewLayer]:
