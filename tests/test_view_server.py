@@ -304,3 +304,18 @@ def test_suggested_layers_partition_the_beauty(server, folder):
     again = [layer["id"] for layer in server.json("/api/suggest", {"k": 4})["layers"]]
     assert not set(again) & set(names) and not set(again) & {"emission", "beauty"}  # numbered, not clashing
     assert server.request("/api/suggest", {"k": 0})[0] == 400
+
+
+@pytest.mark.parametrize("path, body", [
+    ("/api/generalise", {}), ("/api/generalise", {"classes": None}), ("/api/generalise", {"classes": [0], "keep": [{}]}),
+    ("/api/generalise", {"classes": [True]}), ("/api/layer", {"name": "x", "expression": None}),
+    ("/api/save", {"name": "look2", "layers": [{"id": "beauty"}], "exposure": "bright"}),
+    ("/api/save", {"name": "look2", "layers": "all"}), ("/api/suggest", {"k": "six"}),
+])
+def test_wrong_types_get_one_line_not_an_internal_error(server, path, body):
+    status, answer, _ = server.request(path, body)
+    assert status == 400 and set(json.loads(answer)) <= {"error", "position"}, (path, body, answer)
+
+
+def test_check_answers_a_non_string(server):
+    assert server.json("/api/check", {"expression": None})["ok"] is False
