@@ -3,17 +3,18 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import logging
 import sys
 from pathlib import Path
 
 from .. import lpe
 from ..layers.deliver import (
+    at_index_view,
     beauty_beside,
     check_raw_sources,
     cryptomattes_beside,
     deliver,
+    index_frame,
     index_metadata,
     plan_outputs,
 )
@@ -96,7 +97,7 @@ def _run(args: argparse.Namespace) -> int:
         print("pxr-layers extract: error: no layers: give --recipe, --layer NAME=EXPR, --passes or --lights",
               file=sys.stderr)
         return 2
-    recipe = Recipe(products=tuple(_at_index_view(product, index) for product in products),
+    recipe = Recipe(products=tuple(at_index_view(product, index) for product in products),
                     settings_path=loaded.settings_path if loaded else "", file=loaded.file if loaded else "")
     if args.cryptomatte:
         recipe = recipe.with_cryptomattes(args.cryptomatte)
@@ -105,7 +106,7 @@ def _run(args: argparse.Namespace) -> int:
     check_raw_sources(recipe, tuple(copied), "the path index does not hold (it keeps light paths; data AOVs need "
                       "a render; Cryptomattes are copied from the render's EXR beside the index, and it has none "
                       "of that source)")
-    frame = _manifest_frame(index)
+    frame = index_frame(index)
     directory, exr = output_target(args.output, index.path.parent)
     outputs = plan_outputs(recipe, frame, directory, exr)
     metadata = index_metadata(index, directory)
@@ -158,22 +159,7 @@ def _recipe(index: PathIndex, args: argparse.Namespace) -> Recipe:
     else:
         log.warning("the stage %s of %s is not there: reading the recipe on its own", stage, index.path)
         shot = open_shot(layers[0], recipe_layers=layers[1:], default_lights=False)
-    return shot.recipe(settings=args.settings, per_light=args.per_light, frame=_manifest_frame(index))
-
-
-def _at_index_view(product: Product, index: PathIndex) -> Product:
-    """The product at the camera and resolution of the render (what the index holds)."""
-    resolution = tuple(index.manifest["resolution"])
-    camera = index.manifest.get("camera", product.camera)
-    if product.resolution != resolution or product.camera != camera:
-        log.info("%s asks for %s at %dx%d; the index holds %s at %dx%d, which is what it gets",
-                 product.prim_path or product.name, product.camera, *product.resolution, camera, *resolution)
-    return dataclasses.replace(product, resolution=resolution, camera=camera)
-
-
-def _manifest_frame(index: PathIndex) -> float | None:
-    frame = index.manifest.get("frame", "default")
-    return None if frame == "default" else float(frame)
+    return shot.recipe(settings=args.settings, per_light=args.per_light, frame=index_frame(index))
 
 
 def _layer(text: str) -> tuple[str, str]:

@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..layers.deliver import beauty_beside, deliver, index_metadata, plan_outputs
+    from ..layers.deliver import at_index_view, beauty_beside, deliver, index_frame, index_metadata, plan_outputs
     from ..layers.extract import extraction_threads
     from ..outputs import OutputSet
     from ..paths.reader import PathIndex
@@ -57,11 +57,8 @@ def run(args: argparse.Namespace) -> int:
         write_recipe(target, recipe)
         if not args.no_exr:
             for index in indexes:
-                product = dataclasses.replace(recipe.products[0], resolution=tuple(index.manifest["resolution"]),
-                                              camera=index.manifest.get("camera", recipe.products[0].camera))
-                at_index = dataclasses.replace(recipe, products=(product,))
-                frame = index.manifest.get("frame", "default")
-                outputs = plan_outputs(at_index, None if frame == "default" else float(frame), target.parent)
+                at_index = dataclasses.replace(recipe, products=(at_index_view(recipe.products[0], index),))
+                outputs = plan_outputs(at_index, index_frame(index), target.parent)
                 for delivered in deliver(index, at_index, beauty_beside(index), outputs,
                                          metadata=index_metadata(index, target.parent), previews=not args.no_previews):
                     print(delivered.exr)

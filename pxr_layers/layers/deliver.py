@@ -20,6 +20,7 @@ preview and no energy share.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -80,6 +81,23 @@ def plan_outputs(recipe: Recipe, frame: float | None, directory: Path, exr: Path
                               f"({names}): give a directory instead", prim=recipe.settings_path or None)
         return {recipe.products[0].name: exr}
     return {product.name: product_path(product, frame, directory) for product in recipe.products}
+
+
+def at_index_view(product: Product, index: PathIndex) -> Product:
+    """``product`` at the camera and resolution of the render (what the index holds); logs
+    when the product asked for another view."""
+    resolution = tuple(index.manifest["resolution"])
+    camera = index.manifest.get("camera", product.camera)
+    if product.resolution != resolution or product.camera != camera:
+        log.info("%s asks for %s at %dx%d; the index holds %s at %dx%d, which is what it gets",
+                 product.prim_path or product.name, product.camera, *product.resolution, camera, *resolution)
+    return dataclasses.replace(product, resolution=resolution, camera=camera)
+
+
+def index_frame(index: PathIndex) -> float | None:
+    """The frame the index was rendered at; None for the stage's default time."""
+    frame = index.manifest.get("frame", "default")
+    return None if frame == "default" else float(frame)
 
 
 def raw_sources(recipe: Recipe) -> dict[str, Layer]:
@@ -164,44 +182,51 @@ def cryptomattes_beside(index: PathIndex) -> dict[str, Cryptomatte]:
     """The Cryptomattes of the render's EXR beside the index (its first product), by source
     (CryptoObject, ...): the index cannot give them (it keeps the light paths' records, not
     every camera sample's first hit). Empty when that EXR is missing or holds none; refused
-    (PathIndexError) when another render wrote it."""
-    beside = index.path.parent / index.manifest.get("beauty", index.path.stem + ".exr")
-    if not beside.exists():
+    as :func:`beauty_beside` refuses it."""
+    beside = _render_exr_beside(index)
+    if beside is None:
         return {}
-    image = read_multipart(beside)
-    expected = index.manifest.get("render_id")
-    found = next(iter(image.metadata.values()), {}).get("renderId") if image.metadata else None
-    if expected is not None and image.cryptomattes and found != expected:
-        raise PathIndexError(f"{beside.name} beside it comes from another render (renderId {found or 'none'}, "
-                             f"the index's is {expected}): its Cryptomattes do not belong to this index",
-                             file=str(index.path))
+    image = read_multipart(beside[0])
     return {image.metadata[name]["source"]: matte for name, matte in image.cryptomattes.items()}
 
 
 def beauty_beside(index: PathIndex) -> np.ndarray:
     """The render's beauty EXR beside the index, else C.* from the index with alpha 1.
 
-    An EXR beside the index that another render wrote (its ``pxrLayers/renderId`` is not the
-    index's ``render_id``: two renders into one folder) is refused: layers cut from this
-    index would not sum to that beauty.
+    Raises OutputError when that EXR cannot be read, PathIndexError when another render
+    wrote it (its ``pxrLayers/renderId`` is not the index's ``render_id``: two renders into
+    one folder): layers cut from this index would not sum to that beauty.
     """
     height_width = tuple(reversed(index.manifest["resolution"]))
-    beside = index.path.parent / index.manifest.get("beauty", index.path.stem + ".exr")
-    if beside.exists():
-        try:
-            exr = OpenEXR.File(str(beside))
-        except Exception as error:  # the binding raises RuntimeError and others for a damaged file
-            raise OutputError(f"{beside}: the beauty beside {index.path.name} cannot be read ({error}); "
-                              "remove it to rebuild the beauty from the index") from error
-        expected = index.manifest.get("render_id")
-        found = exr.header().get(METADATA_PREFIX + "renderId")
-        if expected is not None and found != expected:
-            raise PathIndexError(f"{beside.name} beside it comes from another render (renderId {found or 'none'}, "
-                                 f"the index's is {expected}): two renders wrote into this folder; render "
-                                 "again, or move that EXR away to rebuild the beauty from the index",
-                                 file=str(index.path))
-        rgba = exr.channels().get("RGBA")
+    beside = _render_exr_beside(index)
+    if beside is not None:
+        rgba = beside[1].channels().get("RGBA")
         if rgba is not None and rgba.pixels.shape[:2] == height_width:
             return np.ascontiguousarray(rgba.pixels, dtype=np.float32)
     rgb = extract(index, {"beauty": lpe.BEAUTY}).layers["beauty"]
     return np.concatenate([rgb, np.ones((*rgb.shape[:2], 1), np.float32)], axis=2)
+
+
+def _render_exr_beside(index: PathIndex) -> tuple[Path, OpenEXR.File] | None:
+    """The EXR the render of ``index`` wrote beside it (the manifest's ``beauty``, else
+    ``<index stem>.exr``) and its contents; None when there is no such file.
+
+    Raises OutputError when OpenEXR cannot read it, PathIndexError when its
+    ``pxrLayers/renderId`` is not the index's ``render_id`` (another render wrote it).
+    """
+    beside = index.path.parent / index.manifest.get("beauty", index.path.stem + ".exr")
+    if not beside.exists():
+        return None
+    try:
+        exr = OpenEXR.File(str(beside))
+    except Exception as error:  # the binding raises RuntimeError and others for a damaged file
+        raise OutputError(f"{beside}: the render's EXR beside {index.path.name} cannot be read ({error}); "
+                          "remove it to rebuild the beauty from the index") from error
+    expected = index.manifest.get("render_id")
+    found = exr.header().get(METADATA_PREFIX + "renderId")
+    if expected is not None and found != expected:
+        raise PathIndexError(f"{beside.name} beside it comes from another render (renderId {found or 'none'}, "
+                             f"the index's is {expected}): two renders wrote into this folder; render "
+                             "again, or move that EXR away to rebuild the beauty from the index",
+                             file=str(index.path))
+    return beside, exr
