@@ -14,9 +14,11 @@ from pxr_layers.errors import OutputError, RecipeError
 from pxr_layers.layers.exr import REC709_CHROMATICITIES
 from pxr_layers.layers.multipart import read_multipart, write_multipart
 from pxr_layers.layers.previews import (
+    PARTITION_TOLERANCE,
     check_colour_settings,
     display_processor,
     energy_shares,
+    layers_partition,
     to_display,
     write_contact_sheet,
     write_png,
@@ -304,3 +306,29 @@ def test_read_multipart_names_the_file_of_a_cryptomatte_part_without_a_channel(t
     with pytest.raises(OutputError, match=r"mattes\.exr: the Cryptomatte part 'CryptoObject00' has no channel "
                        r"CryptoObject00\.A"):
         read_multipart(path)
+
+
+def test_colour_layers_are_the_colour_parts_as_rgb(tmp_path, delivery):
+    beauty, images, product = delivery
+    with_alpha = Layer("emission", "raw", "emission", data_type="color4f")
+    images = {**images, "emission": np.concatenate([images["glossy"], np.ones((HEIGHT, WIDTH, 1), np.float32)], 2)}
+    product = Product(product.name, product.output_name, product.camera, product.resolution,
+                      (*product.layers, with_alpha))
+    read = read_multipart(write_multipart(tmp_path / "shot.exr", beauty, images, product))
+    colour = read.colour_layers()
+    assert list(colour) == ["diffuse", "glossy", "key_half", "emission"]  # not depth, normal
+    assert all(image.shape == (HEIGHT, WIDTH, 3) for image in colour.values())
+    np.testing.assert_array_equal(colour["emission"], images["glossy"])
+
+
+def test_layers_partition_the_beauty_within_the_tolerance_of_its_peak(delivery):
+    beauty, images, _ = delivery
+    layers = [images["diffuse"], images["glossy"]]
+    assert layers_partition(beauty, layers)
+    peak = float(beauty[..., :3].max())
+    off = np.zeros_like(images["glossy"])
+    off[3, 4, 1] = 2 * PARTITION_TOLERANCE * peak
+    assert not layers_partition(beauty, [images["diffuse"], images["glossy"] + off])
+    assert layers_partition(beauty, [images["diffuse"], images["glossy"] + off / 4])
+    assert not layers_partition(beauty, [])
+    assert not layers_partition(beauty, [images["diffuse"]])

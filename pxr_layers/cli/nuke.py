@@ -15,9 +15,6 @@ DESCRIPTION = (
     "folder when it lies there or below. docs/compositing.md shows how Nuke reads every part."
 )
 
-PARTITION_TOLERANCE = 1e-4
-"""The colour layers partition the beauty when they sum to it within this, relative to its peak."""
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("product", metavar="PRODUCT", help="the multipart EXR (.exr)")
@@ -34,19 +31,14 @@ def run(args: argparse.Namespace) -> int:
 
 def write_product_script(product: Path, output: Path) -> Path:
     """Write the Nuke script of the EXR ``product`` at ``output``; returns ``output``."""
-    import numpy as np
-
     from ..layers.multipart import read_multipart
     from ..layers.nuke import write_nuke_script
-    from ..recipe.model import COLOUR_DATA_TYPES
+    from ..layers.previews import layers_partition
 
     image = read_multipart(product)
-    colour = [name for name, meta in image.metadata.items() if name in image.parts and (
-        meta.get("sourceType") == "lpe" or meta.get("dataType", "color3f") in COLOUR_DATA_TYPES)]
-    total = sum((image.parts[name][..., :3].astype(np.float64) for name in colour), np.zeros(1))
-    peak = max(float(np.abs(image.beauty[..., :3]).max(initial=0.0)), np.finfo(np.float32).tiny)
-    partition = bool(colour) and bool(np.abs(total - image.beauty[..., :3]).max() <= PARTITION_TOLERANCE * peak)
+    colour = image.colour_layers()
     height, width = image.beauty.shape[:2]
-    write_nuke_script(output, product, colour, {}, resolution=(width, height), partition=partition,
+    write_nuke_script(output, product, list(colour), {}, resolution=(width, height),
+                      partition=layers_partition(image.beauty, colour.values()),
                       cryptomattes={name: matte.depth for name, matte in image.cryptomattes.items()})
     return output

@@ -39,7 +39,16 @@ import OpenEXR
 from .. import __version__
 from ..errors import OutputError
 from ..outputs import write_atomically
-from ..recipe.model import BEAUTY_EXPRESSION, BEAUTY_PART, Layer, Product, Recipe, channels_for, cryptomatte_parts
+from ..recipe.model import (
+    BEAUTY_EXPRESSION,
+    BEAUTY_PART,
+    Layer,
+    Product,
+    Recipe,
+    channels_for,
+    cryptomatte_parts,
+    is_data_layer,
+)
 from .cryptomatte import ATTRIBUTE_PREFIX, Cryptomatte, header_attributes, type_key
 from .exr import METADATA_PREFIX, header
 
@@ -218,6 +227,20 @@ class MultipartImage:
     metadata: dict[str, dict[str, str]]
     recipe: Recipe | None
     cryptomattes: dict[str, Cryptomatte] = field(default_factory=dict)
+
+    def colour_layers(self) -> dict[str, np.ndarray]:
+        """The colour layers (lpe layers and raw vars of a colour dataType; not data layers,
+        :func:`~pxr_layers.recipe.model.is_data_layer`; a part of another writer without
+        three channels is not one), in part order: name → (h, w, 3) float32 R, G, B (a color4
+        layer's alpha dropped)."""
+        colour = {}
+        for name, image in self.parts.items():
+            meta = self.metadata.get(name, {})
+            source_type = meta.get("sourceType", "raw")
+            data = is_data_layer(source_type, meta.get("source", name), meta.get("dataType", "color3f"))
+            if not data and image.shape[-1] >= 3:
+                colour[name] = image[..., :3]
+        return colour
 
 
 def read_multipart(path: str | os.PathLike) -> MultipartImage:

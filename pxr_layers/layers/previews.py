@@ -20,7 +20,7 @@ import logging
 import errno
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from functools import lru_cache
 from pathlib import Path
 
@@ -249,6 +249,25 @@ def energy_shares(beauty: np.ndarray, images: Mapping[str, np.ndarray],
         else:
             shares[name] = _energy(image) / total
     return shares
+
+
+PARTITION_TOLERANCE = 1e-4
+"""Colour layers partition the beauty when they sum to it within this, relative to its peak."""
+
+
+def layers_partition(beauty: np.ndarray, images: Iterable[np.ndarray]) -> bool:
+    """The colour layers sum to the beauty: at every pixel and channel within
+    PARTITION_TOLERANCE × the beauty's peak |R, G, B| (sums in float64); False for no layers.
+
+    beauty : (h, w, 3 or 4) linear RGB(A); images : each (h, w, 3 or more), same h, w (R, G, B count)
+    """
+    rgb = np.asarray(beauty)[..., :3]
+    layers = [np.asarray(image)[..., :3] for image in images]
+    if not layers:
+        return False
+    total = np.sum(layers, axis=0, dtype=np.float64)
+    peak = float(np.abs(rgb).max(initial=0.0))
+    return bool(np.abs(total - rgb).max(initial=0.0) <= PARTITION_TOLERANCE * peak)
 
 
 def _energy(image: np.ndarray) -> float:

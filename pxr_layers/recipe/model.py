@@ -107,6 +107,13 @@ def channels_for(source_type: str, source_name: str, data_type: str) -> tuple[st
     return ("Y",)
 
 
+def is_data_layer(source_type: str, source_name: str, data_type: str) -> bool:
+    """A data layer (a var of a non-colour dataType, or a Cryptomatte): float, lossless, no
+    energy share, not in a colour stack. The one rule of :attr:`Layer.is_data`, the USD
+    reader and files read back (:meth:`~pxr_layers.layers.multipart.MultipartImage.colour_layers`)."""
+    return data_type not in COLOUR_DATA_TYPES or (source_type == "raw" and source_name in CRYPTOMATTE_SOURCES)
+
+
 def cryptomatte_parts(name: str, depth: int) -> tuple[str, ...]:
     """The EXR parts of the Cryptomatte layer ``name`` at ``depth`` ranks: ``NAME00``, ... (two ranks each)."""
     return tuple(f"{name}{part:02d}" for part in range((depth + 1) // 2))
@@ -190,8 +197,8 @@ class Layer:
     @property
     def is_data(self) -> bool:
         """A data layer (raw var of a non-colour dataType, or a Cryptomatte): float, lossless,
-        no energy share."""
-        return self.data_type not in COLOUR_DATA_TYPES or self.is_cryptomatte
+        no energy share (:func:`is_data_layer`)."""
+        return is_data_layer(self.source_type, self.source_name, self.data_type)
 
     @property
     def is_cryptomatte(self) -> bool:
