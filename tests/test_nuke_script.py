@@ -515,6 +515,17 @@ def test_what_nuke_would_read_otherwise_is_refused(parts, grades, message):
         nuke_script("x.exr", parts, grades, resolution=(4, 4), partition=True)
 
 
+def test_a_cryptomatte_deeper_than_the_gizmo_keys_is_refused():
+    from pxr_layers.recipe.model import MAX_CRYPTOMATTE_DEPTH
+
+    text = nuke_script("x.exr", [], {}, resolution=(4, 4), partition=True,
+                       cryptomattes={"CryptoObject": MAX_CRYPTOMATTE_DEPTH})
+    assert " in11 CryptoObject11\n" in text and " in12 " not in text
+    for depth in (0, MAX_CRYPTOMATTE_DEPTH + 1):
+        with pytest.raises(OutputError, match=f"1 to {MAX_CRYPTOMATTE_DEPTH} ranks: 12 parts"):
+            nuke_script("x.exr", [], {}, resolution=(4, 4), partition=True, cryptomattes={"CryptoObject": depth})
+
+
 def test_a_grade_of_a_layer_not_in_the_stack_is_a_mistake():
     with pytest.raises(ValueError, match="glossy"):
         nuke_script("x.exr", ["key"], {"glossy": LayerGrade()}, resolution=(4, 4), partition=True)

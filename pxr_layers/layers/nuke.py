@@ -23,10 +23,11 @@ Each layer is added by its own ``Merge2 operation plus``; a muted layer, and whe
 layer is soloed every other layer and the rest branch, has that Merge disabled (a disabled
 Merge passes B, the trunk, through): its Grade keeps the artist's values and enabling the
 Merge brings it back. When the layers partition the beauty there is no rest branch (their
-sum is the beauty within 1e-4); otherwise the rest makes unit gains give the beauty again
-(exactly but for float32 rounding of the subtraction and the sums). The trunk starts from
-the beauty with black RGB, so the result carries the beauty's alpha (every layer's alpha
-is black) and a disabled first Merge still leaves a black base.
+sum is the beauty, :func:`pxr_layers.layers.previews.layers_partition`); otherwise the rest
+makes unit gains give the beauty again (exactly but for float32 rounding of the
+subtraction and the sums). The trunk starts from the beauty with black RGB, so the result
+carries the beauty's alpha (every layer's alpha is black) and a disabled first Merge still
+leaves a black base.
 
 Knobs and node types are those of every Nuke since 12.0 (the classic Shuffle, not
 Shuffle2). Every Grade has ``black_clamp false`` (Nuke's default clamps negatives to 0,
@@ -63,7 +64,7 @@ from pathlib import Path
 from .. import __version__
 from ..errors import OutputError
 from ..outputs import write_atomically
-from ..recipe.model import BEAUTY_PART, cryptomatte_parts
+from ..recipe.model import BEAUTY_PART, LAYER_NAME, MAX_CRYPTOMATTE_DEPTH, cryptomatte_parts
 
 logger = logging.getLogger(__name__)
 
@@ -73,11 +74,6 @@ NUKE_RESERVED_LAYERS = frozenset({"rgba", "rgb", "alpha", "depth", "motion", "fo
                                   "mask_extra", "main", "Ci"})
 """Part names Nuke does not read as a layer of their own: its built-in layers, the default
 view ``main`` and RenderMan's ``Ci`` (both read into ``rgba``)."""
-_NUKE_LAYER_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-"""What Nuke keeps of a channel name's layer as is (it drops leading digits and turns other
-characters into ``_``)."""
-CRYPTOMATTE_INPUTS = 12
-"""The gizmo's hidden input-layer knobs ``in00`` ... ``in11``: the most parts it keys."""
 _COLUMN = 150  # node graph spacing, Nuke units
 _ROW = 80
 
@@ -128,9 +124,10 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
     _check(parts + [part for name, depth in cryptomattes.items() for part in cryptomatte_parts(name, depth)],
            grades, beauty_part, exposure)
     for name, depth in cryptomattes.items():
-        if not _NUKE_LAYER_NAME.match(name) or not 1 <= (depth + 1) // 2 <= CRYPTOMATTE_INPUTS:
+        if not LAYER_NAME.match(name) or not 1 <= depth <= MAX_CRYPTOMATTE_DEPTH:
             raise OutputError(f"Nuke script: the Cryptomatte {name!r} of depth {depth} is not one the gizmo keys "
-                              f"(a name Nuke keeps, 1 to {CRYPTOMATTE_INPUTS} parts)")
+                              f"(a name Nuke keeps, 1 to {MAX_CRYPTOMATTE_DEPTH} ranks: "
+                              f"{len(cryptomatte_parts(name, MAX_CRYPTOMATTE_DEPTH))} parts)")
     width, height = (int(value) for value in resolution)
     writer = _Script()
     writer.comment(f"pxr-layers {__version__}: {len(parts)} layers of {os.fspath(exr_path)} graded as in "
@@ -234,7 +231,7 @@ def write_nuke_script(path: str | os.PathLike, exr_path: str | os.PathLike, part
 
 def _check(parts: list[str], grades: Mapping[str, LayerGrade], beauty_part: str, exposure: float) -> None:
     for part in [*parts, beauty_part]:
-        if not _NUKE_LAYER_NAME.match(part):
+        if not LAYER_NAME.match(part):  # Nuke drops leading digits and turns other characters into _
             raise OutputError(f"Nuke script: the part {part!r} is not a name Nuke keeps as a layer "
                               "(letters, digits, _; not starting with a digit)")
     for part in parts:

@@ -80,13 +80,16 @@ the model root's path; docs/compositing.md). Such a layer ``NAME`` is written as
 DEFAULT_CRYPTOMATTE_DEPTH = 6
 """Ranks (ids per pixel) of a Cryptomatte layer: 6, three parts (the specification's suggestion)."""
 MAX_CRYPTOMATTE_DEPTH = 24
-"""The most ranks the Nuke gizmo keys (its 12 input layers ``in00`` ... ``in11``)."""
+"""The most ranks the Nuke gizmo keys: two per part, and it has 12 input-layer knobs
+``in00`` ... ``in11`` (layers/nuke.py)."""
 KNOWN_RAW_SOURCES = frozenset({BEAUTY_RAW_SOURCE, *RAW_CHANNELS, *CRYPTOMATTE_SOURCES})
 CRYPTOMATTE_KINDS = {"object": "CryptoObject", "material": "CryptoMaterial", "asset": "CryptoAsset"}
 """The words of ``--cryptomatte object,material,asset`` and their sources."""
 CRYPTOMATTE_DATA_TYPE = "float4"
 
-_LAYER_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+LAYER_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+"""What a layer name is (an identifier: the EXR part and the RenderVar prim name); also
+exactly the layer names Nuke keeps as they are (layers/nuke.py)."""
 
 
 def channels_for(source_type: str, source_name: str, data_type: str) -> tuple[str, ...]:
@@ -126,7 +129,7 @@ def layer_problems(layer: Layer) -> list[tuple[str, str]]:
     RenderVar prim and attribute).
     """
     problems: list[tuple[str, str]] = []
-    if not _LAYER_NAME.match(layer.name):
+    if not LAYER_NAME.match(layer.name):
         problems.append(("", f"layer name {layer.name!r} is not an identifier (letters, digits, _)"))
     elif layer.name == BEAUTY_PART:
         problems.append(("", f"layer name {BEAUTY_PART!r} is reserved for the beauty (part 0)"))
