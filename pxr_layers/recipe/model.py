@@ -117,6 +117,16 @@ def is_data_layer(source_type: str, source_name: str, data_type: str) -> bool:
     return data_type not in COLOUR_DATA_TYPES or (source_type == "raw" and source_name in CRYPTOMATTE_SOURCES)
 
 
+def inherited_encoding(data: bool, pixel_type: str, compression: str) -> tuple[str, str]:
+    """The (pixel type, compression) a var that authors neither takes from its product's
+    ``pixel_type`` and ``compression``: both for a colour layer; for a data layer (``data``,
+    :func:`is_data_layer`) only what keeps data exact: float, and DEFAULT_COMPRESSION (the
+    schema's fallback) in place of a lossy compression. The rule of the USD reader and writer."""
+    if not data:
+        return pixel_type, compression
+    return "float", DEFAULT_COMPRESSION if compression in LOSSY_COMPRESSIONS else compression
+
+
 def cryptomatte_parts(name: str, depth: int) -> tuple[str, ...]:
     """The EXR parts of the Cryptomatte layer ``name`` at ``depth`` ranks: ``NAME00``, ... (two ranks each)."""
     return tuple(f"{name}{part:02d}" for part in range((depth + 1) // 2))

@@ -23,22 +23,21 @@ from ..recipe.expressions import check_expression, covariance_needs, normalise_e
 from ..recipe.lights import per_light_layers
 from ..recipe.model import (
     BEAUTY_RAW_SOURCE,
-    COLOUR_DATA_TYPES,
-    CRYPTOMATTE_SOURCES,
     KNOWN_RAW_SOURCES,
-    LOSSY_COMPRESSIONS,
     PER_LIGHT_MODES,
     IndexSettings,
     Layer,
     Product,
     Recipe,
+    inherited_encoding,
+    is_data_layer,
 )
 from ..request import DEFAULT_RESOLUTION
 from . import schema
 
 logger = logging.getLogger(__name__)
 
-_PREFIX = "pxrLayers:"
+_PREFIX = schema.ATTRIBUTE_PREFIX
 
 
 def find_settings(stage: Usd.Stage, file: str, settings_path: str | None,
@@ -241,13 +240,10 @@ class _Reader:
         if source_type == "lpe":
             source_name = normalise_expression(source_name)
         data_type = str(var.GetDataTypeAttr().Get())
-        if data_type not in COLOUR_DATA_TYPES or (source_type == "raw" and source_name in CRYPTOMATTE_SOURCES):
-            # A data layer inherits only the product defaults that keep data exact.
-            product_pixel_type = "float"
-            if product_compression in LOSSY_COMPRESSIONS:
-                product_compression = str(schema.fallback(schema.VAR_API, _PREFIX + "compression"))
-        pixel_type = self.token(prim, schema.VAR_API, "pixelType", api, inherited=product_pixel_type)
-        compression = self.token(prim, schema.VAR_API, "compression", api, inherited=product_compression)
+        inherited_pixel_type, inherited_compression = inherited_encoding(
+            is_data_layer(source_type, source_name, data_type), product_pixel_type, product_compression)
+        pixel_type = self.token(prim, schema.VAR_API, "pixelType", api, inherited=inherited_pixel_type)
+        compression = self.token(prim, schema.VAR_API, "compression", api, inherited=inherited_compression)
         fields = {
             "name": prim.GetName(), "source_type": source_type, "source_name": source_name,
             "data_type": data_type, "pixel_type": pixel_type, "compression": compression,

@@ -45,13 +45,13 @@ from pxr import Gf, Sdf, Tf, Usd, UsdRender
 from .. import __version__
 from ..errors import RecipeError
 from ..outputs import write_atomically
-from ..recipe.model import LOSSY_COMPRESSIONS, Layer, Product, Recipe
+from ..recipe.model import Layer, Product, Recipe, inherited_encoding
 from . import schema
 from .opening import trapped_usd_diagnostics
 
 logger = logging.getLogger(__name__)
 
-_PREFIX = "pxrLayers:"
+_PREFIX = schema.ATTRIBUTE_PREFIX
 
 
 def write_recipe(path: str | os.PathLike, recipe: Recipe) -> Path:
@@ -193,11 +193,9 @@ def _author_var(stage: Usd.Stage, path: Sdf.Path, layer: Layer, product: Product
     var.CreateDataTypeAttr(layer.data_type)
     var.CreateSourceTypeAttr(layer.source_type)
     var.CreateSourceNameAttr(layer.source_name)
-    # What the reader takes when the var does not author them (recipe_reader._Reader.layer).
-    inherited_pixel_type = "float" if layer.is_data else product.pixel_type
-    inherited_compression = product.compression
-    if layer.is_data and inherited_compression in LOSSY_COMPRESSIONS:
-        inherited_compression = schema.fallback(schema.VAR_API, _PREFIX + "compression")
+    # What the reader takes when the var does not author them.
+    inherited_pixel_type, inherited_compression = inherited_encoding(layer.is_data, product.pixel_type,
+                                                                     product.compression)
     values = {
         "pixelType": (layer.pixel_type, inherited_pixel_type),
         "compression": (layer.compression, inherited_compression),

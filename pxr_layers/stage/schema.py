@@ -26,6 +26,8 @@ VAR_API = "PxrLayersVarAPI"
 PRODUCT_API = "PxrLayersProductAPI"
 LIGHT_API = "PxrLayersLightAPI"
 API_SCHEMAS = (VAR_API, PRODUCT_API, LIGHT_API)
+ATTRIBUTE_PREFIX = "pxrLayers:"
+"""The namespace of every attribute the API schemas define (``pxrLayers:pixelType``, ...)."""
 SCHEMA_FILES = ("schema.usda", "generatedSchema.usda", "plugInfo.json")
 
 _registered = False
