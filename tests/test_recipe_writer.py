@@ -14,7 +14,7 @@ from pxr_layers.cli.main import main
 from pxr_layers.errors import RecipeError
 from pxr_layers.recipe import IndexSettings, Layer, Product, Recipe, per_light_layers
 from pxr_layers.stage import load_recipe, open_shot
-from pxr_layers.stage.recipe_writer import write_recipe
+from pxr_layers.stage.recipe_writer import valid_prim_name, write_recipe
 
 ROOT = Path(__file__).resolve().parents[1]
 CORNELL = ROOT / "render" / "cornell.usda"
@@ -199,3 +199,11 @@ def test_extract_with_a_written_recipe_gives_the_command_lines_pixels(cornell_in
         np.testing.assert_array_equal(from_recipe[name], from_flags[name])  # same index, same sums: bit for bit
     assert from_recipe["key"].dtype == np.float16
     np.testing.assert_array_equal(from_recipe["key"], from_flags["key"].astype(np.float16))
+
+
+@pytest.mark.parametrize("text, name", [("my-look", "my_look"), ("3look", "_look"), ("été", "__t__"),
+                                        ("look_2", "look_2")])
+def test_valid_prim_name_makes_any_text_a_usd_identifier(text, name):
+    from pxr import Sdf
+
+    assert valid_prim_name(text) == name and Sdf.Path.IsValidIdentifier(name)

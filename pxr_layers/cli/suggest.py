@@ -6,7 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from ..recipe.model import Layer, Product, Recipe
+from ..recipe.model import DEFAULT_CAMERA_PATH, Layer, Product, Recipe
 from ..suggest import DEFAULT_K, STRATEGIES
 from .render import _positive
 
@@ -69,12 +69,12 @@ def run(args: argparse.Namespace) -> int:
 def suggested_recipe(layers: dict[str, str], index, name: str) -> Recipe:
     """One product of the suggested layers at the view of `index` (its camera and resolution).
 
-    name : the recipe file's stem, also the EXRs' (``<name>.exr``, a frame number added per frame)
+    name : the recipe file's stem, also the EXRs' (``<name>.exr``, a frame number added per
+           frame); made a prim name, it is the product's
     """
-    product_name = "".join(c if c.isalnum() or c == "_" else "_" for c in name) or "suggested"
-    if product_name[0].isdigit():
-        product_name = "_" + product_name
+    from ..stage.recipe_writer import valid_prim_name
+
     return Recipe(products=(Product(
-        name=product_name, output_name=f"{name}.exr", camera=index.manifest.get("camera", "/World/Camera"),
+        name=valid_prim_name(name), output_name=f"{name}.exr", camera=index.manifest.get("camera", DEFAULT_CAMERA_PATH),
         resolution=tuple(index.manifest["resolution"]),
         layers=tuple(Layer(layer, "lpe", expression, group="suggested") for layer, expression in layers.items())),))

@@ -50,6 +50,10 @@ RENDERING_SPACE = "Linear Rec.709 (sRGB)"
 """The colour space of the rendered pixels (linear, Rec.709 primaries, D65) in the ACES
 studio and CG configs; its aliases there include ``lin_rec709_srgb`` and ``lin_srgb``."""
 
+DEFAULT_CAMERA_PATH = "/World/Camera"
+"""The camera of a product built from an index or image that names none (the camera of the
+bundled scenes): a recipe written from it targets this prim."""
+
 BEAUTY_PART = "rgba"
 """Name of part 0 of every product: the beauty, channels R, G, B, A."""
 BEAUTY_EXPRESSION = "C.*"

@@ -54,11 +54,17 @@ logger = logging.getLogger(__name__)
 _PREFIX = schema.ATTRIBUTE_PREFIX
 
 
+def valid_prim_name(text: str) -> str:
+    """``text`` made a USD identifier, a valid prim name: every character but ASCII letters,
+    digits and ``_`` (and a leading digit) becomes ``_`` (``my-look`` → ``my_look``)."""
+    return Tf.MakeValidIdentifier(text)
+
+
 def write_recipe(path: str | os.PathLike, recipe: Recipe) -> Path:
     """Write ``recipe`` as a USD layer at ``path`` (``.usda``: text; ``.usd``/``.usdc``: crate).
 
     The prims go under ``/Render/<scope>``, scope = the file's stem made a USD identifier
-    (``my-look.usda`` → ``my_look``). Product names must be USD identifiers (they are the
+    (:func:`valid_prim_name`: ``my-look.usda`` → ``my_look``). Product names must be USD identifiers (they are the
     product prims' names, and what the reader gives back as ``Product.name``); layer names
     already are. Written under a temporary name and renamed (:func:`write_atomically`);
     returns where the file is now (its temporary while an OutputSet holds it). Raises
@@ -66,7 +72,7 @@ def write_recipe(path: str | os.PathLike, recipe: Recipe) -> Path:
     cannot be written.
     """
     path = Path(path)
-    scope = Sdf.Path("/Render").AppendChild(Tf.MakeValidIdentifier(path.stem))
+    scope = Sdf.Path("/Render").AppendChild(valid_prim_name(path.stem))
     for product in recipe.products:
         if not Sdf.Path.IsValidIdentifier(product.name):
             raise RecipeError(f"product name {product.name!r} is not a USD identifier (letters, digits, _): "
