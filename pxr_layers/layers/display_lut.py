@@ -76,7 +76,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..recipe.model import DEFAULT_DISPLAY, DEFAULT_OCIO_CONFIG, DEFAULT_VIEW, RENDERING_SPACE
-from .previews import display_processor
+from .previews import HALF_MAX, display_processor
 
 logger = logging.getLogger(__name__)
 
@@ -84,8 +84,6 @@ FLOAT = np.float32
 DEFAULT_SIZE = 65
 """Lattice points per axis (see the module docstring for the measured error)."""
 LUT_URL = "/api/lut"
-HALF_MAX = 65504.0
-"""What :func:`~pxr_layers.layers.previews.to_display` turns ±inf into (the largest half)."""
 
 AP1_FROM_REC709 = ((0.6130974024011883, 0.3395231461841055, 0.04737945141470726),
                    (0.0701937224695816, 0.9163538790573413, 0.01345239847307386),

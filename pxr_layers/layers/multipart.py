@@ -51,6 +51,7 @@ from ..recipe.model import (
 )
 from .cryptomatte import ATTRIBUTE_PREFIX, Cryptomatte, header_attributes, type_key
 from .exr import METADATA_PREFIX, header
+from .previews import HALF_MAX
 
 logger = logging.getLogger(__name__)
 
@@ -68,7 +69,6 @@ COMPRESSION = {
 }
 """Recipe compression token → OpenEXR enum."""
 DTYPE = {"float": np.float32, "half": np.float16}
-HALF_MAX = float(np.finfo(np.float16).max)
 
 
 def write_multipart(

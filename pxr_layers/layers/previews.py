@@ -41,6 +41,9 @@ from ..outputs import write_atomically
 
 logger = logging.getLogger(__name__)
 
+HALF_MAX = float(np.finfo(np.float16).max)
+"""65504, the largest finite half: where half EXR parts clamp, and what the previews (and the
+inspector's display LUT) take +inf for."""
 LUMINANCE_WEIGHTS = np.array(REC709_LUMINANCE, dtype=np.float64)
 """Rec.709 luminance of linear RGB: the 'energy' of a layer on the contact sheet."""
 FONT = "DroidSans"
@@ -119,7 +122,7 @@ def to_display(rgb: np.ndarray, processor=None, exposure: float = 0.0,
     processor = processor or display_processor()
     gain = np.float32(2.0 ** float(exposure)) * np.asarray(tint, dtype=np.float32)
     pixels = np.ascontiguousarray(rgb[..., :3], dtype=np.float32) * gain
-    np.nan_to_num(pixels, copy=False, nan=0.0, posinf=65504.0, neginf=-65504.0)
+    np.nan_to_num(pixels, copy=False, nan=0.0, posinf=HALF_MAX, neginf=-HALF_MAX)
     processor.applyRGB(pixels)
     return _quantise(pixels)
 
