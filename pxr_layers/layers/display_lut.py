@@ -83,7 +83,6 @@ logger = logging.getLogger(__name__)
 FLOAT = np.float32
 DEFAULT_SIZE = 65
 """Lattice points per axis (see the module docstring for the measured error)."""
-LUT_URL = "/api/lut"
 
 AP1_FROM_REC709 = ((0.6130974024011883, 0.3395231461841055, 0.04737945141470726),
                    (0.0701937224695816, 0.9163538790573413, 0.01345239847307386),
@@ -275,8 +274,8 @@ vec3 displayLut(vec3 linearRgb, highp sampler3D lut) {{
 class DisplayLut:
     """One display/view baked for the shader.
 
-    table : (size, size, size, 3) float32 [b, g, r] (r fastest in memory, as /api/lut serves
-            it), read-only: the processor's output at the lattice points, sRGB-decoded
+    table : (size, size, size, 3) float32 [b, g, r] (r fastest in memory, as :func:`lut_bytes`
+            gives it), read-only: the processor's output at the lattice points, sRGB-decoded
     shaper : how linear RGB finds its lattice coordinates
     config, display, view, rendering_space : the colour settings it was baked from
     max_error : the largest |LUT − processor| over the bake's probe colours, in 8-bit codes
@@ -353,18 +352,18 @@ def apply_display_lut(lut: DisplayLut, rgb: np.ndarray) -> np.ndarray:
 def lut_glsl(lut: DisplayLut) -> str:
     """GLSL ES 3.00 source of ``vec3 displayLut(vec3 linearRgb, highp sampler3D lut)`` and its
     helpers (names start with displayLut). Insert it after the shader's ``#version 300 es``
-    line; ``lut`` is the /api/lut texture as a 3D RGB32F texture (x = r, y = g, z = b)."""
+    line; ``lut`` is :func:`lut_bytes` as a 3D RGB32F texture (x = r, y = g, z = b)."""
     return ("// pxr-layers display LUT (pxr_layers/layers/display_lut.py)\n"
             "precision highp float;\nprecision highp int;\nprecision highp sampler3D;\n\n"
             + lut.shaper.glsl() + "\n" + ENCODE_GLSL + "\n" + LUT_GLSL)
 
 
 def lut_description(lut: DisplayLut) -> dict:
-    """The ``lut`` object of GET /api/session (JSON-able): where the table is, its size, the
-    shaper's parameters (for reading: the GLSL already holds them) and the GLSL."""
+    """The LUT for the browser (JSON-able): its size, the shaper's parameters (for reading:
+    the GLSL already holds them), its measured error and the GLSL. Where the browser fetches
+    :func:`lut_bytes` is the server's to add."""
     shaper = lut.shaper
     return {
-        "url": LUT_URL,
         "size": lut.size,
         "shaper": {"kind": "log2-logistic", "basis": [list(row) for row in shaper.basis], "lo": shaper.lo,
                    "hi": shaper.hi, "weight": shaper.weight, "pivot": shaper.pivot, "table": "sRGB-decoded"},
@@ -374,6 +373,6 @@ def lut_description(lut: DisplayLut) -> dict:
 
 
 def lut_bytes(lut: DisplayLut) -> bytes:
-    """The table as GET /api/lut serves it: little-endian float32, element
+    """The table as the browser's texture takes it: little-endian float32, element
     ``((b·size + g)·size + r)·3 + c``."""
     return lut.table.astype("<f4", copy=False).tobytes()
