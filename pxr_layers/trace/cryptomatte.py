@@ -10,8 +10,9 @@ crossed (stages.intersect), and so are cut-outs, with the same presence choice p
 as the integrator's (stages.surface with the frame key, step and spp), so a pixel's
 coverages sum to its alpha exactly (k/spp both).
 
-A light shape seen directly is named by its light's prim path for every type (it has no
-material). The result is one :class:`Coverage` per type: plain arrays, ranked by
+A light shape seen directly is named by its light's prim path in CryptoObject and
+CryptoMaterial (it has no material), and in CryptoAsset, as any object, by the asset root of
+that path (``asset_paths``: ``/World`` for Cornell's ``/World/Lights/ceilingLight``). The result is one :class:`Coverage` per type: plain arrays, ranked by
 pxr_layers.layers.cryptomatte.
 """
 
