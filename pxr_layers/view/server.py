@@ -26,7 +26,7 @@ from pathlib import Path, PurePosixPath
 from aiohttp import web
 
 from ..errors import PxrLayersError
-from .session import Session, ViewError
+from .session import LUT_URL, Session, ViewError
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +69,7 @@ def make_app(session: Session, token: str, allowed_hosts: frozenset[str] | None)
     app.router.add_get("/static/{name}", static)
     app.router.add_get("/files/{name:.+}", _folder_file)
     app.router.add_get("/api/session", _session_description)
-    app.router.add_get("/api/lut", _lut)
+    app.router.add_get(LUT_URL, _lut)
     app.router.add_get("/api/image/{layer}", _image)
     app.router.add_get("/api/inspect", _inspect)
     app.router.add_post("/api/check", _check)

@@ -29,21 +29,23 @@ import numpy as np
 
 from .. import lpe
 from ..errors import LpeSyntaxError, PxrLayersError, RecipeError
-from ..layers.deliver import beauty_beside, deliver, index_metadata
+from ..layers.deliver import at_index_view, beauty_beside, deliver, index_metadata
 from ..layers.display_lut import DisplayLut, bake_display_lut, lut_bytes, lut_description
 from ..layers.extract import extract
 from ..layers.multipart import MultipartImage, read_multipart
-from ..layers.nuke import LayerGrade, write_nuke_script
-from ..layers.previews import energy_shares
+from ..layers.nuke import NUKE_RESERVED_LAYERS, LayerGrade, write_nuke_script
+from ..layers.previews import energy_shares, layers_partition
 from ..outputs import OutputSet
 from ..paths.events import event_paths
 from ..paths.format import NormBins
 from ..paths.reader import PathIndex
 from ..recipe.model import (
+    DEFAULT_CAMERA_PATH,
     DEFAULT_DISPLAY,
     DEFAULT_OCIO_CONFIG,
     DEFAULT_VIEW,
     RENDERING_SPACE,
+    LAYER_NAME,
     IndexSettings,
     Layer,
     Product,
@@ -53,14 +55,12 @@ from . import inspect
 
 log = logging.getLogger(__name__)
 
-LAYER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
-"""A layer the page makes: a RenderVar prim name and an EXR part name."""
+LUT_URL = "/api/lut"
+"""Where the page fetches the display LUT's table (server.py's route)."""
 SAVE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*")
 """What /api/save writes: NAME.usda, NAME.exr (and its previews), NAME.nk, in the folder."""
 MAX_SUGGESTED = 32
 """Most layers /api/suggest makes at once."""
-PARTITION_TOLERANCE = 1e-4
-"""The layers partition the beauty when they sum to it within this, relative to its peak."""
 
 
 class ViewError(PxrLayersError):
@@ -164,7 +164,7 @@ class Session:
                 "layers": [layer.description() for layer in self.layers.values()],
                 "partition": self._partition(layers), "index": self._index_description(),
                 "display": {"config": self.lut.config, "display": self.lut.display, "view": self.lut.view,
-                            "lut": lut_description(self.lut)}}
+                            "lut": {**lut_description(self.lut), "url": LUT_URL}}}
 
     def lut_pixels(self) -> bytes:
         return lut_bytes(self.lut)
@@ -176,11 +176,7 @@ class Session:
             raise ViewError(f"no layer {layer_id!r}", 404) from None
 
     def _partition(self, layers: list[ViewLayer]) -> bool:
-        if not layers:
-            return False
-        total = np.sum([layer.image for layer in layers], axis=0, dtype=np.float64)
-        peak = float(np.abs(self.beauty[..., :3]).max()) or 1.0
-        return bool(np.abs(total - self.beauty[..., :3]).max() <= PARTITION_TOLERANCE * peak)
+        return layers_partition(self.beauty, [layer.image for layer in layers])
 
     def _index_description(self) -> dict | None:
         index = self.index
@@ -240,8 +236,9 @@ class Session:
     def add_layer(self, name: str, expression: str) -> tuple[ViewLayer, dict]:
         """Extract a new layer from the index into the stack: /api/layer."""
         index = self._need_index("make a layer")
-        if not isinstance(name, str) or not LAYER_NAME.fullmatch(name):
-            raise ViewError(f"layer name {name!r}: letters, digits and _, not starting with a digit")
+        if not isinstance(name, str) or not LAYER_NAME.fullmatch(name) or name in NUKE_RESERVED_LAYERS:
+            raise ViewError(f"layer name {name!r}: letters, digits and _, not starting with a digit, and none of "
+                            f"the layers Nuke keeps for itself ({', '.join(sorted(NUKE_RESERVED_LAYERS))})")
         self.check(expression)
         start = time.perf_counter()
         with self._lock:
@@ -414,8 +411,7 @@ def _product_layers(products: list[MultipartImage], beauty: np.ndarray) -> list[
     for product in products:
         grades = {layer.name: layer for product_ in (product.recipe.products if product.recipe else ())
                   for layer in product_.layers}
-        colour = {name: image for name, image in product.parts.items()
-                  if image.shape[-1] == 3 and not (grades.get(name) and grades[name].is_data)}
+        colour = product.colour_layers()
         shares = energy_shares(beauty, colour)
         for name, image in colour.items():
             layer_id = name if name not in seen else f"{product.path.stem}.{name}"
@@ -433,8 +429,8 @@ def _base_product(products: list[MultipartImage], index: PathIndex | None, beaut
     the defaults at the index's camera and resolution."""
     for product in products:
         if product.recipe is not None:
-            return product.recipe.products[0]
+            return at_index_view(product.recipe.products[0], index) if index else product.recipe.products[0]
     camera = index.manifest.get("camera", "") if index else ""
     bounces = index.norm_slots if index else IndexSettings().bounces
-    return Product("inspector", "inspector.exr", camera or "/camera", (beauty.shape[1], beauty.shape[0]),
+    return Product("inspector", "inspector.exr", camera or DEFAULT_CAMERA_PATH, (beauty.shape[1], beauty.shape[0]),
                    (Layer("beauty", "raw", "color"),), index=IndexSettings(bounces=bounces))  # save() sets the layers
