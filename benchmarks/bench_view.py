@@ -39,7 +39,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_view_browser import (  # noqa: E402  (one place for how to run them)
-    RED_DIRECT, SCRIPT, brightest_pixel, launch, open_inspector, serving)
+    CHROMIUM, RED_DIRECT, SCRIPT, brightest_pixel, launch, open_inspector, serving)
 
 REGRADE_RESOLUTION = (960, 540)
 REGRADE_LAYERS = 10

@@ -41,10 +41,6 @@ from ..paths.format import NormBins
 from ..paths.reader import PathIndex
 from ..recipe.model import (
     DEFAULT_CAMERA_PATH,
-    DEFAULT_DISPLAY,
-    DEFAULT_OCIO_CONFIG,
-    DEFAULT_VIEW,
-    RENDERING_SPACE,
     LAYER_NAME,
     IndexSettings,
     Layer,
@@ -104,14 +100,13 @@ class Session:
     the stack: the server runs requests on a thread pool)."""
 
     def __init__(self, folder: Path, title: str, beauty: np.ndarray, layers: list[ViewLayer],
-                 index: PathIndex | None, product: Product | None, threads: int):
+                 index: PathIndex | None, product: Product, threads: int):
         self.folder, self.title, self.beauty, self.index, self.threads = folder, title, beauty, index, threads
         self.base_product = product
         self.height, self.width = beauty.shape[:2]
         self.layers: dict[str, ViewLayer] = {layer.id: layer for layer in layers}
-        settings = (product.ocio_config, product.display, product.view, product.rendering_space) if product else \
-            (DEFAULT_OCIO_CONFIG, DEFAULT_DISPLAY, DEFAULT_VIEW, RENDERING_SPACE)
-        self.lut: DisplayLut = bake_display_lut(*settings)
+        self.lut: DisplayLut = bake_display_lut(product.ocio_config, product.display, product.view,
+                                                product.rendering_space)
         self._lock = threading.Lock()
         self._event_paths = event_paths(index.events) if index else []
         self._infos = [inspect.describe(path_class, self._event_paths) for path_class in index.classes] if index else []
@@ -132,6 +127,8 @@ class Session:
             folder, products = path.parent, [read_multipart(path)]
             named = _index_named(products[0])
             index = PathIndex(folder / named) if named and (folder / named).is_file() else None
+            if index is not None and index.manifest.get("render_id") not in _render_ids(products[0]):
+                raise ViewError(f"{path}: {named} beside it is the index of another render (its renderId differs)")
         else:
             raise ViewError(f"{path}: not a folder, an .exr product or a .pxlidx index")
         folder = folder.resolve()
@@ -371,6 +368,10 @@ def _index_named(product: MultipartImage) -> str | None:
     return None
 
 
+def _render_ids(product: MultipartImage) -> set[str | None]:
+    return {attributes.get("renderId") for attributes in product.metadata.values()}
+
+
 def _products_beside(folder: Path, index: PathIndex | None) -> list[MultipartImage]:
     """The product EXRs of the folder that `index`'s render wrote (all of them without an
     index), in name order; EXRs that are not pxr-layers products are skipped."""
@@ -382,8 +383,7 @@ def _products_beside(folder: Path, index: PathIndex | None) -> list[MultipartIma
         except PxrLayersError as error:
             log.info("skipping %s: %s", path.name, error)
             continue
-        ids = {attributes.get("renderId") for attributes in product.metadata.values()}
-        if product.parts and (render_id is None or render_id in ids):
+        if product.parts and (render_id is None or render_id in _render_ids(product)):
             products.append(product)
     return products
 
