@@ -50,7 +50,7 @@ from ..recipe.model import (
     is_data_layer,
 )
 from .cryptomatte import ATTRIBUTE_PREFIX, Cryptomatte, header_attributes, type_key
-from .exr import METADATA_PREFIX, header
+from .exr import METADATA_PREFIX, header, use_cores
 from .previews import HALF_MAX
 
 logger = logging.getLogger(__name__)
@@ -156,6 +156,8 @@ def write_multipart(
             for index, suffix in enumerate(spec.channels)
         }
         parts.append(OpenEXR.Part(part_header, channels, spec.name))
+
+    use_cores()
 
     def write(temporary: Path) -> None:
         try:
