@@ -252,6 +252,8 @@ def read_multipart(path: str | os.PathLike) -> MultipartImage:
     beauty, or a Cryptomatte part lacks a channel ``NAME.R/G/B/A`` or a readable manifest.
     """
     path = Path(path)
+    if not path.is_file():  # before OpenEXR, whose C library prints its own line for a missing file
+        raise OutputError(f"{path}: no such file")
     try:
         exr = OpenEXR.File(str(path), separate_channels=True)
     except Exception as error:  # the binding raises RuntimeError and others for a damaged file
