@@ -319,3 +319,15 @@ def test_wrong_types_get_one_line_not_an_internal_error(server, path, body):
 
 def test_check_answers_a_non_string(server):
     assert server.json("/api/check", {"expression": None})["ok"] is False
+
+
+def test_a_beauty_exr_finds_the_index_of_its_render(tmp_path, shipped_scene):
+    """A render without a recipe writes its beauty alone: viewing that .exr opens its index."""
+    from pxr_layers.view.session import Session
+
+    subprocess.run([*CLI, "render", str(shipped_scene("cornell.usda")), "--resolution", "24", "24", "--spp", "2",
+                    "-o", str(tmp_path), "-q", "--no-previews"], check=True)
+    (beauty,) = tmp_path.glob("*.exr")
+    session = Session.open(beauty)
+    assert session.index is not None and session.index.path.suffix == ".pxlidx"
+    assert list(session.layers) == ["beauty"]

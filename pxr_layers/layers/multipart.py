@@ -221,6 +221,8 @@ class MultipartImage:
     recipe : the resolved Recipe stored on part 0, or None (a file written without one)
     cryptomattes : Cryptomatte layer name → its ranks and manifest (its parts ``NAME00``, ...
                are not in ``parts``)
+    beauty_metadata : part 0's ``pxrLayers/`` attributes without the prefix (renderId, index,
+               spp, ...; the recipe and the expressions apart)
     """
 
     path: Path
@@ -229,6 +231,7 @@ class MultipartImage:
     metadata: dict[str, dict[str, str]]
     recipe: Recipe | None
     cryptomattes: dict[str, Cryptomatte] = field(default_factory=dict)
+    beauty_metadata: dict[str, str] = field(default_factory=dict)
 
     def colour_layers(self) -> dict[str, np.ndarray]:
         """The colour layers (lpe layers and raw vars of a colour dataType; not data layers,
@@ -290,7 +293,10 @@ def read_multipart(path: str | os.PathLike) -> MultipartImage:
         metadata[name] = attributes
     stored = first.header.get(METADATA_PREFIX + "recipe")
     cryptomattes = {layer: Cryptomatte.from_parts(pieces, manifests[layer]) for layer, pieces in crypto_parts.items()}
-    return MultipartImage(path, beauty, parts, metadata, Recipe.from_json(stored) if stored else None, cryptomattes)
+    beauty_metadata = {key[len(METADATA_PREFIX):]: str(value) for key, value in first.header.items()
+                       if key.startswith(METADATA_PREFIX) and key[len(METADATA_PREFIX):] not in ("recipe", "expressions")}
+    return MultipartImage(path, beauty, parts, metadata, Recipe.from_json(stored) if stored else None, cryptomattes,
+                          beauty_metadata)
 
 
 def _manifest(path: Path, part: str, text: str) -> dict[str, str]:

@@ -125,7 +125,7 @@ class Session:
             folder, index, products = path.parent, PathIndex(path), []
         elif path.suffix.lower() == ".exr":
             folder, products = path.parent, [read_multipart(path)]
-            named = _index_named(products[0])
+            named = _index_named(products[0]) or _index_of_beauty(path)
             index = PathIndex(folder / named) if named and (folder / named).is_file() else None
             if index is not None and index.manifest.get("render_id") not in _render_ids(products[0]):
                 raise ViewError(f"{path}: {named} beside it is the index of another render (its renderId differs)")
@@ -361,15 +361,27 @@ def _folder_index(folder: Path) -> PathIndex | None:
 
 
 def _index_named(product: MultipartImage) -> str | None:
-    """The index a product names (``pxrLayers/index`` on its layer parts)."""
-    for attributes in product.metadata.values():
+    """The index a product names (``pxrLayers/index`` on its parts)."""
+    for attributes in (product.beauty_metadata, *product.metadata.values()):
         if attributes.get("index"):
             return attributes["index"]
     return None
 
 
+def _index_of_beauty(path: Path) -> str | None:
+    """The index beside `path` whose render wrote it as its beauty (a product without
+    layers names no index; the index names its beauty, manifest ``beauty``)."""
+    for candidate in sorted(path.parent.glob("*.pxlidx")):
+        try:
+            if PathIndex(candidate).manifest.get("beauty") == path.name:
+                return candidate.name
+        except PxrLayersError:
+            continue
+    return None
+
+
 def _render_ids(product: MultipartImage) -> set[str | None]:
-    return {attributes.get("renderId") for attributes in product.metadata.values()}
+    return {attributes.get("renderId") for attributes in (product.beauty_metadata, *product.metadata.values())}
 
 
 def _products_beside(folder: Path, index: PathIndex | None) -> list[MultipartImage]:
