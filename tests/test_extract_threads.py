@@ -94,6 +94,18 @@ def test_records_stream_in_chunk_order_on_threads(indexed):
                     assert column.dtype == other.dtype and column.tobytes() == other.tobytes(), name
 
 
+def test_records_of_chosen_chunks_are_those_chunks(indexed):
+    _, index = indexed
+    every = list(index.records(whole_chunks=True))
+    chosen = [1, 4, len(every) - 1]
+    for threads in (1, 2):
+        picked = list(index.records(chunks=chosen, whole_chunks=True, threads=threads))
+        assert len(picked) == len(chosen)
+        for number, chunk in zip(chosen, picked):
+            assert chunk.pixel.tobytes() == every[number].pixel.tobytes()
+            assert chunk.rgb.tobytes() == every[number].rgb.tobytes()
+
+
 def test_a_bounded_number_of_chunks_is_in_flight(indexed, monkeypatch):
     """However slowly the records are consumed, the reading threads stay at most
     CHUNKS_IN_FLIGHT_PER_THREAD chunks per thread ahead."""

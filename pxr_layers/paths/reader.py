@@ -293,7 +293,7 @@ class PathIndex:
         return self.manifest["records"]
 
     def records(self, classes: Iterable[int] | None = None, *, norms: bool = True, threads: int = 1,
-                whole_chunks: bool = False) -> Iterator[RecordChunk]:
+                whole_chunks: bool = False, chunks: Iterable[int] | None = None) -> Iterator[RecordChunk]:
         """Stream the records of `classes` (ids; all if None), one chunk at a time, in the
         file's chunk order whatever `threads` is.
 
@@ -301,7 +301,8 @@ class PathIndex:
         norms=False skips the covariance frame (RecordChunk.norms is then (r, 0, 3) and sigma
         None). whole_chunks: those chunks are yielded whole, with the records of the other
         classes they hold, for a caller that ignores those itself (cutting them out costs a
-        fifth of decoding a chunk).
+        fifth of decoding a chunk). chunks: only these chunk numbers (of those holding a wanted
+        class), e.g. the ones an earlier pass found a pixel in.
 
         threads > 1: chunks are read, checked and decoded on that many threads (file reads,
         CRC-32, zstd and numpy's loops release the GIL), at most
@@ -311,6 +312,9 @@ class PathIndex:
         """
         wanted = self._wanted(classes)
         numbers = self._chunks_holding(wanted)
+        if chunks is not None:
+            allowed = set(chunks)
+            numbers = [(number, mixed) for number, mixed in numbers if number in allowed]
         if whole_chunks:
             numbers = [(number, False) for number, _ in numbers]
         with self._open() as file:
