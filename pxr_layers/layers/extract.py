@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
-import itertools
 import logging
 from dataclasses import dataclass
 
@@ -34,7 +33,7 @@ from .. import lpe
 from ..errors import PathIndexError
 from ..lpe.automaton import DEAD
 from ..paths.events import path_text
-from ..paths.reader import PathIndex
+from ..paths.reader import PathIndex, padded_event_ids
 from ..progress import Progress
 from .accumulate import LayerSums, distinct
 
@@ -205,14 +204,7 @@ def _plain_walk(dfa, symbols: list[int], classes) -> dict[frozenset, np.ndarray]
     once (an index has few distinct events and the DFA few states)."""
     if not classes:
         return {}
-    lengths = np.fromiter((len(path_class.event_ids) for path_class in classes), np.int64, len(classes))
-    events = np.full((len(classes), max(1, int(lengths.max()))), -1, np.int64)
-    flat = np.fromiter(itertools.chain.from_iterable(path_class.event_ids for path_class in classes), np.int64,
-                       int(lengths.sum()))
-    # (classes, longest) event ids padded with -1: each flat event goes to its class's row,
-    # at its position within the class (its flat index minus where the class starts).
-    rows = np.repeat(np.arange(len(classes)), lengths)
-    events[rows, np.arange(len(flat)) - np.repeat(np.cumsum(lengths) - lengths, lengths)] = flat
+    events = padded_event_ids(classes, -1)
     state = np.full(len(classes), dfa.start, np.int64)
     event_count = len(symbols)
     for position in range(events.shape[1]):

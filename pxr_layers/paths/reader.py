@@ -20,7 +20,7 @@ import math
 import os
 import threading
 import zlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -82,6 +82,20 @@ class PathClass:
 
     def __repr__(self) -> str:
         return f"PathClass({self.id}, {self.event_ids}, records={self.records})"
+
+
+def padded_event_ids(classes: Sequence[PathClass], pad: int) -> np.ndarray:
+    """(classes, longest) int64: each class's event ids camera first, padded with `pad`
+    (at least one column), built without a Python loop over the events."""
+    lengths = np.fromiter((len(path_class.event_ids) for path_class in classes), np.int64, len(classes))
+    events = np.full((len(classes), max(1, int(lengths.max(initial=0)))), pad, np.int64)
+    flat = np.fromiter(itertools.chain.from_iterable(path_class.event_ids for path_class in classes), np.int64,
+                       int(lengths.sum()))
+    # Each flat event goes to its class's row, at its position within the class (its flat
+    # index minus where the class starts).
+    rows = np.repeat(np.arange(len(classes)), lengths)
+    events[rows, np.arange(len(flat)) - np.repeat(np.cumsum(lengths) - lengths, lengths)] = flat
+    return events
 
 
 @dataclass(frozen=True)

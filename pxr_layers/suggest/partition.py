@@ -21,7 +21,7 @@ import numpy as np
 from .. import lpe
 from ..errors import PxrLayersError
 from ..paths.events import path_text
-from ..paths.reader import PathIndex
+from ..paths.reader import PathIndex, padded_event_ids
 
 
 class SuggestError(PxrLayersError):
@@ -68,14 +68,8 @@ def check_partition(index: PathIndex, expressions: Mapping[str, str]) -> int:
 def _distinct_sequences(index: PathIndex, event_symbol: np.ndarray) -> np.ndarray:
     """(s,) ids of one class per distinct sequence of symbols (event_symbol: event id →
     symbol, its last entry the padding), the first of each in class order."""
-    classes = index.classes
-    if not classes:
+    if not index.classes:
         return np.zeros(0, np.int64)
-    lengths = np.fromiter((len(path_class.event_ids) for path_class in classes), np.int64, len(classes))
-    flat = np.fromiter(itertools.chain.from_iterable(path_class.event_ids for path_class in classes), np.int64,
-                       int(lengths.sum()))
-    padded = np.full((len(classes), int(lengths.max())), len(event_symbol) - 1, np.int64)
-    rows = np.repeat(np.arange(len(classes)), lengths)
-    padded[rows, np.arange(len(flat)) - np.repeat(np.cumsum(lengths) - lengths, lengths)] = flat
+    padded = padded_event_ids(index.classes, len(event_symbol) - 1)
     _, first = np.unique(event_symbol[padded], axis=0, return_index=True)
     return np.sort(first)
