@@ -52,7 +52,7 @@ MAX_ENUMERATED_EVENTS = 8192
 """Most events (type × scattering × label subset × truths of the conditions tested on it)
 enumerated to build the complete DFA; past this the DFA is built on demand."""
 
-MAX_COMPLETE_WORK = 200_000
+MAX_COMPLETE_WORK = 50_000
 """Most steps taken to build the complete DFA: one per symbol looked at in each DFA state,
 and one per NFA state visited in each (DFA state, symbol) pair explored. Past this the DFA
 is built on demand; it keeps the complete build, its minimisation (which takes a few steps
