@@ -42,6 +42,12 @@ def one_error_line(stderr: str) -> str:
     return line
 
 
+SLOW_MACHINE_SECONDS = 5.0
+"""A wall-clock bound that tells linear work from work the size of a range or quadratic in
+the frames, with room for a CI machine several times slower than this one (where each takes
+at most 0.15 s): a guard against blow-ups, not a performance target."""
+
+
 def frames_job(tmp_path: Path, frames: str) -> Path:
     return job_file(tmp_path, head=f'stage = "assets/shot.usda"\nframes = {frames}\n')
 
@@ -58,7 +64,7 @@ def test_a_range_of_10_to_the_14_frames_is_one_line_at_once(tmp_path, stage, cap
     seconds = time.perf_counter() - started
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    assert seconds < 1.0 and peak < 4 << 20  # bytes: nothing the size of the range was built
+    assert seconds < SLOW_MACHINE_SECONDS and peak < 4 << 20  # bytes: nothing the size of the range was built
     error = caught.value
     assert (error.file, error.key, error.position) == (str(path), "frames", 6)
     assert f"more than the {MAX_FRAMES} a job may have (MAX_FRAMES" in str(error)
@@ -85,10 +91,10 @@ def test_a_job_of_max_frames_loads_and_answers_its_status_quickly(tmp_path, stag
     path = frames_job(tmp_path, f'"1-{MAX_FRAMES}"')
     started = time.perf_counter()
     job = load_job(path)
-    assert time.perf_counter() - started < 1.0 and len(job.frames) == MAX_FRAMES
+    assert time.perf_counter() - started < SLOW_MACHINE_SECONDS and len(job.frames) == MAX_FRAMES
     started = time.perf_counter()
     code, stdout, _ = cli(capsys, "job", "status", str(path))
-    assert time.perf_counter() - started < 10.0  # seconds, on a slow CI machine (about 1 s here)
+    assert time.perf_counter() - started < 2 * SLOW_MACHINE_SECONDS  # about 1.3 s here
     assert code == 0 and stdout.count("pending") == MAX_FRAMES and f"0/{MAX_FRAMES} frames done" in stdout
 
 
@@ -99,7 +105,7 @@ def test_duplicates_are_found_in_linear_time():
     assert caught.value.key == f"frames[{MAX_FRAMES - 1}]"
     with pytest.raises(JobError, match="frame 75000 is listed twice"):
         parse_frames(f"1-{MAX_FRAMES // 2}, 75000-{MAX_FRAMES // 2 + 25000}x1, 75000")
-    assert time.perf_counter() - started < 1.0
+    assert time.perf_counter() - started < SLOW_MACHINE_SECONDS  # 0.14 s here; quadratic would take hours
 
 
 @pytest.mark.parametrize(("value", "words"), [
