@@ -193,17 +193,19 @@ def test_object_mattes_equal_the_supersampled_primid_coverage(tmp_path, scene):
     """Each object's matte against the share of SUPERSAMPLE² pixel-centre rays of primId
     that hit it: within 2 % on edges (at SPP samples the matte's own noise is below
     0.5/√SPP ≈ 0.4 %), exactly 1 inside (the pixel and its neighbours wholly the object's)."""
-    from pxr_layers.jobs.frame import frame_data, plan_frame, prepare_frame
+    from pxr_layers.jobs.frame import FrameAssembler, frame_data, plan_frame, prepare_frame
     from pxr_layers.layers.multipart import write_multipart
     from pxr_layers.request import RenderRequest
-    from pxr_layers.trace import render_data_aovs
+    from pxr_layers.trace import render_data_aovs, trace_pixels
 
     stage = Path(embedded_scene(scene))
     width, height = SIZE
     plan = plan_frame(RenderRequest(stage=stage, resolution=SIZE, spp=SPP), None, directory=tmp_path,
                       keep_index=False, previews=False, cryptomattes=("CryptoObject",))
     integrator = prepare_frame(plan)
-    data = frame_data(plan, integrator)
+    with FrameAssembler(plan) as frame:
+        trace_pixels(integrator, 0, plan.pixels, frame.add)
+        data = frame.cryptomattes(frame_data(plan, integrator))
     product = plan.recipe.products[0]
     beauty = np.zeros((height, width, 4), np.float32)
     path = write_multipart(tmp_path / "mattes.exr", beauty, {layer.name: data[layer.source_name] for layer in product.layers

@@ -265,11 +265,18 @@ def Scope "Render"
 
 
 def test_a_job_delivers_the_cryptomattes_its_recipe_asks_for(tmp_path, client):
-    """A job renders a frame's Cryptomattes as `pxr-layers render` does (frame_data)."""
+    """A job renders a frame's Cryptomattes from its tiles' first hits: cut into 3 tiles, each
+    pixel's coverages still sum to its alpha."""
     recipe = tmp_path / "crypto.usda"
     recipe.write_text(CRYPTO_RECIPE)
     out = tmp_path / "out"
-    job = job_at(out, frames="1", **{"recipe.add_layers": [str(recipe)]})
+    job = job_at(out, frames="1", **{"recipe.add_layers": [str(recipe)], "dask.batch_pixels": 1})
+    assert len(tiles(frame_plan(job, 1.0), job.batch_pixels)) == 3
     run_job(job, client=client)
-    parts = [part.name() for part in OpenEXR.File(str(out / "shot010.0001.ids.exr")).parts]
-    assert [part for part in parts if part.startswith("Crypto")] == ["CryptoObject00", "CryptoObject01", "CryptoObject02"]
+    parts = OpenEXR.File(str(out / "shot010.0001.ids.exr"), separate_channels=True).parts
+    crypto = [part for part in parts if part.name().startswith("Crypto")]
+    assert [part.name() for part in crypto] == ["CryptoObject00", "CryptoObject01", "CryptoObject02"]
+    coverage = sum(part.channels[f"{part.name()}.{c}"].pixels.astype(np.float64)
+                   for part in crypto for c in "GA")
+    alpha = np.asarray(parts[0].channels["A"].pixels, np.float64)
+    assert alpha.max() > 0 and np.allclose(coverage, alpha, atol=1e-6)

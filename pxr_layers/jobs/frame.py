@@ -158,7 +158,7 @@ def plan_frame(
     index_mode, sigma = index_settings(request, recipe)
     trace = TraceSettings(spp=request.spp, max_depth=request.max_depth, seed=request.seed, norm_bounces=norm_bounces,
                           record_paths=record, merge_records=record and index_mode == "merged",
-                          record_sigma=record and sigma and norm_bounces > 0)
+                          record_sigma=record and sigma and norm_bounces > 0, first_hits=bool(crypto_sources))
     metadata = {
         "version": __version__,
         "stage": str(stage.resolve()),
@@ -225,17 +225,16 @@ def prepare_frame(plan: FramePlan, shot=None):
 
 def frame_data(plan: FramePlan, integrator, threads: int | None = None) -> dict:
     """What the frame's raw vars need from the tracer besides the beauty: the data AOVs
-    (name → image) and the Cryptomattes (source → layers.cryptomatte.Cryptomatte, from the
-    beauty's own camera samples)."""
-    from ..layers.cryptomatte import asset_roots, rank
+    (name → image) and how each Cryptomatte names what the beauty's samples hit (source →
+    trace.cryptomatte.CoverageNames; :meth:`FrameAssembler.deliver` ranks them from the
+    film's first hits)."""
+    from ..layers.cryptomatte import asset_roots
     from ..trace import render_data_aovs
-    from ..trace.cryptomatte import render_coverage
+    from ..trace.cryptomatte import coverage_names
 
     data: dict = render_data_aovs(integrator, plan.data_aovs, threads=threads)
     roots = asset_roots(integrator.world.object_paths, plan.model_paths) if "CryptoAsset" in plan.cryptomattes else None
-    for source, coverage in render_coverage(integrator, plan.cryptomattes, asset_paths=roots, threads=threads).items():
-        data[source] = rank(coverage.names, coverage.pixel, coverage.name, coverage.weight, plan.resolution,
-                            plan.cryptomatte_depth)
+    data.update(coverage_names(integrator, plan.cryptomattes, asset_paths=roots))
     return data
 
 
@@ -270,11 +269,29 @@ class FrameAssembler:
         """The beauty (h, w, 4) and the mean first-bounce norms (h, w, 3) or None."""
         return self.film.images(*self.plan.resolution)
 
+    def cryptomattes(self, data: dict) -> dict:
+        """``data`` (frame_data's) with each Cryptomatte's CoverageNames replaced by its
+        ranks (layers.cryptomatte.Cryptomatte), counted from the film's first hits."""
+        if not self.plan.cryptomattes:
+            return data
+        from ..layers.cryptomatte import rank
+        from ..trace.cryptomatte import coverage
+
+        plan, hits = self.plan, self.film.first_hits()
+        ranked = dict(data)
+        for source in plan.cryptomattes:
+            found = coverage(data[source], hits, plan.trace.spp)
+            ranked[source] = rank(found.names, found.pixel, found.name, found.weight, plan.resolution,
+                                  plan.cryptomatte_depth)
+        return ranked
+
     def deliver(self, vocabulary, data: dict[str, np.ndarray], object_paths: Sequence[str], *,
                 show_progress: bool = False) -> list[Delivered]:
-        """Close the index, then write every product (EXR + previews). They appear together,
-        the index last, or (on an error, Ctrl-C or SIGTERM) none of them does."""
+        """Close the index, then write every product (EXR + previews), ``data`` being
+        :func:`frame_data`'s. They appear together, the index last, or (on an error, Ctrl-C or
+        SIGTERM) none of them does."""
         plan = self.plan
+        data = self.cryptomattes(data)
         rgba, _ = self.images()
         render_id = render_identity(plan.manifest, rgba)
         metadata = {**plan.metadata, "renderId": render_id}

@@ -38,7 +38,7 @@ from .stages.queues import MAX_PASS_THROUGH
 from .stages.camera import camera_rays
 from .stages.emission import emission
 from .stages.escaped import escaped
-from .stages.film import BatchFilm
+from .stages.film import BatchFilm, FirstHits
 from .stages.intersect import intersect
 from .stages.observer import Observer
 from .stages.next_event import cast_shadows, light_samples
@@ -57,6 +57,8 @@ class TraceSettings:
     record_paths : keep every contribution with its path class and norms (the path index).
     merge_records : hand them on merged (``merge.MergedContributions``), as a merged index keeps them.
     record_sigma : with them, each event's whole 4×4 Σ (``Contributions.sigma``, trace/sigma.py).
+    first_hits : count, per pixel, the camera samples whose first visible hit is each surface
+                 subject (``BatchResult.first_hits``): what the Cryptomattes are made of.
     """
 
     spp: int = 16
@@ -67,6 +69,7 @@ class TraceSettings:
     record_paths: bool = False
     merge_records: bool = False
     record_sigma: bool = False
+    first_hits: bool = False
 
 
 @dataclass
@@ -79,6 +82,7 @@ class BatchResult:
             samples whose first event scatters, and first_bounce_count (k,) of them
             (None without covariance)
     records : every contribution, merged if settings.merge_records (None unless settings.record_paths)
+    first_hits : the samples' first visible hits by surface subject (None unless settings.first_hits)
     rays  : rays cast (camera + bounce + shadow), for throughput figures
     """
 
@@ -88,6 +92,7 @@ class BatchResult:
     first_bounce_norms: np.ndarray | None = None
     first_bounce_count: np.ndarray | None = None
     records: Contributions | MergedContributions | None = None
+    first_hits: FirstHits | None = None
     rays: int = 0
 
 
@@ -127,7 +132,8 @@ class Integrator:
         recorder = (PathRecorder(self.vocabulary, self.triangle_subject,
                                  self.settings.norm_bounces if self.bounce_norms else 0, paths, sigma)
                     if self.settings.record_paths else None)
-        return BatchFilm(first_pixel, pixel_count), first_bounce, recorder
+        subjects = (self.triangle_subject, len(self.vocabulary.surface_objects)) if self.settings.first_hits else None
+        return BatchFilm(first_pixel, pixel_count, subjects), first_bounce, recorder
 
     def trace(self, first_path: int, stop_path: int) -> BatchResult:
         """Trace paths [first_path, stop_path) to completion."""
@@ -162,13 +168,13 @@ class Integrator:
             # Coverage (alpha): the first surface or light a camera ray reaches and does not pass through.
             unscattered = queue.depth == 0
             if not alive.any():
-                film.add_coverage(queue, hit & unscattered)
+                film.add_coverage(queue, hit & unscattered, hits.triangle)
                 break
             wants_norms = any(observer.wants_norms(step) for observer in observers)
             surfaces = surface(queue, hits, alive, step, geometry, materials,
                                self.curvature if wants_norms else self.curvature[:0], settings.max_depth,
                                self.key, spp)
-            film.add_coverage(queue, hit & unscattered & ~surfaces.cut)
+            film.add_coverage(queue, hit & unscattered & ~surfaces.cut, hits.triangle)
             if wants_norms and self.bounce_norms:
                 footprint = ray_cone_footprint(queue.travelled, surfaces.wo[:, 2], self.pixel_angle)
                 self.bounce_norms.texture(surfaces, footprint)
@@ -189,7 +195,8 @@ class Integrator:
         return BatchResult(first_pixel, film.rgb, film.alpha,
                            None if first_bounce is None else first_bounce.sums,
                            None if first_bounce is None else first_bounce.count,
-                           None if recorder is None else self._records(recorder, first_pixel, pixel_count), rays)
+                           None if recorder is None else self._records(recorder, first_pixel, pixel_count),
+                           film.first_hits(), rays)
 
     def _records(self, recorder: PathRecorder, first_pixel: int, pixel_count: int):
         records = recorder.result()

@@ -22,6 +22,7 @@ from .bounce_norms import BounceNorms
 from .camera import PinholeCamera
 from .embree import RayCaster
 from .integrator import BatchResult, Integrator, TraceSettings
+from .stages.film import FirstHits
 from .lights import LightSampler
 from .shading import MaterialTable
 from .world import build_world, geometry_arrays
@@ -177,6 +178,7 @@ class Film:
         self.coverage = np.zeros(pixels)
         self.norm_sums = np.zeros((pixels, 3)) if norms else None
         self.norm_counts = np.zeros(pixels) if norms else None
+        self._first_hits: list[FirstHits] = []
         self.rays = 0
 
     def add(self, batch: BatchResult) -> None:
@@ -186,7 +188,14 @@ class Film:
         if self.norm_sums is not None:
             self.norm_sums[span] += batch.first_bounce_norms
             self.norm_counts[span] += batch.first_bounce_count
+        if batch.first_hits is not None:
+            self._first_hits.append(batch.first_hits)
         self.rays += batch.rays
+
+    def first_hits(self) -> FirstHits:
+        """Every batch's FirstHits (TraceSettings.first_hits), in pixel order whatever order
+        the batches came in (they cover disjoint pixel ranges)."""
+        return FirstHits.concatenate(sorted(self._first_hits, key=lambda part: part.pixel[:1].tolist()))
 
     def images(self, width: int, height: int) -> tuple[np.ndarray, np.ndarray | None]:
         """rgba (h, w, 4) float32 and the mean first-bounce norms (h, w, 3) or None."""
