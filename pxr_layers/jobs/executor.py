@@ -214,8 +214,8 @@ def render_tile(plan: FramePlan, first: int, stop: int, path: str, data_path: st
 
 
 def render_frame_data(plan: FramePlan, path: str) -> None:
-    """The frame's data AOVs and Cryptomattes, event vocabulary and object paths, committed
-    to ``path``."""
+    """The frame's data AOVs and Cryptomatte names (:func:`frame_data`; the tiles bring the
+    first hits they rank), event vocabulary and object paths, committed to ``path``."""
     integrator = _prepared(plan)
     data = frame_data(plan, integrator, TASK_THREADS)
     payload = (data, integrator.vocabulary, tuple(integrator.world.object_paths))
