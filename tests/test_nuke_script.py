@@ -41,6 +41,7 @@ import OpenEXR
 import pytest
 
 from pxr_layers.cli.main import main
+from pxr_layers.cli.nuke import write_product_script
 from pxr_layers.errors import OutputError
 from pxr_layers.layers.multipart import write_multipart
 from pxr_layers.layers.nuke import LayerGrade, nuke_script, write_nuke_script
@@ -592,3 +593,21 @@ def test_the_nuke_command_rebuilds_a_product_and_wires_its_cryptomattes(tmp_path
     expected = matte(read_cryptomattes(exr)[0]["CryptoObject"], [picked, "/World/Geometry/floor"])
     np.testing.assert_allclose(gizmo_alpha, expected, atol=1e-7)
     assert expected.max() == 1.0 and expected.min() == 0.0
+
+
+def test_render_and_extract_write_the_nuke_command_s_script_beside_every_product(tmp_path, capsys):
+    """--nuke-script: PRODUCT.nk beside each EXR, the very text `pxr-layers nuke PRODUCT.exr` writes
+    (from the images in memory instead of the file read back), printed after its EXR."""
+    rendered = tmp_path / "render"
+    assert main(["render", str(ROOT / "render" / "cornell.usda"), "-o", str(rendered), "--spp", "4",
+                 "--resolution", "16", "12", "--no-previews", "--cryptomatte", "object", "--nuke-script"]) == 0
+    printed = capsys.readouterr().out.split()
+    exrs = sorted(rendered.glob("*.exr"))
+    assert exrs and sorted(rendered.glob("*.nk")) == [exr.with_suffix(".nk") for exr in exrs]
+    assert printed == [str(path) for exr in exrs for path in (exr, exr.with_suffix(".nk"))]
+    extracted = tmp_path / "passes.exr"
+    assert main(["extract", str(rendered / "cornell.pxlidx"), "--passes", "-o", str(extracted), "--no-previews",
+                 "--quiet", "--nuke-script"]) == 0
+    for exr in [*exrs, extracted]:
+        again = write_product_script(exr, exr.with_name(f"{exr.stem}.again.nk"))  # beside it: the same file knob
+        assert exr.with_suffix(".nk").read_text() == again.read_text()

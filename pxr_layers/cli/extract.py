@@ -24,7 +24,7 @@ from ..paths.reader import PathIndex
 from ..recipe.model import PER_LIGHT_MODES, Layer, Product, Recipe
 from ..recipe.presets import PRESETS
 from ..request import VariantSelection
-from .render import _positive, cryptomatte_list, output_target, preset_or_file
+from .render import cryptomatte_list, output_target, positive_int, preset_or_file
 
 HELP = "cut light layers out of a path index with Light Path Expressions"
 DESCRIPTION = (
@@ -69,10 +69,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="add the Cryptomatte layers (comma-separated: object, material, asset) to every "
                         "EXR, copied from the render's EXR beside the index (render it with --cryptomatte); "
                         "the index itself cannot give them exactly")
-    parser.add_argument("--threads", type=_positive, metavar="N",
+    parser.add_argument("--threads", type=positive_int, metavar="N",
                         help="threads that read and decode the index's chunks (default: every core this "
                         "process may use); the layers are the same, bit for bit, whatever N is")
     parser.add_argument("--no-previews", action="store_true", help="do not write the PNG previews and contact sheets")
+    parser.add_argument("--nuke-script", action="store_true",
+                        help="also write PRODUCT.nk beside every product: the Nuke script `pxr-layers nuke` writes")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -113,9 +115,11 @@ def _run(args: argparse.Namespace) -> int:
     beauty = beauty_beside(index)
     with OutputSet():  # every EXR and preview of the command, or none
         delivered = deliver(index, recipe, beauty, outputs, data=copied, metadata=metadata, previews=not args.no_previews,
-                            show_progress=args.show_progress)
+                            nuke_scripts=args.nuke_script, show_progress=args.show_progress)
     for product in delivered:
         print(product.exr)
+        if product.nuke_script:
+            print(product.nuke_script)
     return 0
 
 

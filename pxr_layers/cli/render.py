@@ -77,12 +77,12 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--per-light", choices=PER_LIGHT_MODES, metavar="MODE",
                         help="add per-light layers to every product: none, lights (one layer per light) "
                         "or groups (one per pxrLayers:lightGroup); default: each product's pxrLayers:perLight")
-    parser.add_argument("--spp", type=_positive, default=DEFAULT_SPP, metavar="N",
+    parser.add_argument("--spp", type=positive_int, default=DEFAULT_SPP, metavar="N",
                         help=f"samples per pixel (default {DEFAULT_SPP}, at most {MAX_SPP})")
     parser.add_argument("--max-depth", type=_non_negative, default=DEFAULT_MAX_DEPTH, metavar="N",
                         help=f"most scattering events per path; 1 = direct light only (default {DEFAULT_MAX_DEPTH}, "
                         f"at most {MAX_DEPTH})")
-    parser.add_argument("--resolution", type=_positive, nargs=2, metavar=("W", "H"),
+    parser.add_argument("--resolution", type=positive_int, nargs=2, metavar=("W", "H"),
                         help="image size in pixels (default: the recipe's, else "
                         f"{DEFAULT_RESOLUTION[0]} {DEFAULT_RESOLUTION[1]}; at most {MAX_PIXELS:,} pixels)")
     parser.add_argument("--seed", type=_non_negative, default=DEFAULT_SEED, metavar="N",
@@ -90,7 +90,7 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frame", type=_finite, metavar="F",
                         help="time code to render (default: the stage's start time code)")
     parser.add_argument("--camera", metavar="PRIM", help="camera prim path (default: the recipe's camera)")
-    parser.add_argument("--threads", type=_positive, metavar="N", help="render threads (default: all cores)")
+    parser.add_argument("--threads", type=positive_int, metavar="N", help="render threads (default: all cores)")
     parser.add_argument("--norm-bounces", type=_non_negative, metavar="N",
                         help="events per path (camera side) whose covariance norms C, T, R the path "
                         "index keeps (default: the products' pxrLayers:index:bounces, else "
@@ -121,6 +121,8 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
                         "covariance, for conditions on S11 ... S44 (default: the products' "
                         "pxrLayers:index:covariance)")
     parser.add_argument("--no-previews", action="store_true", help="do not write the PNG previews and contact sheets")
+    parser.add_argument("--nuke-script", action="store_true",
+                        help="also write PRODUCT.nk beside every product: the Nuke script `pxr-layers nuke` writes")
     parser.add_argument("--cryptomatte", type=cryptomatte_list, default=(), metavar="TYPES",
                         help="add Cryptomatte layers to every product, a comma-separated list of "
                         f"{', '.join(CRYPTOMATTE_KINDS)}: CryptoObject (prim paths), CryptoMaterial (bound "
@@ -138,6 +140,8 @@ def add_render_flags(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     for delivered in render_stage(Path(args.stage), args):
         print(delivered.exr)
+        if delivered.nuke_script:
+            print(delivered.nuke_script)
     return 0
 
 
@@ -168,7 +172,7 @@ def render_stage(stage_path: Path, args: argparse.Namespace) -> list[Delivered]:
     shot = open_request(request)  # the stage is composed and read once for the whole render
     plan = plan_frame(request, args.frame, shot=shot, directory=directory, exr=exr, keep_index=not args.no_index,
                       previews=not args.no_previews, cryptomattes=args.cryptomatte,
-                      cryptomatte_depth=args.cryptomatte_depth)
+                      cryptomatte_depth=args.cryptomatte_depth, nuke_scripts=args.nuke_script)
     if args.debug_covariance and plan.trace.norm_bounces == 0:
         plan = dataclasses.replace(plan, trace=dataclasses.replace(plan.trace, norm_bounces=1))
     integrator = prepare_frame(plan, shot)
@@ -218,13 +222,14 @@ def cryptomatte_list(text: str) -> tuple[str, ...]:
 
 
 def _cryptomatte_depth(text: str) -> int:
-    value = _positive(text)
+    value = positive_int(text)
     if value > MAX_CRYPTOMATTE_DEPTH:
         raise argparse.ArgumentTypeError(f"must be at most {MAX_CRYPTOMATTE_DEPTH}, got {text}")
     return value
 
 
-def _positive(text: str) -> int:
+def positive_int(text: str) -> int:
+    """An argparse type: an integer of 1 or more (--spp, --threads, ...)."""
     value = int(text)
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..recipe.model import DEFAULT_CAMERA_PATH, Layer, Product, Recipe
 from ..suggest import DEFAULT_K, STRATEGIES
-from .render import _positive
+from .render import positive_int
 
 HELP = "suggest K light layers that partition the beauty, for one index or a shot's frames"
 DESCRIPTION = (
@@ -24,14 +24,14 @@ DESCRIPTION = (
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("indexes", nargs="+", metavar="INDEX", help="path indexes (.pxlidx) of one shot")
-    parser.add_argument("-k", "--layers", type=_positive, default=DEFAULT_K, metavar="N",
+    parser.add_argument("-k", "--layers", type=positive_int, default=DEFAULT_K, metavar="N",
                         help=f"how many layers (default {DEFAULT_K}; fewer when path space cannot be split further)")
     parser.add_argument("-o", "--output", metavar="RECIPE",
                         help="the recipe to write (.usda); the EXRs go beside it "
                         "(default: suggested.usda beside the first index)")
     parser.add_argument("--strategy", choices=STRATEGIES, default=STRATEGIES[0],
                         help=f"how the layers are searched for (default {STRATEGIES[0]}; docs/suggest.md)")
-    parser.add_argument("--threads", type=_positive, default=2, metavar="N",
+    parser.add_argument("--threads", type=positive_int, default=2, metavar="N",
                         help="threads that read and decode each index's chunks (default 2)")
     parser.add_argument("--no-exr", action="store_true", help="write the recipe only, not the EXRs and previews")
     parser.add_argument("--no-previews", action="store_true", help="do not write the PNG previews and contact sheets")

@@ -6,7 +6,7 @@ import argparse
 import logging
 
 from ..errors import Terminated
-from .render import _positive
+from .render import positive_int
 
 HELP = "inspect a render in the browser: its layers, regraded live, its light paths, new layers"
 DESCRIPTION = (
@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=_port, default=0,
                         help="the port to listen on (default 0: a free one)")
     parser.add_argument("--no-browser", action="store_true", help="print the URL, do not open a browser")
-    parser.add_argument("--threads", type=_positive, metavar="N",
+    parser.add_argument("--threads", type=positive_int, metavar="N",
                         help="threads that read the index (default: every core this process may use)")
 
 

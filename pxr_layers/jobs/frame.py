@@ -62,6 +62,7 @@ class FramePlan:
     cryptomattes   : the Cryptomatte sources of the recipe (CryptoObject, ...)
     cryptomatte_depth : ranks per pixel of each
     model_paths    : the stage's models (kind component, group, assembly), CryptoAsset's roots
+    nuke_scripts   : a Nuke script beside every product (``--nuke-script``)
     """
 
     request: RenderRequest
@@ -80,6 +81,7 @@ class FramePlan:
     cryptomattes: tuple[str, ...] = ()
     cryptomatte_depth: int = DEFAULT_CRYPTOMATTE_DEPTH
     model_paths: tuple[str, ...] = ()
+    nuke_scripts: bool = False
 
     @property
     def stage(self) -> Path:
@@ -110,6 +112,7 @@ def plan_frame(
     shot=None,
     cryptomattes: tuple[str, ...] = (),
     cryptomatte_depth: int = DEFAULT_CRYPTOMATTE_DEPTH,
+    nuke_scripts: bool = False,
 ) -> FramePlan:
     """Resolve one frame of ``request``. ``recipe``: an already resolved recipe, else read
     from ``shot`` (an open :class:`pxr_layers.stage.Shot`, else the request's stage is
@@ -120,7 +123,8 @@ def plan_frame(
     product's explicit file). The index: ``index_path``, else beside ``exr``, else
     ``directory/STEM[.FFFF].pxlidx``. Norm bounces: :meth:`RenderRequest.resolved_norm_bounces`.
     ``cryptomattes``: Cryptomatte sources added to every product (``--cryptomatte``), each of
-    ``cryptomatte_depth`` ranks (those the recipe asks for too).
+    ``cryptomatte_depth`` ranks (those the recipe asks for too). ``nuke_scripts``: a Nuke
+    script beside every product.
     """
     stage = request.stage
     if recipe is None:
@@ -182,7 +186,7 @@ def plan_frame(
     manifest.pop("index", None)
     return FramePlan(request, frame, view_camera, resolution, trace, recipe, outputs, index_path,
                      keep_index, previews, tuple(source for source in sources if source not in CRYPTOMATTE_SOURCES),
-                     metadata, manifest, crypto_sources, cryptomatte_depth, model_paths)
+                     metadata, manifest, crypto_sources, cryptomatte_depth, model_paths, nuke_scripts)
 
 
 def index_settings(request: RenderRequest, recipe: Recipe) -> tuple[str, bool]:
@@ -304,7 +308,7 @@ class FrameAssembler:
                 index = PathIndex(self.writer.close(vocabulary), shown_as=plan.index_path)
             check_beauty(rgba, index, plan.stage)
             delivered = deliver(index, plan.recipe, rgba, plan.outputs, data=data, metadata=metadata,
-                                previews=plan.previews, show_progress=show_progress)
+                                previews=plan.previews, nuke_scripts=plan.nuke_scripts, show_progress=show_progress)
             if not plan.keep_index:
                 outputs.discard(plan.index_path)
         return delivered

@@ -39,7 +39,8 @@ from .cryptomatte import Cryptomatte
 from .extract import extract
 from .exr import METADATA_PREFIX
 from .multipart import read_multipart, write_multipart
-from .previews import energy_shares, write_previews
+from .nuke import write_nuke_script
+from .previews import energy_shares, layers_partition, write_previews
 
 log = logging.getLogger(__name__)
 
@@ -47,12 +48,14 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class Delivered:
     """One product as written: its EXR, its previews (layer name → PNG, ``"contact"`` for
-    the contact sheet) and each colour layer's share of the beauty's energy."""
+    the contact sheet), each colour layer's share of the beauty's energy, and its Nuke
+    script (None unless asked for)."""
 
     product: Product
     exr: Path
     previews: dict[str, Path]
     shares: dict[str, float | None]
+    nuke_script: Path | None = None
 
 
 def frame_suffix(frame: float | None) -> str:
@@ -128,6 +131,7 @@ def deliver(
     data: Mapping[str, np.ndarray | Cryptomatte] | None = None,
     metadata: Mapping[str, object] | None = None,
     previews: bool = True,
+    nuke_scripts: bool = False,
     show_progress: bool = False,
 ) -> list[Delivered]:
     """Extract, write and preview every product of ``recipe``.
@@ -139,6 +143,8 @@ def deliver(
     data    : raw source name → (h, w) or (h, w, c) float32 image (depth, normal, ...), or
               the Cryptomatte of a Cryptomatte source (CryptoObject, ...)
     metadata: ``pxrLayers/<key>`` attributes on every part (stage, camera, spp, seed...)
+    nuke_scripts : also write ``PRODUCT.nk`` beside each EXR (layers.nuke: what
+              ``pxr-layers nuke PRODUCT.exr`` writes)
     """
     data = dict(data or {})
     check_raw_sources(recipe, tuple(data), "this render did not produce")
@@ -159,8 +165,23 @@ def deliver(
         shown = {name: image for name, image in images.items() if not isinstance(image, Cryptomatte)}
         shares = energy_shares(beauty, shown, {layer.name: layer for layer in product.layers})
         written = write_previews(path.parent, path.stem, beauty, shown, product, shares) if previews else {}
-        delivered.append(Delivered(product, path, written, shares))
+        script = _nuke_script(outputs[product.name], beauty, images, product) if nuke_scripts else None
+        delivered.append(Delivered(product, path, written, shares, script))
     return delivered
+
+
+def _nuke_script(exr: Path, beauty: np.ndarray, images: Mapping[str, np.ndarray | Cryptomatte],
+                 product: Product) -> Path:
+    """Write the product's Nuke script, with unit grades, beside its EXR ``exr`` (the final
+    path); returns the script's final path."""
+    kinds = {layer.name: layer for layer in product.layers}
+    colour = {name: image for name, image in images.items() if not kinds[name].is_data}
+    height, width = beauty.shape[:2]
+    script = exr.with_suffix(".nk")
+    write_nuke_script(script, exr, list(colour), {}, resolution=(width, height),
+                      partition=layers_partition(beauty, [image[..., :3] for image in colour.values()]),
+                      cryptomattes={name: image.depth for name, image in images.items() if isinstance(image, Cryptomatte)})
+    return script
 
 
 def _key(product: Product, layer: Layer) -> str:

@@ -37,7 +37,7 @@ from .walk import walk_stage
 
 logger = logging.getLogger(__name__)
 
-_LIGHT_GROUP = "pxrLayers:lightGroup"
+_LIGHT_GROUP = schema.ATTRIBUTE_PREFIX + "lightGroup"  # PxrLayersLightAPI's
 
 
 @dataclass
