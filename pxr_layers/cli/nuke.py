@@ -31,14 +31,10 @@ def run(args: argparse.Namespace) -> int:
 
 def write_product_script(product: Path, output: Path) -> Path:
     """Write the Nuke script of the EXR ``product`` at ``output``; returns ``output``."""
+    from ..layers import nuke
     from ..layers.multipart import read_multipart
-    from ..layers.nuke import write_nuke_script
-    from ..layers.previews import layers_partition
 
     image = read_multipart(product)
-    colour = image.colour_layers()
-    height, width = image.beauty.shape[:2]
-    write_nuke_script(output, product, list(colour), {}, resolution=(width, height),
-                      partition=layers_partition(image.beauty, colour.values()),
-                      cryptomattes={name: matte.depth for name, matte in image.cryptomattes.items()})
+    nuke.write_product_script(output, product, image.beauty, image.colour_layers(),
+                              {name: matte.depth for name, matte in image.cryptomattes.items()})
     return output

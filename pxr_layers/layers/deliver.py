@@ -39,8 +39,8 @@ from .cryptomatte import Cryptomatte
 from .extract import extract
 from .exr import METADATA_PREFIX
 from .multipart import read_multipart, write_multipart
-from .nuke import write_nuke_script
-from .previews import energy_shares, layers_partition, write_previews
+from .nuke import write_product_script
+from .previews import energy_shares, write_previews
 
 log = logging.getLogger(__name__)
 
@@ -175,12 +175,9 @@ def _nuke_script(exr: Path, beauty: np.ndarray, images: Mapping[str, np.ndarray 
     """Write the product's Nuke script, with unit grades, beside its EXR ``exr`` (the final
     path); returns the script's final path."""
     kinds = {layer.name: layer for layer in product.layers}
-    colour = {name: image for name, image in images.items() if not kinds[name].is_data}
-    height, width = beauty.shape[:2]
     script = exr.with_suffix(".nk")
-    write_nuke_script(script, exr, list(colour), {}, resolution=(width, height),
-                      partition=layers_partition(beauty, [image[..., :3] for image in colour.values()]),
-                      cryptomattes={name: image.depth for name, image in images.items() if isinstance(image, Cryptomatte)})
+    write_product_script(script, exr, beauty, {name: image for name, image in images.items() if not kinds[name].is_data},
+                         {name: image.depth for name, image in images.items() if isinstance(image, Cryptomatte)})
     return script
 
 

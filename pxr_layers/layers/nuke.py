@@ -65,6 +65,7 @@ from .. import __version__
 from ..errors import OutputError
 from ..outputs import write_atomically
 from ..recipe.model import BEAUTY_PART, LAYER_NAME, MAX_CRYPTOMATTE_DEPTH, cryptomatte_parts
+from .previews import layers_partition
 
 logger = logging.getLogger(__name__)
 
@@ -227,6 +228,18 @@ def write_nuke_script(path: str | os.PathLike, exr_path: str | os.PathLike, part
     written = write_atomically(path, lambda temporary: temporary.write_text(text, encoding="utf-8"))
     logger.info("wrote the Nuke script %s: %d layers of %s", path, len(parts), exr)
     return written
+
+
+def write_product_script(path: str | os.PathLike, exr_path: str | os.PathLike, beauty, colour: Mapping,
+                         cryptomattes: Mapping[str, int]) -> Path:
+    """The script of a whole product at ``path`` with unit grades (what ``pxr-layers nuke``
+    and ``--nuke-script`` write): ``beauty`` (h, w, ≥3) its part 0, ``colour`` its colour
+    layers in part order (name → (h, w, ≥3)), ``cryptomattes`` its Cryptomatte layers'
+    depths. Returns where the file is now, as :func:`write_nuke_script`."""
+    height, width = beauty.shape[:2]
+    return write_nuke_script(path, exr_path, list(colour), {}, resolution=(width, height),
+                             partition=layers_partition(beauty, [image[..., :3] for image in colour.values()]),
+                             cryptomattes=cryptomattes)
 
 
 def _check(parts: list[str], grades: Mapping[str, LayerGrade], beauty_part: str, exposure: float) -> None:
