@@ -201,7 +201,7 @@ def cryptomattes_beside(index: PathIndex) -> dict[str, Cryptomatte]:
     (CryptoObject, ...): the index cannot give them (it keeps the light paths' records, not
     every camera sample's first hit). Empty when that EXR is missing or holds none; refused
     as :func:`beauty_beside` refuses it."""
-    beside = _render_exr_beside(index)
+    beside = _render_exr_beside(index, header_only=True)  # read_multipart reads it whole, once
     if beside is None:
         return {}
     image = read_multipart(beside[0])
@@ -216,7 +216,7 @@ def beauty_beside(index: PathIndex) -> np.ndarray:
     one folder): layers cut from this index would not sum to that beauty.
     """
     height_width = tuple(reversed(index.manifest["resolution"]))
-    beside = _render_exr_beside(index)
+    beside = _render_exr_beside(index, header_only=False)
     if beside is not None:
         rgba = beside[1].channels().get("RGBA")
         if rgba is not None and rgba.pixels.shape[:2] == height_width:
@@ -225,9 +225,10 @@ def beauty_beside(index: PathIndex) -> np.ndarray:
     return np.concatenate([rgb, np.ones((*rgb.shape[:2], 1), np.float32)], axis=2)
 
 
-def _render_exr_beside(index: PathIndex) -> tuple[Path, OpenEXR.File] | None:
+def _render_exr_beside(index: PathIndex, *, header_only: bool) -> tuple[Path, OpenEXR.File] | None:
     """The EXR the render of ``index`` wrote beside it (the manifest's ``beauty``, else
-    ``<index stem>.exr``) and its contents; None when there is no such file.
+    ``<index stem>.exr``) and its contents (its headers only with ``header_only``); None when
+    there is no such file.
 
     Raises OutputError when OpenEXR cannot read it, PathIndexError when its
     ``pxrLayers/renderId`` is not the index's ``render_id`` (another render wrote it).
@@ -236,7 +237,7 @@ def _render_exr_beside(index: PathIndex) -> tuple[Path, OpenEXR.File] | None:
     if not beside.exists():
         return None
     try:
-        exr = OpenEXR.File(str(beside))
+        exr = OpenEXR.File(str(beside), header_only=header_only)
     except Exception as error:  # the binding raises RuntimeError and others for a damaged file
         raise OutputError(f"{beside}: the render's EXR beside {index.path.name} cannot be read ({error}); "
                           "remove it to rebuild the beauty from the index") from error

@@ -73,9 +73,7 @@ def coverage_names(integrator: Integrator, sources: Iterable[str], *, asset_path
                                   f"{', '.join(CRYPTOMATTE_SOURCES)}")
     world, vocabulary = integrator.world, integrator.vocabulary
     subject_object = np.asarray(vocabulary.surface_objects, np.int64)
-    subject_material = np.asarray(vocabulary.surface_materials, np.int64)
-    subject_is_light = np.zeros(len(subject_object), bool)
-    subject_is_light[integrator.triangle_subject[np.asarray(world.triangle_light) >= 0]] = True
+    subject_material = np.asarray(vocabulary.surface_materials, np.int64)  # −1: a light shape (World)
     object_paths = np.asarray(world.object_paths, str)
     out = {}
     for source in wanted:
@@ -83,7 +81,7 @@ def coverage_names(integrator: Integrator, sources: Iterable[str], *, asset_path
             labels = object_paths[subject_object]
         elif source == "CryptoMaterial":  # a light shape is named by its light
             material_paths = np.asarray(vocabulary.material_paths + ("",), str)
-            labels = np.where(subject_is_light | (subject_material < 0), object_paths[subject_object],
+            labels = np.where(subject_material < 0, object_paths[subject_object],
                               material_paths[np.maximum(subject_material, 0)])
         else:
             if asset_paths is None or len(asset_paths) != len(world.object_paths):
