@@ -280,3 +280,57 @@ def test_a_job_delivers_the_cryptomattes_its_recipe_asks_for(tmp_path, client):
                    for part in crypto for c in "GA")
     alpha = np.asarray(parts[0].channels["A"].pixels, np.float64)
     assert alpha.max() > 0 and np.allclose(coverage, alpha, atol=1e-6)
+
+
+FRAME_NAMED_RECIPE = """#usda 1.0
+(
+    renderSettingsPrimPath = "/Render/Named/Settings"
+)
+
+def Scope "Render"
+{
+    def Scope "Named"
+    {
+        def RenderSettings "Settings"
+        {
+            rel products = </Render/Named/beauty>
+            int2 resolution = (40, 30)
+        }
+
+        def RenderProduct "beauty"
+        {
+            token productName = "cornell.####.exr"
+            rel orderedVars = </Render/Named/diffuse>
+        }
+
+        def RenderVar "diffuse"
+        {
+            uniform token sourceType = "lpe"
+            uniform string sourceName = "C<RD>.*"
+        }
+    }
+}
+"""
+
+
+def test_render_and_a_one_frame_job_write_the_same_bytes(tmp_path):
+    """`pxr-layers render` and `pxr-layers job run` with the same options, Cryptomattes and a
+    Nuke script included, write byte-identical files: one request, one frame entry."""
+    recipe = tmp_path / "named.usda"
+    recipe.write_text(FRAME_NAMED_RECIPE)
+    stage = REPO / "render" / "cornell.usda"
+    options = ["--recipe", str(recipe), "--spp", "4", "--max-depth", "3", "--seed", "7",
+               "--cryptomatte", "object,material", "--cryptomatte-depth", "2", "--nuke-script", "--no-previews"]
+    job_file = tmp_path / "one.toml"
+    job_file.write_text(f'stage = "{stage}"\nframes = "1"\n[output]\ndirectory = "job"\nstem = "cornell.$F4"\n')
+    rendered = subprocess.run([SCRIPT, "render", str(stage), "--frame", "1", "-o", str(tmp_path / "render"),
+                               "--quiet", *options], capture_output=True, text=True, check=False, timeout=600)
+    assert rendered.returncode == 0, rendered.stderr
+    ran = subprocess.run([SCRIPT, "job", "run", str(job_file), "--workers", "1", "--quiet", *options],
+                         capture_output=True, text=True, check=False, timeout=600)
+    assert ran.returncode == 0, ran.stderr
+    names = ("cornell.0001.exr", "cornell.0001.pxlidx", "cornell.0001.nk")
+    for name in names:
+        assert (tmp_path / "render" / name).read_bytes() == (tmp_path / "job" / name).read_bytes(), name
+    parts = [part.name() for part in OpenEXR.File(str(tmp_path / "job" / names[0])).parts]
+    assert parts == ["rgba", "diffuse", "CryptoObject00", "CryptoMaterial00"]

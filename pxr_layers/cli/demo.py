@@ -7,7 +7,8 @@ import logging
 from importlib import resources
 from pathlib import Path
 
-from .render import add_render_flags, render_stage
+from ..recipe.presets import preset
+from .render import add_render_flags, request_from_args
 
 HELP = "render the embedded default shot (Cornell box) into light passes"
 DEMO_RECIPE = "light_passes"
@@ -23,7 +24,7 @@ log = logging.getLogger(__name__)
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_render_flags(parser)
-    parser.set_defaults(output="demo", recipe=None)
+    parser.set_defaults(output="demo", recipe_layers=None)
 
 
 def embedded_scene(name: str = DEFAULT_SCENE) -> Path:
@@ -32,8 +33,12 @@ def embedded_scene(name: str = DEFAULT_SCENE) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.recipe is None:  # an append action's default of None: no --recipe given
-        args.recipe = [DEMO_RECIPE]
-    for delivered in render_stage(embedded_scene(), args):
+    from ..jobs.frame import render_frame
+
+    if args.recipe_layers is None:  # no --recipe given
+        args.recipe_layers = (preset(DEMO_RECIPE),)
+    result = render_frame(request_from_args(embedded_scene(), args), args.frame, output=args.output,
+                          threads=args.threads, show_progress=args.show_progress)
+    for delivered in result.delivered:
         print(delivered.exr)
     return 0

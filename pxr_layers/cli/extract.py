@@ -16,15 +16,15 @@ from ..layers.deliver import (
     deliver,
     index_frame,
     index_metadata,
+    output_target,
     plan_outputs,
 )
 from ..layers.extract import extraction_threads
 from ..outputs import OutputSet
 from ..paths.reader import PathIndex
-from ..recipe.model import PER_LIGHT_MODES, Layer, Product, Recipe
-from ..recipe.presets import PRESETS
+from ..recipe.model import Layer, Product, Recipe
 from ..request import VariantSelection
-from .render import cryptomatte_list, output_target, positive_int, preset_or_file
+from .render import add_request_flags, positive_int
 
 HELP = "cut light layers out of a path index with Light Path Expressions"
 DESCRIPTION = (
@@ -44,15 +44,10 @@ log = logging.getLogger(__name__)
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("index", metavar="INDEX", help="the path index (.pxlidx)")
-    parser.add_argument("--recipe", action="append", default=[], metavar="RECIPE",
-                        help="a USD layer recipe (a file, or a preset name: "
-                        f"{', '.join(PRESETS)}), composed over the index's stage when that file "
-                        "still exists; repeat for more, the first is the strongest")
-    parser.add_argument("--settings", metavar="PRIM",
-                        help="the recipe's RenderSettings prim (default: its renderSettingsPrimPath)")
-    parser.add_argument("--per-light", choices=PER_LIGHT_MODES, metavar="MODE",
-                        help="per-light layers for every recipe product: none, lights or groups "
-                        "(default: each product's pxrLayers:perLight)")
+    add_request_flags(parser, ("recipe_layers", "settings", "per_light"), help={
+        "recipe_layers": "a USD layer recipe (a file, or a preset name), composed over the index's stage "
+        "when that file still exists; repeat for more, the first is the strongest",
+        "settings": "the recipe's RenderSettings prim (default: its renderSettingsPrimPath)"})
     parser.add_argument("--layer", action="append", default=[], type=_layer, metavar="NAME=EXPR",
                         help="a layer: its name and its expression (repeat for more layers)")
     parser.add_argument("--passes", action="store_true",
@@ -65,16 +60,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a directory for the EXRs (recipe products by their productName, the "
                         "command-line layers as INDEX-stem.layers.exr), or the .exr path when one EXR "
                         "is written (default: the index's directory)")
-    parser.add_argument("--cryptomatte", type=cryptomatte_list, default=(), metavar="TYPES",
-                        help="add the Cryptomatte layers (comma-separated: object, material, asset) to every "
-                        "EXR, copied from the render's EXR beside the index (render it with --cryptomatte); "
-                        "the index itself cannot give them exactly")
     parser.add_argument("--threads", type=positive_int, metavar="N",
                         help="threads that read and decode the index's chunks (default: every core this "
                         "process may use); the layers are the same, bit for bit, whatever N is")
-    parser.add_argument("--no-previews", action="store_true", help="do not write the PNG previews and contact sheets")
-    parser.add_argument("--nuke-script", action="store_true",
-                        help="also write PRODUCT.nk beside every product: the Nuke script `pxr-layers nuke` writes")
+    add_request_flags(parser, ("previews", "nuke_scripts", "cryptomattes"), help={
+        "cryptomattes": "add the Cryptomatte layers (comma-separated: object, material, asset) to every "
+        "EXR, copied from the render's EXR beside the index (render it with --cryptomatte); the index "
+        "itself cannot give them exactly"})
 
 
 def run(args: argparse.Namespace) -> int:
@@ -84,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     index = PathIndex(args.index)
-    loaded = _recipe(index, args) if args.recipe else None
+    loaded = _recipe(index, args) if args.recipe_layers else None
     products = list(loaded.products) if loaded else []
     expressions, clash = _command_line_layers(args, index)
     if clash:
@@ -101,8 +93,8 @@ def _run(args: argparse.Namespace) -> int:
         return 2
     recipe = Recipe(products=tuple(at_index_view(product, index) for product in products),
                     settings_path=loaded.settings_path if loaded else "", file=loaded.file if loaded else "")
-    if args.cryptomatte:
-        recipe = recipe.with_cryptomattes(args.cryptomatte)
+    if args.cryptomattes:
+        recipe = recipe.with_cryptomattes(args.cryptomattes)
     copied = cryptomattes_beside(index) if any(layer.is_cryptomatte for product in recipe.products
                                                for layer in product.layers) else {}
     check_raw_sources(recipe, tuple(copied), "the path index does not hold (it keeps light paths; data AOVs need "
@@ -114,8 +106,8 @@ def _run(args: argparse.Namespace) -> int:
     metadata = index_metadata(index, directory)
     beauty = beauty_beside(index)
     with OutputSet():  # every EXR and preview of the command, or none
-        delivered = deliver(index, recipe, beauty, outputs, data=copied, metadata=metadata, previews=not args.no_previews,
-                            nuke_scripts=args.nuke_script, show_progress=args.show_progress)
+        delivered = deliver(index, recipe, beauty, outputs, data=copied, metadata=metadata, previews=args.previews,
+                            nuke_scripts=args.nuke_scripts, show_progress=args.show_progress)
     for product in delivered:
         print(product.exr)
         if product.nuke_script:
@@ -149,7 +141,7 @@ def _recipe(index: PathIndex, args: argparse.Namespace) -> Recipe:
     index could match its lights)."""
     from ..stage import open_shot
 
-    layers = [preset_or_file(text) for text in args.recipe]
+    layers = list(args.recipe_layers)
     stage = Path(index.manifest.get("stage", ""))
     if stage.is_file():
         from ..jobs.frame import file_sha256  # here: jobs.frame pulls in the tracer, which extract does not need

@@ -6,7 +6,9 @@ import argparse
 import logging
 import sys
 
+from ..request import OPTIONS
 from . import logging_flags
+from .render import add_request_flags
 
 HELP = "run a shot job (frames × tiles on Dask), or show its progress"
 DESCRIPTION = (
@@ -24,12 +26,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              description="Render every frame of JOB that has no commit record yet.")
     run.add_argument("job", metavar="JOB", help="the job file (.toml)")
     run.add_argument("--frames", metavar="RANGE", help="only these frames, e.g. 1-4 or 1-24x4 (default: the job's)")
-    run.add_argument("--spp", type=int, metavar="N", help="samples per pixel (default: the job's)")
-    run.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"), help="image size (default: the job's)")
     run.add_argument("--scheduler", metavar="ADDRESS",
                      help="a Dask scheduler, tcp://host:8786 (default: the job's, else a LocalCluster)")
     run.add_argument("--workers", type=int, metavar="N", help="LocalCluster worker processes (default: the job's)")
     run.add_argument("--batch-pixels", type=int, metavar="N", help="pixels per task (default: the job's)")
+    # Every option of `pxr-layers render`, overriding the job file's key of the same option.
+    add_request_flags(run, unset_defaults=True)
     status = actions.add_parser("status", help="show each frame's progress", parents=[logging_flags(nested=True)],
                                 description="Each frame of JOB: done, k/n tiles committed, or pending.")
     status.add_argument("job", metavar="JOB", help="the job file (.toml)")
@@ -42,12 +44,13 @@ def run(args: argparse.Namespace) -> int:
 
     overrides = {"output.directory": args.output} if args.output else {}
     if args.action == "run":
-        for flag, key in (("frames", "frames"), ("spp", "render.spp"), ("scheduler", "dask.scheduler"),
+        for flag, key in (("frames", "frames"), ("scheduler", "dask.scheduler"),
                           ("workers", "dask.workers"), ("batch_pixels", "dask.batch_pixels")):
             if getattr(args, flag) is not None:
                 overrides[key] = getattr(args, flag)
-        if args.resolution:
-            overrides["render.resolution"] = list(args.resolution)
+        for spec in OPTIONS:
+            if getattr(args, spec.name) is not None:
+                overrides[spec.job_key] = as_toml(getattr(args, spec.name))
     job = load_job(args.job, overrides)
     if args.action == "status":
         return _status(job)
@@ -66,6 +69,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"{job.name}: {len(report.rendered)} frames rendered, {len(report.skipped)} already done "
           f"({report.tiles_rendered} tiles rendered, {report.tiles_reused} reused) in {report.seconds:.1f}s")
     return 0
+
+
+def as_toml(value):
+    """A flag's parsed value as a job file would write it (lists, strings), for load_job."""
+    if isinstance(value, tuple):
+        return [as_toml(item) for item in value]
+    return value if isinstance(value, (bool, int, float, str)) else str(value)
 
 
 def _committed(job) -> str:

@@ -19,7 +19,6 @@ from .definition import (
     default_workers,
     expand_template,
     has_frame_token,
-    is_preset_name,
     load_job,
     parse_frames,
 )
@@ -32,7 +31,6 @@ __all__ = [
     "default_workers",
     "expand_template",
     "has_frame_token",
-    "is_preset_name",
     "load_job",
     "parse_frames",
 ]

@@ -49,42 +49,25 @@ try:
 except ModuleNotFoundError:  # Python 3.10: the same parser, as a package
     import tomli as tomllib
 
-from ..errors import JobError, RenderSettingsError
-from ..recipe.model import COVARIANCE_MODES, INDEX_MODES, MAX_INDEX_BOUNCES, PER_LIGHT_MODES
-from ..recipe.presets import PRESETS, preset
-from ..request import (
-    DEFAULT_MAX_DEPTH,
-    DEFAULT_SEED,
-    DEFAULT_SPP,
-    DEFAULT_SUBDIV_LEVEL,
-    MAX_DEPTH,
-    MAX_SEED,
-    MAX_SPP,
-    MAX_SUBDIV_LEVEL,
-    RenderRequest,
-    VariantSelection,
-    check_work,
-)
+from ..cores import available_cores
+from ..errors import JobError
+from ..paths.format import SUFFIX as INDEX_SUFFIX
+from ..request import OPTIONS, OPTIONS_BY_NAME, EntryError, Option, RenderRequest
 
 DEFAULT_BATCH_PIXELS = 16384
 DEFAULT_RETRIES = 2
 DEFAULT_DIRECTORY = "out/$JOB"
 DEFAULT_STEM = "$JOB.$F4"
 
-INDEX_SUFFIX = ".pxlidx"  # pxr_layers.paths.format.SUFFIX, without importing numpy here
 BEAUTY_SUFFIX = ".exr"
-USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
-RECIPE_PER_LIGHT = "recipe"  # per_light: leave every product's pxrLayers:perLight as authored
 LOCAL_SCHEDULER = "local"    # scheduler: a LocalCluster (the default)
 OVERRIDES = "(overrides)"    # the "file" of load_job's overrides in error messages
 
 
 def default_workers() -> int:
-    """The CPU count this process may use (the LocalCluster default)."""
-    if hasattr(os, "sched_getaffinity"):
-        return max(1, len(os.sched_getaffinity(0)))
-    return max(1, os.cpu_count() or 1)
+    """The LocalCluster default: one worker process per core this process may use."""
+    return available_cores()
 
 
 @dataclass(frozen=True)
@@ -151,24 +134,6 @@ class Job:
             path = Path(f"{self.output_stem(frame)}.{expand_template(product_name, frame, self.name)}")
         return path if path.is_absolute() else self.output_directory / path
 
-    def as_dict(self) -> dict[str, Any]:
-        """The job as JSON-friendly values (paths as strings), e.g. for a manifest."""
-        request = self.request
-        return {
-            "file": str(self.file), "name": self.name, "sources": [str(p) for p in self.sources],
-            "stage": str(request.stage), "frames": list(self.frames), "settings": request.settings,
-            "recipe_layers": [str(p) for p in request.recipe_layers], "per_light": request.per_light,
-            "variants": [str(selection) for selection in request.variants],
-            "spp": request.spp, "seed": request.seed, "max_depth": request.max_depth,
-            "norm_bounces": request.norm_bounces, "index_mode": request.index_mode,
-            "index_covariance": request.index_covariance, "subdiv_level": request.subdiv_level,
-            "default_lights": request.default_lights, "strict": request.strict,
-            "resolution": list(request.resolution) if request.resolution else None,
-            "output_directory": str(self.output_directory), "output_template": self.output_template,
-            "batch_pixels": self.batch_pixels, "retries": self.retries,
-            "scheduler": self.scheduler, "workers": self.workers,
-        }
-
 
 # -- the keys ---------------------------------------------------------------------------------
 
@@ -204,27 +169,6 @@ def _integer(minimum: int, maximum: int | None = None) -> Callable[[Any, Path, s
     return check
 
 
-def _boolean(value: Any, base: Path, file: str, key: str) -> bool:
-    if not isinstance(value, bool):
-        raise _error(f"must be true or false, not {_type_name(value)} ({value!r})", file, key)
-    return value
-
-
-def _variants(value: Any, base: Path, file: str, key: str) -> tuple[VariantSelection, ...]:
-    if isinstance(value, str):
-        value = [value]
-    if not isinstance(value, list):
-        raise _error(f"must be a list of \"PRIM:SET=VALUE\" strings, not {_type_name(value)}", file, key)
-    selections = []
-    for number, entry in enumerate(value):
-        entry_key = f"{key}[{number}]"
-        try:
-            selections.append(VariantSelection.parse(_string(entry, file, entry_key), where="variant"))
-        except RenderSettingsError as error:
-            raise _error(str(error), file, entry_key) from None
-    return tuple(selections)
-
-
 def _string(value: Any, file: str, key: str) -> str:
     if not isinstance(value, str):
         raise _error(f"must be a string, not {_type_name(value)} ({value!r})", file, key)
@@ -242,80 +186,16 @@ def _frames_value(value: Any, base: Path, file: str, key: str) -> tuple[float, .
     return parse_frames(value, file=file, key=key)
 
 
-_PRIM_PATH = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
-
-
-def _prim_path(value: Any, base: Path, file: str, key: str) -> str:
-    text = _string(value, file, key)
-    if not _PRIM_PATH.fullmatch(text):
-        raise _error(f"not an absolute prim path: {text!r} (e.g. \"/Render/Settings\")", file, key)
-    return text
-
-
-@dataclass(frozen=True)
-class _RecipeLayer:
-    """One entry of recipe.layers: a preset name or a file, and where it was written."""
-
-    text: str
-    path: Path
-    preset: bool
-    file: str
-    key: str
-
-
-def _recipe_layers(value: Any, base: Path, file: str, key: str) -> tuple[_RecipeLayer, ...]:
-    if isinstance(value, str):
-        value = [value]
-    if not isinstance(value, list):
-        raise _error(f"must be a list of presets or USD files, not {_type_name(value)}", file, key)
-    layers = []
-    for number, entry in enumerate(value):
-        entry_key = f"{key}[{number}]"
-        text = _string(entry, file, entry_key)
-        if is_preset_name(text):
-            if text not in PRESETS:
-                close = difflib.get_close_matches(text, list(PRESETS), n=1)
-                hint = f"did you mean {close[0]!r}? " if close else ""
-                raise _error(f"unknown recipe preset {text!r} ({hint}presets: {', '.join(PRESETS)}; "
-                             "a file needs a USD suffix such as .usda)", file, entry_key)
-            layers.append(_RecipeLayer(text, preset(text), True, file, entry_key))
-        else:
-            layers.append(_RecipeLayer(text, _path(text, base, file, entry_key), False, file, entry_key))
-    return tuple(layers)
-
-
-def _choice(allowed: Sequence[str]) -> Callable[[Any, Path, str, str], str]:
-    def check(value: Any, base: Path, file: str, key: str) -> str:
-        text = _string(value, file, key)
-        if text not in allowed:
-            raise _error(f"unknown value {text!r} (allowed: {', '.join(allowed)})", file, key)
-        return text
+def _option(spec: Option) -> Callable[[Any, Path, str, str], Any]:
+    """A request option's job key: its kind reads the TOML value, the error naming file and key."""
+    def check(value: Any, base: Path, file: str, key: str) -> Any:
+        try:
+            return spec.kind.from_toml(value, base)
+        except EntryError as error:  # a list's entry: its own key, "variants[2]"
+            raise _error(error.message, file, f"{key}[{error.number}]") from None
+        except ValueError as error:
+            raise _error(str(error), file, key) from None
     return check
-
-
-def _resolution(value: Any, base: Path, file: str, key: str) -> tuple[int, int]:
-    if (not isinstance(value, list) or len(value) != 2
-            or any(isinstance(v, bool) or not isinstance(v, int) for v in value)):
-        raise _error(f"must be [width, height] in pixels, not {value!r}", file, key)
-    if value[0] <= 0 or value[1] <= 0:
-        raise _error(f"must be positive, not {value!r}", file, key)
-    resolution = int(value[0]), int(value[1])
-    _within_work(file, key, resolution=resolution)
-    return resolution
-
-
-def _spp(value: Any, base: Path, file: str, key: str) -> int:
-    spp = _integer(1)(value, base, file, key)
-    _within_work(file, key, spp=spp)
-    return spp
-
-
-def _within_work(file: str, key: str, *, resolution: tuple[int, int] | None = None, spp: int = 1) -> None:
-    """request.check_work (MAX_SPP, MAX_PIXELS) of one key's value, the error naming file and key."""
-    try:
-        check_work(resolution, spp)
-    except RenderSettingsError as error:
-        raise _error(str(error), file, key) from None
 
 
 def _directory(value: Any, base: Path, file: str, key: str) -> str:
@@ -365,38 +245,12 @@ def _scheduler(value: Any, base: Path, file: str, key: str) -> str | None:
     return f"{scheme}://{match['host']}:{port}"
 
 
-def _per_light(value: Any, base: Path, file: str, key: str) -> str | None:
-    text = _choice((*PER_LIGHT_MODES, RECIPE_PER_LIGHT))(value, base, file, key)
-    return None if text == RECIPE_PER_LIGHT else text
-
-
-KEYS: tuple[_Key, ...] = (
+_JOB_KEYS: tuple[_Key, ...] = (
     _Key("extends", _path, "none", "a parent job file, relative to this one; this file wins"),
     _Key("stage", _path, "required", "the USD stage, relative to the file that sets it"),
     _Key("frames", _frames_value, "required", '"1-24", "1-24x4" (every 4th), "1-10,20", or [1, 5, 9]'),
-    _Key("settings", _prim_path, "the recipe's", "RenderSettings prim path (render --settings)"),
-    _Key("recipe.layers", _recipe_layers, "[]",
-         "recipe layers: preset names (pxr_layers.recipe.PRESETS) or USD files; replaces the parent's"),
-    _Key("recipe.add_layers", _recipe_layers, "[]", "appended to the layers the parent resolved to"),
-    _Key("recipe.per_light", _per_light, '"recipe"',
-         'per-light layers for every product: "none", "lights", "groups"; "recipe" = as authored'),
-    _Key("render.spp", _spp, str(DEFAULT_SPP), f"samples per pixel, 1 to {MAX_SPP}"),
-    _Key("render.seed", _integer(0, MAX_SEED), str(DEFAULT_SEED), "random seed (with the frame, keys every stream)"),
-    _Key("render.max_depth", _integer(0, MAX_DEPTH), str(DEFAULT_MAX_DEPTH),
-         f"most scattering events per path, at most {MAX_DEPTH}"),
-    _Key("render.norm_bounces", _integer(0, MAX_INDEX_BOUNCES), "the products'",
-         "events per path whose covariance norms the index keeps (default: the products' "
-         f"pxrLayers:index:bounces, raised to max_depth when a layer has a covariance condition; at most {MAX_INDEX_BOUNCES})"),
-    _Key("render.index_mode", _choice(INDEX_MODES), "the products'",
-         'how the index keeps the light: "merged" (per pixel, class and covariance bin) or "records" (per contribution)'),
-    _Key("render.index_covariance", _choice(COVARIANCE_MODES), "the products'",
-         'what the index keeps per event: "norms" (C, T, R) or "sigma" (also the whole 4x4 covariance)'),
-    _Key("render.subdiv_level", _integer(0, MAX_SUBDIV_LEVEL), str(DEFAULT_SUBDIV_LEVEL),
-         "uniform refinement level of subdivision surfaces (0 = the cage)"),
-    _Key("render.default_lights", _boolean, "true", "a stage without any light gets the default rig"),
-    _Key("render.strict", _boolean, "false", "composition errors are fatal instead of warnings"),
-    _Key("variants", _variants, "[]", 'variant selections, ["/World/Teapot:modelVariant=Fancy"]'),
-    _Key("render.resolution", _resolution, "the settings'", "[width, height] in pixels"),
+    _Key("recipe.add_layers", _option(OPTIONS_BY_NAME["recipe_layers"]), "[]",
+         "appended to the layers the parent resolved to"),
     _Key("output.directory", _directory, f'"{DEFAULT_DIRECTORY}"',
          "where the files go, relative to the file that sets it ($JOB allowed)"),
     _Key("output.stem", _stem, f'"{DEFAULT_STEM}"', "beauty and index stem: $F, $F4, ####, $JOB"),
@@ -406,14 +260,11 @@ KEYS: tuple[_Key, ...] = (
     _Key("dask.batch_pixels", _integer(1), str(DEFAULT_BATCH_PIXELS), "pixels per task"),
     _Key("dask.retries", _integer(0), str(DEFAULT_RETRIES), "retries of a failed task"),
 )
+KEYS: tuple[_Key, ...] = (*_JOB_KEYS, *(_Key(spec.job_key, _option(spec), spec.default_text, spec.help)
+                                       for spec in OPTIONS))
+"""Every key of a job file: the job's own, then one per render option (request.OPTIONS)."""
 _BY_NAME = {key.name: key for key in KEYS}
-_REQUEST_FIELDS = {
-    "variants": "variants", "settings": "settings", "recipe.per_light": "per_light",
-    "render.resolution": "resolution", "render.spp": "spp", "render.seed": "seed",
-    "render.max_depth": "max_depth", "render.norm_bounces": "norm_bounces",
-    "render.index_mode": "index_mode", "render.index_covariance": "index_covariance",
-    "render.subdiv_level": "subdiv_level", "render.default_lights": "default_lights", "render.strict": "strict",
-}
+_REQUEST_FIELDS = {spec.job_key: spec.name for spec in OPTIONS}
 """Job keys → the RenderRequest fields they set."""
 TABLES = tuple(dict.fromkeys(key.name.split(".")[0] for key in KEYS if "." in key.name))
 
@@ -631,11 +482,6 @@ def check_template(template: str, *, file: str | None, key: str | None, frame_to
             raise _error(f"{token}: the padding must be 1..9 digits", file, key, match.start())
 
 
-def is_preset_name(text: str) -> bool:
-    """A recipe.layers entry is a preset name when it has no directory and no USD suffix."""
-    return "/" not in text and "\\" not in text and not text.lower().endswith(USD_SUFFIXES)
-
-
 # -- reading and merging ----------------------------------------------------------------------
 
 
@@ -771,12 +617,6 @@ def _resolve(leaf: Path, sources: list[Path], merged: dict[str, _Setting]) -> Jo
         raise _error(f"{stage.value}: {what}", stage.file, "stage")
     frames = required("frames", '"1-24"')
 
-    layers: tuple[_RecipeLayer, ...] = value("recipe.layers", ())
-    for layer in layers:
-        if not layer.path.is_file():
-            what = "shipped preset is missing from the install" if layer.preset else "file not found"
-            raise _error(f"recipe layer {layer.path}: {what}", layer.file, layer.key)
-
     directory_text = value("output.directory", str(leaf.parent / DEFAULT_DIRECTORY))
     directory = Path(expand_template(directory_text, None, name)).resolve()
     stem = merged.get("output.stem")
@@ -786,8 +626,7 @@ def _resolve(leaf: Path, sources: list[Path], merged: dict[str, _Setting]) -> Jo
                      "would write the same files", stem.file if stem else str(leaf), "output.stem")
 
     # Keys not set take RenderRequest's own defaults, the ones `pxr-layers render` has.
-    request = RenderRequest(stage=stage.value, recipe_layers=tuple(layer.path for layer in layers),
-                            **{field: merged[key].value for key, field in _REQUEST_FIELDS.items() if key in merged})
+    request = RenderRequest(stage=stage.value, **{field: merged[key].value for key, field in _REQUEST_FIELDS.items() if key in merged})
     return Job(
         file=leaf, name=name, sources=tuple(sources), request=request, frames=frames.value,
         output_directory=directory, output_template=template,

@@ -17,8 +17,9 @@ Tasks (run on workers):
 * ``render_frame_data``: the frame's data AOVs and its event vocabulary, likewise (done
   by the frame's first tile task, or on its own when every tile is already committed).
 
-* ``assemble_frame`` (after the frame's tiles): film + path index from the tiles in order,
-  then the recipe's products (:class:`~pxr_layers.jobs.frame.FrameAssembler`), then
+* ``assemble_frame`` (after the frame's tiles): the frame made by
+  :func:`~pxr_layers.jobs.frame.render_frame` from the tiles in order (film + path index,
+  then the recipe's products), then
   ``<stem>.done.json``, the frame's commit record, written last; then the scratch folder
   is removed.
 
@@ -57,12 +58,12 @@ from ..outputs import write_atomically
 from ..paths.format import stored_norms
 from .definition import Job
 from .frame import (
-    FrameAssembler,
     FramePlan,
     file_sha256,
     frame_data,
     plan_frame,
     prepare_frame,
+    render_frame,
     resolve_recipe,
 )
 
@@ -474,24 +475,39 @@ def _submit_frame(job: Job, client, plan: FramePlan, position: int, report: JobR
 
 
 def assemble_frame(job: Job, plan: FramePlan, inputs=()) -> None:
-    """Film + index from the tiles in pixel order, then the products; commit the frame.
+    """The frame made from its committed tiles by :func:`render_frame` (film + index in
+    pixel order, then the products); then its commit record.
 
     inputs: the frame's tile and data tasks (Dask passes their results once they are done).
     """
     folder = job.frame_directory(plan.frame)
-    with open(folder / DATA_FILE, "rb") as file:
-        data, vocabulary, object_paths = pickle.load(file)
-    with FrameAssembler(plan) as frame:
-        for first, stop in tiles(plan, job.batch_pixels):
-            with open(tile_file(folder, first, stop), "rb") as file:
-                for batch in pickle.load(file):
-                    frame.add(batch)
-        delivered = frame.deliver(vocabulary, data, object_paths)
+    result = render_frame(plan.request, plan.frame, plan=plan,
+                          source=CommittedTiles(folder, tiles(plan, job.batch_pixels)))
     files = [os.path.relpath(path, job.output_directory) for path in plan.files]
-    files += [os.path.relpath(path, job.output_directory) for item in delivered for path in item.previews.values()]
+    files += [os.path.relpath(path, job.output_directory) for item in result.delivered
+              for path in item.previews.values()]
     record = {"frame": plan.frame, "files": sorted(files), "recipe": plan.recipe.settings_path}
     _write_atomically(done_record(job, plan.frame), json.dumps(record, indent=1).encode())
     shutil.rmtree(folder, ignore_errors=True)
+
+
+@dataclass(frozen=True)
+class CommittedTiles:
+    """A frame's batches and data as its tasks committed them to its scratch ``folder``
+    (a :class:`~pxr_layers.jobs.frame.FrameSource`): the tiles read in pixel order."""
+
+    folder: Path
+    tile_list: list[tuple[int, int]]
+
+    def trace(self, add: Callable) -> None:
+        for first, stop in self.tile_list:
+            with open(tile_file(self.folder, first, stop), "rb") as file:
+                for batch in pickle.load(file):
+                    add(batch)
+
+    def frame_data(self):
+        with open(self.folder / DATA_FILE, "rb") as file:
+            return pickle.load(file)
 
 
 # -- status -----------------------------------------------------------------------------------

@@ -1,5 +1,7 @@
-"""One frame of a shot, from a plan to its delivered files: what `pxr-layers render` does
-for one frame, and what every frame of a job does with its batches spread over workers.
+"""One frame of a shot, from a request to its delivered files: :func:`render_frame` is the
+only assembly of a frame (stage → trace → index → products), called by `pxr-layers render`
+and `demo`, by a job's frame assembly (whose batches were traced as tiles on workers), by
+the tests and by the benchmarks alike.
 
 * :func:`plan_frame` resolves the recipe (over the stage), the camera, the resolution, the
   trace settings and every output path into a :class:`FramePlan`: plain, picklable data.
@@ -8,6 +10,8 @@ for one frame, and what every frame of a job does with its batches spread over w
 * :class:`FrameAssembler` takes the frame's batches **in path order** (the film sums and
   the path index are written from them; the same batches in the same order give the same
   bytes) and then delivers the recipe's products with :func:`pxr_layers.layers.deliver`.
+* a :class:`FrameSource` gives the batches and the frame's data: :class:`LocalTrace` traces
+  them here on a thread pool; a job's committed tiles (jobs/executor.py) read them back.
 """
 
 from __future__ import annotations
@@ -16,10 +20,11 @@ import hashlib
 import json
 import logging
 import os
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Self
+from typing import Protocol, Self
 
 import numpy as np
 
@@ -29,6 +34,7 @@ from ..layers.deliver import (
     check_raw_sources,
     deliver,
     frame_suffix,
+    output_target,
     plan_outputs,
     raw_sources,
 )
@@ -38,7 +44,7 @@ from ..paths.events import path_text
 from ..paths.format import SUFFIX as INDEX_SUFFIX
 from ..paths.reader import PathIndex
 from ..paths.writer import PathIndexWriter
-from ..recipe.model import CRYPTOMATTE_SOURCES, DEFAULT_CRYPTOMATTE_DEPTH, MAX_CRYPTOMATTE_DEPTH, Product, Recipe
+from ..recipe.model import CRYPTOMATTE_SOURCES, Product, Recipe
 from ..request import RenderRequest
 from ..trace import DATA_AOVS, Film, TraceSettings
 
@@ -54,15 +60,13 @@ class FramePlan:
     camera         : the camera prim path; resolution : (width, height) pixels
     trace          : the tracer's settings (spp, depth, seed, norm bounces, recording)
     recipe         : the resolved recipe; outputs : product name → EXR path
-    index_path     : where the path index goes; keep_index : False removes it after
-                     delivery (the layers are cut from it all the same)
+    index_path     : where the path index goes (the request's keep_index False removes it
+                     after delivery: the layers are cut from it all the same)
     data_aovs      : the raw sources the tracer renders beside the beauty (depth, ...)
     metadata       : ``pxrLayers/`` attributes of every EXR part
     manifest       : the path index's manifest
     cryptomattes   : the Cryptomatte sources of the recipe (CryptoObject, ...)
-    cryptomatte_depth : ranks per pixel of each
     model_paths    : the stage's models (kind component, group, assembly), CryptoAsset's roots
-    nuke_scripts   : a Nuke script beside every product (``--nuke-script``)
     """
 
     request: RenderRequest
@@ -73,15 +77,11 @@ class FramePlan:
     recipe: Recipe
     outputs: dict[str, Path]
     index_path: Path
-    keep_index: bool = True
-    previews: bool = True
     data_aovs: tuple[str, ...] = ()
     metadata: dict[str, str] = field(default_factory=dict)
     manifest: dict = field(default_factory=dict)
     cryptomattes: tuple[str, ...] = ()
-    cryptomatte_depth: int = DEFAULT_CRYPTOMATTE_DEPTH
     model_paths: tuple[str, ...] = ()
-    nuke_scripts: bool = False
 
     @property
     def stage(self) -> Path:
@@ -94,7 +94,7 @@ class FramePlan:
     @property
     def files(self) -> tuple[Path, ...]:
         """The deliverables (EXRs and index; previews go beside the EXRs)."""
-        return (*self.outputs.values(), *((self.index_path,) if self.keep_index else ()))
+        return (*self.outputs.values(), *((self.index_path,) if self.request.keep_index else ()))
 
 
 def plan_frame(
@@ -105,14 +105,9 @@ def plan_frame(
     exr: Path | None = None,
     index_path: Path | None = None,
     product_path: Callable[[Product], Path] | None = None,
-    keep_index: bool = True,
-    previews: bool = True,
     recipe: Recipe | None = None,
     stage_sha256: str | None = None,
     shot=None,
-    cryptomattes: tuple[str, ...] = (),
-    cryptomatte_depth: int = DEFAULT_CRYPTOMATTE_DEPTH,
-    nuke_scripts: bool = False,
 ) -> FramePlan:
     """Resolve one frame of ``request``. ``recipe``: an already resolved recipe, else read
     from ``shot`` (an open :class:`pxr_layers.stage.Shot`, else the request's stage is
@@ -121,23 +116,20 @@ def plan_frame(
 
     Outputs: ``product_path(product)`` if given, else :func:`plan_outputs` (``exr``: one
     product's explicit file). The index: ``index_path``, else beside ``exr``, else
-    ``directory/STEM[.FFFF].pxlidx``. Norm bounces: :meth:`RenderRequest.resolved_norm_bounces`.
-    ``cryptomattes``: Cryptomatte sources added to every product (``--cryptomatte``), each of
-    ``cryptomatte_depth`` ranks (those the recipe asks for too). ``nuke_scripts``: a Nuke
-    script beside every product.
+    ``directory/STEM[.FFFF].pxlidx``. Norm bounces: :meth:`RenderRequest.resolved_norm_bounces`
+    (at least 1 for ``debug_covariance``). The request's Cryptomattes are added to every
+    product, each of ``cryptomatte_depth`` ranks (those the recipe asks for too).
     """
     stage = request.stage
     if recipe is None:
         recipe = resolve_recipe(request, frame, shot)
-    if cryptomattes:
-        recipe = recipe.with_cryptomattes(cryptomattes)
+    if request.cryptomattes:
+        recipe = recipe.with_cryptomattes(request.cryptomattes)
     view_camera, view_resolution = recipe.view()
     resolution = tuple(request.resolution or view_resolution)
     check_raw_sources(recipe, (*DATA_AOVS, *CRYPTOMATTE_SOURCES), "the renderer does not produce")
     sources = raw_sources(recipe)
     crypto_sources = tuple(source for source in sources if source in CRYPTOMATTE_SOURCES)
-    if not 1 <= cryptomatte_depth <= MAX_CRYPTOMATTE_DEPTH:
-        raise RenderSettingsError(f"the Cryptomatte depth must be 1 to {MAX_CRYPTOMATTE_DEPTH}, not {cryptomatte_depth}")
     model_paths: tuple[str, ...] = ()
     if "CryptoAsset" in crypto_sources:
         from ..stage import open_request
@@ -157,6 +149,9 @@ def plan_frame(
     norm_bounces = request.resolved_norm_bounces(product_bounces, has_conditions(recipe))
     if norm_bounces > product_bounces and request.norm_bounces is None:
         log.info("the recipe has covariance conditions: the index keeps the norms of all %d bounces", norm_bounces)
+    if request.debug_covariance:
+        norm_bounces = max(norm_bounces, 1)  # the first bounce's norms are what it shows
+    keep_index = request.keep_index
     # The layers are cut from the index, so lpe layers need one even when it is not kept.
     record = keep_index or any(product.expressions() for product in recipe.products)
     index_mode, sigma = index_settings(request, recipe)
@@ -185,8 +180,8 @@ def plan_frame(
     }
     manifest.pop("index", None)
     return FramePlan(request, frame, view_camera, resolution, trace, recipe, outputs, index_path,
-                     keep_index, previews, tuple(source for source in sources if source not in CRYPTOMATTE_SOURCES),
-                     metadata, manifest, crypto_sources, cryptomatte_depth, model_paths, nuke_scripts)
+                     tuple(source for source in sources if source not in CRYPTOMATTE_SOURCES),
+                     metadata, manifest, crypto_sources, model_paths)
 
 
 def index_settings(request: RenderRequest, recipe: Recipe) -> tuple[str, bool]:
@@ -286,7 +281,7 @@ class FrameAssembler:
         for source in plan.cryptomattes:
             found = coverage(data[source], hits, plan.trace.spp)
             ranked[source] = rank(found.names, found.pixel, found.name, found.weight, plan.resolution,
-                                  plan.cryptomatte_depth)
+                                  plan.request.cryptomatte_depth)
         return ranked
 
     def deliver(self, vocabulary, data: dict[str, np.ndarray], object_paths: Sequence[str], *,
@@ -308,8 +303,9 @@ class FrameAssembler:
                 index = PathIndex(self.writer.close(vocabulary), shown_as=plan.index_path)
             check_beauty(rgba, index, plan.stage)
             delivered = deliver(index, plan.recipe, rgba, plan.outputs, data=data, metadata=metadata,
-                                previews=plan.previews, nuke_scripts=plan.nuke_scripts, show_progress=show_progress)
-            if not plan.keep_index:
+                                previews=plan.request.previews, nuke_scripts=plan.request.nuke_scripts,
+                                show_progress=show_progress)
+            if not plan.request.keep_index:
                 outputs.discard(plan.index_path)
         return delivered
 
@@ -375,3 +371,125 @@ def file_sha256(path: Path) -> str:
             digest.update(block)
     return digest.hexdigest()
 
+
+
+# -- the one entry ----------------------------------------------------------------------------
+
+
+class FrameSource(Protocol):
+    """Where a frame's batches and data come from (:func:`render_frame`)."""
+
+    def trace(self, add: Callable) -> None:
+        """Call ``add(batch)`` for every BatchResult of the frame, in path order."""
+
+    def frame_data(self) -> tuple[dict, object, tuple[str, ...]]:
+        """(:func:`frame_data`'s dict, the EventVocabulary, the object paths by primId)."""
+
+
+class LocalTrace:
+    """A frame traced in this process, on ``threads`` threads (default: every core this
+    process may use, :func:`pxr_layers.cores.available_cores`)."""
+
+    def __init__(self, plan: FramePlan, shot=None, *, threads: int | None = None, show_progress: bool = False):
+        from ..cores import available_cores
+
+        self.plan = plan
+        self.threads = threads or available_cores()
+        self.show_progress = show_progress
+        self.integrator = prepare_frame(plan, shot)
+
+    def trace(self, add: Callable) -> None:
+        from ..progress import Progress
+        from ..trace import trace_pixels
+
+        plan = self.plan
+        progress = Progress(plan.pixels * plan.trace.spp, "render", enabled=self.show_progress)
+        log.info("rendering %d×%d at %d spp on %d threads", *plan.resolution, plan.trace.spp, self.threads)
+
+        def counted(batch) -> None:
+            add(batch)
+            progress.advance(len(batch.rgb) * plan.trace.spp)
+
+        trace_pixels(self.integrator, 0, plan.pixels, counted, threads=self.threads)
+
+    def frame_data(self) -> tuple[dict, object, tuple[str, ...]]:
+        integrator = self.integrator
+        return (frame_data(self.plan, integrator, threads=self.threads), integrator.vocabulary,
+                tuple(integrator.world.object_paths))
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """What :func:`render_frame` wrote and traced.
+
+    plan       : the frame's resolved plan (outputs, index path, trace settings, recipe)
+    delivered  : every product written (EXR, previews, Nuke script), in the recipe's order
+    rgba       : (h, w, 4) float32, the beauty as written (linear radiance; A = coverage)
+    first_bounce_norms : (h, w, 3) float32 mean C (1/m), T (cycles/m), R (cycles/rad) of
+                 the first bounce (NaN where no sample scatters), or None without norms
+    data       : the data AOVs and Cryptomattes (name → image or ranks) the products hold
+    vocabulary : the frame's event names (paths.events.EventVocabulary)
+    object_paths : the prim path of each object, indexed by primId
+    rays, seconds : rays cast, and the wall-clock seconds of trace and delivery
+    """
+
+    plan: FramePlan
+    delivered: list[Delivered]
+    rgba: np.ndarray
+    first_bounce_norms: np.ndarray | None
+    data: dict
+    vocabulary: object
+    object_paths: tuple[str, ...]
+    rays: int
+    seconds: float
+
+    @property
+    def index_path(self) -> Path | None:
+        """The path index written, or None (``keep_index`` False)."""
+        return self.plan.index_path if self.plan.request.keep_index else None
+
+
+def render_frame(request: RenderRequest, frame: float | None = None, *, output: str | os.PathLike | None = None,
+                 threads: int | None = None, show_progress: bool = False, plan: FramePlan | None = None,
+                 source: FrameSource | None = None) -> FrameResult:
+    """Render one frame of ``request`` and deliver its products: the one way a frame is made.
+
+    output  : a folder for the products (their productName) and the index, or one product's
+              .exr path (``pxr-layers render -o``); default the current folder
+    frame   : the time code (None: the stage's start)
+    threads : trace threads (default: every core this process may use)
+    plan    : an already resolved plan (a job's, whose output names are its own); else
+              :func:`plan_frame` resolves it from ``output``
+    source  : where the batches come from (default: :class:`LocalTrace`, here)
+
+    The products and the index appear together or not at all (an error, Ctrl-C or SIGTERM
+    leaves none); with ``debug_covariance``, STEM.covariance.exr and its maps after them.
+    """
+    start = time.perf_counter()
+    shot = None
+    if plan is None:
+        from ..stage import open_request
+
+        shot = open_request(request)  # the stage is composed and read once for the whole frame
+        directory, exr = output_target(output)
+        plan = plan_frame(request, frame, shot=shot, directory=directory, exr=exr)
+    source = source or LocalTrace(plan, shot, threads=threads, show_progress=show_progress)
+    rays = 0
+    with FrameAssembler(plan) as assembler:
+        def add(batch) -> None:
+            nonlocal rays
+            assembler.add(batch)
+            rays += batch.rays
+
+        source.trace(add)
+        data, vocabulary, object_paths = source.frame_data()
+        delivered = assembler.deliver(vocabulary, data, object_paths, show_progress=show_progress)
+    rgba, norms = assembler.images()
+    if request.debug_covariance:
+        from ..layers.debug import write_covariance_debug
+
+        write_covariance_debug(plan.index_path.with_suffix(".exr"), norms, plan.metadata)
+    seconds = time.perf_counter() - start
+    log.info("rendered %d×%d at %d spp in %.1fs (%.2f M rays/s)", *plan.resolution, plan.trace.spp, seconds,
+             rays / max(seconds, 1e-9) / 1e6)
+    return FrameResult(plan, delivered, rgba, norms, data, vocabulary, object_paths, rays, seconds)

@@ -75,6 +75,14 @@ def product_path(product: Product, frame: float | None, directory: Path) -> Path
     return path.with_name(path.stem + suffix + path.suffix)
 
 
+def output_target(output: str | os.PathLike | None, default: Path = Path(".")) -> tuple[Path, Path | None]:
+    """(directory, explicit .exr path or None) from ``-o``; ``default`` when it is not given."""
+    text = os.fspath(output) if output is not None else ""
+    if text.lower().endswith(".exr"):
+        return Path(text).parent, Path(text)
+    return Path(text) if text else default, None
+
+
 def plan_outputs(recipe: Recipe, frame: float | None, directory: Path, exr: Path | None = None) -> dict[str, Path]:
     """Product name → its EXR path. ``exr``: an explicit file for a one-product recipe."""
     if exr is not None:
@@ -177,7 +185,8 @@ def _nuke_script(exr: Path, beauty: np.ndarray, images: Mapping[str, np.ndarray 
     kinds = {layer.name: layer for layer in product.layers}
     script = exr.with_suffix(".nk")
     write_product_script(script, exr, beauty, {name: image for name, image in images.items() if not kinds[name].is_data},
-                         {name: image.depth for name, image in images.items() if isinstance(image, Cryptomatte)})
+                         {name: image.depth for name, image in images.items() if isinstance(image, Cryptomatte)},
+                         product.pixel_aspect_ratio)
     return script
 
 

@@ -33,12 +33,12 @@ Ids are exact in float32 up to 2**24 objects / instances.
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from ..cores import available_cores
 from ..errors import RenderSettingsError
 from ..scene import FLOAT
 from .integrator import Integrator
@@ -87,7 +87,7 @@ def render_data_aovs(
     def run(first_row: int) -> None:
         tracer.trace_rows(first_row, min(first_row + rows, height), out)
 
-    workers = min(threads or os.cpu_count() or 1, len(starts))
+    workers = min(threads or available_cores(), len(starts))
     with ThreadPoolExecutor(max_workers=workers) as pool:
         list(pool.map(run, starts))  # each batch writes its own rows: nothing to reduce
     log.debug("data AOVs %s: %d×%d", ", ".join(wanted), width, height)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..request import DEFAULT_MAX_DEPTH, DEFAULT_SEED, DEFAULT_SPP
 from ..paths import events
 from . import rng
 from .bounce_norms import BounceNorms
@@ -61,9 +62,9 @@ class TraceSettings:
                  subject (``BatchResult.first_hits``): what the Cryptomattes are made of.
     """
 
-    spp: int = 16
-    max_depth: int = 8
-    seed: int = 0
+    spp: int = DEFAULT_SPP
+    max_depth: int = DEFAULT_MAX_DEPTH
+    seed: int = DEFAULT_SEED
     roulette_depth: int = 3  # Russian roulette from this many bounces on
     norm_bounces: int = 0
     record_paths: bool = False

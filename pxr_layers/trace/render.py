@@ -154,7 +154,7 @@ def trace_pixels(integrator: Integrator, first_pixel: int, stop_pixel: int, on_b
     in such ranges (a job's tiles) gives the same batches, hence the same bytes."""
     spp = integrator.settings.spp
     step = batch_pixels(spp, batch_paths)
-    workers = threads or os.cpu_count() or 1
+    workers = threads or available_cores()
     with ThreadPoolExecutor(max_workers=workers) as pool:
         pending: deque = deque()
         first = first_pixel
