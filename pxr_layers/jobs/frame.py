@@ -404,7 +404,8 @@ class LocalTrace:
 
         plan = self.plan
         progress = Progress(plan.pixels * plan.trace.spp, "render", enabled=self.show_progress)
-        log.info("rendering %d×%d at %d spp on %d threads", *plan.resolution, plan.trace.spp, self.threads)
+        log.info("rendering %d×%d at %d spp on %d thread%s", *plan.resolution, plan.trace.spp, self.threads,
+                 "" if self.threads == 1 else "s")
 
         def counted(batch) -> None:
             add(batch)
