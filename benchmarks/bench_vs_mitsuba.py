@@ -230,7 +230,8 @@ def _sensor(mi, spec, spp: int) -> dict:
     width, height = spec.resolution
     pinhole = PinholeCamera.from_spec(spec)  # the film window after the conform policy
     if abs((pinhole.half_width / pinhole.half_height) / (width / height) - 1) > 1e-6:
-        raise SystemExit("bench_vs_mitsuba: non-square pixels (adjustPixelAspectRatio) are not mapped")
+        raise SystemExit("bench_vs_mitsuba: non-square pixels (pixelAspectRatio, adjustPixelAspectRatio) "
+                         "are not mapped")
     axes, origin = pinhole.world_from_camera, pinhole.position
     fov_x = np.degrees(2 * np.arctan(pinhole.half_width))
     return {

@@ -280,7 +280,9 @@ class Variant(Kind):
 
 @dataclass(frozen=True)
 class RecipeLayer(Kind):
-    """A preset name (no folder, no USD suffix: ``light_passes``) or a USD file."""
+    """A preset name (no folder, no USD suffix: ``light_passes``) or a USD file. A file that
+    is not there is found by :meth:`check`, when the request is made: a user error naming
+    it (exit 1), not a usage error."""
 
     metavar = "RECIPE"
 
@@ -290,12 +292,15 @@ class RecipeLayer(Kind):
     def from_toml(self, value: Any, base: Path) -> Path:
         if not isinstance(value, str):
             raise ValueError(f"must be a string (a preset name or a USD file), not {_type_name(value)} ({value!r})")
-        return recipe_layer(value, base)
+        return self.check(recipe_layer(value, base))
 
     def check(self, value: Any) -> Path:
         if not isinstance(value, (str, os.PathLike)):
             raise ValueError(f"must be a path, not {_type_name(value)} ({value!r})")
-        return Path(os.path.abspath(value))
+        path = Path(os.path.abspath(value))
+        if not path.is_file():
+            raise ValueError(f"recipe layer {path}: {'is a directory, not a USD file' if path.is_dir() else 'file not found'}")
+        return path
 
 
 def is_preset_name(text: str) -> bool:
@@ -305,7 +310,7 @@ def is_preset_name(text: str) -> bool:
 
 def recipe_layer(text: str, base: Path) -> Path:
     """A recipe layer's text → its file: a preset's, or ``text`` relative to ``base``.
-    ValueError for an unknown preset (with the closest name) or a file that is not there."""
+    ValueError for an unknown preset (with the closest name)."""
     if not text.strip():
         raise ValueError("must be a preset name or a USD file, not an empty string")
     if is_preset_name(text):
@@ -315,10 +320,7 @@ def recipe_layer(text: str, base: Path) -> Path:
             raise ValueError(f"unknown recipe preset {text!r} ({hint}presets: {', '.join(PRESETS)}; "
                              "a file needs a USD suffix such as .usda)")
         return preset(text)
-    path = (base / Path(text).expanduser()).resolve()
-    if not path.is_file():
-        raise ValueError(f"recipe layer {path}: {'is a directory, not a USD file' if path.is_dir() else 'file not found'}")
-    return path
+    return (base / Path(text).expanduser()).resolve()
 
 
 @dataclass(frozen=True)
@@ -481,6 +483,8 @@ class RenderRequest:
                 continue
             try:
                 object.__setattr__(self, spec.name, spec.kind.check(value))
+            except EntryError as error:
+                raise RenderSettingsError(f"{spec.name.replace('_', ' ')}[{error.number}]: {error.message}") from None
             except ValueError as error:
                 raise RenderSettingsError(f"{spec.name.replace('_', ' ')}: {error}") from None
 

@@ -21,7 +21,7 @@ from typing import Literal, Mapping
 
 import numpy as np
 
-from .recipe.model import Recipe
+from .recipe.model import DEFAULT_CONFORM_POLICY, DEFAULT_PIXEL_ASPECT_RATIO, Recipe
 from .request import DEFAULT_RESOLUTION
 from .shader_nodes import ShaderNode, WrapMode  # noqa: F401 (WrapMode: part of the plain data)
 
@@ -281,6 +281,12 @@ class RenderSpec:
 
     camera                    : the render camera at the frame
     resolution                : (width, height) in pixels
+    pixel_aspect_ratio        : a pixel's width over its height: the image's aspect ratio
+                                is width × pixel_aspect_ratio / height (the products'
+                                Product.pixel_aspect_ratio, adjustPixelAspectRatio resolved;
+                                their EXR headers say the same)
+    aspect_ratio_conform_policy : how the camera's aperture fits that aspect (UsdRender's
+                                aspectRatioConformPolicy, recipe.model.CONFORM_POLICIES)
     settings_path             : the RenderSettings prim read, if any
     included_purposes         : gprim purposes that render (the settings' includedPurposes)
     material_binding_purposes : binding purposes, strongest first ("" = allPurpose)
@@ -291,8 +297,8 @@ class RenderSpec:
 
     camera: Camera
     resolution: tuple[int, int] = DEFAULT_RESOLUTION
-    pixel_aspect_ratio: float = 1.0
-    aspect_ratio_conform_policy: str = "expandAperture"
+    pixel_aspect_ratio: float = DEFAULT_PIXEL_ASPECT_RATIO
+    aspect_ratio_conform_policy: str = DEFAULT_CONFORM_POLICY
     settings_path: str | None = None
     included_purposes: tuple[str, ...] = DEFAULT_INCLUDED_PURPOSES
     material_binding_purposes: tuple[str, ...] = DEFAULT_BINDING_PURPOSES

@@ -36,5 +36,6 @@ def write_product_script(product: Path, output: Path) -> Path:
 
     image = read_multipart(product)
     nuke.write_product_script(output, product, image.beauty, image.colour_layers(),
-                              {name: matte.depth for name, matte in image.cryptomattes.items()})
+                              {name: matte.depth for name, matte in image.cryptomattes.items()},
+                              image.pixel_aspect_ratio)
     return output

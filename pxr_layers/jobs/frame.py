@@ -125,7 +125,8 @@ def plan_frame(
         recipe = resolve_recipe(request, frame, shot)
     if request.cryptomattes:
         recipe = recipe.with_cryptomattes(request.cryptomattes)
-    view_camera, view_resolution = recipe.view()
+    view = recipe.shared_view()
+    view_camera, view_resolution = view.camera, view.resolution
     resolution = tuple(request.resolution or view_resolution)
     check_raw_sources(recipe, (*DATA_AOVS, *CRYPTOMATTE_SOURCES), "the renderer does not produce")
     sources = raw_sources(recipe)
@@ -179,6 +180,8 @@ def plan_frame(
         "subdiv_level": request.subdiv_level, "beauty": os.path.relpath(first, index_path.parent),
     }
     manifest.pop("index", None)
+    if view.pixel_aspect_ratio != 1.0:  # only then: square-pixel indexes keep their bytes
+        manifest["pixel_aspect_ratio"] = view.pixel_aspect_ratio
     return FramePlan(request, frame, view_camera, resolution, trace, recipe, outputs, index_path,
                      tuple(source for source in sources if source not in CRYPTOMATTE_SOURCES),
                      metadata, manifest, crypto_sources, model_paths)

@@ -95,14 +95,17 @@ def plan_outputs(recipe: Recipe, frame: float | None, directory: Path, exr: Path
 
 
 def at_index_view(product: Product, index: PathIndex) -> Product:
-    """``product`` at the camera and resolution of the render (what the index holds); logs
-    when the product asked for another view."""
+    """``product`` at the camera, resolution and pixel aspect ratio of the render (what the
+    index holds; an index without ``pixel_aspect_ratio`` has square pixels); logs when the
+    product asked for another view."""
     resolution = tuple(index.manifest["resolution"])
     camera = index.manifest.get("camera", product.camera)
-    if product.resolution != resolution or product.camera != camera:
-        log.info("%s asks for %s at %dx%d; the index holds %s at %dx%d, which is what it gets",
-                 product.prim_path or product.name, product.camera, *product.resolution, camera, *resolution)
-    return dataclasses.replace(product, resolution=resolution, camera=camera)
+    pixel_aspect_ratio = float(index.manifest.get("pixel_aspect_ratio", 1.0))
+    if product.resolution != resolution or product.camera != camera or product.pixel_aspect_ratio != pixel_aspect_ratio:
+        log.info("%s asks for %s at %dx%d (pixel aspect %g); the index holds %s at %dx%d (pixel aspect %g), which "
+                 "is what it gets", product.prim_path or product.name, product.camera, *product.resolution,
+                 product.pixel_aspect_ratio, camera, *resolution, pixel_aspect_ratio)
+    return dataclasses.replace(product, resolution=resolution, camera=camera, pixel_aspect_ratio=pixel_aspect_ratio)
 
 
 def index_frame(index: PathIndex) -> float | None:

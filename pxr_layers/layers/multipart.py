@@ -3,9 +3,10 @@
 Part 0 is named ``rgba`` and holds the beauty as R, G, B, A. Then one part per layer, in
 recipe order, named after the layer, with channels ``<layer>.R/G/B`` (data layers:
 ``depth.Z``, ``normal.X/Y/Z``, ``primId.id``; see :attr:`pxr_layers.recipe.Layer.channels`).
-Every part has the same data window (the image size) and the same Rec.709 chromaticities,
-no ``view`` attribute (mono), its own pixel type and compression from the recipe, and
-string metadata under ``pxrLayers/``:
+Every part has the same data window (the image size), the same Rec.709 chromaticities and
+the product's ``pixelAspectRatio`` (a pixel's width over its height), no ``view`` attribute
+(mono), its own pixel type and compression from the recipe, and string metadata under
+``pxrLayers/``:
 
 * every part: ``pxrLayers/version`` and the caller's metadata (spp, seed, frame, stage...);
   ``pxrLayers/sourceType``, ``pxrLayers/expression`` (lpe layers; ``C.*`` on the beauty)
@@ -42,6 +43,7 @@ from ..outputs import write_atomically
 from ..recipe.model import (
     BEAUTY_EXPRESSION,
     BEAUTY_PART,
+    DEFAULT_PIXEL_ASPECT_RATIO,
     Layer,
     Product,
     Recipe,
@@ -89,11 +91,12 @@ def write_multipart(
     layers   : layer name → (h, w, c) float32 (c = the layer's channel count, 3 for a
                colour layer) or (h, w) for one channel; same h, w as the beauty; a
                :class:`~pxr_layers.layers.cryptomatte.Cryptomatte` for a Cryptomatte layer
-    product  : the recipe product: part order, channel names, pixel types, compressions
-               and expressions. With a product, ``layers`` must hold exactly its layers
-               but the beauty's raw ``color`` var, which is part 0 (not written twice).
+    product  : the recipe product: part order, channel names, pixel types, compressions,
+               expressions and every part's ``pixelAspectRatio``. With a product,
+               ``layers`` must hold exactly its layers but the beauty's raw ``color`` var,
+               which is part 0 (not written twice).
                None: parts in the mapping's order, float32, ZIP, channels R G B (3),
-               R G B A (4) or Y (1).
+               R G B A (4) or Y (1), square pixels.
     recipe   : the resolved Recipe (or its JSON), stored as ``pxrLayers/recipe`` on part 0
     spp, seed, frame : written as ``pxrLayers/spp``, ``/seed``, ``/frame`` on every part
     metadata : extra ``pxrLayers/<key>`` string attributes on every part (stage, camera,
@@ -113,7 +116,12 @@ def write_multipart(
     common = {"version": __version__, **run, **{str(k): v for k, v in (metadata or {}).items()}}
     beauty_type = product.pixel_type if product else "float"
     beauty_compression = product.compression if product else "zip"
-    head = header(COMPRESSION[beauty_compression], common)
+    pixel_aspect = product.pixel_aspect_ratio if product else DEFAULT_PIXEL_ASPECT_RATIO
+
+    def new_header(compression: str) -> dict:
+        return header(COMPRESSION[compression], common, pixel_aspect_ratio=pixel_aspect)
+
+    head = new_header(beauty_compression)
     head[METADATA_PREFIX + "sourceType"] = "lpe"
     head[METADATA_PREFIX + "expression"] = BEAUTY_EXPRESSION
     if recipe is not None:
@@ -128,7 +136,7 @@ def write_multipart(
             attributes = _cryptomatte_attributes(spec, layers[spec.name], (height, width))
             head.update(attributes)
             for number, part in enumerate(cryptomatte_parts(spec.name, layers[spec.name].depth)):
-                part_header = header(COMPRESSION[spec.compression], common)
+                part_header = new_header(spec.compression)
                 part_header.update({METADATA_PREFIX + "sourceType": spec.source_type,
                                     METADATA_PREFIX + "source": spec.source_name,
                                     METADATA_PREFIX + "dataType": spec.data_type, METADATA_PREFIX + "group": spec.group,
@@ -146,7 +154,7 @@ def write_multipart(
                 f"layer {spec.name!r}: expected shape {(height, width, len(spec.channels))} "
                 f"(channels {', '.join(spec.channels)}), got {np.asarray(layers[spec.name]).shape}"
             )
-        part_header = header(COMPRESSION[spec.compression], common)
+        part_header = new_header(spec.compression)
         part_header[METADATA_PREFIX + "sourceType"] = spec.source_type
         part_header[METADATA_PREFIX + ("expression" if spec.source_type == "lpe" else "source")] = spec.source_name
         part_header[METADATA_PREFIX + "dataType"] = spec.data_type
@@ -223,6 +231,7 @@ class MultipartImage:
                are not in ``parts``)
     beauty_metadata : part 0's ``pxrLayers/`` attributes without the prefix (renderId, index,
                spp, ...; the recipe and the expressions apart)
+    pixel_aspect_ratio : part 0's ``pixelAspectRatio``: a pixel's width over its height
     """
 
     path: Path
@@ -232,6 +241,7 @@ class MultipartImage:
     recipe: Recipe | None
     cryptomattes: dict[str, Cryptomatte] = field(default_factory=dict)
     beauty_metadata: dict[str, str] = field(default_factory=dict)
+    pixel_aspect_ratio: float = DEFAULT_PIXEL_ASPECT_RATIO
 
     def colour_layers(self) -> dict[str, np.ndarray]:
         """The colour layers (lpe layers and raw vars of a colour dataType; not data layers,
@@ -296,7 +306,7 @@ def read_multipart(path: str | os.PathLike) -> MultipartImage:
     beauty_metadata = {key[len(METADATA_PREFIX):]: str(value) for key, value in first.header.items()
                        if key.startswith(METADATA_PREFIX) and key[len(METADATA_PREFIX):] not in ("recipe", "expressions")}
     return MultipartImage(path, beauty, parts, metadata, Recipe.from_json(stored) if stored else None, cryptomattes,
-                          beauty_metadata)
+                          beauty_metadata, float(first.header.get("pixelAspectRatio", DEFAULT_PIXEL_ASPECT_RATIO)))
 
 
 def _manifest(path: Path, part: str, text: str) -> dict[str, str]:

@@ -103,7 +103,8 @@ class LayerGrade:
 
 def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mapping[str, LayerGrade], *,
                 resolution: tuple[int, int], partition: bool, beauty_part: str = BEAUTY_PART,
-                exposure: float = 0.0, cryptomattes: Mapping[str, int] | None = None) -> str:
+                exposure: float = 0.0, cryptomattes: Mapping[str, int] | None = None,
+                pixel_aspect_ratio: float = 1.0) -> str:
     """The text of a Nuke script rebuilding ``parts`` of ``exr_path`` graded by ``grades``.
 
     exr_path    : the Read's file: relative (to the script's folder, read through
@@ -111,6 +112,7 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
     parts       : the layer parts, in stack order (each a colour layer ``NAME.R/G/B``)
     grades      : part → its grade; a part without one is ungraded (LayerGrade())
     resolution  : (width, height) in pixels, the Root's and the Read's format
+    pixel_aspect_ratio : a pixel's width over its height (the EXR's), that format's pixel aspect
     partition   : the parts sum to the beauty (no rest branch)
     beauty_part : the Nuke layer of the beauty: ``rgba`` (part 0 ``R G B A``), or another
                   part, shuffled out like a layer
@@ -134,7 +136,9 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
     writer.comment(f"pxr-layers {__version__}: {len(parts)} layers of {os.fspath(exr_path)} graded as in "
                    "`pxr-layers view`")
     writer.line(f"version {NUKE_VERSION}")
-    frame_format = f"{width} {height} 0 0 {width} {height} 1 pxrLayers_{width}x{height}"
+    aspect = f"{pixel_aspect_ratio:g}"
+    format_name = f"pxrLayers_{width}x{height}" + ("" if aspect == "1" else f"_par{aspect.replace('.', 'p')}")
+    frame_format = f"{width} {height} 0 0 {width} {height} {aspect} {format_name}"
     writer.node("Root", {"inputs": "0", "first_frame": "1", "last_frame": "1", "format": _quoted(frame_format),
                          "colorManagement": "Nuke", "OCIO_config": "nuke-default", "workingSpaceLUT": "linear"})
     for part in parts:
@@ -147,7 +151,7 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
             writer.line(f"add_layer {{{part} {part}.red {part}.green {part}.blue {part}.alpha}}")
 
     writer.node("Read", {"inputs": "0", "file_type": "exr", "file": _file_knob(exr_path),
-                         "format": _quoted(f"{width} {height} 0 0 {width} {height} 1 "), "first": "1",
+                         "format": _quoted(f"{width} {height} 0 0 {width} {height} {aspect} "), "first": "1",
                          "last": "1", "origfirst": "1", "origlast": "1", "origset": "true",
                          "colorspace": "linear", "name": "Read_layers", "xpos": "0", "ypos": "0"})
     writer.set("Read_layers")
@@ -211,7 +215,7 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
 def write_nuke_script(path: str | os.PathLike, exr_path: str | os.PathLike, parts: Sequence[str],
                       grades: Mapping[str, LayerGrade], *, resolution: tuple[int, int], partition: bool,
                       beauty_part: str = BEAUTY_PART, exposure: float = 0.0,
-                      cryptomattes: Mapping[str, int] | None = None) -> Path:
+                      cryptomattes: Mapping[str, int] | None = None, pixel_aspect_ratio: float = 1.0) -> Path:
     """Write :func:`nuke_script` at ``path`` (atomically); returns where the file is now
     (its temporary while an OutputSet holds it).
 
@@ -224,22 +228,24 @@ def write_nuke_script(path: str | os.PathLike, exr_path: str | os.PathLike, part
     folder = path.absolute().parent
     file_name = exr.relative_to(folder) if exr.is_relative_to(folder) else exr
     text = nuke_script(file_name, parts, grades, resolution=resolution, partition=partition,
-                       beauty_part=beauty_part, exposure=exposure, cryptomattes=cryptomattes)
+                       beauty_part=beauty_part, exposure=exposure, cryptomattes=cryptomattes,
+                       pixel_aspect_ratio=pixel_aspect_ratio)
     written = write_atomically(path, lambda temporary: temporary.write_text(text, encoding="utf-8"))
     logger.info("wrote the Nuke script %s: %d layers of %s", path, len(parts), exr)
     return written
 
 
 def write_product_script(path: str | os.PathLike, exr_path: str | os.PathLike, beauty, colour: Mapping,
-                         cryptomattes: Mapping[str, int]) -> Path:
+                         cryptomattes: Mapping[str, int], pixel_aspect_ratio: float = 1.0) -> Path:
     """The script of a whole product at ``path`` with unit grades (what ``pxr-layers nuke``
     and ``--nuke-script`` write): ``beauty`` (h, w, ≥3) its part 0, ``colour`` its colour
     layers in part order (name → (h, w, ≥3)), ``cryptomattes`` its Cryptomatte layers'
-    depths. Returns where the file is now, as :func:`write_nuke_script`."""
+    depths, ``pixel_aspect_ratio`` its pixels' width over height. Returns where the file is
+    now, as :func:`write_nuke_script`."""
     height, width = beauty.shape[:2]
     return write_nuke_script(path, exr_path, list(colour), {}, resolution=(width, height),
                              partition=layers_partition(beauty, [image[..., :3] for image in colour.values()]),
-                             cryptomattes=cryptomattes)
+                             cryptomattes=cryptomattes, pixel_aspect_ratio=pixel_aspect_ratio)
 
 
 def _check(parts: list[str], grades: Mapping[str, LayerGrade], beauty_part: str, exposure: float) -> None:

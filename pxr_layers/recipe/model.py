@@ -17,6 +17,7 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 from ..errors import RecipeError
 from ..paths.format import MODES as INDEX_FORMAT_MODES
@@ -49,6 +50,14 @@ DEFAULT_VIEW = "ACES 1.0 - SDR Video"
 RENDERING_SPACE = "Linear Rec.709 (sRGB)"
 """The colour space of the rendered pixels (linear, Rec.709 primaries, D65) in the ACES
 studio and CG configs; its aliases there include ``lin_rec709_srgb`` and ``lin_srgb``."""
+
+CONFORM_POLICIES = ("expandAperture", "cropAperture", "adjustApertureWidth", "adjustApertureHeight",
+                    "adjustPixelAspectRatio")
+"""UsdRender's aspectRatioConformPolicy tokens: how the camera's aperture is fitted to an image
+of another aspect (trace/camera.py)."""
+DEFAULT_CONFORM_POLICY = "expandAperture"
+DEFAULT_PIXEL_ASPECT_RATIO = 1.0
+"""UsdRender's fallbacks of aspectRatioConformPolicy and pixelAspectRatio (square pixels)."""
 
 DEFAULT_CAMERA_PATH = "/World/Camera"
 """The camera of a product built from an index or image that names none (the camera of the
@@ -134,6 +143,25 @@ def inherited_encoding(data: bool, pixel_type: str, compression: str) -> tuple[s
 def cryptomatte_parts(name: str, depth: int) -> tuple[str, ...]:
     """The EXR parts of the Cryptomatte layer ``name`` at ``depth`` ranks: ``NAME00``, ... (two ranks each)."""
     return tuple(f"{name}{part:02d}" for part in range((depth + 1) // 2))
+
+
+def view_problem(pixel_aspect_ratio: float, conform_policy: str) -> tuple[str, str] | None:
+    """The first rule a pixel aspect ratio and an aperture conform policy break, as (UsdRender
+    attribute name, message); None when both are valid. Shared by :class:`Product`, the USD
+    reader (which names the prim that authors the value) and trace/camera.py."""
+    if not (math.isfinite(pixel_aspect_ratio) and pixel_aspect_ratio > 0.0):
+        return ("pixelAspectRatio",
+                f"is {pixel_aspect_ratio:g}: a pixel's width over its height must be a positive number")
+    if conform_policy not in CONFORM_POLICIES:
+        return "aspectRatioConformPolicy", f"unknown policy {conform_policy!r} (allowed: {', '.join(CONFORM_POLICIES)})"
+    return None
+
+
+def fitted_pixel_aspect(aperture: tuple[float, float], resolution: tuple[int, int]) -> float:
+    """The pixel aspect ratio (pixel width / pixel height) at which an image of ``resolution``
+    (width, height) in pixels covers exactly a camera ``aperture`` (horizontal, vertical, any
+    one unit): what the ``adjustPixelAspectRatio`` conform policy uses (UsdRenderComputeSpec)."""
+    return (aperture[0] / aperture[1]) * resolution[1] / resolution[0]
 
 
 def layer_problems(layer: Layer) -> list[tuple[str, str]]:
@@ -266,6 +294,27 @@ class IndexSettings:
                               attribute="pxrLayers:index:mode")
 
 
+class View(NamedTuple):
+    """What the camera sees: the Product fields every product of one render shares.
+
+    camera     : prim path of the UsdGeom.Camera
+    resolution : (width, height) in pixels
+    pixel_aspect_ratio, aspect_ratio_conform_policy : as :class:`Product`'s
+    """
+
+    camera: str
+    resolution: tuple[int, int]
+    pixel_aspect_ratio: float = DEFAULT_PIXEL_ASPECT_RATIO
+    aspect_ratio_conform_policy: str = DEFAULT_CONFORM_POLICY
+
+
+_VIEW_DEFAULTS = {"pixel_aspect_ratio": DEFAULT_PIXEL_ASPECT_RATIO,
+                  "aspect_ratio_conform_policy": DEFAULT_CONFORM_POLICY}
+"""Product fields that :meth:`Recipe.to_dict` leaves out at these values: the JSON of a recipe
+of square pixels and the fallback policy (the EXR's ``pxrLayers/recipe``, a job's fingerprint)
+is byte for byte what it was before the fields existed."""
+
+
 @dataclass(frozen=True)
 class Product:
     """One RenderProduct: one multipart EXR (part 0 ``rgba`` = beauty, then ``layers``).
@@ -279,6 +328,12 @@ class Product:
     contact_sheet   : write a contact sheet of all layers
     pixel_type, compression : of the beauty part (and the default of the vars)
     per_light       : "none", "lights" or "groups": what per-light layers were added
+    pixel_aspect_ratio : a pixel's width over its height (UsdRender pixelAspectRatio): the
+                      image's aspect ratio is width × pixel_aspect_ratio / height, and every
+                      EXR part says it in its ``pixelAspectRatio``; already resolved for
+                      ``adjustPixelAspectRatio`` (:func:`fitted_pixel_aspect`)
+    aspect_ratio_conform_policy : how the camera's aperture fits that image aspect
+                      (CONFORM_POLICIES, UsdRender aspectRatioConformPolicy)
     """
 
     name: str
@@ -296,11 +351,17 @@ class Product:
     compression: str = DEFAULT_COMPRESSION
     per_light: str = "none"
     prim_path: str = ""
+    pixel_aspect_ratio: float = DEFAULT_PIXEL_ASPECT_RATIO
+    aspect_ratio_conform_policy: str = DEFAULT_CONFORM_POLICY
 
     def __post_init__(self):
         object.__setattr__(self, "layers", tuple(self.layers))
         object.__setattr__(self, "resolution", tuple(int(v) for v in self.resolution))
+        object.__setattr__(self, "pixel_aspect_ratio", float(self.pixel_aspect_ratio))
         where = self.prim_path or f"product {self.name!r}"
+        problem = view_problem(self.pixel_aspect_ratio, self.aspect_ratio_conform_policy)
+        if problem:
+            raise RecipeError(problem[1], prim=where, attribute=problem[0])
         if not self.layers:
             raise RecipeError("the product has no layers (orderedVars is empty and perLight is none)",
                               prim=where, attribute="orderedVars")
@@ -327,6 +388,11 @@ class Product:
         if not self.output_name.lower().endswith(".exr"):
             raise RecipeError(f"productName {self.output_name!r} must name an .exr file", prim=where,
                               attribute="productName")
+
+    @property
+    def camera_view(self) -> View:
+        """What the camera sees for this product (one render feeds every product of a recipe)."""
+        return View(self.camera, self.resolution, self.pixel_aspect_ratio, self.aspect_ratio_conform_policy)
 
     @property
     def layer_names(self) -> tuple[str, ...]:
@@ -386,18 +452,33 @@ class Recipe:
         raise KeyError(f"no product {name!r} (products: {', '.join(p.name for p in self.products)})")
 
     def view(self) -> tuple[str, tuple[int, int]]:
-        """The camera and resolution every product renders (one render feeds all products)."""
-        views = {(product.camera, product.resolution) for product in self.products}
+        """The camera and resolution every product renders (one render feeds all products;
+        :meth:`shared_view` says all it shares)."""
+        return self.shared_view()[:2]
+
+    def shared_view(self) -> View:
+        """What every product renders: its camera, resolution, pixel aspect ratio and conform
+        policy. One render feeds all products, so they must agree: RecipeError naming each
+        product's view when they do not."""
+        views = {product.camera_view for product in self.products}
         if len(views) > 1:
-            described = "; ".join(f"{p.prim_path or p.name}: {p.camera} at {p.resolution[0]}x{p.resolution[1]}"
+            described = "; ".join(f"{p.prim_path or p.name}: {p.camera} at {p.resolution[0]}x{p.resolution[1]}, "
+                                  f"pixel aspect {p.pixel_aspect_ratio:g}, {p.aspect_ratio_conform_policy}"
                                   for p in self.products)
-            raise RecipeError("the products ask for different cameras or resolutions, and one render feeds "
-                              f"them all ({described}): render them with separate --settings",
-                              file=self.file or None, prim=self.settings_path or None)
+            raise RecipeError("the products ask for different cameras, resolutions, pixel aspect ratios or "
+                              f"conform policies, and one render feeds them all ({described}): render them "
+                              "with separate --settings", file=self.file or None, prim=self.settings_path or None)
         return views.pop()
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """The recipe as plain values (``dataclasses.asdict``), without the view fields of a
+        product at their fallbacks (_VIEW_DEFAULTS)."""
+        values = dataclasses.asdict(self)
+        for product in values["products"]:
+            for key, fallback in _VIEW_DEFAULTS.items():
+                if product[key] == fallback:
+                    del product[key]
+        return values
 
     def to_json(self) -> str:
         """Compact, key-sorted JSON of the whole recipe (the EXR's ``pxrLayers/recipe``)."""

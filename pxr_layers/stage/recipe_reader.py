@@ -11,6 +11,7 @@ naming the file, the prim and the attribute.
 from __future__ import annotations
 
 import logging
+import math
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -23,21 +24,30 @@ from ..recipe.expressions import check_expression, covariance_needs, normalise_e
 from ..recipe.lights import per_light_layers
 from ..recipe.model import (
     BEAUTY_RAW_SOURCE,
+    DEFAULT_CONFORM_POLICY,
+    DEFAULT_PIXEL_ASPECT_RATIO,
     KNOWN_RAW_SOURCES,
     PER_LIGHT_MODES,
     IndexSettings,
     Layer,
     Product,
     Recipe,
+    View,
+    fitted_pixel_aspect,
     inherited_encoding,
     is_data_layer,
+    view_problem,
 )
 from ..request import DEFAULT_RESOLUTION
-from . import schema
+from . import schema, values
 
 logger = logging.getLogger(__name__)
 
 _PREFIX = schema.ATTRIBUTE_PREFIX
+_FULL_FRAME = (0.0, 0.0, 1.0, 1.0)
+"""UsdRender's dataWindowNDC fallback: the whole image."""
+_RENDERED_COLOUR_SPACES = ("", "lin_rec709_scene")
+"""renderingColorSpace values the tracer honours: unset, or GfColorSpaceNames' LinearRec709."""
 
 
 def find_settings(stage: Usd.Stage, file: str, settings_path: str | None,
@@ -81,7 +91,8 @@ def find_settings(stage: Usd.Stage, file: str, settings_path: str | None,
 
 def read_recipe(stage: Usd.Stage, file: str, settings: UsdRender.Settings | None, *,
                 default_camera: Callable[[], str], lights: Callable[[], list[tuple[str, str, str]]],
-                camera: str | None = None, per_light: str | None = None, check_colour: bool = True) -> Recipe:
+                camera: str | None = None, per_light: str | None = None, check_colour: bool = True,
+                time: Usd.TimeCode = Usd.TimeCode.Default()) -> Recipe:
     """Read and validate the recipe of ``settings`` (None: the beauty alone).
 
     default_camera : the camera of a product whose product and settings name none
@@ -91,15 +102,23 @@ def read_recipe(stage: Usd.Stage, file: str, settings: UsdRender.Settings | None
     per_light      : "none" | "lights" | "groups" overriding every product's
                      ``pxrLayers:perLight`` (the CLI's flag)
     check_colour   : check that the OCIO config, display, view and rendering space exist
+    time           : when to read the camera's apertures (``adjustPixelAspectRatio``)
 
-    Each product's camera and resolution: the product's own, else its settings', else
-    those of the stage's ``renderSettingsPrimPath`` settings (so a preset composed over a
-    shot renders the shot's camera). Settings without products, and no settings at all,
-    give one product holding the beauty alone, ``STEM.exr``.
+    Each product's camera, resolution, pixelAspectRatio and aspectRatioConformPolicy: the
+    product's own, else its settings', else those of the stage's ``renderSettingsPrimPath``
+    settings (so a preset composed over a shot renders the shot's camera), else UsdRender's
+    fallbacks. ``adjustPixelAspectRatio`` is resolved here: the pixel aspect ratio at which
+    the product's resolution covers the camera's aperture at ``time``. Settings without
+    products, and no settings at all, give one product holding the beauty alone, ``STEM.exr``.
+
+    UsdRender attributes pxr-layers cannot honour: a ``productType`` other than ``raster``
+    is a RecipeError; a ``dataWindowNDC`` other than the full frame and a
+    ``renderingColorSpace`` other than linear Rec.709 are logged as warnings (the full frame
+    is rendered, in linear Rec.709).
     """
     if per_light is not None and per_light not in PER_LIGHT_MODES:
         raise RecipeError(f"unknown per-light mode {per_light!r} (allowed: {', '.join(PER_LIGHT_MODES)})")
-    reader = _Reader(stage, file, camera, per_light, check_colour, default_camera, lights)
+    reader = _Reader(stage, file, camera, per_light, check_colour, default_camera, lights, time)
     return reader.recipe(settings)
 
 
@@ -108,8 +127,9 @@ class _Reader:
 
     def __init__(self, stage: Usd.Stage, file: str, camera: str | None, per_light: str | None,
                  check_colour: bool, default_camera: Callable[[], str],
-                 lights: Callable[[], list[tuple[str, str, str]]]):
+                 lights: Callable[[], list[tuple[str, str, str]]], time: Usd.TimeCode):
         self.stage = stage
+        self.time = time
         self.file = file
         self.camera_override = camera
         self.per_light_override = per_light
@@ -140,6 +160,7 @@ class _Reader:
             return self.beauty_only(None)
         prim = settings.GetPrim()
         self.check_unknown_attributes(prim, ())
+        self.check_colour_space(settings)
         targets = settings.GetProductsRel().GetForwardedTargets()
         if not targets:
             return self.beauty_only(settings)
@@ -159,20 +180,22 @@ class _Reader:
 
     def beauty_only(self, settings: UsdRender.Settings | None) -> Recipe:
         """No settings, or settings without products: the beauty alone, ``STEM.exr``, at the
-        settings' camera and resolution (without settings: the default camera, 512 × 512)."""
+        settings' view: camera, resolution, pixel aspect (without settings: the default camera,
+        512 × 512, square pixels)."""
         stem = Path(self.file).stem
-        if settings is None:
-            camera, resolution, settings_path = self.camera(None, None), DEFAULT_RESOLUTION, ""
-        else:
-            camera, resolution = self.camera(settings, None), self.resolution(settings, None)
-            settings_path = str(settings.GetPath())
-        product = Product(name=stem, output_name=f"{stem}.exr", camera=camera, resolution=resolution,
-                          layers=(Layer("color", "raw", BEAUTY_RAW_SOURCE),))
+        view = self.camera_view(settings, None)
+        product = Product(name=stem, output_name=f"{stem}.exr", layers=(Layer("color", "raw", BEAUTY_RAW_SOURCE),),
+                          **view._asdict())
+        settings_path = "" if settings is None else str(settings.GetPath())
         return Recipe(products=(product,), settings_path=settings_path, file=self.file)
 
     def product(self, settings: UsdRender.Settings, product: UsdRender.Product) -> Product:
         prim = product.GetPrim()
         self.check_unknown_attributes(prim, schema.property_names(schema.PRODUCT_API), schema.PRODUCT_API)
+        product_type = product.GetProductTypeAttr()
+        if product_type.HasAuthoredValue() and str(product_type.Get()) != "raster":
+            raise self.error(f"productType {product_type.Get()!r}: pxr-layers writes raster products only "
+                             "(multipart scanline EXRs)", prim, "productType")
         api = {name.removeprefix(_PREFIX): self.read(prim, schema.PRODUCT_API, name)
                for name in schema.property_names(schema.PRODUCT_API)}
         pixel_type = self.token(prim, schema.PRODUCT_API, "pixelType", api)
@@ -204,8 +227,8 @@ class _Reader:
             self.check_ocio(prim, config, display, view, space)
         try:
             return Product(
-                name=prim.GetName(), output_name=output_name, camera=self.camera(settings, product),
-                resolution=self.resolution(settings, product), layers=tuple(layers), index=index,
+                name=prim.GetName(), output_name=output_name, **self.camera_view(settings, product)._asdict(),
+                layers=tuple(layers), index=index,
                 ocio_config=config, display=display, view=view, rendering_space=space,
                 contact_sheet=bool(api["contactSheet"][0]), pixel_type=pixel_type, compression=compression,
                 per_light=per_light, prim_path=str(prim.GetPath()),
@@ -355,13 +378,39 @@ class _Reader:
         except ColourError as error:
             raise self.error(error.message, prim, _PREFIX + f"ocio:{error.setting}") from None
 
-    # -- camera and resolution --------------------------------------------------------------
+    # -- the view: camera, resolution, pixel aspect ---------------------------------------
 
-    def camera(self, settings: UsdRender.Settings | None, product: UsdRender.Product | None) -> str:
+    def camera_view(self, settings: UsdRender.Settings | None, product: UsdRender.Product | None) -> View:
+        """What ``product`` (None: the beauty-only product of ``settings``) renders: its
+        camera, resolution, pixel aspect ratio and conform policy (see :func:`read_recipe`).
+        Warns when the strongest ``dataWindowNDC`` is not the full frame."""
+        owners = self._inheritance(settings, product)
+        camera = self.camera(owners)
+        resolution = DEFAULT_RESOLUTION if settings is None else self.resolution(owners)
+        aspect_attribute, aspect_owner = self._strongest(owners, "pixelAspectRatio")
+        pixel_aspect = (DEFAULT_PIXEL_ASPECT_RATIO if aspect_attribute is None
+                        else values.real(aspect_attribute, Usd.TimeCode.Default(), self.file))
+        policy_attribute, policy_owner = self._strongest(owners, "aspectRatioConformPolicy")
+        policy = DEFAULT_CONFORM_POLICY if policy_attribute is None else str(policy_attribute.Get())
+        problem = view_problem(pixel_aspect, policy)
+        if problem:
+            attribute, message = problem
+            raise self.error(message, aspect_owner if attribute == "pixelAspectRatio" else policy_owner, attribute)
+        if policy == "adjustPixelAspectRatio":
+            pixel_aspect = self.fitted_pixel_aspect(camera, resolution, pixel_aspect)
+        window_attribute, window_owner = self._strongest(owners, "dataWindowNDC")
+        window = None if window_attribute is None else values.reals(window_attribute, Usd.TimeCode.Default(), 4,
+                                                                     self.file)
+        if window is not None and window != _FULL_FRAME:
+            logger.warning("%s: %s.dataWindowNDC is (%s): dataWindowNDC is not supported; rendering the full frame",
+                           self.file, window_owner.GetPath(), ", ".join(f"{v:g}" for v in window))
+        return View(camera, resolution, pixel_aspect, policy)
+
+    def camera(self, owners: list[UsdRender.SettingsBase]) -> str:
         if self.camera_override is not None:
             prim = self._prim(self.camera_override, "the requested camera")
             return self._checked_camera(prim, None, "the requested camera")
-        for owner in self._inheritance(settings, product):
+        for owner in owners:
             targets = owner.GetCameraRel().GetForwardedTargets()
             if targets:
                 camera = self.stage.GetPrimAtPath(targets[0])
@@ -376,19 +425,47 @@ class _Reader:
                              owner or camera, "camera" if owner else None)
         return str(camera.GetPath())
 
-    def resolution(self, settings: UsdRender.Settings, product: UsdRender.Product | None) -> tuple[int, int]:
-        for owner in self._inheritance(settings, product):
-            attribute = owner.GetResolutionAttr()
-            if attribute.HasAuthoredValue():
-                value = attribute.Get()
-                if value[0] <= 0 or value[1] <= 0:
-                    raise self.error(f"must be positive, not {tuple(value)}", owner.GetPrim(), "resolution")
-                return int(value[0]), int(value[1])
-        value = settings.GetResolutionAttr().Get()
+    def resolution(self, owners: list[UsdRender.SettingsBase]) -> tuple[int, int]:
+        attribute, owner = self._strongest(owners, "resolution")
+        if attribute is None:  # UsdRender's fallback
+            attribute = owners[-1].GetResolutionAttr()
+        value = attribute.Get()
+        if value[0] <= 0 or value[1] <= 0:
+            raise self.error(f"must be positive, not {tuple(value)}", owner, "resolution")
         return int(value[0]), int(value[1])
 
+    def fitted_pixel_aspect(self, camera: str, resolution: tuple[int, int], authored: float) -> float:
+        """adjustPixelAspectRatio: the pixel aspect at which ``resolution`` covers the
+        apertures of ``camera`` at the reader's time; ``authored`` when they are not positive
+        numbers (reading the camera refuses them later, naming them)."""
+        geom = UsdGeom.Camera(self.stage.GetPrimAtPath(camera))
+        aperture = (values.real(geom.GetHorizontalApertureAttr(), self.time, self.file),
+                    values.real(geom.GetVerticalApertureAttr(), self.time, self.file))
+        if not all(value is not None and math.isfinite(value) and value > 0.0 for value in aperture):
+            return authored
+        return fitted_pixel_aspect(aperture, resolution)
+
+    def check_colour_space(self, settings: UsdRender.Settings) -> None:
+        """Warns when the settings' renderingColorSpace is not linear Rec.709, the one the
+        tracer renders in."""
+        attribute = settings.GetPrim().GetAttribute("renderingColorSpace")
+        if attribute and attribute.HasAuthoredValue() and str(attribute.Get()) not in _RENDERED_COLOUR_SPACES:
+            logger.warning("%s: %s.renderingColorSpace is %r: not supported; rendering in linear Rec.709 "
+                           "(lin_rec709_scene)", self.file, settings.GetPath(), str(attribute.Get()))
+
+    @staticmethod
+    def _strongest(owners: list[UsdRender.SettingsBase], name: str) -> tuple[Usd.Attribute | None, Usd.Prim | None]:
+        """The UsdRender attribute ``name`` of the strongest owner that authors it, and that
+        owner's prim; (None, None) when none does (UsdRender's fallback applies)."""
+        for owner in owners:
+            attribute = owner.GetPrim().GetAttribute(name)
+            if attribute and attribute.HasAuthoredValue():
+                return attribute, owner.GetPrim()
+        return None, None
+
     def _inheritance(self, settings: UsdRender.Settings | None, product: UsdRender.Product | None):
-        """Where a product's camera and resolution come from, strongest first."""
+        """Where a product's view (camera, resolution, pixel aspect...) comes from, strongest
+        first: the product, its settings, the stage's renderSettingsPrimPath settings."""
         owners = [UsdRender.SettingsBase(owner.GetPrim()) for owner in (product, settings) if owner is not None]
         stage_settings = self._stage_settings()
         if stage_settings is not None and (settings is None or stage_settings.GetPath() != settings.GetPath()):

@@ -14,8 +14,9 @@ The layer's ``renderSettingsPrimPath`` names the settings, so ``--recipe FILE`` 
 ``sourceType`` and ``sourceName`` are always authored (they are the layer); a
 ``pxrLayers:*`` attribute only when it differs from what the reader would take without it
 (the schema's fallback, or for a var's pixel type and compression the product's), so a
-recipe shows what is particular to it. Camera and resolution go on the settings when every
-product shares them, else on each product.
+recipe shows what is particular to it. Camera and resolution (and a pixel aspect ratio and
+conform policy other than UsdRender's fallbacks) go on the settings when every product
+shares them, else on each product.
 
 What reads back differently:
 
@@ -45,7 +46,15 @@ from pxr import Gf, Sdf, Tf, Usd, UsdRender
 from .. import __version__
 from ..errors import RecipeError
 from ..outputs import write_atomically
-from ..recipe.model import Layer, Product, Recipe, inherited_encoding
+from ..recipe.model import (
+    DEFAULT_CONFORM_POLICY,
+    DEFAULT_PIXEL_ASPECT_RATIO,
+    Layer,
+    Product,
+    Recipe,
+    View,
+    inherited_encoding,
+)
 from . import schema
 from .opening import trapped_usd_diagnostics
 
@@ -110,10 +119,10 @@ def _author(recipe: Recipe, scope: Sdf.Path) -> Sdf.Layer:
     for path in (scope.AppendChild("Products"), scope.AppendChild("Vars")):
         stage.DefinePrim(path, "Scope")
 
-    views = {(product.camera, product.resolution) for product in recipe.products}
+    views = {product.camera_view for product in recipe.products}
     shared_view = views.pop() if len(views) == 1 else None
     if shared_view is not None:
-        _author_view(settings, *shared_view)
+        _author_view(settings, shared_view)
     targets, vars_ = _placed_vars(recipe.products, scope.AppendChild("Vars"))
     product_paths = []
     for product in recipe.products:
@@ -121,7 +130,7 @@ def _author(recipe: Recipe, scope: Sdf.Path) -> Sdf.Layer:
         product_paths.append(product_path)
         render_product = _author_product(stage, product_path, product)
         if shared_view is None:
-            _author_view(render_product, product.camera, product.resolution)
+            _author_view(render_product, product.camera_view)
         render_product.CreateOrderedVarsRel().SetTargets(
             [targets[(product.name, _unplaced(layer_value))] for layer_value in product.layers])
     settings.CreateProductsRel().SetTargets(product_paths)
@@ -165,10 +174,16 @@ def _placed_vars(products: Iterable[Product], vars_scope: Sdf.Path
     return targets, vars_
 
 
-def _author_view(owner: UsdRender.SettingsBase, camera: str, resolution: tuple[int, int]) -> None:
-    if camera:
-        owner.CreateCameraRel().SetTargets([Sdf.Path(camera)])
-    owner.CreateResolutionAttr(Gf.Vec2i(*resolution))
+def _author_view(owner: UsdRender.SettingsBase, view: View) -> None:
+    """The camera and resolution, and the pixel aspect ratio and conform policy unless they
+    are UsdRender's fallbacks."""
+    if view.camera:
+        owner.CreateCameraRel().SetTargets([Sdf.Path(view.camera)])
+    owner.CreateResolutionAttr(Gf.Vec2i(*view.resolution))
+    if view.pixel_aspect_ratio != DEFAULT_PIXEL_ASPECT_RATIO:
+        owner.CreatePixelAspectRatioAttr(view.pixel_aspect_ratio)
+    if view.aspect_ratio_conform_policy != DEFAULT_CONFORM_POLICY:
+        owner.CreateAspectRatioConformPolicyAttr(view.aspect_ratio_conform_policy)
 
 
 def _author_product(stage: Usd.Stage, path: Sdf.Path, product: Product) -> UsdRender.Product:

@@ -15,14 +15,13 @@ from .transforms import column_matrix, rigid_in_metres, transform_errors_name
 
 
 def settings_fields(settings: UsdRender.Settings | None, time: Usd.TimeCode) -> dict[str, object]:
-    """RenderSpec fields from the settings: pixel aspect, conform policy, the purposes of
-    gprims that render and of material bindings (the defaults without settings)."""
+    """RenderSpec fields from the settings: the purposes of gprims that render and of
+    material bindings (the defaults without settings). The products' view (camera,
+    resolution, pixel aspect, conform policy) comes from the recipe (``Recipe.shared_view``)."""
     if settings is None:
         return {"included_purposes": DEFAULT_INCLUDED_PURPOSES, "material_binding_purposes": DEFAULT_BINDING_PURPOSES}
     purposes = settings.GetIncludedPurposesAttr().Get(time)
     return {
-        "pixel_aspect_ratio": float(settings.GetPixelAspectRatioAttr().Get(time)),
-        "aspect_ratio_conform_policy": str(settings.GetAspectRatioConformPolicyAttr().Get(time)),
         "settings_path": str(settings.GetPath()),
         "included_purposes": DEFAULT_INCLUDED_PURPOSES if purposes is None else tuple(str(p) for p in purposes),
         "material_binding_purposes": _binding_purposes(settings, time),

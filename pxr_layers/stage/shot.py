@@ -67,15 +67,17 @@ class Shot:
                frame: float | None = None, check_colour: bool = True) -> Recipe:
         """The recipe of the settings that apply; the beauty alone for a stage without any.
 
-        frame : the time at which to list the lights of per-light layers (None: the start)
+        frame : the time at which to list the lights of per-light layers and to read the
+                camera's apertures for adjustPixelAspectRatio (None: the start)
         """
         settings_prim = self.find_settings(settings)
         # Listed once, however many products add per-light layers (each walk is a whole traversal).
         lights = functools.cache(lambda: self.lights(settings_prim, frame))
         with trapped_usd_diagnostics(self.file):
+            time, _ = resolve_time(self.stage, frame)
             return read_recipe(self.stage, self.file, settings_prim, default_camera=lambda: self.first_camera,
-                               lights=lights, camera=camera,
-                               per_light=per_light, check_colour=check_colour)
+                               lights=lights, camera=camera, per_light=per_light, check_colour=check_colour,
+                               time=time)
 
     def lights(self, settings: UsdRender.Settings | None = None, frame: float | None = None) -> list[tuple[str, str, str]]:
         """(name, path, light group) of every light the render sees: the walk's own rule
@@ -94,13 +96,14 @@ class Shot:
     def spec(self, frame: float | None, recipe: Recipe, *, camera: str | None = None,
              resolution: tuple[int, int] | None = None) -> RenderSpec:
         """The frame's render spec: ``recipe``'s camera and resolution (or these overrides),
-        the camera read at the frame, and the settings' purposes and pixel aspect."""
-        view_camera, view_resolution = recipe.view()
+        pixel aspect ratio and conform policy, the camera read at the frame, and the
+        settings' purposes."""
+        view = recipe.shared_view()
         with trapped_usd_diagnostics(self.file):
             time, _ = resolve_time(self.stage, frame)
             settings = self.find_settings(recipe.settings_path) if recipe.settings_path else None
             fields = settings_fields(settings, time)
-            camera_path = camera or view_camera
+            camera_path = camera or view.camera
             context = self._context(time, fields["included_purposes"], Diagnostics())
             prim = camera_prim(context, camera_path)
             if camera_path == AUTO_CAMERA_PATH:
@@ -108,7 +111,9 @@ class Shot:
                     logger.info("%s: nothing to frame (no geometry): the automatic camera looks to the front",
                                 self.file)
                 context.xform_cache.Clear()
-            return RenderSpec(camera=read_camera(context, prim), resolution=tuple(resolution or view_resolution),
+            return RenderSpec(camera=read_camera(context, prim), resolution=tuple(resolution or view.resolution),
+                              pixel_aspect_ratio=view.pixel_aspect_ratio,
+                              aspect_ratio_conform_policy=view.aspect_ratio_conform_policy,
                               frame=frame, recipe=recipe, **fields)
 
     def scene(self, spec: RenderSpec, *, subdiv_level: int) -> SceneData:

@@ -3,12 +3,17 @@ stages/camera.py)."""
 
 from __future__ import annotations
 
+import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import RenderSettingsError
+from ..recipe.model import fitted_pixel_aspect, view_problem
 from ..scene import FLOAT, RenderSpec
+
+logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -31,9 +36,17 @@ class PinholeCamera:
 
     @classmethod
     def from_spec(cls, spec: RenderSpec) -> PinholeCamera:
+        """The camera of ``spec``: a pixel is ``spec.pixel_aspect_ratio`` times as wide as it
+        is tall, so the image aspect is width × pixel_aspect_ratio / height, and the
+        aperture is fitted to it by ``spec.aspect_ratio_conform_policy`` (UsdRender's
+        rules). Raises RenderSettingsError for a projection other than perspective, a pixel
+        aspect ratio that is not a positive number or an unknown policy."""
         camera = spec.camera
         if camera.projection != "perspective":
             raise RenderSettingsError(f"camera {camera.path}: {camera.projection} projection is not supported yet")
+        problem = view_problem(spec.pixel_aspect_ratio, spec.aspect_ratio_conform_policy)
+        if problem:
+            raise RenderSettingsError(f"{spec.settings_path or 'the render settings'}: {problem[0]} {problem[1]}")
         width, height = spec.resolution
         h_aperture, v_aperture = camera.horizontal_aperture, camera.vertical_aperture
         image_aspect = width * spec.pixel_aspect_ratio / height
@@ -45,7 +58,13 @@ class PinholeCamera:
             h_aperture = v_aperture * image_aspect
         elif policy in ("adjustApertureHeight", "expandAperture", "cropAperture"):
             v_aperture = h_aperture / image_aspect
-        # adjustPixelAspectRatio keeps both apertures: pixels stretch instead.
+        else:  # adjustPixelAspectRatio keeps both apertures: pixels stretch instead.
+            stretched = fitted_pixel_aspect((h_aperture, v_aperture), spec.resolution)
+            if not math.isclose(stretched, spec.pixel_aspect_ratio, rel_tol=1e-5):
+                logger.warning("camera %s: adjustPixelAspectRatio stretches the pixels to %g at %dx%d, but the "
+                               "recipe resolved them to %g (another resolution, or animated apertures): the "
+                               "EXR headers say %g", camera.path, stretched, width, height,
+                               spec.pixel_aspect_ratio, spec.pixel_aspect_ratio)
         matrix = np.asarray(camera.world_from_camera, np.float64)
         rotation = matrix[:3, :3] / np.linalg.norm(matrix[:3, :3], axis=0, keepdims=True)
         focal = camera.focal_length

@@ -37,7 +37,7 @@ from ..layers.nuke import NUKE_RESERVED_LAYERS, LayerGrade, write_nuke_script
 from ..layers.previews import energy_shares, layers_partition
 from ..outputs import OutputSet
 from ..paths.events import event_paths
-from ..paths.format import NormBins
+from ..paths.format import SUFFIX as INDEX_SUFFIX, NormBins
 from ..paths.reader import PathIndex
 from ..recipe.model import (
     DEFAULT_CAMERA_PATH,
@@ -121,7 +121,7 @@ class Session:
             raise ViewError(f"{path}: no such file or folder")
         if path.is_dir():
             folder, index, products = path, _folder_index(path), []
-        elif path.suffix == ".pxlidx":
+        elif path.suffix == INDEX_SUFFIX:
             folder, index, products = path.parent, PathIndex(path), []
         elif path.suffix.lower() == ".exr":
             folder, products = path.parent, [read_multipart(path)]
@@ -130,7 +130,7 @@ class Session:
             if index is not None and index.manifest.get("render_id") not in _render_ids(products[0]):
                 raise ViewError(f"{path}: {named} beside it is the index of another render (its renderId differs)")
         else:
-            raise ViewError(f"{path}: not a folder, an .exr product or a .pxlidx index")
+            raise ViewError(f"{path}: not a folder, an .exr product or a {INDEX_SUFFIX} index")
         folder = folder.resolve()
         if not products:
             products = _same_size(_products_beside(folder, index), index)
@@ -313,7 +313,8 @@ class Session:
                     metadata=index_metadata(index, self.folder))
             write_recipe(paths["recipe"], recipe)
             write_nuke_script(paths["nuke"], paths["exr"].name, [layer.name for layer in chosen], grades,
-                              resolution=(self.width, self.height), exposure=float(exposure), partition=partition)
+                              resolution=(self.width, self.height), exposure=float(exposure), partition=partition,
+                              pixel_aspect_ratio=self.base_product.pixel_aspect_ratio)
         log.info("saved %s", ", ".join(str(path) for path in paths.values()))
         return {key: path.name for key, path in paths.items()}
 
@@ -353,7 +354,7 @@ class Session:
 
 
 def _folder_index(folder: Path) -> PathIndex | None:
-    indexes = sorted(folder.glob("*.pxlidx"))
+    indexes = sorted(folder.glob(f"*{INDEX_SUFFIX}"))
     if len(indexes) > 1:
         raise ViewError(f"{folder} holds {len(indexes)} path indexes ({', '.join(p.name for p in indexes)}): "
                         "view one of them")
@@ -371,7 +372,7 @@ def _index_named(product: MultipartImage) -> str | None:
 def _index_of_beauty(path: Path) -> str | None:
     """The index beside `path` whose render wrote it as its beauty (a product without
     layers names no index; the index names its beauty, manifest ``beauty``)."""
-    for candidate in sorted(path.parent.glob("*.pxlidx")):
+    for candidate in sorted(path.parent.glob(f"*{INDEX_SUFFIX}")):
         try:
             if PathIndex(candidate).manifest.get("beauty") == path.name:
                 return candidate.name
