@@ -75,7 +75,7 @@ def test_composition_problems_are_warnings_each_printed_once_and_no_usd_chatter(
     for name in ("missing_lighting.usda", "missing_set.usda", "default rig"):
         assert text.count(name) == 1, (name, lines)
     assert "/World/set" in text
-    # usd-core cannot compose .mtlx, but stage/materialx.py reads it through the bindings into it
+    # usd-core cannot compose .mtlx, but stage/materialx/ reads it through the bindings into it
     assert "look.mtlx" not in text
     assert (tmp_path / "out" / "shot.exr").is_file()
     strict = run("render", str(shot), "-o", str(tmp_path / "strict"), *SMALL, "--strict")

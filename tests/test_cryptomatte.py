@@ -123,6 +123,9 @@ def test_ids_match_the_specifications_examples():
         assert id_hex(name) == expected
         assert name_id(name) == spec_id(name)
     assert type_key("CryptoObject") == f"{spec_id_bits('CryptoObject'):08x}"[:7]
+    # the examples of layers/cryptomatte.py's docstring (the specification's d593dd7 is not CryptoObject's)
+    assert (type_key("CryptoObject"), type_key("uCryptoAsset"), id_hex("/World/floor")) == \
+        ("3ae39a5", "d593dd7", "7d36650d")
 
 
 def test_exponents_0_and_255_are_moved_into_range():
@@ -163,8 +166,8 @@ def test_coverages_sum_to_alpha_and_the_manifest_names_every_object(tmp_path, sc
                       "object,material,asset")
     types, alpha, parts = read_cryptomattes(path)
     assert set(types) == set(TYPES)
-    plan = plan_frame(RenderRequest(stage=Path(stage), resolution=(40, 30), spp=1), None, directory=tmp_path,
-                      keep_index=False, previews=False)
+    plan = plan_frame(RenderRequest(stage=Path(stage), resolution=(40, 30), spp=1, keep_index=False, previews=False),
+                      None, directory=tmp_path)
     objects = set(prepare_frame(plan).world.object_paths)
     assert set(types["CryptoObject"]["manifest"]) == objects
     assert set(types["CryptoAsset"]["manifest"]) == {"/World"}  # no kind authored: the top-level prim
@@ -193,27 +196,18 @@ def test_object_mattes_equal_the_supersampled_primid_coverage(tmp_path, scene):
     """Each object's matte against the share of SUPERSAMPLE² pixel-centre rays of primId
     that hit it: within 2 % on edges (at SPP samples the matte's own noise is below
     0.5/√SPP ≈ 0.4 %), exactly 1 inside (the pixel and its neighbours wholly the object's)."""
-    from pxr_layers.jobs.frame import FrameAssembler, frame_data, plan_frame, prepare_frame
-    from pxr_layers.layers.multipart import write_multipart
+    from pxr_layers.jobs.frame import plan_frame, prepare_frame, render_frame
     from pxr_layers.request import RenderRequest
-    from pxr_layers.trace import render_data_aovs, trace_pixels
+    from pxr_layers.trace import render_data_aovs
 
     stage = Path(embedded_scene(scene))
     width, height = SIZE
-    plan = plan_frame(RenderRequest(stage=stage, resolution=SIZE, spp=SPP), None, directory=tmp_path,
-                      keep_index=False, previews=False, cryptomattes=("CryptoObject",))
-    integrator = prepare_frame(plan)
-    with FrameAssembler(plan) as frame:
-        trace_pixels(integrator, 0, plan.pixels, frame.add)
-        data = frame.cryptomattes(frame_data(plan, integrator))
-    product = plan.recipe.products[0]
-    beauty = np.zeros((height, width, 4), np.float32)
-    path = write_multipart(tmp_path / "mattes.exr", beauty, {layer.name: data[layer.source_name] for layer in product.layers
-                                                            if layer.is_cryptomatte}, product)
-    entry = read_cryptomattes(path)[0]["CryptoObject"]
+    result = render_frame(RenderRequest(stage=stage, resolution=SIZE, spp=SPP, cryptomattes=("CryptoObject",),
+                                        keep_index=False, previews=False), output=tmp_path / "mattes")
+    entry = read_cryptomattes(result.delivered[0].exr)[0]["CryptoObject"]
 
-    fine = plan_frame(RenderRequest(stage=stage, resolution=(width * SUPERSAMPLE, height * SUPERSAMPLE), spp=1),
-                      None, directory=tmp_path, keep_index=False, previews=False)
+    fine = plan_frame(RenderRequest(stage=stage, resolution=(width * SUPERSAMPLE, height * SUPERSAMPLE), spp=1,
+                                    keep_index=False, previews=False), None, directory=tmp_path)
     fine_integrator = prepare_frame(fine)
     prim = render_data_aovs(fine_integrator, ["primId"])["primId"].astype(np.int64)
     paths = fine_integrator.world.object_paths

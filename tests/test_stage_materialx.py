@@ -1,4 +1,4 @@
-"""MaterialX looks (stage/materialx.py): documents and UsdShade networks → Material fields."""
+"""MaterialX looks (stage/materialx/): documents and UsdShade networks → Material fields."""
 
 import math
 import os

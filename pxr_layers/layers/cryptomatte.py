@@ -12,9 +12,10 @@ whose first visible hit has that name), highest first, as the parts
     NAME01.R, ...         = ranks 2 and 3, ...
 
 (float32; an empty rank has id 0 and coverage 0). The manifest maps each name to the 8 hex
-digits of its id's float bits, ``{"/World/floor": "3f8c9a1e", ...}``. The header attributes of
+digits of its id's float bits, ``{"/World/floor": "7d36650d", ...}``. The header attributes of
 a type are keyed by the first 7 of those digits of its type name's id (``CryptoObject`` →
-``d593dd7``, the specification's example) as
+``3ae39a5``; the specification suggests a hash of the type name without fixing one, and the
+``d593dd7`` its example files under CryptoObject is the key of ``uCryptoAsset``) as
 
     cryptomatte/<key>/name       = NAME
     cryptomatte/<key>/hash       = MurmurHash3_32

@@ -187,17 +187,6 @@ def write_png(path: str | os.PathLike, pixels: np.ndarray, description: str | No
     return path
 
 
-def write_preview(path: str | os.PathLike, image: np.ndarray, layer: Layer | None = None, *,
-                  config: str = DEFAULT_OCIO_CONFIG, display: str = DEFAULT_DISPLAY, view: str = DEFAULT_VIEW,
-                  rendering_space: str = RENDERING_SPACE) -> Path:
-    """One layer (or the beauty, ``layer=None``) as a display-referred PNG of the same size.
-
-    image : (h, w, 3|4) float linear colour, or a data layer's (h, w[, c]) values
-    layer : its recipe Layer (grade, data or colour); None: an ungraded colour image
-    """
-    return write_png(path, _display_image(image, layer, display_processor(config, display, view, rendering_space)))
-
-
 def _display_image(image: np.ndarray, layer: Layer | None, processor) -> np.ndarray:
     if layer is not None and layer.is_data:
         return data_to_display(image)

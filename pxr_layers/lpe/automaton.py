@@ -28,9 +28,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import LpeError
+from ..paths.events import ALL_SCATTERINGS, EVENT_TYPES
 from . import conditions as cond
 from . import nodes
-from .events import ALL_SCATTERINGS, EVENT_TYPES, Event, PatternTable, label_matches
+from .events import Event, PatternTable, label_matches
 from .labels import closest_labels
 from .limits import MAX_DFA_STATES, MAX_NFA_STATES
 from .outcomes import (

@@ -158,20 +158,24 @@ class AnyOf:
 Condition = Comparison | AllOf | AnyOf
 
 
-def all_of(terms) -> Condition:
-    """The conjunction of conditions, flattened: the same meaning always gives the same tree."""
+def flattened(kind: type, field: str, items):
+    """The n-ary node ``kind(tuple)`` over `items`, with the items of nested `kind` nodes (their
+    `field`) spliced in, and a single item on its own: the same meaning always gives the same
+    tree (conditions here, expression trees in nodes.py)."""
     flat = []
-    for term in terms:
-        flat.extend(term.terms if isinstance(term, AllOf) else [term])
-    return flat[0] if len(flat) == 1 else AllOf(tuple(flat))
+    for item in items:
+        flat.extend(getattr(item, field) if isinstance(item, kind) else [item])
+    return flat[0] if len(flat) == 1 else kind(tuple(flat))
+
+
+def all_of(terms) -> Condition:
+    """The conjunction of conditions, flattened."""
+    return flattened(AllOf, "terms", terms)
 
 
 def any_of(terms) -> Condition:
     """The disjunction of conditions, flattened."""
-    flat = []
-    for term in terms:
-        flat.extend(term.terms if isinstance(term, AnyOf) else [term])
-    return flat[0] if len(flat) == 1 else AnyOf(tuple(flat))
+    return flattened(AnyOf, "terms", terms)
 
 
 def canonical(condition: Condition) -> str:

@@ -1,7 +1,7 @@
 """Path events and label patterns: what an expression is matched against.
 
 A light path is a sequence of events read camera first. Each event is a
-(type, scattering, labels) triple:
+(type, scattering, labels) triple, in the alphabet of ``paths/events.py``:
 
 - type: one of ``EVENT_TYPES`` (camera, reflection, transmission, volume, light, emissive
   object, background);
@@ -15,22 +15,7 @@ from __future__ import annotations
 import fnmatch
 from dataclasses import dataclass, field
 
-EVENT_TYPES = "CRTVLOB"
-"""Camera, Reflection, Transmission, Volume, Light, emissive Object, Background."""
-
-SCATTERINGS = "DGSs"
-"""Diffuse, Glossy, Singular (perfect mirror or refraction), straight (pass-through)."""
-
-NO_SCATTERING = ""
-"""The scattering slot of C, L, O and B events; spelled ``x`` in expressions (as in OSL)."""
-
-ALL_SCATTERINGS = (NO_SCATTERING, *SCATTERINGS)
-
-NON_SCATTERING_TYPES = "CLOB"
-"""Event types that carry no scattering letter in the path notation."""
-
-SCATTERING_TYPES = "RTV"
-"""Event types that scatter (the bounces of a path): every type but NON_SCATTERING_TYPES."""
+from ..paths.events import ALL_SCATTERINGS, EVENT_TYPES, NO_SCATTERING, SCATTERINGS
 
 GLOB_CHARACTERS = frozenset("*?[")
 

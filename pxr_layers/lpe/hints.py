@@ -11,9 +11,8 @@ from __future__ import annotations
 from itertools import pairwise
 
 from ..errors import LpeSyntaxError
+from ..paths.events import NO_SCATTERING_LETTER, SCATTERING_TYPES
 from .lexer import Kind, tokenize
-
-SCATTERING_TYPES = "RTV"
 
 
 def hints(query: str) -> list[str]:
@@ -32,9 +31,10 @@ def hints(query: str) -> list[str]:
         adjacent = second.position == first.position + 1
         slip = first.kind is Kind.TYPE and second.kind is Kind.SCATTER and first.value in SCATTERING_TYPES
         if slip and adjacent and not enclosed:
-            pair = first.value + (second.value or "x")
+            scatter = second.value or NO_SCATTERING_LETTER
+            pair = first.value + scatter
             notes.append(
-                f"'{pair}' at {first.position} is two events ({first.value}, then {second.value or 'x'}); "
+                f"'{pair}' at {first.position} is two events ({first.value}, then {scatter}); "
                 f"one {pair} event is written <{pair}>"
             )
     return notes

@@ -12,12 +12,9 @@ from dataclasses import dataclass
 from enum import Enum, auto
 
 from ..errors import LpeSyntaxError
+from ..paths.events import EVENT_TYPES, NO_SCATTERING, NO_SCATTERING_LETTER, SCATTERINGS
 from . import conditions
-from .events import EVENT_TYPES, SCATTERINGS
 from .limits import MAX_QUERY_LENGTH, MAX_REPETITION, MAX_TOKENS
-
-NO_SCATTERING_LETTER = "x"
-"""OSL's spelling of "no scattering" (the scattering slot of C, L, O, B events)."""
 
 
 class Kind(Enum):
@@ -94,7 +91,7 @@ def tokenize(query: str) -> list[Token]:
             tokens.append(Token(Kind.SCATTER, char, position))
             position += 1
         elif char == NO_SCATTERING_LETTER:
-            tokens.append(Token(Kind.SCATTER, "", position))
+            tokens.append(Token(Kind.SCATTER, NO_SCATTERING, position))
             position += 1
         elif char == "'":
             label, position_after = _read_label(query, position)

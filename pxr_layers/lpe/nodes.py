@@ -17,15 +17,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..paths.events import ALL_SCATTERINGS, EVENT_TYPES, NO_SCATTERING, NO_SCATTERING_LETTER, SCATTERINGS
 from . import conditions as cond
-from .events import (
-    ALL_SCATTERINGS,
-    EVENT_TYPES,
-    NO_SCATTERING,
-    SCATTERINGS,
-    Event,
-    label_matches,
-)
+from .events import Event, label_matches
 
 ANY_LABEL = "*"
 """The pattern of a ``.`` in a label slot of ``<...>``: "carries at least one label"."""
@@ -116,17 +110,11 @@ Node = EventPattern | Concat | Union | Repeat
 
 
 def concat(items) -> Node:
-    flat = []
-    for item in items:
-        flat.extend(item.items if isinstance(item, Concat) else [item])
-    return flat[0] if len(flat) == 1 else Concat(tuple(flat))
+    return cond.flattened(Concat, "items", items)
 
 
 def union(alternatives) -> Node:
-    flat = []
-    for alternative in alternatives:
-        flat.extend(alternative.alternatives if isinstance(alternative, Union) else [alternative])
-    return flat[0] if len(flat) == 1 else Union(tuple(flat))
+    return cond.flattened(Union, "alternatives", alternatives)
 
 
 def repeat(body: Node, minimum: int, maximum: int | None) -> Node:
@@ -222,7 +210,7 @@ def _event_body_text(event: EventPattern) -> str:
 
 
 def _letter(symbol: str) -> str:
-    return "x" if symbol == NO_SCATTERING else symbol
+    return NO_SCATTERING_LETTER if symbol == NO_SCATTERING else symbol
 
 
 def _set_text(symbols: SymbolSet, order) -> str:

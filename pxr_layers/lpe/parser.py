@@ -16,6 +16,7 @@ alternation; see docs/lpe.md for the EBNF and every difference from OSL)::
 from __future__ import annotations
 
 from ..errors import LpeSyntaxError
+from ..paths.events import NO_SCATTERING_LETTER
 from . import nodes
 from .automaton import nfa_state_count
 from .lexer import Kind, Token, tokenize
@@ -312,7 +313,7 @@ def _slot_mismatch(slot: int, kind: Kind, symbols: list[str]) -> str:
         return f"{shown} is not a label: after the type and scattering slots come quoted labels only"
     where = _SLOT_NAMES[slot]
     if kind is Kind.SCATTER:
-        letter = shown or "x"
+        letter = shown or NO_SCATTERING_LETTER
         return f"{letter} is a scattering but this slot is the {where}: write <.{letter}> (slots are positional)"
     return f"{shown} is an event type but this slot is the {where}: write <{shown}.> (slots are positional)"
 

@@ -21,8 +21,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import LpeSyntaxError
+from ..paths.events import EVENT_TYPES, NON_SCATTERING_TYPES, SCATTERINGS
 from . import conditions as cond
-from .events import EVENT_TYPES, NON_SCATTERING_TYPES, SCATTERINGS, Event
+from .events import Event
 
 FLOAT = np.float32
 

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..paths.events import ALL_SCATTERINGS, EVENT_TYPES
 from . import conditions as cond
 from . import nodes
-from .events import ALL_SCATTERINGS, EVENT_TYPES, Event, label_matches
+from .events import Event, label_matches
 
 LABEL_POOL = ("key", "fill", "floor", "/World/Lights/key", "/World/Lights/rim", "chrome")
 """Labels carried by random events: a few names, two prim paths under one scope."""

@@ -1,9 +1,15 @@
-"""Path events: what one vertex of a light path was, as one small integer.
+"""Path events: the event alphabet, and what one vertex of a light path was, as one small integer.
 
-A light path is read camera first (LPE convention, ``docs/lpe.md``): C, then one event
-per surface the path scattered at or passed through, then the emitter. Each event has a
-type, a scattering, the lobe the renderer used, and a subject: the (object, material)
-pair of a surface, or a light. Its id packs the four:
+This module is the one home of the event alphabet (``docs/lpe.md``): the type and scattering
+letters of the path notation and of expressions (``lpe/`` imports them), the renderer's
+lobes and the scattering each lobe gives, and the integer codes the tracer packs into
+event ids (``trace/`` imports them). It imports nothing (of the package or beyond the
+standard library), so that both the tracer's kernels and the LPE parser can import it.
+
+A light path is read camera first (LPE convention): C, then one event per surface the path
+scattered at or passed through, then the emitter. Each event has a type, a scattering, the
+lobe the renderer used, and a subject: the (object, material) pair of a surface, or a
+light. Its id packs the four:
 
     head  = (type · 5 + scatter) · 5 + lobe                    (175 heads)
     event = head · subject_count + subject
@@ -18,20 +24,55 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numpy as np
+# The codes below are plain module-level ints (numba compiles them into the kernels as
+# constants); each is the index of its letter or name, so letters and codes cannot drift.
 
-from ..lpe.events import EVENT_TYPES, SCATTERINGS
+EVENT_TYPES = "CRTVLOB"
+"""Camera, Reflection, Transmission, Volume, Light, emissive Object, Background; a type's
+code is its index."""
+CAMERA, REFLECT, TRANSMIT, VOLUME, LIGHT, OBJECT, BACKGROUND = range(len(EVENT_TYPES))
 
-CAMERA, REFLECT, TRANSMIT, VOLUME, LIGHT, OBJECT, BACKGROUND = range(7)
-NO_SCATTER = 4  # the scatter code of events that do not scatter (C, L, O, B); others index SCATTERINGS
-LOBE_NAMES = ("diffuse", "specular", "coat", "glass")  # the renderer's lobes (trace/bsdf.py ids)
-NO_LOBE = 4
+NON_SCATTERING_TYPES = "CLOB"
+"""Event types that carry no scattering letter in the path notation."""
+SCATTERING_TYPES = "".join(kind for kind in EVENT_TYPES if kind not in NON_SCATTERING_TYPES)
+"""Event types that scatter (the bounces of a path): R, T, V."""
+SCATTERING_TYPE_NAMES = ("reflection", "transmission", "volume")
+"""The names of SCATTERING_TYPES, in order (what the inspector's query builder shows)."""
+
+SCATTERINGS = "DGSs"
+"""Diffuse, Glossy, Singular (perfect mirror or refraction), straight (pass-through); a
+scattering's code is its index."""
+SCATTERING_NAMES = ("diffuse", "glossy", "singular", "straight")
+SCATTER_DIFFUSE, SCATTER_GLOSSY, SCATTER_SINGULAR, SCATTER_STRAIGHT = range(len(SCATTERINGS))
+
+NO_SCATTERING = ""
+"""The scattering slot of C, L, O and B events."""
+NO_SCATTERING_LETTER = "x"
+"""How expressions spell NO_SCATTERING (as OSL does)."""
+NO_SCATTER = len(SCATTERINGS)
+"""The scatter code of NO_SCATTERING."""
+ALL_SCATTERINGS = (NO_SCATTERING, *SCATTERINGS)
+
+LOBE_NAMES = ("diffuse", "specular", "coat", "glass")
+"""The renderer's lobes (trace/bsdf.py); a lobe's id is its index. Events carry their lobe's
+name as a label."""
+LOBE_DIFFUSE, LOBE_SPECULAR, LOBE_COAT, LOBE_GLASS = range(len(LOBE_NAMES))
+NO_LOBE = len(LOBE_NAMES)
+"""The lobe code of events that took no lobe (C, L, O, B, and straight pass-throughs)."""
+LOBE_SCATTERINGS = "DGGS"
+"""The scattering of each lobe, LOBE_NAMES order. A GGX lobe (specular, coat) narrower
+than bsdf.SINGULAR_ALPHA is a perfect mirror and scatters S instead."""
+LOBE_SCATTER = tuple(SCATTERINGS.index(letter) for letter in LOBE_SCATTERINGS)
+"""LOBE_SCATTERINGS as scatter codes, for the kernels."""
+
+_SCATTER_CODES = NO_SCATTER + 1
+_LOBE_CODES = NO_LOBE + 1
 
 
 def event_id(event_type, scatter, lobe, subject, subject_count):
-    """The id of one event (the packing above); plain arithmetic, so that numpy arrays and
-    the tracer's compiled kernels (scalars) share it."""
-    return ((event_type * 5 + scatter) * 5 + lobe) * subject_count + subject
+    """The id of one event (the packing above); plain arithmetic, so that the tracer's
+    compiled kernels inline it (trace/recorder.py)."""
+    return ((event_type * _SCATTER_CODES + scatter) * _LOBE_CODES + lobe) * subject_count + subject
 
 
 @dataclass(frozen=True)
@@ -68,18 +109,10 @@ class EventVocabulary:
     def subject_count(self) -> int:
         return len(self.surface_objects) + len(self.light_names)
 
-    def ids(self, event_type, scatter, lobe, subject) -> np.ndarray:
-        """Event ids of (n,) or scalar fields; surface subjects in [0, S), lights offset
-        by ``light_subject``."""
-        return event_id(np.asarray(event_type, np.int64), np.asarray(scatter, np.int64), np.asarray(lobe, np.int64),
-                        np.asarray(subject, np.int64), self.subject_count)
-
-    def light_subject(self, light) -> np.ndarray:
-        return np.asarray(light, np.int64) + len(self.surface_objects)
-
     def event(self, event_id: int) -> Event:
         head, subject = divmod(int(event_id), max(self.subject_count, 1))
-        event_type, scatter, lobe = head // 25, (head // 5) % 5, head % 5
+        event_type, scatter_and_lobe = divmod(head, _SCATTER_CODES * _LOBE_CODES)
+        scatter, lobe = divmod(scatter_and_lobe, _LOBE_CODES)
         labels: set[str] = set()
         name = ""
         if event_type == LIGHT:
@@ -94,7 +127,7 @@ class EventVocabulary:
                 labels.update((self.material_names[material], self.material_paths[material]))
         if lobe != NO_LOBE:
             labels.add(LOBE_NAMES[lobe])
-        return Event(EVENT_TYPES[event_type], "" if scatter == NO_SCATTER else SCATTERINGS[scatter],
+        return Event(EVENT_TYPES[event_type], NO_SCATTERING if scatter == NO_SCATTER else SCATTERINGS[scatter],
                      frozenset(labels), name)
 
 
@@ -105,6 +138,9 @@ def path_text(events: tuple[Event, ...], all_labels: bool = False) -> str:
         return sorted(event.labels) if all_labels or not event.name else [event.name]
 
     return " ".join(e.type + e.scatter + "".join(f"'{label}'" for label in labels(e)) for e in events)
+
+
+_NO_MATERIAL_TYPES = (EVENT_TYPES[LIGHT], EVENT_TYPES[CAMERA], EVENT_TYPES[BACKGROUND])
 
 
 def event_paths(events: Sequence[Event]) -> list[tuple[str, str]]:
@@ -128,6 +164,6 @@ def event_paths(events: Sequence[Event]) -> list[tuple[str, str]]:
         own = [path for path in paths if path.rsplit("/", 1)[-1] == event.name and path not in shared] or \
             [path for path in paths if path.rsplit("/", 1)[-1] == event.name] or paths
         own_path = own[0] if own else ""
-        material = "" if event.type in ("L", "C", "B") else next((path for path in paths if path != own_path), "")
+        material = "" if event.type in _NO_MATERIAL_TYPES else next((path for path in paths if path != own_path), "")
         paths_of.append((own_path, material))
     return paths_of

@@ -30,11 +30,10 @@ import zstandard
 
 from ..compiled import inline, kernel
 from ..errors import PathIndexError
-from ..lpe.events import ALL_SCATTERINGS, EVENT_TYPES
 from ..progress import Progress
 from ..request import MAX_PIXELS
 from . import format as fmt
-from .events import Event
+from .events import ALL_SCATTERINGS, EVENT_TYPES, Event
 
 MAX_CHUNK_BYTES = 1 << 28
 """The most one chunk may decode to (256 MiB): bounds the memory of reading it. The

@@ -6,7 +6,7 @@ inputs follow connections through NodeGraphs and interface inputs
 fallback, wrap modes, colour space, ``<UDIM>`` tiles), UsdTransform2d, and
 UsdPrimvarReader_float/float2/float3/float4/int into any input. MaterialX looks, bound
 through UsdShade prims with MaterialX ids or referenced as ``.mtlx`` documents, are read by
-materialx.py. Anything else renders with the default material, after one note.
+the materialx package (materialx/). Anything else renders with the default material, after one note.
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ logger = logging.getLogger(__name__)
 
 # Pcp says this when a referenced file exists but no file-format plugin can read it, e.g.
 # .mtlx in a usd-core wheel built without usdMtlx: a capability of this USD build, not a
-# broken scene (and for .mtlx, not even a loss: materialx.py reads them).
+# broken scene (and for .mtlx, not even a loss: the materialx package reads them).
 _UNREADABLE_FORMAT = "Cannot determine file format"
 _ASSET = re.compile(r"@([^@]+)@")  # Pcp quotes asset paths as @path@
 
@@ -152,7 +152,7 @@ def _check_composition(stage: Usd.Stage, path: str, diagnostics: Diagnostics, st
         if unreadable:
             asset = _ASSET.search(message)
             if asset and asset.group(1).lower().endswith(".mtlx"):
-                continue  # stage/materialx.py reads .mtlx documents itself, through the bindings into them
+                continue  # stage/materialx/ reads .mtlx documents itself, through the bindings into them
             problems.append(("unreadable-reference", f"{site} ({asset.group(1) if asset else message})"))
         else:
             problems.append(("composition", f"{site}: {message}"))

@@ -21,7 +21,6 @@ from ..errors import RecipeError
 
 logger = logging.getLogger(__name__)
 
-PLUGIN_NAME = "pxrLayers"
 VAR_API = "PxrLayersVarAPI"
 PRODUCT_API = "PxrLayersProductAPI"
 LIGHT_API = "PxrLayersLightAPI"

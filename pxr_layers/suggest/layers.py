@@ -16,15 +16,17 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 
-from ..lpe.events import SCATTERING_TYPES, SCATTERINGS
+from ..paths.events import SCATTER_SINGULAR, SCATTERING_NAMES, SCATTERING_TYPES, SCATTERINGS
 from .atoms import ATTRIBUTES, COVARIANCE, FIRST_BOUNCE
 
 ALL_DEPTHS = frozenset({0, 1, 2})
 NORM_NAMES = {"curved": "|S_C|", "textured": "|S_T|", "shiny": "|S_R|"}
 COVARIANCE_WORDS = {"curved": ("curved", "flat"), "textured": ("textured", "plain"), "shiny": ("shiny", "matte")}
 """Covariance attribute → the names of its sides (norm not 0, norm 0)."""
-SCATTER_WORDS = {"D": "diffuse", "G": "glossy", "S": "specular", "s": "straight"}
-TYPE_WORDS = {"R": "", "T": "transmitted", "V": "volume"}
+SCATTER_WORDS = {**dict(zip(SCATTERINGS, SCATTERING_NAMES)), SCATTERINGS[SCATTER_SINGULAR]: "specular"}
+"""Scattering letter → layer-name word: a perfect mirror is "specular" to an artist."""
+TYPE_WORDS = dict(zip(SCATTERING_TYPES, ("", "transmitted", "volume"), strict=True))
+"""Bounce type letter → layer-name word; reflection, the common case, goes unsaid."""
 DEPTH_WORDS = {frozenset({0}): "emission", frozenset({1}): "direct", frozenset({2}): "indirect",
                frozenset({0, 1}): "direct", frozenset({1, 2}): "bounced"}
 REST = "rest"

@@ -39,19 +39,18 @@ import math
 import numpy as np
 
 from ..compiled import inline
+from ..paths import events
+from ..paths.events import SCATTER_DIFFUSE, SCATTER_GLOSSY, SCATTER_SINGULAR
 from . import shading
 from .vectors import luminance_of, normalized
 
-DIFFUSE, SPECULAR, COAT, GLASS = range(4)
-LOBE_COUNT = 4
+# The lobe ids are paths.events' (events carry them); short names for the kernels below.
+DIFFUSE, SPECULAR, COAT, GLASS = events.LOBE_DIFFUSE, events.LOBE_SPECULAR, events.LOBE_COAT, events.LOBE_GLASS
 GLOSSY_LOBES = (DIFFUSE, SPECULAR, COAT)  # the lobes a light sample can land in
 SINGULAR_ALPHA = 1e-4
 COAT_F0 = 0.04
 MIN_IOR = 1e-3  # an ior of 0 or below is no medium: it would make F0 and eta infinite
 INV_PI = 1 / math.pi
-
-# LPE scattering of an event, as int8 codes into lpe.events.SCATTERINGS.
-SCATTER_DIFFUSE, SCATTER_GLOSSY, SCATTER_SINGULAR, SCATTER_STRAIGHT = range(4)
 
 # Columns of a lobe row.
 DIFFUSE_RGB = 0  # 3 columns: weight of the Lambertian term (f = diffuse / π)

@@ -21,7 +21,6 @@ from ..paths.events import EventVocabulary
 from ..paths.trie import ClassTrie, class_sequences
 from ..paths.trie import child as trie_child
 from ..scene import FLOAT
-from . import bsdf
 from .bounce_norms import lobe_reflectance, reflectance
 from ..compiled import inline, kernel
 from .stages.observer import Observer
@@ -238,7 +237,7 @@ def _record_lit(lane, light, triangle, radiance, visible, surface_triangle, lobe
             r, g, b = radiance[entry, lobe, 0], radiance[entry, lobe, 1], radiance[entry, lobe, 2]
             if r == 0 and g == 0 and b == 0:
                 continue
-            scatter = bsdf.SCATTER_DIFFUSE if lobe == bsdf.DIFFUSE else bsdf.SCATTER_GLOSSY
+            scatter = events.LOBE_SCATTER[lobe]
             surface_event = _surface_event(triangle_subject, subject_count, events.REFLECT, scatter, lobe,
                                            surface_triangle[path])
             child, size = trie_child(keys, children, parent, event, size, node[path], surface_event)

@@ -17,8 +17,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from ..layers.previews import LUMINANCE_WEIGHTS as LUMINANCE
-from ..lpe.events import SCATTERING_TYPES
-from ..paths.events import Event, path_text
+from ..paths.events import SCATTERING_TYPES, Event, path_text
 from ..paths.format import NormBins
 from ..paths.reader import PathClass, PathIndex
 

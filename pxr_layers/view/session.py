@@ -36,7 +36,13 @@ from ..layers.multipart import MultipartImage, read_multipart
 from ..layers.nuke import NUKE_RESERVED_LAYERS, LayerGrade, write_nuke_script
 from ..layers.previews import energy_shares, layers_partition
 from ..outputs import OutputSet
-from ..paths.events import event_paths
+from ..paths.events import (
+    SCATTERING_NAMES,
+    SCATTERING_TYPE_NAMES,
+    SCATTERING_TYPES,
+    SCATTERINGS,
+    event_paths,
+)
 from ..paths.format import SUFFIX as INDEX_SUFFIX, NormBins
 from ..paths.reader import PathIndex
 from ..recipe.model import (
@@ -160,6 +166,8 @@ class Session:
         return {"title": self.title, "width": self.width, "height": self.height,
                 "layers": [layer.description() for layer in self.layers.values()],
                 "partition": self._partition(layers), "index": self._index_description(),
+                "alphabet": {"types": list(zip(SCATTERING_TYPES, SCATTERING_TYPE_NAMES, strict=True)),
+                             "scatterings": list(zip(SCATTERINGS, SCATTERING_NAMES, strict=True))},
                 "display": {"config": self.lut.config, "display": self.lut.display, "view": self.lut.view,
                             "lut": {**lut_description(self.lut), "url": LUT_URL}}}
 

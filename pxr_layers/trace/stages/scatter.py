@@ -9,13 +9,14 @@ import numpy as np
 
 from .. import bsdf, rng
 from ...compiled import kernel
+from ...paths import events
 from ..vectors import to_world
 from .queues import T_INFINITY, PathQueue, SurfaceQueue
 
 
 @dataclass
 class Scattering:
-    """What each lane of a SurfaceQueue did (n,): lobe, scatter (int8 codes, bsdf.py),
+    """What each lane of a SurfaceQueue did (n,): lobe, scatter (int8 codes, paths/events.py),
     transmit (bool, the new direction crosses the surface), scattered (bool: a valid
     direction on the lobe's side; cut-outs are not scattered, they pass)."""
 
@@ -51,7 +52,7 @@ def _scatter_kernel(key, position, facing, frame, wo, lobes, cut, scatters, tria
             origin[lane, 1] = position[lane, 1] - ny * epsilon
             origin[lane, 2] = position[lane, 2] - nz * epsilon
             lobe_out[lane] = bsdf.GLASS
-            scatter_out[lane] = bsdf.SCATTER_STRAIGHT
+            scatter_out[lane] = events.SCATTER_STRAIGHT
             continue
         if not scatters[lane]:  # at max depth, or nothing hit: the path ends here
             continue

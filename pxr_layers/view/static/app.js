@@ -803,8 +803,10 @@ function drawHistogram(edges, histogram, entry, quantity, low, high) {
 
 // --- make a layer: generalise, the query builder, the expression --------------------------
 
-const EVENT_TYPES = [['.', 'any'], ['R', 'R refl.'], ['T', 'T trans.'], ['V', 'V volume']];
-const SCATTERINGS = [['.', 'any'], ['D', 'D diffuse'], ['G', 'G glossy'], ['S', 'S singular'], ['s', 's straight']];
+// The bounce types and scatterings come from the server (/api/session's alphabet: the one
+// event alphabet of pxr_layers/paths/events.py), as [letter, shown label] after 'any'.
+const EVENT_TYPES = [['.', 'any']];
+const SCATTERINGS = [['.', 'any']];
 const REPEATS = [['', '×1'], ['?', '0–1'], ['*', '0+'], ['+', '1+']];
 
 function newBounce() {
@@ -1118,6 +1120,9 @@ async function start() {
   state.width = session.width;
   state.height = session.height;
   state.index = session.index;
+  for (const [list, pairs] of [[EVENT_TYPES, session.alphabet.types], [SCATTERINGS, session.alphabet.scatterings]]) {
+    list.push(...pairs.map(([letter, name]) => [letter, `${letter} ${name}`]));
+  }
   document.title = `${session.title} · pxr-layers`;
   $('#title').textContent = session.title;
   const { display } = session;
