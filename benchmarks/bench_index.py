@@ -4,9 +4,10 @@ overhead, side by side.
     python benchmarks/bench_index.py [--resolution 256 256] [--spp 16 64 256] [--stages cornell showcase]
                                      [--modes merged records]
 
-For each stage, spp and index mode, in one run: a plain render (no covariance, no records)
-and a render that records every contribution with the norms of N = 5 events and writes the
-path index, as `pxr-layers render` does (``merged``: one record per pixel, path class and
+For each stage, spp and index mode, in one run, both through ``render_frame`` as `pxr-layers
+render` does (the beauty's EXR, no previews): a plain render (no covariance, no index) and a
+render that records every contribution with the norms of N = 5 events and writes the path
+index (``merged``: one record per pixel, path class and
 covariance bin, merged in the tracer, the default; ``records``: --index-mode records, one
 per contribution). Prints records, classes, size on disk, bytes per record, per pixel and
 per sample, and the overhead, then per stage and mode the growth of the size from 64 to
@@ -17,34 +18,26 @@ per sample, and the overhead, then per stage and mode the growth of the size fro
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import tempfile
-import time
 from importlib import resources
 from pathlib import Path
 
+from pxr_layers.jobs.frame import render_frame
 from pxr_layers.paths import format as fmt
 from pxr_layers.paths.reader import PathIndex
-from pxr_layers.paths.writer import PathIndexWriter
-from pxr_layers.stage import load_stage
-from pxr_layers.trace import TraceSettings
-from pxr_layers.trace.render import render
+from pxr_layers.request import RenderRequest
 
 NORM_BOUNCES = 5
 MODES = fmt.MODES
 
 
-def timed_pair(scene, spec, spp: int, folder: Path, mode: str) -> tuple[float, float, PathIndex]:
-    start = time.perf_counter()
-    render(scene, spec, TraceSettings(spp=spp), show_progress=False)
-    plain = time.perf_counter() - start
-    settings = TraceSettings(spp=spp, norm_bounces=NORM_BOUNCES, record_paths=True, merge_records=mode == "merged")
-    start = time.perf_counter()
-    writer = PathIndexWriter(folder / "bench.pxlidx", {"spp": spp}, NORM_BOUNCES, mode=mode)
-    result = render(scene, spec, settings, show_progress=False, on_batch=lambda batch: writer.add(batch.records))
-    writer.close(result.vocabulary)
-    indexed = time.perf_counter() - start
-    return plain, indexed, PathIndex(folder / "bench.pxlidx")
+def timed_pair(stage: Path, resolution, spp: int, folder: Path, mode: str) -> tuple[float, float, PathIndex]:
+    """Seconds of the plain render and of the indexed one, and the index."""
+    common = dict(stage=stage, resolution=resolution, spp=spp, index_mode=mode, index_covariance="norms",
+                  previews=False)
+    plain = render_frame(RenderRequest(**common, norm_bounces=0, keep_index=False), output=folder).seconds
+    indexed = render_frame(RenderRequest(**common, norm_bounces=NORM_BOUNCES), output=folder)
+    return plain, indexed.seconds, PathIndex(indexed.index_path)
 
 
 def main() -> None:
@@ -62,13 +55,12 @@ def main() -> None:
     sizes = {}
     with tempfile.TemporaryDirectory() as folder:
         for name in args.stages:
-            scene, spec = load_stage(str(resources.files("pxr_layers.render").joinpath(f"{name}.usda")))
+            stage = Path(str(resources.files("pxr_layers.render").joinpath(f"{name}.usda")))
             for mode in args.modes:  # compile and warm every kernel first: the timings are the render's
-                timed_pair(scene, dataclasses.replace(spec, resolution=(16, 16)), 4, Path(folder), mode)
-            spec = dataclasses.replace(spec, resolution=(width, height))
+                timed_pair(stage, (16, 16), 4, Path(folder), mode)
             for mode in args.modes:
                 for spp in args.spp:
-                    plain, indexed, index = timed_pair(scene, spec, spp, Path(folder), mode)
+                    plain, indexed, index = timed_pair(stage, (width, height), spp, Path(folder), mode)
                     sizes[name, mode, spp] = index.size
                     print(f"{name:10} {mode:10} {spp:>4} {index.record_count:>11,} {len(index.classes):>8,} "
                           f"{index.size / 1e6:>8.1f} {index.size / index.record_count:>8.2f} "

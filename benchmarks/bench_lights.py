@@ -10,8 +10,9 @@ through a small layer that sublayers it:
   (normalized);
 * plain: the same two lights, same place and intensity, without ShapingAPI.
 
-Both are read once, prepared once, and traced alternately with ``trace_pixels`` (all
-cores, no path index), best of --repeats each, after a warm-up that compiles the kernels
+Both are read once, prepared once, and traced alternately with ``trace_pixels`` (the
+tracer's stage alone: the lights' cost, without the stage read and the EXR a
+``render_frame`` adds; all cores, no path index), best of --repeats each, after a warm-up that compiles the kernels
 if this version of the sources is new. Ratio: shaped over plain (target <= 1.2x). Timings
 during which other processes used the CPU are flagged (the machine may be shared).
 
@@ -33,8 +34,7 @@ from pathlib import Path
 import pxr_layers.stage  # noqa: F401 — registers the pxr-layers schema before any stage is opened
 from bench_render import NOTES, Load, note_load, wait_for_quiet
 from pxr_layers.stage import load_stage
-from pxr_layers.trace import TraceSettings, render
-from pxr_layers.trace.render import prepare, trace_pixels
+from pxr_layers.trace import TraceSettings, prepare, trace_pixels
 
 ROOT = Path(__file__).resolve().parents[1]
 SHOWCASE = ROOT / "render" / "showcase.usda"
@@ -126,8 +126,9 @@ def main() -> int:
     spec = dataclasses.replace(scenes["plain"][1], resolution=tuple(args.resolution))
     shaped_lights = [light.name for light in scenes["shaped"][0].lights if light.shaping is not None]
     settings = TraceSettings(spp=args.spp, record_paths=False)
+    small = dataclasses.replace(spec, resolution=(32, 32))
     for scene, _ in scenes.values():  # compile the kernels if the sources are new
-        render(scene, dataclasses.replace(spec, resolution=(32, 32)), TraceSettings(spp=1), show_progress=False)
+        trace_pixels(prepare(scene, small, TraceSettings(spp=1)), 0, 32 * 32, lambda batch: None)
     integrators = {name: prepare(scene, spec, settings) for name, (scene, _) in scenes.items()}
     pixels = args.resolution[0] * args.resolution[1]
     wait_for_quiet(args.wait)

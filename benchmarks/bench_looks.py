@@ -4,9 +4,11 @@
 
 The OpenChessSet (../shared/scenes/usd-wg/full_assets/OpenChessSet/chess_set.usda: MaterialX
 standard_surface looks with base colour, roughness, metallic and normal maps, and glass) is
-read once; then ``render()`` traces it with its looks, and again with every material replaced
-by one constant UsdPreviewSurface (scene.Material's defaults: no texture, no normal map, no
-transmission), alternately, best of --repeats each. Same camera, lights, geometry, settings
+read once; then the tracer's stages (``prepare``, then ``trace_pixels``, timed: the shading
+cost, without the stage read and the EXR a ``render_frame`` adds) trace it with its looks,
+and again with every material replaced in memory by one constant UsdPreviewSurface
+(scene.Material's defaults: no texture, no normal map, no transmission), alternately, best
+of --repeats each. Same camera, lights, geometry, settings
 (no path index), threads = all cores. Ratio: looks over constant (target <= 1.5x).
 
 A warm-up render of each compiles the kernels if this version of the sources is new. Exit 0
@@ -24,8 +26,7 @@ from pathlib import Path
 import pxr_layers.stage  # noqa: F401 — registers the pxr-layers schema before any stage is opened
 from pxr_layers.scene import Material
 from pxr_layers.stage import load_stage
-from pxr_layers.trace import TraceSettings, render
-from pxr_layers.trace.render import prepare, trace_pixels
+from pxr_layers.trace import TraceSettings, prepare, trace_pixels
 
 CHESS_SET = Path(__file__).resolve().parents[2] / "shared/scenes/usd-wg/full_assets/OpenChessSet/chess_set.usda"
 TARGET = 1.5
@@ -50,8 +51,9 @@ def main() -> int:
                                    textures=())
     settings = TraceSettings(spp=args.spp, record_paths=False)
     scenes = {"looks": scene, "constant": constant}
+    small = dataclasses.replace(spec, resolution=(32, 18))
     for variant in scenes.values():  # compile the kernels if the sources are new
-        render(variant, dataclasses.replace(spec, resolution=(32, 18)), TraceSettings(spp=1), show_progress=False)
+        trace_pixels(prepare(variant, small, TraceSettings(spp=1)), 0, 32 * 18, lambda batch: None)
     pixels = args.resolution[0] * args.resolution[1]
     set_up = {}
     integrators = {}

@@ -10,9 +10,9 @@
    on the same number of threads. Ratio: tracer rays/s over raw rays/s (target >= 0.5).
 2. Index overhead: the CLI's whole-process wall time on the Cornell box with the path index
    over the same without (``--no-index``), best of REPEATS each (target <= +15 %); and in
-   process, ``render()`` with record_paths and a PathIndexWriter fed from on_batch (as
-   jobs/frame.py does) over ``render()`` with the same norm bounces and no recording; split
-   into recording (record_paths without a writer) and writing.
+   process, ``render_frame`` with the index over ``render_frame`` with the same norm bounces
+   and no index; split into recording (the tracer's ``trace_pixels`` on a prepared scene with
+   and without record_paths) and the rest (writing the index).
 3. Threads: trace_pixels on a prepared, warmed-up integrator with 2 threads over 1 (start-up
    excluded), without and with the path index (target >= 1.8x).
 4. Peak memory: the CLI rendering 1920x1080 at 16 spp with the index, in a child whose peak
@@ -118,7 +118,7 @@ def wait_for_quiet(limit: float) -> None:
         with Load() as load:
             time.sleep(0.5)
         quiet = quiet + 1 if load.others < BUSY_NOTE else 0
-    if quiet < 4:
+    if quiet < 4 and limit > 0:
         print(f"   (the machine stayed busy: other processes use {load.others:.1f} cores; measuring anyway)")
 
 
@@ -359,52 +359,50 @@ def index_overhead(cli, resolution, spp: int, threads: int, scratch: Path) -> No
     row("index overhead, CLI whole process", f"{overhead:+.1%}", "<= 15 %", overhead <= 0.15)
 
     # in process
-    from pxr_layers.paths.writer import PathIndexWriter
+    from pxr_layers.jobs.frame import render_frame
+    from pxr_layers.request import RenderRequest
     from pxr_layers.stage import load_stage
-    from pxr_layers.trace import TraceSettings, render
+    from pxr_layers.trace import TraceSettings, prepare, trace_pixels
+
+    def framed(frame_size, norm_bounces: int, keep_index: bool) -> tuple[float, int]:
+        """render_frame's wall time (stage read, trace, index, EXR) and its index's bytes."""
+        out = scratch / "in-process"
+        request = RenderRequest(stage=Path(stage), resolution=frame_size, spp=spp, norm_bounces=norm_bounces,
+                                keep_index=keep_index, index_mode="merged", index_covariance="norms", previews=False)
+        with Load() as load:
+            result = render_frame(request, output=out, threads=threads)
+        note_load(f"in-process render_frame, norm_bounces {norm_bounces}, index {keep_index}", load)
+        index_bytes = result.index_path.stat().st_size if result.index_path else 0
+        shutil.rmtree(out)
+        return load.wall, index_bytes
+
+    framed((16, 16), 5, True)  # warm every kernel
+    with_index, size = framed(tuple(resolution), 5, True)
+    norms_only, _ = framed(tuple(resolution), 5, False)
+    bare, _ = framed(tuple(resolution), 0, False)
 
     scene, spec = load_stage(stage)
     spec = dataclasses.replace(spec, resolution=tuple(resolution))
-    render(scene, dataclasses.replace(spec, resolution=(16, 16)), TraceSettings(spp=4, norm_bounces=5,
-           record_paths=True, merge_records=True), threads=threads, show_progress=False)  # warm every kernel
 
-    def indexed() -> tuple[float, float]:
-        path = scratch / "in-process.pxlidx"
-        writer = PathIndexWriter(path, {"resolution": list(resolution), "spp": spp}, 5)
-        try:
-            with Load() as load:
-                result = render(scene, spec, TraceSettings(spp=spp, norm_bounces=5, record_paths=True, merge_records=True),
-                                threads=threads, show_progress=False, on_batch=lambda batch: writer.add(batch.records))
-                writer.close(result.vocabulary)
-        except BaseException:
-            writer.abort()
-            raise
-        note_load("in-process render with index", load)
-        seconds = load.wall
-        size = path.stat().st_size
-        path.unlink()
-        return seconds, size
-
-    def plain(norm_bounces: int, record_paths: bool = False) -> float:
+    def traced(record_paths: bool) -> float:
+        """trace_pixels alone on a prepared scene, norm bounces 5, recording (merged) or not."""
+        integrator = prepare(scene, spec, TraceSettings(spp=spp, norm_bounces=5, record_paths=record_paths,
+                                                        merge_records=record_paths))
         with Load() as load:
-            render(scene, spec, TraceSettings(spp=spp, norm_bounces=norm_bounces, record_paths=record_paths),
-                   threads=threads, show_progress=False)
-        note_load(f"in-process render, norm_bounces {norm_bounces}, record_paths {record_paths}", load)
+            trace_pixels(integrator, 0, spec.resolution[0] * spec.resolution[1], lambda batch: None, threads=threads)
+        note_load(f"in-process trace_pixels, record_paths {record_paths}", load)
         return load.wall
 
-    with_index, size = indexed()
-    recorded = plain(5, record_paths=True)
-    norms_only = plain(5)
-    bare = plain(0)
-    print(f"in process, same render: record_paths + writer {with_index:.2f} s ({size / 2**20:.1f} MiB), "
-          f"record_paths without a writer {recorded:.2f} s, norm_bounces 5 without recording (= --no-index) "
-          f"{norms_only:.2f} s, norm_bounces 0 {bare:.2f} s")
+    recording = traced(True) - traced(False)
+    print(f"in process, same render: render_frame with the index {with_index:.2f} s ({size / 2**20:.1f} MiB), "
+          f"norm_bounces 5 without it (= --no-index) {norms_only:.2f} s, norm_bounces 0 {bare:.2f} s; "
+          f"recording costs the tracer {recording:+.2f} s")
     overhead = with_index / norms_only - 1
     row("index overhead, in process (vs --no-index)", f"{overhead:+.1%}", "<= 15 %", overhead <= 0.15)
-    row("  of which recording in the tracer", f"{recorded / norms_only - 1:+.1%}")
-    row("  of which the writer (on_batch, close)", f"{(with_index - recorded) / norms_only:+.1%}")
+    row("  of which recording in the tracer", f"{recording / norms_only:+.1%}")
+    row("  of which the writer (the rest)", f"{(with_index - norms_only - recording) / norms_only:+.1%}")
     row("  covariance norms alone (5 vs 0 bounces)", f"{norms_only / bare - 1:+.1%}")
-    row("  index + norms vs bare tracer", f"{with_index / bare - 1:+.1%}")
+    row("  index + norms vs bare render", f"{with_index / bare - 1:+.1%}")
 
 
 # -- 3. threads ----------------------------------------------------------------------------

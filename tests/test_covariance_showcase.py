@@ -3,8 +3,8 @@
 The showcase is built so that the answers are known (render/README.md): only the sphere
 (r = 0.4 m) is curved, only the panel is textured (stripes of exactly 5 and 10 cycles/m),
 only glossyBox (roughness 0.2) and mirrorPanel (roughness 0.02) have sharp lobes. Every
-test reads the recorded contributions' first event, so it checks exactly what the path
-index will store.
+test reads the first event of the records in the render's path index (render_frame's), so
+it checks exactly what the index stores.
 """
 
 from __future__ import annotations
@@ -13,9 +13,13 @@ import dataclasses
 
 import numpy as np
 import pytest
+from tracing import trace_image
 
 from pxr_layers.covariance.texture_spectrum import TextureSpectrum
+from pxr_layers.jobs.frame import render_frame
 from pxr_layers.paths.events import EventVocabulary
+from pxr_layers.paths.reader import PathIndex
+from pxr_layers.request import RenderRequest
 from pxr_layers.trace import bsdf
 from pxr_layers.trace.bounce_norms import (
     SINGULAR_REFLECTANCE,
@@ -23,7 +27,6 @@ from pxr_layers.trace.bounce_norms import (
     texture_spectrum,
 )
 from pxr_layers.trace.integrator import TraceSettings
-from pxr_layers.trace.render import render
 
 RESOLUTION = (96, 96)
 SETTINGS = TraceSettings(spp=4, max_depth=4, seed=3, norm_bounces=5, record_paths=True)
@@ -42,6 +45,7 @@ class FirstEvents:
 
 
 def first_events(batches, vocabulary: EventVocabulary) -> FirstEvents:
+    """The records of the tracer's batches."""
     pixel, obj, lobe, norms = [], [], [], []
     for batch in batches:
         records = batch.records
@@ -49,9 +53,20 @@ def first_events(batches, vocabulary: EventVocabulary) -> FirstEvents:
         names = [first[index] for index in records.path_class.tolist()]
         pixel.append(records.pixel)
         obj.append([_object_of(event, vocabulary) for event in names])
-        lobe.append([next(iter(event.labels & {"diffuse", "specular", "coat", "glass"}), "") for event in names])
+        lobe.append([_lobe_of(event) for event in names])
         norms.append(records.norms[:, 0, :])
     return FirstEvents(np.concatenate(pixel), np.concatenate(obj), np.concatenate(lobe), np.concatenate(norms))
+
+
+def indexed_first_events(index: PathIndex, vocabulary: EventVocabulary) -> FirstEvents:
+    """The records of a path index (its classes' events start with the camera's)."""
+    first = [path_class.events[1] for path_class in index.classes]
+    objects = np.array([_object_of(event, vocabulary) for event in first])
+    lobes = np.array([_lobe_of(event) for event in first])
+    chunks = list(index.records())
+    class_id = np.concatenate([chunk.class_id for chunk in chunks])
+    return FirstEvents(np.concatenate([chunk.pixel for chunk in chunks]), objects[class_id], lobes[class_id],
+                       np.concatenate([chunk.norms[:, 0, :] for chunk in chunks]))
 
 
 def _object_of(event, vocabulary: EventVocabulary) -> str:
@@ -59,20 +74,23 @@ def _object_of(event, vocabulary: EventVocabulary) -> str:
     return next(iter(names), "")
 
 
-@pytest.fixture(scope="module")
-def showcase(showcase_stage):
-    scene, spec = showcase_stage
-    spec = dataclasses.replace(spec, resolution=RESOLUTION)
-    batches = []
-    result = render(scene, spec, SETTINGS, threads=2, batch_paths=8192, show_progress=False, on_batch=batches.append)
-    return result, first_events(batches, result.vocabulary)
+def _lobe_of(event) -> str:
+    return next(iter(event.labels & {"diffuse", "specular", "coat", "glass"}), "")
+
+
+def render_showcase(stage, folder):
+    """render_frame with SETTINGS: its result and the first events of its index."""
+    request = RenderRequest(stage=stage, resolution=RESOLUTION, spp=SETTINGS.spp, max_depth=SETTINGS.max_depth,
+                            seed=SETTINGS.seed, norm_bounces=SETTINGS.norm_bounces, index_mode="records",
+                            index_covariance="norms", previews=False)
+    result = render_frame(request, output=folder, threads=2)
+    assert result.plan.trace == SETTINGS
+    return result, indexed_first_events(PathIndex(result.index_path), result.vocabulary)
 
 
 @pytest.fixture(scope="module")
-def showcase_stage(shipped_scene):
-    from pxr_layers.stage import load_stage
-
-    return load_stage(shipped_scene("showcase.usda"))
+def showcase(shipped_scene, tmp_path_factory):
+    return render_showcase(shipped_scene("showcase.usda"), tmp_path_factory.mktemp("showcase"))
 
 
 def test_planar_surfaces_have_zero_curvature_and_the_sphere_one_over_r(showcase):
@@ -140,16 +158,20 @@ def test_debug_images_show_the_same_norms(showcase):
     assert np.nanmin(norms[..., 0]) == 0.0
 
 
-def test_norms_are_deterministic_across_threads_and_batches(showcase_stage, showcase):
-    scene, spec = showcase_stage
-    spec = dataclasses.replace(spec, resolution=RESOLUTION)
-    batches = []
-    again = render(scene, spec, SETTINGS, threads=1, batch_paths=4096, show_progress=False, on_batch=batches.append)
+def test_norms_are_deterministic_across_threads_and_batches(shipped_scene, showcase):
+    """The tracer's stages on one thread in batches of 4096 paths give the norms of the
+    render (in one batch of DEFAULT_BATCH_PATHS), image and records."""
+    from pxr_layers.stage import load_stage
+
+    again = trace_image(*load_stage(shipped_scene("showcase.usda")), SETTINGS, resolution=RESOLUTION, threads=1,
+                        batch_paths=4096)
+    assert len(again.batches) > 1
     first_run, first = showcase
     np.testing.assert_array_equal(again.first_bounce_norms, first_run.first_bounce_norms)
-    second = first_events(batches, again.vocabulary)
-    order_a = np.lexsort((first.norms[:, 2], first.norms[:, 1], first.norms[:, 0], first.pixel))
-    order_b = np.lexsort((second.norms[:, 2], second.norms[:, 1], second.norms[:, 0], second.pixel))
+    second = first_events(again.batches, again.vocabulary)
+    # the index keeps a pixel's records class by class: compare them in one order
+    order_a = np.lexsort((first.obj, first.norms[:, 2], first.norms[:, 1], first.norms[:, 0], first.pixel))
+    order_b = np.lexsort((second.obj, second.norms[:, 2], second.norms[:, 1], second.norms[:, 0], second.pixel))
     np.testing.assert_array_equal(first.norms[order_a], second.norms[order_b])
     np.testing.assert_array_equal(first.obj[order_a], second.obj[order_b])
 
@@ -188,8 +210,6 @@ def test_texture_spectra_are_remembered_by_content_across_frames():
 def test_the_texture_norm_follows_the_uv_transform_of_the_texture(showcase, shipped_scene, tmp_path):
     """T reads the texture that drives diffuseColor through its UsdTransform2d: scaling the
     panel's st by 2 packs the 5 cycles/m stripes of its left quarter into 10 cycles/m."""
-    from pxr_layers.stage import load_stage
-
     scaled = tmp_path / "scaled.usda"
     scaled.write_text(f"""#usda 1.0
 (
@@ -219,12 +239,8 @@ over "checkerTexture"
 }}
 }}
 """)
-    scene, spec = load_stage(scaled)
-    batches = []
-    result = render(scene, dataclasses.replace(spec, resolution=RESOLUTION), SETTINGS, threads=2,
-                    show_progress=False, on_batch=batches.append)
     medians = []
-    for events in (showcase[1], first_events(batches, result.vocabulary)):
+    for events in (showcase[1], render_showcase(scaled, tmp_path / "scaled")[1]):
         on_panel = (events.lobe != "") & (events.obj == "texturedPanel")
         columns = events.pixel[on_panel] % RESOLUTION[0]
         left_edge, right_edge = columns.min(), columns.max()

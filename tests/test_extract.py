@@ -2,47 +2,37 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
 from pxr_layers import lpe
+from pxr_layers.jobs.frame import render_frame
 from pxr_layers.layers import extract as extract_module
 from pxr_layers.layers.extract import extract, extract_reference
 from pxr_layers.lpe import testing as lpe_testing
 from pxr_layers.paths.reader import PathIndex
-from pxr_layers.paths.writer import PathIndexWriter
-from pxr_layers.trace.integrator import TraceSettings
-from pxr_layers.trace.render import render
+from pxr_layers.request import RenderRequest
 
 RESOLUTION = (64, 48)
-SETTINGS = TraceSettings(spp=8, max_depth=5, seed=5, norm_bounces=5, record_paths=True, merge_records=True)
 
 
-def indexed_render(stage, path, resolution=RESOLUTION, settings=SETTINGS):
-    scene, spec = stage
-    spec = dataclasses.replace(spec, resolution=resolution)
-    writer = PathIndexWriter(path, {"spp": settings.spp, "resolution": list(resolution)}, settings.norm_bounces,
-                             mode="merged" if settings.merge_records else "records")
-    result = render(scene, spec, settings, threads=2, show_progress=False,
-                    on_batch=lambda batch: writer.add(batch.records))
-    writer.close(result.vocabulary)
-    return result, PathIndex(path)
+def indexed_render(stage, folder, resolution=RESOLUTION, spp=8, max_depth=5):
+    """render_frame's result and its merged index (seed 5, the norms of 5 events)."""
+    request = RenderRequest(stage=stage, resolution=resolution, spp=spp, max_depth=max_depth, seed=5, norm_bounces=5,
+                            index_mode="merged", index_covariance="norms", previews=False)
+    result = render_frame(request, output=folder, threads=2)
+    return result, PathIndex(result.index_path)
 
 
 @pytest.fixture(scope="module")
 def stages(shipped_scene):
-    from pxr_layers.stage import load_stage
-
-    return {name: load_stage(shipped_scene(f"{name}.usda")) for name in ("cornell", "showcase")}
+    return {name: shipped_scene(f"{name}.usda") for name in ("cornell", "showcase")}
 
 
 @pytest.fixture(scope="module", params=["cornell", "showcase"])
 def indexed(request, stages, tmp_path_factory):
-    path = tmp_path_factory.mktemp("extract") / f"{request.param}.pxlidx"
-    result, index = indexed_render(stages[request.param], path)
-    return request.param, stages[request.param][0], result, index
+    result, index = indexed_render(stages[request.param], tmp_path_factory.mktemp("extract"))
+    return request.param, result.vocabulary.light_names, result, index
 
 
 def assert_sums_to_beauty(layers: dict[str, np.ndarray], beauty: np.ndarray) -> None:
@@ -61,23 +51,22 @@ def test_standard_passes_partition_the_beauty(indexed):
 
 
 def test_per_light_layers_partition_the_beauty(indexed):
-    _, scene, result, index = indexed
-    layers = extract(index, lpe.per_light_passes([light.name for light in scene.lights])).layers
+    _, lights, result, index = indexed
+    layers = extract(index, lpe.per_light_passes(list(lights))).layers
     assert_sums_to_beauty(layers, result.rgba[..., :3].astype(np.float64))
-    assert all(layers[f"light_{light.name}"].sum() > 0 for light in scene.lights)
+    assert all(layers[f"light_{light}"].sum() > 0 for light in lights)
 
 
 def test_only_the_classes_a_layer_can_match_are_read(indexed):
-    _, scene, _, index = indexed
-    light = scene.lights[0].name
+    _, lights, _, index = indexed
+    light = lights[0]
     narrow = extract(index, {"direct": f"C<RD>'{light}'"})
     assert narrow.classes_matched < len(index.classes) / 4
     assert narrow.records_read < index.record_count
 
 
 def test_fast_extraction_matches_the_reference_on_random_expressions(stages, tmp_path, rng):
-    _, index = indexed_render(stages["showcase"], tmp_path / "small.pxlidx", resolution=(12, 10),
-                              settings=dataclasses.replace(SETTINGS, spp=2))
+    _, index = indexed_render(stages["showcase"], tmp_path, resolution=(12, 10), spp=2)
     labels = sorted(index.labels)
     expressions = {}
     for number in range(24):
@@ -99,8 +88,7 @@ def test_many_conditional_layers_match_the_reference(stages, tmp_path, monkeypat
     """More conditional layers than a record's int64 key has bits for, and (max_sets=2)
     more distinct layer sets per chunk than one bincount per set: both fall back, same sums."""
     monkeypatch.setattr(extract_module.LayerSums, "MAX_SETS", max_sets)
-    _, index = indexed_render(stages["showcase"], tmp_path / "many.pxlidx", resolution=(16, 12),
-                              settings=dataclasses.replace(SETTINGS, spp=2))
+    _, index = indexed_render(stages["showcase"], tmp_path, resolution=(16, 12), spp=2)
     expressions = {f"texture{number}": f"C<R.>@(|S_T| > {number / 10:g}).*" for number in range(70)}
     expressions.update({f"reflectance{number}": f"C.*<R.>@(|S_R| > {2 ** number:g}) L" for number in range(12)})
     expressions.update(lpe.STANDARD_PASSES)
@@ -113,9 +101,8 @@ def test_many_conditional_layers_match_the_reference(stages, tmp_path, monkeypat
 
 @pytest.fixture(scope="module")
 def showcase_index(stages, tmp_path_factory):
-    path = tmp_path_factory.mktemp("conditions") / "showcase.pxlidx"
-    return indexed_render(stages["showcase"], path, resolution=(96, 96),
-                          settings=dataclasses.replace(SETTINGS, spp=4, max_depth=3))[1]
+    return indexed_render(stages["showcase"], tmp_path_factory.mktemp("conditions"), resolution=(96, 96), spp=4,
+                          max_depth=3)[1]
 
 
 def test_a_texture_threshold_selects_the_high_frequency_stripes(showcase_index):

@@ -3,24 +3,21 @@ streamed in file order, a bounded number in flight, the first bad chunk named.""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
+from tracing import index_writer
 
 from pxr_layers import lpe
 from pxr_layers.errors import PathIndexError
+from pxr_layers.jobs.frame import render_frame
 from pxr_layers.layers import extract as extract_module
 from pxr_layers.layers.extract import extract, extract_reference, extraction_threads
 from pxr_layers.paths import format as fmt
 from pxr_layers.paths import reader as reader_module
 from pxr_layers.paths.reader import PathIndex
-from pxr_layers.paths.writer import PathIndexWriter
-from pxr_layers.trace.integrator import TraceSettings
-from pxr_layers.trace.render import render
+from pxr_layers.request import RenderRequest
 
 RESOLUTION = (40, 30)
-SETTINGS = TraceSettings(spp=4, max_depth=4, seed=3, norm_bounces=4, record_paths=True, merge_records=True)
 CHUNK_RECORDS = 150  # small chunks: a small render still makes tens of them, for the threads to share
 THREAD_COUNTS = (2, 3, 8)
 CONDITIONAL_LAYERS = {
@@ -33,31 +30,27 @@ CONDITIONAL_LAYERS = {
 
 @pytest.fixture(scope="module", params=["cornell", "showcase"])
 def indexed(request, shipped_scene, tmp_path_factory):
-    from pxr_layers.stage import load_stage
-
-    scene, spec = load_stage(shipped_scene(f"{request.param}.usda"))
-    path = tmp_path_factory.mktemp("threads") / f"{request.param}.pxlidx"
-    writer = PathIndexWriter(path, {"spp": SETTINGS.spp, "resolution": list(RESOLUTION)}, SETTINGS.norm_bounces,
-                             chunk_records=CHUNK_RECORDS)
-    result = render(scene, dataclasses.replace(spec, resolution=RESOLUTION), SETTINGS, threads=2,
-                    show_progress=False, on_batch=lambda batch: writer.add(batch.records))
-    writer.close(result.vocabulary)
-    index = PathIndex(path)
+    """(the stage's light names, render_frame's merged index in chunks of CHUNK_RECORDS)."""
+    asked = RenderRequest(stage=shipped_scene(f"{request.param}.usda"), resolution=RESOLUTION, spp=4, max_depth=4,
+                          seed=3, norm_bounces=4, index_mode="merged", index_covariance="norms", previews=False)
+    with index_writer(chunk_records=CHUNK_RECORDS):
+        result = render_frame(asked, output=tmp_path_factory.mktemp("threads"), threads=2)
+    index = PathIndex(result.index_path)
     assert len(index.chunks) >= 8
-    return scene, index
+    return result.vocabulary.light_names, index
 
 
-def layers_of(scene) -> dict[str, str]:
+def layers_of(lights) -> dict[str, str]:
     expressions = dict(lpe.STANDARD_PASSES)
-    expressions.update(lpe.per_light_passes([light.name for light in scene.lights]))
+    expressions.update(lpe.per_light_passes(list(lights)))
     expressions.update(CONDITIONAL_LAYERS)
-    expressions["new"] = f"C<RD>.*<L.'{scene.lights[0].name}'>"
+    expressions["new"] = f"C<RD>.*<L.'{lights[0]}'>"
     return expressions
 
 
 def test_layers_are_byte_identical_whatever_the_thread_count(indexed):
-    scene, index = indexed
-    expressions = layers_of(scene)
+    lights, index = indexed
+    expressions = layers_of(lights)
     one = extract(index, expressions, threads=1)
     assert sum(one.layers[name].sum() > 0 for name in CONDITIONAL_LAYERS) >= 2
     for threads in THREAD_COUNTS:
@@ -72,8 +65,8 @@ def test_layers_are_byte_identical_whatever_the_thread_count(indexed):
 
 def test_a_layer_without_conditions_is_byte_identical_on_threads(indexed):
     """The path a new layer takes: the sums frames only, no covariance."""
-    scene, index = indexed
-    expressions = {"new": f"C<RD>.*<L.'{scene.lights[0].name}'>"}
+    lights, index = indexed
+    expressions = {"new": f"C<RD>.*<L.'{lights[0]}'>"}
     one = extract(index, expressions, threads=1).layers["new"]
     assert one.sum() > 0
     assert extract(index, expressions, threads=2).layers["new"].tobytes() == one.tobytes()

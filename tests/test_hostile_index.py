@@ -24,23 +24,23 @@ import pytest
 import zstandard
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from tracing import index_writer
 
 from pxr_layers import lpe
 from pxr_layers.cli.main import main
 from pxr_layers.errors import PathIndexError
+from pxr_layers.jobs.frame import render_frame
 from pxr_layers.layers.extract import extract
 from pxr_layers.paths import format as fmt
 from pxr_layers.paths.reader import MAX_CHUNK_BYTES, PathIndex
-from pxr_layers.paths.writer import PathIndexWriter
-from pxr_layers.trace.integrator import TraceSettings
-from pxr_layers.trace.render import render
+from pxr_layers.request import RenderRequest
 
 RESOLUTION = (16, 12)
-SETTINGS = TraceSettings(spp=2, max_depth=3, seed=7, norm_bounces=2, record_paths=True, merge_records=True)
+NORM_BOUNCES = 2
 CHUNK_RECORDS = 48  # nine chunks: damage can land in any of them
 LAYERS = {"beauty": lpe.BEAUTY, "diffuse": "C<RD>.*", "flat": "C<R.>@(|S_C| = 0).*"}  # the last reads the norms
 PROPERTY = settings(deadline=None, derandomize=True, database=None)  # reproducible, leaves no .hypothesis/
-LAYOUT = fmt.column_layout("merged", 1, SETTINGS.norm_bounces, False)
+LAYOUT = fmt.column_layout("merged", 1, NORM_BOUNCES, False)
 SUMS_BYTES = fmt.frame_bytes(LAYOUT[0])  # of one record, in each frame
 RECORD_BYTES = SUMS_BYTES + fmt.frame_bytes(LAYOUT[1])
 
@@ -64,15 +64,10 @@ class Intact:
 @pytest.fixture(scope="module")
 def cornell_index(shipped_scene, tmp_path_factory) -> Intact:
     """A tiny Cornell render's index (16 × 12 pixels, 2 spp, chunks of 48 records)."""
-    from pxr_layers.stage import load_stage
-
-    scene, spec = load_stage(shipped_scene("cornell.usda"))
-    path = tmp_path_factory.mktemp("intact") / "cornell.pxlidx"
-    writer = PathIndexWriter(path, {"spp": SETTINGS.spp, "resolution": list(RESOLUTION)}, SETTINGS.norm_bounces,
-                             chunk_records=CHUNK_RECORDS)
-    result = render(scene, dataclasses.replace(spec, resolution=RESOLUTION), SETTINGS, threads=2,
-                    show_progress=False, on_batch=lambda batch: writer.add(batch.records))
-    writer.close(result.vocabulary)
+    request = RenderRequest(stage=shipped_scene("cornell.usda"), resolution=RESOLUTION, spp=2, max_depth=3, seed=7,
+                            norm_bounces=NORM_BOUNCES, index_mode="merged", index_covariance="norms", previews=False)
+    with index_writer(chunk_records=CHUNK_RECORDS):
+        path = render_frame(request, output=tmp_path_factory.mktemp("intact"), threads=2).index_path
     data = path.read_bytes()
     tables = footer_of(data)
     columns = []
@@ -126,7 +121,7 @@ def with_column(columns: list[bytes], number: int, name: str, change) -> list[by
     """`columns` with chunk `number`'s column `name` replaced by change(values) (a copy)."""
     records = len(columns[number]) // RECORD_BYTES
     start = 0
-    sums, covariance = fmt.column_layout("merged", records, SETTINGS.norm_bounces, False)
+    sums, covariance = fmt.column_layout("merged", records, NORM_BOUNCES, False)
     for column, dtype, shape in sums + covariance:
         size = int(np.prod(shape)) * dtype.itemsize
         if column == name:

@@ -4,21 +4,18 @@ norms: equal except for contributions whose value lies in the bin holding a thre
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 import pytest
 
+from pxr_layers.jobs.frame import render_frame
 from pxr_layers.layers.extract import extract
 from pxr_layers.paths.format import NormBins
 from pxr_layers.paths.reader import PathIndex
-from pxr_layers.paths.writer import PathIndexWriter
-from pxr_layers.trace.integrator import TraceSettings
-from pxr_layers.trace.render import render
+from pxr_layers.request import RenderRequest
 
 RESOLUTION = (48, 36)
-SETTINGS = TraceSettings(spp=8, max_depth=4, seed=3, norm_bounces=3, record_paths=True)
 
 
 def test_codes_split_values_into_bins_of_the_stated_width():
@@ -50,20 +47,12 @@ def test_codes_saturate_and_keep_signs():
 @pytest.fixture(scope="module")
 def both_modes(shipped_scene, tmp_path_factory):
     """The showcase (textured, glossy, curved) rendered once per mode, same seed."""
-    from pxr_layers.stage import load_stage
-
-    scene, spec = load_stage(shipped_scene("showcase.usda"))
-    spec = dataclasses.replace(spec, resolution=RESOLUTION)
     folder = tmp_path_factory.mktemp("bins")
     indexes = {}
     for mode in ("merged", "records"):
-        settings = dataclasses.replace(SETTINGS, merge_records=mode == "merged")
-        writer = PathIndexWriter(folder / f"{mode}.pxlidx", {"spp": SETTINGS.spp, "resolution": list(RESOLUTION)},
-                                 SETTINGS.norm_bounces, mode=mode)
-        result = render(scene, spec, settings, threads=2, show_progress=False,
-                        on_batch=lambda batch, writer=writer: writer.add(batch.records))
-        writer.close(result.vocabulary)
-        indexes[mode] = PathIndex(folder / f"{mode}.pxlidx")
+        request = RenderRequest(stage=shipped_scene("showcase.usda"), resolution=RESOLUTION, spp=8, max_depth=4,
+                                seed=3, norm_bounces=3, index_mode=mode, index_covariance="norms", previews=False)
+        indexes[mode] = PathIndex(render_frame(request, output=folder / mode, threads=2).index_path)
     return indexes
 
 

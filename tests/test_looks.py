@@ -9,7 +9,6 @@ import numpy as np
 import OpenImageIO as oiio
 
 from pxr_layers.stage import load_stage
-from pxr_layers.trace import TraceSettings, render
 from pxr_layers.trace.shading import DIFFUSE, MaterialTable, inputs_at
 
 from test_render_physics import GLASS_BALL_IN_UNIFORM_DOME, camera_prim, mean_rgb, preview_surface, stage_text, write

@@ -2,59 +2,53 @@
 
 from __future__ import annotations
 
-import dataclasses
 import struct
 import subprocess
 
 import numpy as np
 import pytest
 from test_cli import SCRIPT
+from tracing import index_writer, trace_image
 
 from pxr_layers.errors import PathIndexError
+from pxr_layers.jobs.frame import render_frame
 from pxr_layers.paths import format as fmt
 from pxr_layers.paths.events import path_text
 from pxr_layers.paths.reader import PathIndex
 from pxr_layers.paths.writer import PathIndexWriter
+from pxr_layers.request import RenderRequest
+from pxr_layers.trace import batch_pixels
 from pxr_layers.trace.integrator import TraceSettings
-from pxr_layers.trace.render import render
 
 RESOLUTION = (40, 32)
 SETTINGS = TraceSettings(spp=4, max_depth=4, seed=11, norm_bounces=5, record_paths=True)
+CHUNK_RECORDS, BUFFER_RECORDS = 512, 20000  # many chunks, written in several flushes
+TWO_BATCHES = (160, 128)  # more paths at SETTINGS.spp than one batch holds: the threads share the frame
 
 
-def render_with_index(scene_and_spec, path, *, threads=2, chunk_records=512, settings=SETTINGS):
-    scene, spec = scene_and_spec
-    spec = dataclasses.replace(spec, resolution=RESOLUTION)
-    writer = PathIndexWriter(path, {"stage": scene.stage_path, "spp": settings.spp}, settings.norm_bounces,
-                             mode="merged" if settings.merge_records else "records", buffer_records=20000,
-                             chunk_records=chunk_records)
-    batches = []
-
-    def keep(batch):
-        batches.append(batch.records)
-        writer.add(batch.records)
-
-    result = render(scene, spec, settings, threads=threads, batch_paths=1024, show_progress=False, on_batch=keep)
-    writer.close(result.vocabulary)
-    return result, batches
+def render_with_index(stage, folder, *, threads=2, index_mode="records", resolution=RESOLUTION):
+    """render_frame with SETTINGS (its index in chunks of CHUNK_RECORDS)."""
+    request = RenderRequest(stage=stage, resolution=resolution, spp=SETTINGS.spp, max_depth=SETTINGS.max_depth,
+                            seed=SETTINGS.seed, norm_bounces=SETTINGS.norm_bounces, index_mode=index_mode,
+                            index_covariance="norms", previews=False)
+    with index_writer(chunk_records=CHUNK_RECORDS, buffer_records=BUFFER_RECORDS):
+        return render_frame(request, output=folder, threads=threads)
 
 
 @pytest.fixture(scope="module", params=["cornell.usda", "showcase.usda"])
 def stage(request, shipped_scene):
-    from pxr_layers.stage import load_stage
-
-    return load_stage(shipped_scene(request.param))
+    return shipped_scene(request.param)
 
 
 @pytest.fixture(scope="module")
 def rendered(stage, tmp_path_factory):
-    path = tmp_path_factory.mktemp("index") / "shot.pxlidx"
-    result, batches = render_with_index(stage, path)
-    return path, result, batches
+    result = render_with_index(stage, tmp_path_factory.mktemp("index"))
+    assert result.plan.trace == SETTINGS
+    return result.index_path, result
 
 
 def test_records_sum_to_the_beauty(rendered):
-    path, result, _ = rendered
+    path, result = rendered
     index = PathIndex(path)
     width, height = RESOLUTION
     image = np.zeros((width * height, 3))
@@ -67,13 +61,19 @@ def test_records_sum_to_the_beauty(rendered):
     assert np.max(np.abs(image - beauty) / scale) <= 1e-5
 
 
-def test_everything_stored_round_trips(rendered):
-    path, result, batches = rendered
+def test_everything_stored_round_trips(stage, rendered):
+    """The index render_frame wrote holds every record the tracer's stages make (here in
+    batches of 1024 paths), bit for bit but the norms' float16."""
+    from pxr_layers.stage import load_stage
+
+    path, _ = rendered
     index = PathIndex(path)
+    traced = trace_image(*load_stage(stage), SETTINGS, resolution=RESOLUTION, threads=2, batch_paths=1024)
+    batches = [batch.records for batch in traced.batches]
     written = {name: np.concatenate([getattr(b, name) for b in batches]) for name in ("pixel", "sample", "rgb", "norms")}
     written["count"] = written.pop("sample")
     written_text = np.concatenate([
-        np.array([path_text(tuple(result.vocabulary.event(e) for e in seq)) for seq in b.sequences])[b.path_class]
+        np.array([path_text(tuple(traced.vocabulary.event(e) for e in seq)) for seq in b.sequences])[b.path_class]
         for b in batches
     ])
     chunks = list(index.records())
@@ -99,7 +99,7 @@ def test_everything_stored_round_trips(rendered):
 
 
 def test_reading_some_classes_reads_only_their_chunks(rendered):
-    path, _, _ = rendered
+    path, _ = rendered
     index = PathIndex(path)
     assert len(index.chunks) > 3
     wanted = {max(range(len(index.classes)), key=lambda i: index.classes[i].records)}
@@ -110,9 +110,10 @@ def test_reading_some_classes_reads_only_their_chunks(rendered):
 
 
 def test_same_render_gives_the_same_bytes(stage, tmp_path):
-    render_with_index(stage, tmp_path / "a.pxlidx", threads=1)
-    render_with_index(stage, tmp_path / "b.pxlidx", threads=2)
-    assert (tmp_path / "a.pxlidx").read_bytes() == (tmp_path / "b.pxlidx").read_bytes()
+    assert TWO_BATCHES[0] * TWO_BATCHES[1] > batch_pixels(SETTINGS.spp)
+    one = render_with_index(stage, tmp_path / "a", threads=1, resolution=TWO_BATCHES)
+    two = render_with_index(stage, tmp_path / "b", threads=2, resolution=TWO_BATCHES)
+    assert one.index_path.read_bytes() == two.index_path.read_bytes()
 
 
 @pytest.fixture
@@ -167,29 +168,30 @@ def test_another_format_version_says_so(index_bytes, tmp_path):
         PathIndex(newer)
 
 
-def test_an_interrupted_write_leaves_no_index(stage, tmp_path):
-    scene, spec = stage
-    spec = dataclasses.replace(spec, resolution=RESOLUTION)
-    final = tmp_path / "shot.pxlidx"
-    writer = PathIndexWriter(final, {}, SETTINGS.norm_bounces, mode="records", buffer_records=1000)
+def test_an_interrupted_render_leaves_no_index(stage, tmp_path):
+    folder = tmp_path / "out"
     seen = []
 
-    def interrupt(batch):
-        writer.add(batch.records)
-        seen.append(1)
-        if len(seen) == 3:
-            raise KeyboardInterrupt
+    class Interrupted(PathIndexWriter):
+        """Interrupts the render at its first batch (of two), once the index has a partial file."""
 
-    with pytest.raises(KeyboardInterrupt):
-        render(scene, spec, SETTINGS, threads=2, batch_paths=512, show_progress=False, on_batch=interrupt)
-    assert not final.exists()
-    partial = [p for p in tmp_path.iterdir()]
-    assert len(partial) == 1 and partial[0].name.startswith(".shot.")  # the temporary, never the index
-    assert partial[0].name.endswith(".tmp.pxlidx")
-    with pytest.raises(PathIndexError, match="truncated"):
-        PathIndex(partial[0])
-    writer.abort()
-    assert not list(tmp_path.iterdir())
+        def add(self, records):
+            super().add(records)
+            seen.append(1)
+            if len(seen) == 1:
+                partial = list(folder.iterdir())
+                assert len(partial) == 1 and partial[0].name.startswith(f".{stage.stem}.")  # never the index
+                assert partial[0].name.endswith(".tmp.pxlidx")
+                with pytest.raises(PathIndexError, match="truncated"):
+                    PathIndex(partial[0])
+                raise KeyboardInterrupt
+
+    request = RenderRequest(stage=stage, resolution=TWO_BATCHES, spp=SETTINGS.spp, max_depth=SETTINGS.max_depth,
+                            norm_bounces=SETTINGS.norm_bounces, index_mode="records", previews=False)
+    with index_writer(Interrupted, buffer_records=1000), pytest.raises(KeyboardInterrupt):
+        render_frame(request, output=folder, threads=2)
+    assert len(seen) == 1
+    assert not list(folder.iterdir())  # neither the index, its temporary, nor a product
 
 
 def test_cli_render_writes_the_index_and_info_reads_it(tmp_path, shipped_scene):
@@ -211,9 +213,8 @@ def test_cli_render_writes_the_index_and_info_reads_it(tmp_path, shipped_scene):
 def test_merged_index_keeps_the_beauty_with_fewer_records(stage, rendered, tmp_path):
     """The same render merged in the tracer: the same light per pixel and per class, every
     contribution counted once, fewer records, and norms in their bins."""
-    path, _result, _batches = rendered
-    merged_path = tmp_path / "merged.pxlidx"
-    render_with_index(stage, merged_path, settings=dataclasses.replace(SETTINGS, merge_records=True))
+    path, _ = rendered
+    merged_path = render_with_index(stage, tmp_path, index_mode="merged").index_path
     full, merged = PathIndex(path), PathIndex(merged_path)
     assert merged.manifest["mode"] == "merged" and merged.manifest["contributions"] == full.record_count
     assert merged.record_count < full.record_count

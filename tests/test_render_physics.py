@@ -12,8 +12,12 @@ import math
 import numpy as np
 import pytest
 
+from pxr_layers.jobs.frame import render_frame
+from pxr_layers.request import RenderRequest
 from pxr_layers.stage import load_stage
-from pxr_layers.trace import TraceSettings, render
+from pxr_layers.trace import TraceSettings
+
+from tracing import trace_image
 
 
 def preview_surface(name: str, **inputs: str) -> str:
@@ -82,10 +86,12 @@ def write(tmp_path, name: str, text: str):
     return path
 
 
-def mean_rgb(path, spp=16, max_depth=8, resolution=(16, 16), **kwargs):
-    scene, spec = load_stage(path)
-    spec = type(spec)(**{**spec.__dict__, "resolution": resolution})
-    result = render(scene, spec, TraceSettings(spp=spp, max_depth=max_depth, **kwargs), show_progress=False)
+def mean_rgb(path, spp=16, max_depth=8, resolution=(16, 16), **options):
+    """The mean pixel of the stage's beauty and render_frame's result (no index, its
+    product written beside the stage); options: more RenderRequest fields."""
+    request = RenderRequest(stage=path, resolution=resolution, spp=spp, max_depth=max_depth, norm_bounces=0,
+                            keep_index=False, previews=False, **options)
+    result = render_frame(request, output=path.parent)
     return result.rgba[..., :3].reshape(-1, 3).mean(axis=0), result
 
 
@@ -229,13 +235,15 @@ def test_same_inputs_give_identical_bytes_whatever_threads_and_batches(tmp_path)
     looks = lambert("grey", 0.5, 0)
     path = write(tmp_path, "rect.usda", stage_text(FLOOR + RECT_LIGHT.format(intensity=4, exposure=0, normalize=0), looks))
     scene, spec = load_stage(path)
-    spec = type(spec)(**{**spec.__dict__, "resolution": (20, 12)})
     settings = TraceSettings(spp=8, max_depth=4, seed=7)
-    one = render(scene, spec, settings, threads=1, batch_paths=64, show_progress=False).rgba
-    two = render(scene, spec, settings, threads=2, batch_paths=1000, show_progress=False).rgba
+    one = trace_image(scene, spec, settings, resolution=(20, 12), threads=1, batch_paths=64).rgba
+    two = trace_image(scene, spec, settings, resolution=(20, 12), threads=2, batch_paths=1000).rgba
     assert one.tobytes() == two.tobytes()
-    other_seed = render(scene, spec, TraceSettings(spp=8, max_depth=4, seed=8), show_progress=False).rgba
+    other_seed = trace_image(scene, spec, TraceSettings(spp=8, max_depth=4, seed=8), resolution=(20, 12)).rgba
     assert other_seed.tobytes() != one.tobytes()
+    # and the entry users use, in one batch, gives those bytes too
+    framed = mean_rgb(path, spp=8, max_depth=4, resolution=(20, 12), seed=7)[1].rgba
+    assert framed.tobytes() == one.tobytes()
 
 
 def ggx_albedo_by_quadrature(alpha: float, cos_o: float) -> float:

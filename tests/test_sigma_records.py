@@ -19,13 +19,16 @@ import pytest
 
 from pxr_layers.covariance import ggx_bandwidth, pack_upper
 from pxr_layers.covariance.path import SurfaceVertex, area_light_covariance, path_covariance
+from pxr_layers.jobs.frame import render_frame
 from pxr_layers.lpe.conditions import MUCH_GREATER_FACTOR
+from pxr_layers.paths.reader import PathIndex
+from pxr_layers.request import RenderRequest
 from pxr_layers.stage import load_stage
 from pxr_layers.trace.integrator import TraceSettings
-from pxr_layers.trace.render import prepare, render
 from pxr_layers.trace.stages.camera import camera_rays
 
 from test_render_physics import camera_prim, preview_surface, stage_text, write
+from tracing import trace_image
 
 LIGHT_HEIGHT = 1.0
 ROUGHNESS = 0.5  # GGX α = roughness² = 0.25
@@ -79,12 +82,11 @@ LIGHT_POSITION = np.array([0.3, LIGHT_HEIGHT, -0.2])
 
 
 def traced(stage, **settings):
+    """The tracer's stages: (Traced, its batches, its integrator) for the records of each batch."""
     scene, spec = stage
-    spec = dataclasses.replace(spec, resolution=(RESOLUTION, RESOLUTION))
     settings = TraceSettings(spp=SPP, max_depth=1, norm_bounces=2, record_paths=True, **settings)
-    batches = []
-    result = render(scene, spec, settings, threads=1, show_progress=False, on_batch=batches.append)
-    return result, batches, prepare(scene, spec, settings)
+    result = trace_image(scene, spec, settings, resolution=(RESOLUTION, RESOLUTION), threads=1)
+    return result, result.batches, result.integrator
 
 
 def first_lobes(records, vocabulary) -> np.ndarray:
@@ -175,27 +177,22 @@ STRIPED_RESOLUTION = (64, 64)
 
 
 @pytest.fixture(scope="module")
-def striped(shipped_scene):
-    scene, spec = load_stage(shipped_scene("striped.usda"))
-    spec = dataclasses.replace(spec, resolution=STRIPED_RESOLUTION)
-    batches = []
-    result = render(scene, spec, TraceSettings(spp=4, record_paths=True, norm_bounces=2, record_sigma=True),
-                    threads=2, show_progress=False, on_batch=batches.append)
-    return result, batches
+def striped(shipped_scene, tmp_path_factory) -> PathIndex:
+    """render_frame's index of render/striped.usda, with each record's Σ."""
+    request = RenderRequest(stage=shipped_scene("striped.usda"), resolution=STRIPED_RESOLUTION, spp=4,
+                            norm_bounces=2, index_mode="records", index_covariance="sigma", previews=False)
+    return PathIndex(render_frame(request, output=tmp_path_factory.mktemp("striped"), threads=2).index_path)
 
 
-def first_bounce_sigma(striped, obj: str) -> tuple[np.ndarray, np.ndarray]:
+def first_bounce_sigma(striped: PathIndex, obj: str) -> tuple[np.ndarray, np.ndarray]:
     """Σ (k, 10) and T (k,) of the first event of the records whose first event is a
     diffuse bounce on `obj`."""
-    result, batches = striped
-    sigma, texture = [], []
-    for batch in batches:
-        records = batch.records
-        firsts = [result.vocabulary.event(sequence[0]).labels if sequence else set() for sequence in records.sequences]
-        on_object = np.array([{obj, "diffuse"} <= labels for labels in firsts])[records.path_class]
-        sigma.append(records.sigma[on_object, 0])
-        texture.append(records.norms[on_object, 0, 1].astype(np.float64))
-    return np.concatenate(sigma), np.concatenate(texture)
+    wanted = [path_class.id for path_class in striped.classes
+              if len(path_class.events) > 1 and {obj, "diffuse"} <= path_class.events[1].labels]
+    chunks = list(striped.records(wanted))
+    sigma = np.concatenate([chunk.sigma[:, 0] for chunk in chunks])
+    texture = np.concatenate([chunk.norms[:, 0, 1].astype(np.float64) for chunk in chunks])
+    return sigma, texture
 
 
 def much_greater_either_way(sigma: np.ndarray) -> np.ndarray:

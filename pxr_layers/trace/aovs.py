@@ -10,7 +10,7 @@ their material (opacity below opacityThreshold) are passed through, as the integ
 does, so the AOVs show what the beauty shows; a partly present one (opacity without a
 threshold) is seen where it is at least half present, in every pixel alike.
 
-Every array is float32 with row 0 the top row of the image, like RenderResult.rgba:
+Every array is float32 with row 0 the top row of the image, like FrameResult.rgba:
 
     depth      : (h, w)    metres along the camera's view axis (camera-space −Z, not the
                            ray length); +inf where the ray hits nothing

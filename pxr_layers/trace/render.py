@@ -1,23 +1,21 @@
-"""Render a whole image: batches of paths over a thread pool, reduced in a fixed order."""
+"""The tracer's stages for one frame: :func:`prepare` builds the Integrator, :func:`trace_pixels`
+traces batches of paths over a thread pool (in path order), :class:`Film` sums them. A frame is
+assembled from these by :func:`pxr_layers.jobs.frame.render_frame` alone."""
 
 from __future__ import annotations
 
 import logging
-import os
-import time
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..cores import available_cores
 from ..errors import RenderSettingsError
 from ..request import check_work
 from ..paths.events import EventVocabulary
-from ..progress import Progress
 from ..scene import FLOAT, RenderSpec, SceneData
-from .aovs import render_data_aovs
 from .bounce_norms import BounceNorms
 from .camera import PinholeCamera
 from .embree import RayCaster
@@ -30,29 +28,6 @@ from .world import build_world, geometry_arrays
 log = logging.getLogger(__name__)
 
 DEFAULT_BATCH_PATHS = 1 << 16
-
-
-@dataclass(frozen=True)
-class RenderResult:
-    """rgba : (h, w, 4) float32, linear radiance (RGB) and camera-ray coverage (A).
-    first_bounce_norms : (h, w, 3) float32 mean C (1/m), T (cycles/m), R (cycles/rad) of
-        the first bounce over the samples whose first event scatters (NaN where none
-        does); None unless settings.norm_bounces > 0.
-    data : the data AOVs asked for (name → (h, w) or (h, w, 3) float32, see aovs.py)
-    object_paths : the prim path of each object, indexed by the primId AOV
-    """
-
-    rgba: np.ndarray
-    settings: TraceSettings
-    resolution: tuple[int, int]
-    frame: float
-    rays: int
-    seconds: float
-    triangles: int
-    vocabulary: EventVocabulary
-    first_bounce_norms: np.ndarray | None = None
-    data: dict[str, np.ndarray] = field(default_factory=dict)
-    object_paths: tuple[str, ...] = ()
 
 
 def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Integrator:
@@ -86,7 +61,6 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
                       vocabulary, triangle_subject.reshape(-1).astype(np.int64), bounce_norms)
 
 
-
 def _distinct_pairs(first: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.unique(np.stack([first, second], 1), axis=0, return_inverse=True)`` for (n,)
     integer arrays, through one int64 key per pair."""
@@ -97,45 +71,6 @@ def _distinct_pairs(first: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, 
     keys, inverse = np.unique((first - first.min()) * span + (second - low), return_inverse=True)
     pairs = np.stack([keys // span + first.min(), keys % span + low], axis=1)
     return pairs, inverse.reshape(-1)
-
-def render(
-    scene: SceneData,
-    spec: RenderSpec,
-    settings: TraceSettings,
-    *,
-    threads: int | None = None,
-    batch_paths: int = DEFAULT_BATCH_PATHS,
-    show_progress: bool = True,
-    on_batch: Callable[[BatchResult], None] | None = None,
-    data_aovs: Iterable[str] = (),
-) -> RenderResult:
-    """Path-trace `scene` as `spec` asks. The same inputs give the same bytes whatever
-    `threads` and `batch_paths` are (each batch is reduced into the film in path order).
-
-    on_batch, if given, receives every BatchResult in path order (with its records when
-    settings.record_paths): the path index is written from there while rendering.
-    data_aovs: names of data AOVs (aovs.DATA_AOVS) to render beside the beauty."""
-    start = time.perf_counter()
-    integrator = prepare(scene, spec, settings)
-    width, height = spec.resolution
-    film = Film(width * height, settings.spp, settings.norm_bounces > 0)
-    progress = Progress(width * height * settings.spp, "render", enabled=show_progress)
-
-    def accumulate(batch: BatchResult) -> None:
-        film.add(batch)
-        progress.advance(len(batch.rgb) * settings.spp)
-        if on_batch is not None:
-            on_batch(batch)
-
-    trace_pixels(integrator, 0, width * height, accumulate, threads=threads, batch_paths=batch_paths)
-    rgba, first_bounce_norms = film.images(width, height)
-    data = render_data_aovs(integrator, data_aovs, threads=threads)
-    seconds = time.perf_counter() - start
-    log.info("rendered %d×%d at %d spp in %.1fs (%.2f M rays/s)", width, height, settings.spp, seconds,
-             film.rays / seconds / 1e6)
-    return RenderResult(rgba, settings, (width, height), scene.frame, film.rays, seconds,
-                        integrator.world.triangle_count, integrator.vocabulary, first_bounce_norms, data,
-                        integrator.world.object_paths)
 
 
 def batch_pixels(spp: int, batch_paths: int = DEFAULT_BATCH_PATHS) -> int:
