@@ -14,7 +14,6 @@ Plain data (no pxr): it travels to Dask workers and into tests as it is.
 from __future__ import annotations
 
 import difflib
-import math
 import os
 import re
 from collections.abc import Sequence
@@ -102,7 +101,8 @@ class EntryError(ValueError):
         self.number, self.message = number, message
 
 
-def _type_name(value: Any) -> str:
+def type_name(value: Any) -> str:
+    """How an error names the type of a value it refuses (TOML's words: "a table")."""
     return {bool: "a boolean", int: "an integer", float: "a number", str: "a string", list: "a list",
             tuple: "a list", dict: "a table"}.get(type(value), type(value).__name__)
 
@@ -122,7 +122,7 @@ class Integer(Kind):
 
     def check(self, value: Any) -> int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ValueError(f"must be an integer, not {_type_name(value)} ({value!r})")
+            raise ValueError(f"must be an integer, not {type_name(value)} ({value!r})")
         if value < self.minimum:
             raise ValueError(f"must be at least {self.minimum}, not {value}")
         if self.maximum is not None and value > self.maximum:
@@ -136,7 +136,7 @@ class Switch(Kind):
 
     def from_toml(self, value: Any, base: Path) -> bool:
         if not isinstance(value, bool):
-            raise ValueError(f"must be true or false, not {_type_name(value)} ({value!r})")
+            raise ValueError(f"must be true or false, not {type_name(value)} ({value!r})")
         return value
 
     def check(self, value: Any) -> bool:
@@ -158,7 +158,7 @@ class Choice(Kind):
         if value is None or (self.unset is not None and value == self.unset):
             return None
         if not isinstance(value, str):
-            raise ValueError(f"must be a string, not {_type_name(value)} ({value!r})")
+            raise ValueError(f"must be a string, not {type_name(value)} ({value!r})")
         if value not in self.allowed:
             words = (*self.allowed, *((self.unset,) if self.unset else ()))
             raise ValueError(f"unknown value {value!r} (allowed: {', '.join(words)})")
@@ -179,7 +179,7 @@ class PrimPath(Kind):
         if value is None:
             return None
         if not isinstance(value, str):
-            raise ValueError(f"must be a string, not {_type_name(value)} ({value!r})")
+            raise ValueError(f"must be a string, not {type_name(value)} ({value!r})")
         if not _PRIM_PATH.fullmatch(value):
             raise ValueError(f"not an absolute prim path: {value!r} (e.g. \"/Render/Settings\")")
         return value
@@ -239,14 +239,14 @@ class Words(Kind):
     def from_toml(self, value: Any, base: Path) -> tuple:
         entries = [value] if isinstance(value, str) else value
         if not isinstance(entries, list):
-            raise ValueError(f"must be a list, not {_type_name(value)}")
+            raise ValueError(f"must be a list, not {type_name(value)}")
         if self.comma and len(entries) == 1 and isinstance(entries[0], str) and "," in entries[0]:
             entries = [word.strip() for word in entries[0].split(",") if word.strip()]
         return self._each(entries, lambda entry: self.item.from_toml(entry, base))
 
     def check(self, value: Any) -> tuple:
         if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
-            raise ValueError(f"must be a list, not {_type_name(value)}")
+            raise ValueError(f"must be a list, not {type_name(value)}")
         return self._each(value, self.item.check)
 
     @staticmethod
@@ -271,7 +271,7 @@ class Variant(Kind):
         if isinstance(value, VariantSelection):
             return value
         if not isinstance(value, str):
-            raise ValueError(f"must be a \"PRIM:SET=VALUE\" string, not {_type_name(value)} ({value!r})")
+            raise ValueError(f"must be a \"PRIM:SET=VALUE\" string, not {type_name(value)} ({value!r})")
         try:
             return VariantSelection.parse(value, where="variant")
         except RenderSettingsError as error:
@@ -291,12 +291,12 @@ class RecipeLayer(Kind):
 
     def from_toml(self, value: Any, base: Path) -> Path:
         if not isinstance(value, str):
-            raise ValueError(f"must be a string (a preset name or a USD file), not {_type_name(value)} ({value!r})")
+            raise ValueError(f"must be a string (a preset name or a USD file), not {type_name(value)} ({value!r})")
         return self.check(recipe_layer(value, base))
 
     def check(self, value: Any) -> Path:
         if not isinstance(value, (str, os.PathLike)):
-            raise ValueError(f"must be a path, not {_type_name(value)} ({value!r})")
+            raise ValueError(f"must be a path, not {type_name(value)} ({value!r})")
         path = Path(os.path.abspath(value))
         if not path.is_file():
             raise ValueError(f"recipe layer {path}: {'is a directory, not a USD file' if path.is_dir() else 'file not found'}")

@@ -24,7 +24,8 @@ from test_jobs import SHOT
 from pxr_layers.cli.main import main
 from pxr_layers.errors import JobError, OutputError
 from pxr_layers.jobs import load_job, parse_frames
-from pxr_layers.jobs.definition import MAX_FRAME_NUMBER, MAX_FRAMES, OVERRIDES
+from pxr_layers.jobs.definition import OVERRIDES
+from pxr_layers.jobs.frames import MAX_FRAME_NUMBER, MAX_FRAMES
 from pxr_layers.jobs.executor import FRAMES_IN_FLIGHT_PER_THREAD, _file_errors, is_done
 from pxr_layers.request import MAX_PIXELS, MAX_SEED, MAX_SPP
 

@@ -30,8 +30,9 @@ Rules (pipelines/README.md has the full table of keys and defaults):
 Every mistake is a :class:`~pxr_layers.errors.JobError` naming the file that sets the value
 and its dotted key (``shot010.toml: render.spp: must be at least 1, not 0``).
 
-This module reads TOML only: it does not import pxr, so a status command can load a job
-without USD or Embree.
+This module reads TOML and the keys; :mod:`pxr_layers.jobs.frames` reads frame ranges and
+output templates. Neither imports pxr, so a status command can load a job without USD or
+Embree.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ from __future__ import annotations
 import difflib
 import os
 import re
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -50,9 +51,9 @@ except ModuleNotFoundError:  # Python 3.10: the same parser, as a package
     import tomli as tomllib
 
 from ..cores import available_cores
-from ..errors import JobError
 from ..paths.format import SUFFIX as INDEX_SUFFIX
-from ..request import OPTIONS, OPTIONS_BY_NAME, EntryError, Option, RenderRequest
+from ..request import OPTIONS, OPTIONS_BY_NAME, EntryError, Option, RenderRequest, type_name
+from .frames import check_template, expand_template, has_frame_token, job_error, parse_frames
 
 DEFAULT_BATCH_PIXELS = 16384
 DEFAULT_RETRIES = 2
@@ -148,37 +149,28 @@ class _Key:
     doc: str
 
 
-def _error(message: str, file: str, key: str | None, position: int | None = None) -> JobError:
-    return JobError(message, file=file, key=key, position=position)
-
-
-def _type_name(value: Any) -> str:
-    return {bool: "a boolean", int: "an integer", float: "a number", str: "a string",
-            list: "a list", dict: "a table"}.get(type(value), type(value).__name__)
-
-
 def _integer(minimum: int, maximum: int | None = None) -> Callable[[Any, Path, str, str], int]:
     def check(value: Any, base: Path, file: str, key: str) -> int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise _error(f"must be an integer, not {_type_name(value)} ({value!r})", file, key)
+            raise job_error(f"must be an integer, not {type_name(value)} ({value!r})", file, key)
         if value < minimum:
-            raise _error(f"must be at least {minimum}, not {value}", file, key)
+            raise job_error(f"must be at least {minimum}, not {value}", file, key)
         if maximum is not None and value > maximum:
-            raise _error(f"must be at most {maximum}, not {value}", file, key)
+            raise job_error(f"must be at most {maximum}, not {value}", file, key)
         return value
     return check
 
 
 def _string(value: Any, file: str, key: str) -> str:
     if not isinstance(value, str):
-        raise _error(f"must be a string, not {_type_name(value)} ({value!r})", file, key)
+        raise job_error(f"must be a string, not {type_name(value)} ({value!r})", file, key)
     return value
 
 
 def _path(value: Any, base: Path, file: str, key: str) -> Path:
     text = _string(value, file, key)
     if not text.strip():
-        raise _error("must be a path, not an empty string", file, key)
+        raise job_error("must be a path, not an empty string", file, key)
     return (base / Path(text).expanduser()).resolve()
 
 
@@ -192,16 +184,16 @@ def _option(spec: Option) -> Callable[[Any, Path, str, str], Any]:
         try:
             return spec.kind.from_toml(value, base)
         except EntryError as error:  # a list's entry: its own key, "variants[2]"
-            raise _error(error.message, file, f"{key}[{error.number}]") from None
+            raise job_error(error.message, file, f"{key}[{error.number}]") from None
         except ValueError as error:
-            raise _error(str(error), file, key) from None
+            raise job_error(str(error), file, key) from None
     return check
 
 
 def _directory(value: Any, base: Path, file: str, key: str) -> str:
     text = _string(value, file, key)
     if not text.strip():
-        raise _error("must be a directory, not an empty string", file, key)
+        raise job_error("must be a directory, not an empty string", file, key)
     check_template(text, file=file, key=key, frame_tokens=False)
     # $JOB may stay in the text: it is expanded once the leaf job file is known.
     return str(base / Path(text).expanduser())
@@ -210,18 +202,18 @@ def _directory(value: Any, base: Path, file: str, key: str) -> str:
 def _stem(value: Any, base: Path, file: str, key: str) -> str:
     text = _string(value, file, key)
     if not text.strip():
-        raise _error("must be a file stem, not an empty string", file, key)
+        raise job_error("must be a file stem, not an empty string", file, key)
     if text.lower().endswith((BEAUTY_SUFFIX, INDEX_SUFFIX)):
-        raise _error(f"a stem, without a suffix: {text!r} names both the .exr and the .pxlidx", file, key)
+        raise job_error(f"a stem, without a suffix: {text!r} names both the .exr and the .pxlidx", file, key)
     if Path(text).is_absolute() or text.startswith(("/", "\\")):
-        raise _error(f"must be relative to output.directory, not absolute: {text!r}", file, key)
+        raise job_error(f"must be relative to output.directory, not absolute: {text!r}", file, key)
     # A stem may name a subfolder (beauty/$F4), never a way out of the output directory:
     # every file of the job, and the scratch folders a run removes, stay inside it.
     parts = re.split(r"[/\\]", text)
     if ".." in parts:
-        raise _error(f"must stay inside output.directory: {text!r} climbs out of it with '..'", file, key)
+        raise job_error(f"must stay inside output.directory: {text!r} climbs out of it with '..'", file, key)
     if not parts[-1].strip():
-        raise _error(f"must end with a file name, not a folder: {text!r}", file, key)
+        raise job_error(f"must end with a file name, not a folder: {text!r}", file, key)
     check_template(text, file=file, key=key)
     return text
 
@@ -234,14 +226,14 @@ def _scheduler(value: Any, base: Path, file: str, key: str) -> str | None:
                          r":(?P<port>\d{1,5})/?", text)
     example = f"e.g. \"tcp://host:8786\", or \"{LOCAL_SCHEDULER}\" for a LocalCluster"
     if not match:
-        raise _error(f"bad scheduler address {text!r} ({example})", file, key)
+        raise job_error(f"bad scheduler address {text!r} ({example})", file, key)
     scheme = match["scheme"] or "tcp"
     if scheme not in SCHEDULER_SCHEMES:
-        raise _error(f"bad scheduler address {text!r}: unknown protocol {scheme!r} "
+        raise job_error(f"bad scheduler address {text!r}: unknown protocol {scheme!r} "
                      f"(allowed: {', '.join(SCHEDULER_SCHEMES)})", file, key)
     port = int(match["port"])
     if not 0 < port < 65536:
-        raise _error(f"bad scheduler address {text!r}: port {port} is not 1..65535", file, key)
+        raise job_error(f"bad scheduler address {text!r}: port {port} is not 1..65535", file, key)
     return f"{scheme}://{match['host']}:{port}"
 
 
@@ -269,219 +261,6 @@ _REQUEST_FIELDS = {spec.job_key: spec.name for spec in OPTIONS}
 TABLES = tuple(dict.fromkeys(key.name.split(".")[0] for key in KEYS if "." in key.name))
 
 
-# -- frames and templates ---------------------------------------------------------------------
-
-
-MAX_FRAMES = 100_000
-"""Frames one job may have: over an hour of film at 24 fps, more than any shot, so a larger
-set is a typo ("1-99999999999999"). A frame range is counted before it is expanded, so such
-a range is refused at once, without building the frames it would hold."""
-MAX_FRAME_NUMBER = 1 << 53
-"""Frame numbers are at most this far from 0: every whole number up to 2^53 is exact as a
-USD time code (a double), so consecutive frames stay distinct frames."""
-
-
-def parse_frames(value: Any, *, file: str | None = None, key: str | None = "frames") -> tuple[float, ...]:
-    """Frames from a job file's value: ``"1-24"``, ``"1-24x4"`` (start-end, every 4th),
-    ``"1-10, 20, 30-40x2"``, a list ``[1, 5, 9]`` or one integer. Negative frames are
-    written with a sign (``"-5--1"``). Every frame must be a whole number within
-    ±MAX_FRAME_NUMBER and listed once, and there are at most MAX_FRAMES of them (counted
-    before anything is expanded: time and memory are O(frames) ≤ O(MAX_FRAMES)).
-
-    Raises JobError naming ``file`` and ``key``; for text, with the 0-based ``position`` of
-    the fault.
-    """
-    if isinstance(value, bool):
-        raise _error(f"must be a frame range text or a list of frames, not {value!r}", file, key)
-    if isinstance(value, (int, float)):
-        value = [value]
-    if isinstance(value, list):
-        if len(value) > MAX_FRAMES:
-            raise _error(f"{len(value)} frames listed, more than the {MAX_FRAMES} a job may have (MAX_FRAMES)",
-                         file, key)
-        frames: list[float] = []
-        seen: set[float] = set()
-        for number, entry in enumerate(value):
-            entry_key = f"{key}[{number}]" if key else None
-            if isinstance(entry, bool) or not isinstance(entry, (int, float)):
-                raise _error(f"must be a frame number, not {_type_name(entry)} ({entry!r})", file, entry_key)
-            if not float(entry).is_integer():
-                raise _error(f"frame {entry!r} is not a whole number", file, entry_key)
-            if abs(entry) > MAX_FRAME_NUMBER:
-                raise _error(f"frame {entry!r} is beyond ±{MAX_FRAME_NUMBER} (2^53, MAX_FRAME_NUMBER)",
-                             file, entry_key)
-            if float(entry) in seen:
-                raise _error(f"frame {int(entry)} is listed twice", file, entry_key)
-            seen.add(float(entry))
-            frames.append(float(entry))
-        if not frames:
-            raise _error("no frames: the list is empty", file, key)
-        return tuple(frames)
-    if not isinstance(value, str):
-        raise _error(f"must be a frame range text or a list of frames, not {_type_name(value)}", file, key)
-    return _FrameText(value, file, key).parse()
-
-
-class _FrameText:
-    """``item ("," item)*`` with ``item = N | N "-" N ["x" STEP]``; spaces allowed."""
-
-    _NUMBER = re.compile(r"[+-]?\d+")
-    _UNSIGNED = re.compile(r"\d+")
-    _DIGITS = len(str(MAX_FRAME_NUMBER))
-
-    def __init__(self, text: str, file: str | None, key: str | None):
-        self.text = text
-        self.file = file
-        self.key = key
-        self.position = 0
-
-    def fail(self, message: str, position: int | None = None, *, found: bool = True) -> JobError:
-        """The error at ``position`` (default: here); ``found`` names what is there."""
-        position = self.position if position is None else position
-        if found:
-            message += ", found " + (repr(self.text[position]) if position < len(self.text) else "the end")
-        return _error(f"bad frame range {_shortened(self.text)}: {message} at character {position + 1}",
-                      self.file, self.key, position)
-
-    def skip_spaces(self) -> None:
-        while self.position < len(self.text) and self.text[self.position].isspace():
-            self.position += 1
-
-    def peek(self) -> str:
-        return self.text[self.position] if self.position < len(self.text) else ""
-
-    def number(self, what: str, signed: bool = True) -> int:
-        self.skip_spaces()
-        match = (self._NUMBER if signed else self._UNSIGNED).match(self.text, self.position)
-        if not match:
-            raise self.fail(f"expected {what}")
-        digits = match.group().lstrip("+-").lstrip("0")
-        # Digits counted before int(): a number of thousands of digits is refused, not parsed.
-        if len(digits) > self._DIGITS or int(digits or 0) > MAX_FRAME_NUMBER:
-            raise self.fail(f"{what} beyond ±{MAX_FRAME_NUMBER} (2^53, MAX_FRAME_NUMBER)", self.position,
-                            found=False)
-        self.position = match.end()
-        return int(match.group())
-
-    def parse(self) -> tuple[float, ...]:
-        ranges: list[tuple[int, int, int, int]] = []  # (start, end, step, position) of each item
-        total = 0
-        while True:
-            self.skip_spaces()
-            item_start = self.position
-            start = self.number("a frame number")
-            end, step = start, 1
-            expected = "',', '-' or the end"
-            self.skip_spaces()
-            if self.peek() == "-":
-                expected = "',', 'x' or the end"
-                self.position += 1
-                end = self.number("the last frame of the range")
-                self.skip_spaces()
-                if self.peek() in ("x", "X"):
-                    self.position += 1
-                    step_position = self.position
-                    step = self.number("a step", signed=False)
-                    if step <= 0:
-                        raise self.fail("the step must be at least 1", step_position)
-                    expected = "',' or the end"
-                    self.skip_spaces()
-                if end < start:
-                    raise self.fail(f"the range ends before it starts (write {end}-{start})", item_start,
-                                    found=False)
-            # Counted, not expanded: a range of 10^14 frames is refused here at once.
-            total += (end - start) // step + 1
-            if total > MAX_FRAMES:
-                so_far = " up to here" if ranges else ""
-                raise self.fail(f"{total} frames{so_far}, more than the {MAX_FRAMES} a job may have (MAX_FRAMES; "
-                                "split the shot into several jobs)", item_start, found=False)
-            ranges.append((start, end, step, item_start))
-            if self.position == len(self.text):
-                break
-            if self.peek() != ",":
-                raise self.fail(f"expected {expected}")
-            self.position += 1
-        frames: list[float] = []
-        seen: set[int] = set()
-        for start, end, step, item_start in ranges:
-            for frame in range(start, end + 1, step):
-                if frame in seen:
-                    raise self.fail(f"frame {frame} is listed twice", item_start, found=False)
-                seen.add(frame)
-                frames.append(float(frame))
-        return tuple(frames)
-
-
-_SHOWN_TEXT = 60
-"""Characters of a frame range text quoted in an error (the position says where the fault is)."""
-
-
-def _shortened(text: str) -> str:
-    return repr(text) if len(text) <= _SHOWN_TEXT else repr(text[:_SHOWN_TEXT]) + f"… ({len(text)} characters)"
-
-
-_TEMPLATE_TOKEN = re.compile(r"\$\{(?P<braced>[A-Za-z_]+)(?P<braced_pad>\d*)\}|\$(?P<name>[A-Za-z_]+)(?P<pad>\d*)|#+")
-
-
-def _frame_number(frame: float) -> int:
-    if not float(frame).is_integer():
-        raise JobError(f"frame {frame!r} is not a whole number: the output templates need one")
-    return int(frame)
-
-
-def expand_template(template: str, frame: float | None, job_name: str = "") -> str:
-    """``template`` with ``$F`` / ``$F4`` / ``${F4}`` / ``####`` replaced by the frame number
-    (padded to 4 / to the run's length) and ``$JOB`` by ``job_name``.
-
-    ``frame`` None leaves the frame tokens as they are. Raises JobError for an unknown
-    variable (check_template says which key at load time).
-    """
-
-    def replace(match: re.Match) -> str:
-        token = match.group()
-        if token.startswith("#"):
-            return token if frame is None else f"{_frame_number(frame):0{len(token)}d}"
-        name = match["braced"] or match["name"]
-        pad = match["braced_pad"] if match["braced"] else match["pad"]
-        if name == "F":
-            if frame is None:
-                return token
-            return f"{_frame_number(frame):0{int(pad)}d}" if pad else str(_frame_number(frame))
-        if name == "JOB":
-            return job_name + pad
-        raise JobError(f"unknown variable ${name} in {template!r} (known: $F, $F4 / ${{F4}}, ####, $JOB)")
-
-    return _TEMPLATE_TOKEN.sub(replace, template)
-
-
-def has_frame_token(template: str) -> bool:
-    """Whether ``template`` changes with the frame ($F, $F4, ####)."""
-    for match in _TEMPLATE_TOKEN.finditer(template):
-        if match.group().startswith("#") or (match["braced"] or match["name"]) == "F":
-            return True
-    return False
-
-
-def check_template(template: str, *, file: str | None, key: str | None, frame_tokens: bool = True) -> None:
-    """Raise JobError (naming file and key) for an unknown variable, a ``$F0`` pad, or a frame
-    token where the value cannot depend on the frame."""
-    for match in _TEMPLATE_TOKEN.finditer(template):
-        token = match.group()
-        if token.startswith("#"):
-            name, pad = "F", str(len(token))
-        else:
-            name = match["braced"] or match["name"]
-            pad = match["braced_pad"] if match["braced"] else match["pad"]
-        if name not in ("F", "JOB"):
-            raise _error(f"unknown variable ${name} in {template!r} (known: $F, $F4 / ${{F4}}, ####, $JOB)",
-                         file, key, match.start())
-        if name == "F" and not frame_tokens:
-            raise _error(f"{template!r} cannot depend on the frame ({token}): put the frame in output.stem",
-                         file, key, match.start())
-        if name == "F" and pad and not 1 <= int(pad) <= 9 and not token.startswith("#"):
-            raise _error(f"{token}: the padding must be 1..9 digits", file, key, match.start())
-
-
 # -- reading and merging ----------------------------------------------------------------------
 
 
@@ -496,16 +275,16 @@ def _read_toml(path: Path, child: str | None) -> dict[str, Any]:
     if not path.is_file():
         where = child or str(path)
         message = "is a directory, not a job file" if path.is_dir() else "file not found"
-        raise _error(f"{path}: {message}" if child else message, where, "extends" if child else None)
+        raise job_error(f"{path}: {message}" if child else message, where, "extends" if child else None)
     try:
         with open(path, "rb") as stream:
             return tomllib.load(stream)
     except tomllib.TOMLDecodeError as error:
-        raise _error(f"not valid TOML: {error}", str(path), None) from None
+        raise job_error(f"not valid TOML: {error}", str(path), None) from None
     except UnicodeDecodeError as error:
-        raise _error(f"not a text file (byte {error.start} is not UTF-8): not valid TOML", str(path), None) from None
+        raise job_error(f"not a text file (byte {error.start} is not UTF-8): not valid TOML", str(path), None) from None
     except OSError as error:
-        raise _error(f"cannot read: {error.strerror}", str(path), None) from None
+        raise job_error(f"cannot read: {error.strerror}", str(path), None) from None
 
 
 def _flatten(data: Mapping[str, Any], file: str) -> dict[str, Any]:
@@ -514,16 +293,16 @@ def _flatten(data: Mapping[str, Any], file: str) -> dict[str, Any]:
     for name, value in data.items():
         if name in TABLES:
             if not isinstance(value, dict):
-                raise _error(f"must be a table ([{name}]), not {_type_name(value)}", file, name)
+                raise job_error(f"must be a table ([{name}]), not {type_name(value)}", file, name)
             for sub, sub_value in value.items():
                 dotted = f"{name}.{sub}"
                 if dotted not in _BY_NAME:
-                    raise _error(f"unknown key{_did_you_mean(dotted)}", file, dotted)
+                    raise job_error(f"unknown key{_did_you_mean(dotted)}", file, dotted)
                 flat[dotted] = sub_value
         elif name in _BY_NAME:
             flat[name] = value
         else:
-            raise _error(f"unknown key{_did_you_mean(name)}", file, name)
+            raise job_error(f"unknown key{_did_you_mean(name)}", file, name)
     return flat
 
 
@@ -579,7 +358,7 @@ def load_job(path: str | os.PathLike[str], overrides: Mapping[str, Any] | None =
         visited = [p for p, _ in chain]
         if current in visited:
             cycle = " -> ".join(p.name for p in [*visited[visited.index(current):], current])
-            raise _error(f"extends cycle: {cycle}", child, "extends")
+            raise job_error(f"extends cycle: {cycle}", child, "extends")
         settings = _parse_file(_flatten(_read_toml(current, child), str(current)), current.parent, str(current))
         chain.append((current, settings))
         extends = settings.get("extends")
@@ -591,9 +370,9 @@ def load_job(path: str | os.PathLike[str], overrides: Mapping[str, Any] | None =
     if overrides:
         for name in overrides:
             if name == "extends":
-                raise _error("cannot be overridden", OVERRIDES, name)
+                raise job_error("cannot be overridden", OVERRIDES, name)
             if name not in _BY_NAME:
-                raise _error(f"unknown key{_did_you_mean(name)}", OVERRIDES, name)
+                raise job_error(f"unknown key{_did_you_mean(name)}", OVERRIDES, name)
         merged = _merge(merged, _parse_file(overrides, Path.cwd(), OVERRIDES))
     return _resolve(leaf, [p for p, _ in chain], merged)
 
@@ -607,14 +386,14 @@ def _resolve(leaf: Path, sources: list[Path], merged: dict[str, _Setting]) -> Jo
 
     def required(key: str, example: str) -> _Setting:
         if key not in merged:
-            raise _error(f"not set in {' or '.join(p.name for p in sources)} (e.g. {key} = {example})",
+            raise job_error(f"not set in {' or '.join(p.name for p in sources)} (e.g. {key} = {example})",
                          str(leaf), key)
         return merged[key]
 
     stage = required("stage", '"shot.usda"')
     if not stage.value.is_file():
         what = "is a directory, not a USD file" if stage.value.is_dir() else "file not found"
-        raise _error(f"{stage.value}: {what}", stage.file, "stage")
+        raise job_error(f"{stage.value}: {what}", stage.file, "stage")
     frames = required("frames", '"1-24"')
 
     directory_text = value("output.directory", str(leaf.parent / DEFAULT_DIRECTORY))
@@ -622,7 +401,7 @@ def _resolve(leaf: Path, sources: list[Path], merged: dict[str, _Setting]) -> Jo
     stem = merged.get("output.stem")
     template = stem.value if stem else DEFAULT_STEM
     if len(frames.value) > 1 and not has_frame_token(template):
-        raise _error(f"{template!r} has no frame number ($F4 or ####): all {len(frames.value)} frames "
+        raise job_error(f"{template!r} has no frame number ($F4 or ####): all {len(frames.value)} frames "
                      "would write the same files", stem.file if stem else str(leaf), "output.stem")
 
     # Keys not set take RenderRequest's own defaults, the ones `pxr-layers render` has.

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import RenderSettingsError
 from ..recipe.model import fitted_pixel_aspect, view_problem
-from ..scene import FLOAT, RenderSpec
+from ..scene import RenderSpec
 
 logger = logging.getLogger(__name__)
 
