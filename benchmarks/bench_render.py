@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pxr_layers.cores import available_cores
 import pxr_layers.stage  # noqa: F401 — registers the pxr-layers schema before any stage is opened
 
 RECORD_EVERY = 4
@@ -500,7 +501,7 @@ def main() -> int:
     parser.add_argument("--resolution", type=int, nargs=2, default=(256, 256), help="of 1.-3. (default 256 256)")
     parser.add_argument("--spp", type=int, default=64, help="of 1.-3. (default 64; 16 with --quick)")
     parser.add_argument("--max-depth", type=int, default=8)
-    parser.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="of 1. and 2. (default: all cores)")
+    parser.add_argument("--threads", type=int, default=available_cores(), help="of 1. and 2. (default: every core this process may use)")
     parser.add_argument("--wait", type=float, default=20.0,
                         help="before each figure, wait at most this many seconds for other processes to "
                         "leave the CPU (default 20)")

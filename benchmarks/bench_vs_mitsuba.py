@@ -83,6 +83,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pxr_layers.cores import available_cores  # the standard library only: the parent stays light
+
 TARGET_RATIO = 0.6
 MOONSHOT_RATIO = 1.0
 TARGET_MEAN = 0.01
@@ -110,10 +112,7 @@ def cornell_path() -> str:
 
 
 def default_threads() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1
+    return available_cores()
 
 
 # -- Mitsuba availability ------------------------------------------------------------------

@@ -70,9 +70,9 @@ def extraction_threads(threads: int | None):
 def default_threads() -> int:
     """Threads ``extract`` reads with when not told: ``extraction_threads``'s, else every
     core this process may use."""
-    from ..jobs.definition import default_workers
+    from ..cores import available_cores
 
-    return _THREADS.get() or default_workers()
+    return _THREADS.get() or available_cores()
 
 
 def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: bool = False,
