@@ -23,9 +23,10 @@ from pxr_layers.paths.reader import PathIndex
 from pxr_layers.paths.writer import PathIndexWriter
 from pxr_layers.scene import IesProfile, LightShaping, TextureImage
 from pxr_layers.stage import load_stage
-from pxr_layers.trace import TraceSettings, render
+from pxr_layers.trace import TraceSettings
 
 from test_render_physics import camera_prim, lambert, preview_surface, stage_text, write
+from tracing import trace_image
 
 HEIGHT = 1.0  # the light above the floor, metres
 CAMERA_HEIGHT = 4.0
@@ -90,11 +91,10 @@ def with_light(stage, index=0, **changes):
 
 
 def image(stage, spp=16, resolution=(RESOLUTION, RESOLUTION), **settings) -> np.ndarray:
+    """The beauty of the (scene, spec), its lights as edited here: the tracer's stages."""
     scene, spec = stage
-    spec = dataclasses.replace(spec, resolution=resolution)
-    result = render(scene, spec, TraceSettings(spp=spp, max_depth=settings.pop("max_depth", 1), **settings),
-                    show_progress=False)
-    return result.rgba[..., :3].astype(np.float64)
+    settings = TraceSettings(spp=spp, max_depth=settings.pop("max_depth", 1), **settings)
+    return trace_image(scene, spec, settings, resolution=resolution).rgba[..., :3].astype(np.float64)
 
 
 def floor_points(resolution=RESOLUTION, offset=0.5) -> tuple[np.ndarray, np.ndarray]:
@@ -360,11 +360,12 @@ def test_per_light_layers_still_sum_to_the_beauty_under_linking(tmp_path):
     lights = tuple(dataclasses.replace(light, light_link=(west,)) if light.name == "sky" else light
                    for light in scene.lights)
     scene = dataclasses.replace(scene, lights=lights)
-    spec = dataclasses.replace(spec, resolution=(32, 32))
     settings = TraceSettings(spp=4, max_depth=3, record_paths=True, merge_records=True)
     path = tmp_path / "linked.pxlidx"
     writer = PathIndexWriter(path, {"spp": settings.spp, "resolution": [32, 32]}, settings.norm_bounces)
-    result = render(scene, spec, settings, show_progress=False, on_batch=lambda batch: writer.add(batch.records))
+    result = trace_image(scene, spec, settings, resolution=(32, 32))
+    for batch in result.batches:
+        writer.add(batch.records)
     writer.close(result.vocabulary)
     layers = extract(PathIndex(path), lpe.per_light_passes([light.name for light in scene.lights])).layers
     beauty = result.rgba[..., :3].astype(np.float64)

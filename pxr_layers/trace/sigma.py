@@ -213,7 +213,7 @@ class EmitterTable:
 
     def __init__(self, world: World, lights: LightSampler) -> None:
         arrays = lights.arrays
-        count = len(arrays.light_radiance)
+        count = len(arrays.emission.radiance)
         self.kind = np.full(count, POINT, np.int64)
         self.area = np.zeros(count)
         self.angular_radius = np.zeros(count)

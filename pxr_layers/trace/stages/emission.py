@@ -6,7 +6,7 @@ import numpy as np
 
 from ..bsdf import power_heuristic
 from ...compiled import kernel, scratch
-from ..lights import LightArrays, emitted, found_by_hit, group_of, triangle_pdf
+from ..light_kernels import LightArrays, emitted, emitter_pdf, found_by_hit, group_of
 from .. import shading
 from ..shading import MaterialArrays
 from ..world import GeometryArrays
@@ -47,15 +47,15 @@ def _emission_kernel(triangle, bary_u, bary_v, t_hit, travelled, vertex_travelle
             continue
         dx, dy, dz = direction[lane, 0], direction[lane, 1], direction[lane, 2]
         cos_emitter = -(normal[tri, 0] * dx + normal[tri, 1] * dy + normal[tri, 2] * dz)
-        emitted(tri, bary_u[lane], bary_v[lane], -dx, -dy, -dz, cos_emitter, geometry, lights, materials, registers,
-                inputs, radiance)
+        emitted(tri, bary_u[lane], bary_v[lane], -dx, -dy, -dz, cos_emitter, geometry, lights.emission, materials,
+                registers, inputs, radiance)
         if previous_singular[lane]:
             weight = 1.0
         else:
             # from the last scattering vertex, through any see-through surface crossed since
             distance = travelled[lane] + t_hit[lane] - vertex_travelled[lane]
-            density = triangle_pdf(lights, group_of(lights, previous_triangle[lane]), tri, distance, cos_emitter,
-                                   geometry.area)
+            density = emitter_pdf(lights, geometry, group_of(lights, previous_triangle[lane]), tri, bary_u[lane],
+                                  bary_v[lane], dx, dy, dz, distance, cos_emitter)
             weight = power_heuristic(previous_pdf[lane], density)
         weight *= found
         r = throughput[lane, 0] * radiance[0] * weight

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..bsdf import power_heuristic
 from ...compiled import inline, kernel
-from ..lights import LightArrays, cone_pdf, dome_pdf, dome_radiance, found_by_hit, group_of
+from ..light_kernels import LightArrays, cone_pdf, dome_pdf, dome_radiance, found_by_hit, group_of
 from .queues import Hits, PathQueue, Splats, trimmed
 
 

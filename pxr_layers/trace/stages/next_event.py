@@ -7,10 +7,10 @@ import math
 
 import numpy as np
 
-from .. import bsdf, lights as light_sampling, rng, shading
+from .. import bsdf, light_kernels, rng, shading
 from ...compiled import kernel, scratch
 from ..embree import RayCaster
-from ..lights import LightArrays
+from ..light_kernels import LightArrays
 from ..shading import MaterialArrays
 from ..vectors import normalized, to_local
 from ..world import GeometryArrays
@@ -88,7 +88,7 @@ def _presence_kernel(triangle, bary_u, bary_v, light, geometry, materials, light
         if tri < 0:
             fraction_out[lane] = 0.0
             continue
-        if not light_sampling.blocks(lights, light[lane], tri):
+        if not light_kernels.blocks(lights, light[lane], tri):
             fraction_out[lane] = 1.0
             continue
         if geometry.triangle_light[tri] >= 0:  # a light's shape: opaque
@@ -111,11 +111,11 @@ def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, sc
         u1 = rng.uniform(stream, dimension + rng.LIGHT_POSITION)
         u2 = rng.uniform(stream, dimension + rng.LIGHT_POSITION + 1)
         u3 = rng.uniform(stream, dimension + rng.LIGHT_POSITION + 2)
-        group = light_sampling.group_of(lights, surface_triangle[lane])
+        group = light_kernels.group_of(lights, surface_triangle[lane])
         if not lights.group_has_lights[group]:
             continue
         px, py, pz = position[lane, 0], position[lane, 1], position[lane, 2]
-        dx, dy, dz, distance, r, g, b, pdf, light, triangle = light_sampling.sample(
+        dx, dy, dz, distance, r, g, b, pdf, light, triangle = light_kernels.sample(
             lights, geometry, materials, group, px, py, pz, u0, u1, u2, u3, registers, inputs, radiance)
         nx, ny, nz = facing[lane, 0], facing[lane, 1], facing[lane, 2]
         if not pdf > 0 or dx * nx + dy * ny + dz * nz <= 0 or max(r, g, b) <= 0:
@@ -130,7 +130,7 @@ def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, sc
         alone = delta or (light >= 0 and lights.sampled_only[light])  # no BSDF sample finds it: no MIS
         for lobe in range(3):
             weight = 1.0 if alone else bsdf.power_heuristic(pdf, lobe_pdf[lobe])
-            weight *= light_sampling.response(lights, light, lobe)
+            weight *= light_kernels.response(lights, light, lobe)
             radiance_out[count, lobe, 0] = br * f[lobe, 0] * weight
             radiance_out[count, lobe, 1] = bg * f[lobe, 1] * weight
             radiance_out[count, lobe, 2] = bb * f[lobe, 2] * weight
