@@ -167,7 +167,7 @@ class IesProfile:
 @dataclass(frozen=True)
 class LightShaping:
     """UsdLuxShapingAPI of one light, with the UsdLux documentation's semantics (evaluated
-    in trace/lights.py). θ is the angle between the light's −Z axis and the emission
+    in trace/light_kernels/shaping.py). θ is the angle between the light's −Z axis and the emission
     direction; the factors multiply the light's radiance:
 
     cone      : 1 − smoothstep(θ; cone_angle · (1 − cone_softness), cone_angle), in radians
