@@ -70,7 +70,12 @@ AS_AUTHORED = "recipe"
 
 class Kind:
     """How the values of one option are read and checked. Every method raises ValueError
-    with a message that fits after the flag or key (``--spp: must be at least 1, not 0``)."""
+    with a message that fits after the flag or key (``--spp: must be at least 1, not 0``).
+
+    A flag's words that no value of the option could be (not a number, below its minimum,
+    an unknown word) are a usage error (exit 2); a value past a stated limit (more samples
+    or pixels than a render takes) is refused when the request is made, as a job file's
+    is, with one line naming it (exit 1)."""
 
     metavar = "VALUE"
     repeated = False  # a flag given once per value (--variant A --variant B)
@@ -109,8 +114,12 @@ def type_name(value: Any) -> str:
 
 @dataclass(frozen=True)
 class Integer(Kind):
+    """A whole number from ``minimum`` to ``maximum`` (None: no limit); ``unit`` follows the
+    limit in messages (``must be at most 65536 samples per pixel``)."""
+
     minimum: int
     maximum: int | None = None
+    unit: str = ""
     metavar = "N"
 
     def from_text(self, text: str) -> int:
@@ -118,16 +127,24 @@ class Integer(Kind):
             value = int(text)
         except ValueError:
             raise ValueError(f"must be an integer, not {text!r}") from None
-        return self.check(value)
+        self._at_least(value)
+        return value  # the maximum: checked by the request (Kind's docstring)
 
     def check(self, value: Any) -> int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ValueError(f"must be an integer, not {type_name(value)} ({value!r})")
+        self._at_least(value)
+        if self.maximum is not None and value > self.maximum:
+            raise ValueError(f"must be at most {self.maximum}{self._unit}, not {value}")
+        return value
+
+    def _at_least(self, value: int) -> None:
         if value < self.minimum:
             raise ValueError(f"must be at least {self.minimum}, not {value}")
-        if self.maximum is not None and value > self.maximum:
-            raise ValueError(f"must be at most {self.maximum}, not {value}")
-        return value
+
+    @property
+    def _unit(self) -> str:
+        return f" {self.unit}" if self.unit else ""
 
 
 @dataclass(frozen=True)
@@ -197,7 +214,9 @@ class Resolution(Kind):
             numbers = [int(word) for word in words]
         except ValueError:
             raise ValueError(f"must be two integers W H, not {' '.join(words)!r}") from None
-        return self.check(numbers)
+        if min(numbers) <= 0:
+            raise ValueError(f"must be positive, not {' '.join(words)}")
+        return tuple(numbers)  # MAX_PIXELS: checked by the request (Kind's docstring)
 
     def check(self, value: Any) -> tuple[int, int] | None:
         if value is None:
@@ -422,7 +441,7 @@ class RenderRequest:
     resolution: tuple[int, int] | None = option(
         None, Resolution(), f"image size in pixels (default: the recipe's, else {DEFAULT_RESOLUTION[0]} "
         f"{DEFAULT_RESOLUTION[1]}; at most {MAX_PIXELS:,} pixels)", default_text="the settings'")
-    spp: int = option(DEFAULT_SPP, Integer(1, MAX_SPP), f"samples per pixel, at most {MAX_SPP}")
+    spp: int = option(DEFAULT_SPP, Integer(1, MAX_SPP, "samples per pixel"), f"samples per pixel, at most {MAX_SPP}")
     max_depth: int = option(DEFAULT_MAX_DEPTH, Integer(0, MAX_DEPTH),
                             f"most scattering events per path; 1 = direct light only (at most {MAX_DEPTH})")
     seed: int = option(DEFAULT_SEED, Integer(0, MAX_SEED),
@@ -486,7 +505,9 @@ class RenderRequest:
             except EntryError as error:
                 raise RenderSettingsError(f"{spec.name.replace('_', ' ')}[{error.number}]: {error.message}") from None
             except ValueError as error:
-                raise RenderSettingsError(f"{spec.name.replace('_', ' ')}: {error}") from None
+                said = str(error)
+                separator = " " if said.startswith("must") else ": "  # "max depth must be at most 1024"
+                raise RenderSettingsError(f"{spec.name.replace('_', ' ')}{separator}{said}") from None
 
     def resolved_norm_bounces(self, product_bounces: int, has_conditions: bool) -> int:
         """The norm-bounce rule: the request's own number, else the products' index bounces

@@ -189,10 +189,9 @@ def test_work_past_the_limits_names_the_file_and_key(tmp_path, stage, capsys, bo
     assert code == 1 and f"{path}: {key}: " in one_error_line(stderr)
 
 
-def test_a_huge_spp_flag_names_the_flag(tmp_path, stage, capsys):
-    """`job run --spp` is render's flag, read by the same option: a usage error naming it."""
+def test_a_huge_spp_flag_names_the_override(tmp_path, stage, capsys):
     code, _, stderr = cli(capsys, "job", "run", str(job_file(tmp_path)), "--spp", str((1 << 63) - 1))
-    assert code == 2 and "argument --spp: must be at most 65536" in stderr
+    assert code == 1 and f"{OVERRIDES}: render.spp: " in one_error_line(stderr)
     assert not (tmp_path / "out").exists()
 
 

@@ -151,14 +151,18 @@ def test_one_layer_set_for_a_shot_whatever_the_frame_order(shot):
 
 def test_lights_that_share_pixels_are_split_first(showcase):
     """What an ID matte cannot do: where lights light the same objects, the first split is
-    by light (the objective without its unmatted term splits by object, as a matte would)."""
+    by light (the objective without its unmatted term splits by object, as a matte would).
+    Asked for two layers, where the first split is the whole answer: which split the search
+    puts at the root of three layers is within the noise of this tiny render (depth and
+    light score within 0.3 % of each other), that of two is not (tried over seeds and sizes)."""
     for strategy in STRATEGIES:
-        suggestion = suggest([showcase], 3, strategy=strategy)
-        assert suggestion.splits[0].startswith("light = "), suggestion.splits
-        assert set(suggestion.layers) == {"key", "fill", "sky"}
-        layers = extract(showcase, suggestion.layers).layers
-        assert_sums_to_beauty(layers, extract(showcase, {"beauty": lpe.BEAUTY}).layers["beauty"].astype(np.float64))
-    matte_only = suggest([showcase], 3, unmatted_weight=0)
+        suggestion = suggest([showcase], 2, strategy=strategy)
+        assert suggestion.splits == ("light = L:/World/Lights/key",), suggestion.splits
+        assert set(suggestion.layers) == {"key", "rest"}
+        for k in (2, 3):
+            layers = extract(showcase, suggest([showcase], k, strategy=strategy).layers).layers
+            assert_sums_to_beauty(layers, extract(showcase, {"beauty": lpe.BEAUTY}).layers["beauty"].astype(np.float64))
+    matte_only = suggest([showcase], 2, unmatted_weight=0)
     assert matte_only.splits[0].startswith(("object = ", "material = ")), matte_only.splits
 
 
