@@ -5,8 +5,8 @@ The parser and interpreter below are written from Nuke's documented and public b
 not from pxr_layers/layers/nuke.py:
 
 * script syntax: node blocks ``Type {`` … ``}`` with one knob per line (``name value``,
-  values bare, ``{…}`` or Tcl double-quoted with ``\\`` escapes); ``set NAME [stack 0]``
-  names the top of the node stack, ``push $NAME`` pushes a named node, ``push 0`` an empty
+  values bare, ``{…}`` or Tcl double-quoted with Tcl's backslash substitutions);
+  ``set NAME [stack 0]`` names the top of the node stack, ``push $NAME`` pushes a named node, ``push 0`` an empty
   input; a node pops its ``inputs`` (default 1) from the stack, input 0 first (from the
   top), and pushes itself; ``add_layer {layer layer.c …}`` declares a layer's channels;
 * the Read of an EXR names channels as Nuke's exrReader does (Foundry's NDK example
@@ -73,9 +73,30 @@ class Command:
     words: list[str]
 
 
+TCL_ESCAPES = {"a": "\a", "b": "\b", "f": "\f", "n": "\n", "r": "\r", "t": "\t", "v": "\v"}
+
+
+def tcl_backslash(text: str, position: int) -> tuple[str, int]:
+    """Tcl's backslash substitution of the sequence at ``text[position] == "\\"`` (Tcl(n),
+    rule [9], as Tcl 8.6 reads it): (its character, the position after it)."""
+    following = text[position + 1]
+    if following in TCL_ESCAPES:
+        return TCL_ESCAPES[following], position + 2
+    for prefix, pattern, base in (("u", r"[0-9A-Fa-f]{1,4}", 16), ("x", r"[0-9A-Fa-f]{1,2}", 16)):
+        if following == prefix:
+            digits = re.compile(pattern).match(text, position + 2)
+            if digits:
+                return chr(int(digits.group(), base)), digits.end()
+            return following, position + 2
+    digits = re.compile(r"[0-7]{1,3}").match(text, position + 1)
+    if digits:
+        return chr(int(digits.group(), 8) & 0xFF), digits.end()
+    return following, position + 2
+
+
 def tcl_words(text: str) -> list[str]:
-    """Split one line into Tcl words: bare, {braced} (kept without the outer braces) or
-    "quoted" (backslash escapes undone)."""
+    """Split one line into Tcl words: bare, {braced} (kept without the outer braces; an
+    escaped brace does not count) or "quoted" (backslash sequences substituted)."""
     words, position = [], 0
     while position < len(text):
         if text[position].isspace():
@@ -83,6 +104,9 @@ def tcl_words(text: str) -> list[str]:
         elif text[position] == "{":
             depth, start = 0, position
             while True:
+                if text[position] == "\\":
+                    position += 2
+                    continue
                 depth += {"{": 1, "}": -1}.get(text[position], 0)
                 position += 1
                 if depth == 0:
@@ -93,7 +117,9 @@ def tcl_words(text: str) -> list[str]:
             word = []
             while text[position] != '"':
                 if text[position] == "\\":
-                    position += 1
+                    character, position = tcl_backslash(text, position)
+                    word.append(character)
+                    continue
                 word.append(text[position])
                 position += 1
             position += 1
@@ -160,11 +186,17 @@ def read_exr(path: Path) -> tuple[Image, tuple[int, int]]:
 
 
 def tcl_value(text: str, script_path: Path) -> str:
-    """A knob's text with its Tcl command substitutions done: ``[value root.name]`` (the
-    script's path) and ``[file dirname X]``; a substituted result is one word, never split
-    again (Tcl's rule), so paths with spaces survive."""
+    """A knob's text with its Tcl substitutions done (as Nuke does to a file knob): backslash
+    sequences, and the commands ``[value root.name]`` (the script's path) and ``[file
+    dirname X]``; a substituted result is one word, never split again (Tcl's rule), so paths
+    with spaces survive. A ``$`` variable is not modelled."""
     out, position = [], 0
     while position < len(text):
+        assert text[position] != "$", f"a Tcl variable in {text!r}"
+        if text[position] == "\\":
+            character, position = tcl_backslash(text, position)
+            out.append(character)
+            continue
         if text[position] != "[":
             out.append(text[position])
             position += 1
@@ -176,11 +208,15 @@ def tcl_value(text: str, script_path: Path) -> str:
 
 
 def matching_bracket(text: str, start: int) -> int:
-    depth = 0
-    for position in range(start, len(text)):
+    depth, position = 0, start
+    while position < len(text):
+        if text[position] == "\\":
+            position += 2
+            continue
         depth += {"[": 1, "]": -1}.get(text[position], 0)
         if depth == 0:
             return position
+        position += 1
     raise ValueError(f"unbalanced [ in {text!r}")
 
 

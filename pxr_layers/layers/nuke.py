@@ -49,6 +49,10 @@ alpha). The gizmo finds the manifest in the Read's metadata, i.e. part 0's heade
 The Root sets Nuke's own colour management with the nuke-default config, whose ``linear``
 is the EXR's colour space (linear, Rec.709 primaries), so the Read converts nothing; the
 inspector's OCIO display and view are for the viewer to choose.
+
+A .nk is a Tcl script, so every string in it is written by :func:`tcl_word` (its comment by
+:func:`tcl_escaped`): no file name can end a word, a node block or the comment early, nor
+substitute anything, and a part or Cryptomatte name is an identifier (``LAYER_NAME``, whole).
 """
 
 from __future__ import annotations
@@ -127,7 +131,7 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
     _check(parts + [part for name, depth in cryptomattes.items() for part in cryptomatte_parts(name, depth)],
            grades, beauty_part, exposure)
     for name, depth in cryptomattes.items():
-        if not LAYER_NAME.match(name) or not 1 <= depth <= MAX_CRYPTOMATTE_DEPTH:
+        if not LAYER_NAME.fullmatch(name) or not 1 <= depth <= MAX_CRYPTOMATTE_DEPTH:
             raise OutputError(f"Nuke script: the Cryptomatte {name!r} of depth {depth} is not one the gizmo keys "
                               f"(a name Nuke keeps, 1 to {MAX_CRYPTOMATTE_DEPTH} ranks: "
                               f"{len(cryptomatte_parts(name, MAX_CRYPTOMATTE_DEPTH))} parts)")
@@ -139,19 +143,18 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
     aspect = f"{pixel_aspect_ratio:g}"
     format_name = f"pxrLayers_{width}x{height}" + ("" if aspect == "1" else f"_par{aspect.replace('.', 'p')}")
     frame_format = f"{width} {height} 0 0 {width} {height} {aspect} {format_name}"
-    writer.node("Root", {"inputs": "0", "first_frame": "1", "last_frame": "1", "format": _quoted(frame_format),
+    writer.node("Root", {"inputs": "0", "first_frame": "1", "last_frame": "1", "format": frame_format,
                          "colorManagement": "Nuke", "OCIO_config": "nuke-default", "workingSpaceLUT": "linear"})
     for part in parts:
-        writer.line(f"add_layer {{{part} {part}.red {part}.green {part}.blue}}")
+        writer.add_layer(part, ("red", "green", "blue"))
     if beauty_part != BEAUTY_PART:
-        writer.line(f"add_layer {{{beauty_part} {beauty_part}.red {beauty_part}.green {beauty_part}.blue "
-                    f"{beauty_part}.alpha}}")
+        writer.add_layer(beauty_part, ("red", "green", "blue", "alpha"))
     for name, depth in cryptomattes.items():
         for part in cryptomatte_parts(name, depth):
-            writer.line(f"add_layer {{{part} {part}.red {part}.green {part}.blue {part}.alpha}}")
+            writer.add_layer(part, ("red", "green", "blue", "alpha"))
 
     writer.node("Read", {"inputs": "0", "file_type": "exr", "file": _file_knob(exr_path),
-                         "format": _quoted(f"{width} {height} 0 0 {width} {height} {aspect} "), "first": "1",
+                         "format": f"{width} {height} 0 0 {width} {height} {aspect} ", "first": "1",
                          "last": "1", "origfirst": "1", "origlast": "1", "origset": "true",
                          "colorspace": "linear", "name": "Read_layers", "xpos": "0", "ypos": "0"})
     writer.set("Read_layers")
@@ -169,7 +172,7 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
         writer.push("Read_layers")
         inputs = {f"in{number:02d}": part for number, part in enumerate(cryptomatte_parts(name, depth))}
         writer.node("Cryptomatte", {"name": f"Cryptomatte_{name}", "cryptoLayer": name, "cryptoLayerLock": "true",
-                                    "matteList": '""', **inputs, **_at(column, 1)})
+                                    "matteList": "", **inputs, **_at(column, 1)})
 
     soloing = any(grades.get(part, LayerGrade()).solo for part in parts)
     if not partition:
@@ -183,10 +186,10 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
         writer.push(beauty)
         if parts:
             writer.node("Merge2", {"inputs": "2", "operation": "from", "name": "Rest_of_beauty",
-                                   "label": _quoted("beauty - the sum of the ungraded layers"), **_at(1, 3)})
+                                   "label": "beauty - the sum of the ungraded layers", **_at(1, 3)})
     writer.push(beauty)
-    writer.node("Grade", {"multiply": "{0 0 0 1}", "black_clamp": "false", "name": "Black_base",
-                          "label": _quoted("black rgb, the beauty's alpha"), **_at(0, 4)})
+    writer.node("Grade", {"multiply": _vector(0, 0, 0, 1), "black_clamp": "false", "name": "Black_base",
+                          "label": "black rgb, the beauty's alpha", **_at(0, 4)})
     trunk = "Black_base"
     if not partition:  # B: the black base on top; A: the rest beneath it
         # On rgb only: the rest's alpha is the beauty's too, and the base already holds it.
@@ -207,7 +210,7 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
                                **_at(0, 5 + column)})
         writer.set(trunk)
     writer.node("Grade", {"multiply": _vector(*(2.0 ** exposure,) * 3, 1.0), "black_clamp": "false",
-                          "name": "Exposure", "label": _quoted(f"viewing exposure {exposure:+g} stops"),
+                          "name": "Exposure", "label": f"viewing exposure {exposure:+g} stops",
                           **_at(0, 6 + len(parts))})
     return writer.text()
 
@@ -250,7 +253,7 @@ def write_product_script(path: str | os.PathLike, exr_path: str | os.PathLike, b
 
 def _check(parts: list[str], grades: Mapping[str, LayerGrade], beauty_part: str, exposure: float) -> None:
     for part in [*parts, beauty_part]:
-        if not LAYER_NAME.match(part):  # Nuke drops leading digits and turns other characters into _
+        if not LAYER_NAME.fullmatch(part):  # Nuke drops leading digits and turns other characters into _
             raise OutputError(f"Nuke script: the part {part!r} is not a name Nuke keeps as a layer "
                               "(letters, digits, _; not starting with a digit)")
     for part in parts:
@@ -284,18 +287,25 @@ class _Script:
         self._lines.append(text)
 
     def comment(self, text: str) -> None:
-        self._lines.append(f"# {text}")
+        """A ``#`` line: its text escaped as in a word, so no newline (nor a backslash before
+        the line's end, which would continue it) ends the comment early."""
+        self._lines.append(f"# {tcl_escaped(text)}")
 
-    def node(self, kind: str, knobs: Mapping[str, str]) -> None:
-        self._lines.append(f"{kind} {{")
-        self._lines.extend(f" {name} {value}" for name, value in knobs.items())
+    def add_layer(self, layer: str, channels: Sequence[str]) -> None:
+        self.line("add_layer " + _list([layer, *(f"{layer}.{channel}" for channel in channels)]))
+
+    def node(self, kind: str, knobs: Mapping[str, str | _Vector]) -> None:
+        """A node block; each knob's value a string (written by :func:`tcl_word`) or a vector."""
+        self._lines.append(f"{_identifier(kind)} {{")
+        self._lines.extend(f" {_identifier(name)} {_list(value) if isinstance(value, _Vector) else tcl_word(value)}"
+                           for name, value in knobs.items())
         self._lines.append("}")
 
     def set(self, name: str) -> None:
-        self._lines.append(f"set N_{name} [stack 0]")
+        self._lines.append(f"set N_{_identifier(name)} [stack 0]")
 
     def push(self, name: str) -> None:
-        self._lines.append(f"push $N_{name}")
+        self._lines.append(f"push $N_{_identifier(name)}")
 
     def text(self) -> str:
         return "\n".join(self._lines) + "\n"
@@ -315,19 +325,69 @@ def _number(value: float) -> str:
     return text[:-2] if text.endswith(".0") else text
 
 
-def _vector(*values: float) -> str:
-    return "{" + " ".join(_number(value) for value in values) + "}"
+class _Vector(tuple):
+    """A knob's numbers, written as a braced Tcl list ``{1 0.5 2 1}``."""
 
 
-def _quoted(text: str) -> str:
-    """A Tcl double-quoted word: backslash, quote, ``$`` and ``[`` escaped (no substitution)."""
-    return '"' + re.sub(r'([\\"$\[])', r"\\\1", text) + '"'
+def _vector(*values: float) -> _Vector:
+    return _Vector(_number(value) for value in values)
+
+
+_BARE = re.compile(r"[A-Za-z0-9_.+-]+")
+"""Words written as they are: nothing in them is special to Tcl, in a script or a list."""
+_SPECIAL = re.compile(r'[\\"$\[{}]|[^\S ]|[\x00-\x1f\x7f-\x9f\u2028\u2029\ud800-\udfff]')
+"""What :func:`tcl_escaped` escapes: backslash, quote, ``$``, ``[``, braces, and every
+character that is not a printing one or a space (newlines, tabs, other whitespace,
+controls, Unicode line and paragraph separators, lone surrogates)."""
+_ESCAPES = {"\n": r"\n", "\r": r"\r", "\t": r"\t"}
+
+
+def tcl_escaped(text: str) -> str:
+    r"""``text`` with every character special to Tcl backslash-escaped: what goes between a
+    Tcl word's double quotes, or into text Tcl substitutes (``subst``, a Nuke file knob),
+    to read back as ``text`` exactly.
+
+    ``\ " $ [ { }`` get a backslash (braces too, so they never count in the braces of the
+    node block around a knob); newline, carriage return and tab become ``\n \r \t``, any
+    other whitespace, control or line-breaking character ``\uXXXX`` (four digits: read alike
+    by every Tcl since 8.0). ``]`` is left as is: it ends nothing outside a ``[...]``. Other
+    characters, spaces and non-ASCII letters included, stay as they are."""
+    def escape(match: re.Match) -> str:
+        character = match.group()
+        if character in _ESCAPES:
+            return _ESCAPES[character]
+        return "\\" + character if character in '\\"$[{}' else f"\\u{ord(character):04x}"
+    return _SPECIAL.sub(escape, text)
+
+
+def tcl_word(text: str) -> str:
+    """``text`` as one Tcl word that reads back as exactly ``text``, with no substitution, in
+    a script (a command's argument, a knob line) as in a list (a node block's body): bare
+    when it is only letters, digits and ``_ . + -``, else double-quoted with
+    :func:`tcl_escaped`."""
+    return text if _BARE.fullmatch(text) else f'"{tcl_escaped(text)}"'
+
+
+def _list(words: Sequence[str]) -> str:
+    """A braced Tcl list of ``words`` (each by :func:`tcl_word`)."""
+    return "{" + " ".join(tcl_word(word) for word in words) + "}"
+
+
+def _identifier(name: str) -> str:
+    """A node kind, knob or node name as is: these are always identifiers (part names are
+    checked by :func:`_check`)."""
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+        raise ValueError(f"Nuke script: {name!r} is not an identifier")
+    return name
 
 
 def _file_knob(exr_path: str | os.PathLike) -> str:
     """The Read's ``file``: an absolute path as is, a relative one after the script's folder
-    (``[file dirname [value root.name]]``, evaluated by Nuke when it reads the file)."""
+    (``[file dirname [value root.name]]``, evaluated by Nuke when it reads the file).
+
+    Nuke substitutes a file knob's value as Tcl (``[...]``, ``$``, backslashes) when it opens
+    the file, so the path in it is escaped (:func:`tcl_escaped`) to come out of that as it is;
+    the knob's value is then written as a word like any other."""
     path = Path(exr_path)
-    if path.is_absolute():
-        return _quoted(path.as_posix())
-    return '"' + r"\[file dirname \[value root.name]]/" + _quoted(path.as_posix())[1:]
+    escaped = tcl_escaped(path.as_posix())
+    return escaped if path.is_absolute() else "[file dirname [value root.name]]/" + escaped

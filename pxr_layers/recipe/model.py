@@ -171,7 +171,7 @@ def layer_problems(layer: Layer) -> list[tuple[str, str]]:
     RenderVar prim and attribute).
     """
     problems: list[tuple[str, str]] = []
-    if not LAYER_NAME.match(layer.name):
+    if not LAYER_NAME.fullmatch(layer.name):
         problems.append(("", f"layer name {layer.name!r} is not an identifier (letters, digits, _)"))
     elif layer.name == BEAUTY_PART:
         problems.append(("", f"layer name {BEAUTY_PART!r} is reserved for the beauty (part 0)"))
