@@ -295,3 +295,35 @@ def test_ctrl_c_or_sigterm_says_what_was_committed(tmp_path, signal_number, said
     assert "nothing was written" not in stderr and "Traceback" not in stderr, stderr
     submitted = len(re.findall(r"frame \d+: submitted", stderr))
     assert submitted <= FRAMES_IN_FLIGHT_PER_THREAD + committed
+
+
+# --- issue 33, nothing unbounded: job files and names ----------------------------------------
+
+
+def test_a_job_file_nested_thousands_deep_is_one_error(tmp_path):
+    path = tmp_path / "deep.toml"
+    path.write_text("x = " + "[" * 5000 + "]" * 5000 + "\n")
+    with pytest.raises(JobError, match="nested thousands deep"):
+        load_job(path)
+
+
+def test_a_hundred_thousand_local_workers_are_refused(tmp_path, stage):
+    with pytest.raises(JobError, match="at most 256") as caught:
+        load_job(job_file(tmp_path, "[dask]\nworkers = 100000\n"))
+    assert caught.value.key == "dask.workers"
+
+
+def test_a_stem_too_long_for_a_file_name_is_refused_naming_the_key(tmp_path, stage):
+    with pytest.raises(JobError, match="too long for a file name") as caught:
+        load_job(job_file(tmp_path, f'[output]\nstem = "{"s" * 300}.$F4"\n'))
+    assert caught.value.key == "output.stem"
+    load_job(job_file(tmp_path, f'[output]\nstem = "{"s" * 200}.$F4"\n'))  # long, and fits
+
+
+def test_an_output_folder_name_too_long_is_a_user_error(tmp_path):
+    out = tmp_path / ("o" * 300)
+    result = subprocess.run([SCRIPT, "render", str(Path(__file__).resolve().parents[1] / "render" / "cornell.usda"),
+                             "--spp", "1", "--resolution", "8", "8", "-q", "-o", str(out)],
+                            capture_output=True, text=True, check=False, timeout=600)
+    assert result.returncode == 1 and "File name too long" in result.stderr, result.stderr
+    assert result.stderr.count("\n") == 1

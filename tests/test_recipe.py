@@ -496,3 +496,14 @@ def test_unknown_raw_source_warns(tmp_path, caplog):
 def test_beauty_part_name_is_reserved(tmp_path):
     with pytest.raises(RecipeError, match=rf"/Render/Vars/{BEAUTY_PART}: layer name 'rgba' is reserved"):
         load_recipe(shot(tmp_path, [var(BEAUTY_PART)]))
+
+
+def test_a_preview_exposure_past_the_stated_stops_is_refused():
+    """2^2000 overflows: a recipe's exposure of 2000 stops is a RecipeError naming the
+    attribute, not an OverflowError when the preview is written."""
+    from pxr_layers.errors import RecipeError
+    from pxr_layers.recipe.model import MAX_PREVIEW_STOPS, Layer
+
+    Layer("key", "lpe", "C.*", exposure=MAX_PREVIEW_STOPS)
+    with pytest.raises(RecipeError, match="pxrLayers:preview:exposure.*within ±64"):
+        Layer("key", "lpe", "C.*", exposure=2000.0)

@@ -23,8 +23,10 @@ SUBCOMMAND_NAMES = ("render", "demo", "index", "extract", "lpe", "job", "view", 
 EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE, EXIT_INTERNAL_ERROR = 0, 1, 2, 3
 EXIT_INTERRUPTED = 130
 """128 + SIGINT: what a shell reports for a command stopped by Ctrl-C (SIGTERM: 143)."""
-ENVIRONMENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES})
-"""OSErrors that reach main() as one user-facing line rather than an internal error."""
+ENVIRONMENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES,
+                                errno.ENAMETOOLONG, errno.ELOOP})
+"""OSErrors that reach main() as one user-facing line rather than an internal error (a full
+disk, a quota, a permission; a name too long for the file system, a loop of links)."""
 
 
 def subcommands() -> dict:
@@ -99,8 +101,9 @@ def _command(argv: list[str] | None) -> int:
         # The machine, not the input nor pxr-layers: a full disk, a quota or a permission met
         # while a library (numba's kernel cache, a Dask spill) writes a file of its own.
         where = f"{error.filename}: " if error.filename else ""
-        print(f"pxr-layers: error: {where}{error.strerror or error} (the disk, a quota or a "
-              "permission of this machine)", file=sys.stderr)
+        cause = ("a name the file system refuses" if error.errno in (errno.ENAMETOOLONG, errno.ELOOP)
+                 else "the disk, a quota or a permission of this machine")
+        print(f"pxr-layers: error: {where}{error.strerror or error} ({cause})", file=sys.stderr)
         return EXIT_USER_ERROR
     except Exception as error:
         return _internal_error(error)

@@ -53,7 +53,7 @@ except ModuleNotFoundError:  # Python 3.10: the same parser, as a package
 from ..cores import available_cores
 from ..paths.format import SUFFIX as INDEX_SUFFIX
 from ..request import OPTIONS, OPTIONS_BY_NAME, EntryError, Option, RenderRequest, type_name
-from .frames import check_template, expand_template, has_frame_token, job_error, parse_frames
+from .frames import check_template, expand_template, has_frame_token, job_error, parse_frames, shortened
 
 DEFAULT_BATCH_PIXELS = 16384
 DEFAULT_RETRIES = 2
@@ -61,8 +61,16 @@ DEFAULT_DIRECTORY = "out/$JOB"
 DEFAULT_STEM = "$JOB.$F4"
 
 BEAUTY_SUFFIX = ".exr"
+DONE_SUFFIX = ".done.json"
+"""A frame's commit record, written last (jobs/executor.py)."""
 SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
 LOCAL_SCHEDULER = "local"    # scheduler: a LocalCluster (the default)
+MAX_LOCAL_WORKERS = 256
+"""LocalCluster worker processes at most: each is a Python process of about 200 MB with its
+own Embree scene, so more than a big workstation's cores is a typo (a farm scales with its
+own scheduler, `dask.scheduler`, not with this number)."""
+NAME_MAX = 255
+"""Bytes in one file name on the file systems studios use (ext4, XFS, NFS, SMB)."""
 OVERRIDES = "(overrides)"    # the "file" of load_job's overrides in error messages
 
 
@@ -214,6 +222,11 @@ def _stem(value: Any, base: Path, file: str, key: str) -> str:
         raise job_error(f"must stay inside output.directory: {text!r} climbs out of it with '..'", file, key)
     if not parts[-1].strip():
         raise job_error(f"must end with a file name, not a folder: {text!r}", file, key)
+    # The longest name a frame gets: the stem, 9 digits of frame number, the longest suffix.
+    longest = max(len(part.encode()) for part in parts) + 9 + len(DONE_SUFFIX)
+    if longest > NAME_MAX:
+        raise job_error(f"a part of {shortened(text)} is too long for a file name: the frames' files "
+                        f"would be {longest} bytes, more than the {NAME_MAX} a file system takes", file, key)
     check_template(text, file=file, key=key)
     return text
 
@@ -248,7 +261,8 @@ _JOB_KEYS: tuple[_Key, ...] = (
     _Key("output.stem", _stem, f'"{DEFAULT_STEM}"', "beauty and index stem: $F, $F4, ####, $JOB"),
     _Key("dask.scheduler", _scheduler, f'"{LOCAL_SCHEDULER}"',
          'a scheduler address "tcp://host:8786"; "local" = a LocalCluster'),
-    _Key("dask.workers", _integer(1), "CPU count", "LocalCluster worker processes"),
+    _Key("dask.workers", _integer(1, MAX_LOCAL_WORKERS), "CPU count",
+         f"LocalCluster worker processes, at most {MAX_LOCAL_WORKERS}"),
     _Key("dask.batch_pixels", _integer(1), str(DEFAULT_BATCH_PIXELS), "pixels per task"),
     _Key("dask.retries", _integer(0), str(DEFAULT_RETRIES), "retries of a failed task"),
 )
@@ -281,6 +295,8 @@ def _read_toml(path: Path, child: str | None) -> dict[str, Any]:
             return tomllib.load(stream)
     except tomllib.TOMLDecodeError as error:
         raise job_error(f"not valid TOML: {error}", str(path), None) from None
+    except RecursionError:  # tomllib recurses once per nested table or array
+        raise job_error("not a job file: its tables or arrays are nested thousands deep", str(path), None) from None
     except UnicodeDecodeError as error:
         raise job_error(f"not a text file (byte {error.start} is not UTF-8): not valid TOML", str(path), None) from None
     except OSError as error:

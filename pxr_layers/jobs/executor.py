@@ -56,7 +56,7 @@ from .. import interrupts
 from ..errors import JobError, OutputError, PxrLayersError
 from ..outputs import write_atomically
 from ..paths.format import stored_norms
-from .definition import Job
+from .definition import DONE_SUFFIX, Job
 from .frame import (
     FramePlan,
     file_sha256,
@@ -69,7 +69,6 @@ from .frame import (
 
 log = logging.getLogger(__name__)
 
-DONE_SUFFIX = ".done.json"
 PLAN_FILE = "plan.json"
 DATA_FILE = "data.pkl"
 

@@ -87,7 +87,7 @@ class _FrameText:
         position = self.position if position is None else position
         if found:
             message += ", found " + (repr(self.text[position]) if position < len(self.text) else "the end")
-        return job_error(f"bad frame range {_shortened(self.text)}: {message} at character {position + 1}",
+        return job_error(f"bad frame range {shortened(self.text)}: {message} at character {position + 1}",
                       self.file, self.key, position)
 
     def skip_spaces(self) -> None:
@@ -163,7 +163,8 @@ _SHOWN_TEXT = 60
 """Characters of a frame range text quoted in an error (the position says where the fault is)."""
 
 
-def _shortened(text: str) -> str:
+def shortened(text: str) -> str:
+    """``text`` quoted for an error message, cut to _SHOWN_TEXT characters."""
     return repr(text) if len(text) <= _SHOWN_TEXT else repr(text[:_SHOWN_TEXT]) + f"… ({len(text)} characters)"
 
 

@@ -31,6 +31,9 @@ SOURCE_TYPES = ("lpe", "raw")
 COVARIANCE_MODES = ("norms", "sigma")
 INDEX_MODES = INDEX_FORMAT_MODES
 """How the path index keeps the light (paths/format.py): merged, the default, or records."""
+MAX_PREVIEW_STOPS = 64
+"""A preview's exposure, in stops, at most this far from 0: 2^64 brightens the faintest
+float32 light to white and keeps the gain finite (2^128 overflows float32 to inf)."""
 PER_LIGHT_MODES = ("none", "lights", "groups")
 
 DEFAULT_PIXEL_TYPE = "float"
@@ -196,8 +199,9 @@ def layer_problems(layer: Layer) -> list[tuple[str, str]]:
     elif layer.is_data and layer.compression in LOSSY_COMPRESSIONS:
         problems.append(("pxrLayers:compression", (f"{layer.compression} is lossy: not allowed on a data "
                                                   f"layer (dataType {layer.data_type}); use zip, zips or piz")))
-    if not math.isfinite(layer.exposure):
-        problems.append(("pxrLayers:preview:exposure", f"must be finite, not {layer.exposure}"))
+    if not (math.isfinite(layer.exposure) and abs(layer.exposure) <= MAX_PREVIEW_STOPS):
+        problems.append(("pxrLayers:preview:exposure",
+                         f"must be a finite number of stops within ±{MAX_PREVIEW_STOPS}, not {layer.exposure}"))
     if len(layer.tint) != 3 or not all(math.isfinite(c) and c >= 0 for c in layer.tint):
         problems.append(("pxrLayers:preview:tint", f"must be three finite values >= 0, not {layer.tint}"))
     return problems
