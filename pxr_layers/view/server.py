@@ -11,10 +11,12 @@ only files served are the page's own and the regular files inside the session's 
 from __future__ import annotations
 
 import asyncio
+import errno
 import functools
 import hmac
 import json
 import logging
+import math
 import secrets
 import socket
 import webbrowser
@@ -36,6 +38,12 @@ TOKEN_PLACEHOLDER = "{{TOKEN}}"
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 """The names of this machine the server answers to when it listens on one of them."""
 MAX_BODY_BYTES = 1 << 20
+MAX_BODY_DEPTH = 32
+"""Deepest nesting of arrays and objects a JSON body may have (the API needs 3)."""
+MAX_PATH_CHARS = 1024
+"""Longest relative path /files/ looks up (a file name longer than the system's is a 404)."""
+REQUEST_ERRORS = (ValueError, UnicodeError, RecursionError, OverflowError)
+"""Exceptions a malformed request raises: a 400, not a bug."""
 SESSION_KEY = web.AppKey("session", Session)
 POOL_KEY = web.AppKey("pool", ThreadPoolExecutor)
 
@@ -49,7 +57,7 @@ def static_files() -> dict[str, Path]:
 def make_app(session: Session, token: str, allowed_hosts: frozenset[str] | None) -> web.Application:
     """The application. allowed_hosts: the Host headers accepted (None: any, when the user
     binds a non-loopback address on purpose)."""
-    app = web.Application(middlewares=[_guard(token, allowed_hosts), _errors], client_max_size=MAX_BODY_BYTES)
+    app = web.Application(middlewares=[_errors, _guard(token, allowed_hosts)], client_max_size=MAX_BODY_BYTES)
     app[SESSION_KEY] = session
     app[POOL_KEY] = ThreadPoolExecutor(2, thread_name_prefix="pxl-view")
     app.on_cleanup.append(_stop_pool)
@@ -88,7 +96,7 @@ def _guard(token: str, allowed_hosts: frozenset[str] | None):
         given = request.headers.get(TOKEN_HEADER)
         if given is None and request.method in ("GET", "HEAD"):
             given = request.query.get("token")
-        if given is None or not hmac.compare_digest(given.encode(), token.encode()):
+        if given is None or not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), token.encode()):
             return _error("a valid access token is needed (open the URL `pxr-layers view` printed)", 403)
         return await handler(request)
 
@@ -104,10 +112,23 @@ async def _errors(request: web.Request, handler):
     except ViewError as error:
         return _error(str(error), error.status, error.position)
     except PxrLayersError as error:
-        return _error(str(error).splitlines()[0], 400)
+        return _error(_one_line(error), 400)
+    except REQUEST_ERRORS as error:  # raised by what the request carried: say so, keep serving
+        log.info("bad request %s: %r", request.path, error)
+        return _error(f"bad request: {_one_line(error) or type(error).__name__}", 400)
+    except OSError as error:
+        if error.errno in (errno.ENAMETOOLONG, errno.ELOOP):
+            return _error(f"bad request: {error.strerror}", 400)
+        log.exception("internal error serving %s", request.path)
+        return _error("internal error (the server's log has the details)", 500)
     except Exception:  # a bug: logged whole, one line to the page
         log.exception("internal error serving %s", request.path)
         return _error("internal error (the server's log has the details)", 500)
+
+
+def _one_line(error: Exception) -> str:
+    lines = str(error).splitlines()
+    return lines[0][:500] if lines else ""
 
 
 def _error(message: str, status: int, position: int | None = None) -> web.Response:
@@ -125,10 +146,50 @@ async def _blocking(request: web.Request, function: Callable, *args):
     return await loop.run_in_executor(request.app[POOL_KEY], functools.partial(function, *args))
 
 
+def _json_depth(data: bytes) -> int:
+    """The deepest nesting of arrays and objects in `data` (brackets inside strings skipped),
+    counted before parsing: json.loads recurses once a level."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for byte in data:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif byte == 0x5C:  # backslash
+                escaped = True
+            elif byte == 0x22:
+                in_string = False
+        elif byte == 0x22:
+            in_string = True
+        elif byte in (0x5B, 0x7B):
+            depth += 1
+            if depth > deepest:
+                deepest = depth
+                if deepest > MAX_BODY_DEPTH:
+                    break
+        elif byte in (0x5D, 0x7D):
+            depth -= 1
+    return deepest
+
+
+def _no_constant(name: str):
+    raise ValueError(f"{name} is not a number JSON allows")
+
+
+def _finite(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"{text[:40]} is too large a number")
+    return value
+
+
 async def _json_body(request: web.Request) -> dict:
+    data = await request.read()  # past client_max_size: 413
+    if _json_depth(data) > MAX_BODY_DEPTH:
+        raise ViewError(f"the request body nests deeper than {MAX_BODY_DEPTH} levels")
     try:
-        body = await request.json()
-    except (json.JSONDecodeError, UnicodeDecodeError):
+        body = json.loads(data.decode("utf-8"), parse_constant=_no_constant, parse_float=_finite)
+    except (ValueError, UnicodeDecodeError, RecursionError):  # JSONDecodeError is a ValueError; so are huge ints
         raise ViewError("the request body is not JSON") from None
     if not isinstance(body, dict):
         raise ViewError("the request body is not a JSON object")
@@ -193,8 +254,11 @@ async def _suggest(request: web.Request) -> web.Response:
 async def _save(request: web.Request) -> web.Response:
     body = await _json_body(request)
     session = request.app[SESSION_KEY]
+    overwrite = body.get("overwrite", False)
+    if not isinstance(overwrite, bool):
+        raise ViewError(f"overwrite must be true or false, not {overwrite!r}")
     written = await _blocking(request, session.save, body.get("name"), body.get("layers"),
-                              body.get("exposure", 0.0), bool(body.get("overwrite", False)))
+                              body.get("exposure", 0.0), overwrite)
     return web.json_response(written)
 
 
@@ -204,11 +268,18 @@ async def _folder_file(request: web.Request) -> web.StreamResponse:
     folder = request.app[SESSION_KEY].folder
     name = request.match_info["name"]
     relative = PurePosixPath(name)
+    shown = repr(name[:80] + ("…" if len(name) > 80 else ""))
     if relative.is_absolute() or ".." in relative.parts or "\\" in name or "\x00" in name:
-        return _error(f"{name!r}: only files inside {folder.name}/ are served", 403)
-    path = (folder / relative).resolve()
-    if not path.is_relative_to(folder) or not path.is_file():
-        return _error(f"{name!r}: no such file inside {folder.name}/", 404)
+        return _error(f"{shown}: only files inside {folder.name}/ are served", 403)
+    try:  # a loop of symbolic links, a name past the system's limit: no such file either
+        if len(name) > MAX_PATH_CHARS:
+            raise OSError(errno.ENAMETOOLONG, "name too long")
+        path = (folder / relative).resolve()
+        found = path.is_relative_to(folder) and path.is_file()
+    except (OSError, RuntimeError, ValueError):  # RuntimeError: resolve() meeting a loop (Python < 3.13)
+        found = False
+    if not found:
+        return _error(f"{shown}: no such file inside {folder.name}/", 404)
     return web.FileResponse(path)
 
 

@@ -18,7 +18,6 @@ the session's folder.
 from __future__ import annotations
 
 import logging
-import math
 import re
 import threading
 import time
@@ -48,6 +47,7 @@ from ..paths.reader import PathIndex
 from ..recipe.model import (
     DEFAULT_CAMERA_PATH,
     LAYER_NAME,
+    MAX_PREVIEW_STOPS,
     IndexSettings,
     Layer,
     Product,
@@ -61,6 +61,8 @@ LUT_URL = "/api/lut"
 """Where the page fetches the display LUT's table (server.py's route)."""
 SAVE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*")
 """What /api/save writes: NAME.usda, NAME.exr (and its previews), NAME.nk, in the folder."""
+MAX_NAME_CHARS = 120
+"""Longest save or layer name (NAME.usda and its previews' names stay within the system's 255 bytes)."""
 MAX_SUGGESTED = 32
 """Most layers /api/suggest makes at once."""
 
@@ -177,8 +179,8 @@ class Session:
     def layer(self, layer_id: str) -> ViewLayer:
         try:
             return self.layers[layer_id]
-        except KeyError:
-            raise ViewError(f"no layer {layer_id!r}", 404) from None
+        except (KeyError, TypeError):
+            raise ViewError(f"no layer {_shown(layer_id)}", 404) from None
 
     def _partition(self, layers: list[ViewLayer]) -> bool:
         return layers_partition(self.beauty, [layer.image for layer in layers])
@@ -241,8 +243,9 @@ class Session:
     def add_layer(self, name: str, expression: str) -> tuple[ViewLayer, dict]:
         """Extract a new layer from the index into the stack: /api/layer."""
         index = self._need_index("make a layer")
-        if not isinstance(name, str) or not LAYER_NAME.fullmatch(name) or name in NUKE_RESERVED_LAYERS:
-            raise ViewError(f"layer name {name!r}: letters, digits and _, not starting with a digit, and none of "
+        if not isinstance(name, str) or len(name) > MAX_NAME_CHARS or not LAYER_NAME.fullmatch(name) \
+                or name in NUKE_RESERVED_LAYERS:
+            raise ViewError(f"layer name {_shown(name)}: at most {MAX_NAME_CHARS} letters, digits and _, not starting with a digit, and none of "
                             f"the layers Nuke keeps for itself ({', '.join(sorted(NUKE_RESERVED_LAYERS))})")
         self.check(expression)
         start = time.perf_counter()
@@ -302,21 +305,21 @@ class Session:
         from ..stage.recipe_writer import write_recipe  # USD is imported only when saving
 
         index = self._need_index("save the stack (its layers are extracted from it)")
-        if not isinstance(name, str) or not SAVE_NAME.fullmatch(name):
-            raise ViewError(f"save name {name!r}: letters, digits, _ and -, not starting with a digit or -")
-        if isinstance(exposure, bool) or not isinstance(exposure, (int, float)) or not math.isfinite(exposure):
-            raise ViewError(f"exposure must be a number of stops, not {exposure!r}")
+        if not isinstance(name, str) or len(name) > MAX_NAME_CHARS or not SAVE_NAME.fullmatch(name):
+            raise ViewError(f"save name {_shown(name)}: at most {MAX_NAME_CHARS} letters, digits, _ and -, "
+                            "not starting with a digit or -")
+        exposure = _stops(exposure, "exposure")
         chosen, grades = self._stack(stack)
         recipe = Recipe((replace(self.base_product, name=name.replace("-", "_"), output_name=f"{name}.exr", prim_path="",
                                  layers=tuple(chosen), per_light="none"),))
         paths = {"recipe": self.folder / f"{name}.usda", "exr": self.folder / f"{name}.exr",
                  "nuke": self.folder / f"{name}.nk"}
-        existing = [path.name for path in paths.values() if path.exists()]
-        if existing and not overwrite:
-            raise ViewError(f"{', '.join(existing)} exist in {self.folder}: save under another name, "
-                            "or overwrite", 409)
         partition = self._partition([self.layers[entry["id"]] for entry in stack if entry["id"] != "beauty"])
-        with self._lock, OutputSet():
+        with self._lock, OutputSet():  # the check and the writes together: of two saves of one name, one is refused
+            existing = [path.name for path in paths.values() if path.exists()]
+            if existing and not overwrite:
+                raise ViewError(f"{', '.join(existing)} exist in {self.folder}: save under another name, "
+                                "or overwrite", 409)
             deliver(index, recipe, self.beauty, {recipe.products[0].name: paths["exr"]},
                     metadata=index_metadata(index, self.folder))
             write_recipe(paths["recipe"], recipe)
@@ -334,13 +337,19 @@ class Session:
         for entry in stack:
             if not isinstance(entry, dict):
                 raise ViewError("each stack entry is an object {id, stops, tint, mute, solo}")
+            if not isinstance(entry.get("id"), str):
+                raise ViewError(f"a stack entry's id is a layer id (a string), not {_shown(entry.get('id'))}")
             layer = self.layer(entry.get("id"))
             if layer.kind == "beauty":
                 continue
             if layer.name in grades:
                 raise ViewError(f"two layers of the stack are named {layer.name!r}")
+            tint = entry.get("tint", [1, 1, 1])
+            if not isinstance(tint, list) or len(tint) != 3:
+                raise ViewError(f"layer {layer.name!r}: tint is three numbers >= 0, not {_shown(tint)}")
+            tint = tuple(_number(channel, f"layer {layer.name!r}: tint", 0.0, 1e6) for channel in tint)
             try:
-                grade = LayerGrade(stops=float(entry.get("stops", 0.0)), tint=tuple(map(float, entry.get("tint", (1, 1, 1)))),
+                grade = LayerGrade(stops=_stops(entry.get("stops", 0.0), f"layer {layer.name!r}: stops"), tint=tint,
                                    mute=bool(entry.get("mute", False)), solo=bool(entry.get("solo", False)))
                 layers.append(Layer(layer.name, "lpe", layer.expression, exposure=grade.stops, tint=grade.tint,
                                     group="inspector"))
@@ -356,6 +365,23 @@ class Session:
             raise ViewError(f"cannot {what}: {self.folder} has no path index of this render "
                             "(render with an index, and view its folder)", 409)
         return self.index
+
+
+def _shown(value) -> str:
+    """repr(value), cut short: an error message stays one readable line."""
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _number(value, what: str, low: float, high: float) -> float:
+    """`value` as a float within [low, high] (a number of the JSON body, not a bool or a string)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
+        raise ViewError(f"{what} must be a number from {low:g} to {high:g}, not {_shown(value)}")
+    return float(value)
+
+
+def _stops(value, what: str) -> float:
+    return _number(value, f"{what} (stops)", -MAX_PREVIEW_STOPS, MAX_PREVIEW_STOPS)
 
 
 # --- opening helpers ----------------------------------------------------------------------
