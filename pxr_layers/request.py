@@ -78,7 +78,6 @@ class Kind:
     is, with one line naming it (exit 1)."""
 
     metavar = "VALUE"
-    repeated = False  # a flag given once per value (--variant A --variant B)
     nargs: int | None = None
 
     def from_text(self, text: str) -> Any:
@@ -245,10 +244,6 @@ class Words(Kind):
     @property
     def metavar(self):
         return self.item.metavar
-
-    @property
-    def repeated(self):
-        return not self.comma
 
     def from_text(self, text: str) -> tuple:
         if self.comma:

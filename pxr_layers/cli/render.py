@@ -80,7 +80,7 @@ class _OptionAction(argparse.Action):
             value = self.kind.from_text(values)
         except ValueError as error:
             raise argparse.ArgumentError(self, str(error)) from None
-        if self.kind.repeated or isinstance(self.kind, Words):
+        if isinstance(self.kind, Words):  # repeated or comma-separated: collected in order
             earlier = getattr(namespace, self.dest, None) or ()
             value = tuple(dict.fromkeys((*earlier, *value)))
         setattr(namespace, self.dest, value)

@@ -478,17 +478,12 @@ def render_frame(request: RenderRequest, frame: float | None = None, *, output: 
         directory, exr = output_target(output)
         plan = plan_frame(request, frame, shot=shot, directory=directory, exr=exr)
     source = source or LocalTrace(plan, shot, threads=threads, show_progress=show_progress)
-    rays = 0
     with FrameAssembler(plan) as assembler:
-        def add(batch) -> None:
-            nonlocal rays
-            assembler.add(batch)
-            rays += batch.rays
-
-        source.trace(add)
+        source.trace(assembler.add)
         data, vocabulary, object_paths = source.frame_data()
         delivered = assembler.deliver(vocabulary, data, object_paths, show_progress=show_progress)
     rgba, norms = assembler.images()
+    rays = assembler.film.rays  # the film counts every batch's rays
     if request.debug_covariance:
         from ..layers.debug import write_covariance_debug
 
