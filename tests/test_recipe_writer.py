@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from pxr_layers.cli.main import main
 from pxr_layers.errors import RecipeError
@@ -207,3 +209,28 @@ def test_valid_prim_name_makes_any_text_a_usd_identifier(text, name):
     from pxr import Sdf
 
     assert valid_prim_name(text) == name and Sdf.Path.IsValidIdentifier(name)
+
+
+# Text a recipe carries into a USD layer (an LPE's quoted label, a group, a display): whatever
+# its characters (quotes, '@', newlines, '#usda', braces), the layer holds it as data and reads
+# back equal, with no prim or attribute it did not ask for (issue 33: what we write that
+# another program interprets).
+HOSTILE_TEXT = st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters="'\\\x00"), max_size=24)
+
+
+@settings(deadline=None, derandomize=True, database=None, max_examples=30)
+@given(label=HOSTILE_TEXT.filter(bool), group=HOSTILE_TEXT)
+def test_hostile_text_in_a_recipe_is_data_in_the_usd_layer(tmp_path_factory, label, group):
+    folder = tmp_path_factory.mktemp("hostile_recipe")
+    recipe = Recipe(products=(product(layers=(
+        Layer("key", source_name=f"C.*<L.'{label}'>", group=group),)),))
+    written = write_recipe(folder / "look.usda", recipe)
+    back = read_over_cornell(written)
+    assert [unplaced(p) for p in back.products] == [unplaced(p) for p in recipe.products]
+    from pxr import Sdf
+
+    prims = []
+    Sdf.Layer.FindOrOpen(str(written)).Traverse("/", lambda path: prims.append(path) if path.IsPrimPath() else None)
+    assert sorted(map(str, prims)) == ["/Render", "/Render/look", "/Render/look/Products",
+                                       "/Render/look/Products/look", "/Render/look/Settings",
+                                       "/Render/look/Vars", "/Render/look/Vars/key"]

@@ -24,7 +24,7 @@ from ..outputs import OutputSet
 from ..paths.reader import PathIndex
 from ..recipe.model import Layer, Product, Recipe
 from ..request import VariantSelection
-from .render import add_request_flags, positive_int
+from .render import add_request_flags, nonempty_path, positive_int
 
 HELP = "cut light layers out of a path index with Light Path Expressions"
 DESCRIPTION = (
@@ -43,7 +43,7 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("index", metavar="INDEX", help="the path index (.pxlidx)")
+    parser.add_argument("index", type=nonempty_path, metavar="INDEX", help="the path index (.pxlidx)")
     add_request_flags(parser, ("recipe_layers", "settings", "per_light"), help={
         "recipe_layers": "a USD layer recipe (a file, or a preset name), composed over the index's stage "
         "when that file still exists; repeat for more, the first is the strongest",
@@ -56,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lights", action="store_true",
                         help="add one layer per light (light_NAME = C.*<L.'NAME'>) and light_other: "
                         "they sum to the beauty")
-    parser.add_argument("-o", "--output", metavar="OUT",
+    parser.add_argument("-o", "--output", type=nonempty_path, metavar="OUT",
                         help="a directory for the EXRs (recipe products by their productName, the "
                         "command-line layers as INDEX-stem.layers.exr), or the .exr path when one EXR "
                         "is written (default: the index's directory)")

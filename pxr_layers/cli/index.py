@@ -7,6 +7,7 @@ import argparse
 from ..paths.events import path_text
 from ..paths.reader import PathIndex
 from . import logging_flags
+from .render import nonempty_path
 
 HELP = "inspect a path index (.pxlidx)"
 DESCRIPTION = "Inspect a path index written by `pxr-layers render` beside its EXR."
@@ -25,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "header, trailer and tables are read: --verify reads and checks every chunk too.",
         parents=[logging_flags(nested=True)],
     )
-    info.add_argument("index", metavar="INDEX", help="a .pxlidx file")
+    info.add_argument("index", type=nonempty_path, metavar="INDEX", help="a .pxlidx file")
     info.add_argument("--top", type=_count, default=TOP_CLASSES, metavar="N",
                       help=f"how many path classes to list (default {TOP_CLASSES})")
     info.add_argument("--verify", action="store_true",

@@ -8,7 +8,7 @@ import sys
 
 from ..request import OPTIONS
 from . import logging_flags
-from .render import add_request_flags
+from .render import add_request_flags, nonempty_path
 
 HELP = "run a shot job (frames × tiles on Dask), or show its progress"
 DESCRIPTION = (
@@ -24,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     run = actions.add_parser("run", help="render the frames not done yet", parents=[logging_flags(nested=True)],
                              description="Render every frame of JOB that has no commit record yet.")
-    run.add_argument("job", metavar="JOB", help="the job file (.toml)")
+    run.add_argument("job", type=nonempty_path, metavar="JOB", help="the job file (.toml)")
     run.add_argument("--frames", metavar="RANGE", help="only these frames, e.g. 1-4 or 1-24x4 (default: the job's)")
     run.add_argument("--scheduler", metavar="ADDRESS",
                      help="a Dask scheduler, tcp://host:8786 (default: the job's, else a LocalCluster)")
@@ -34,9 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_request_flags(run, unset_defaults=True)
     status = actions.add_parser("status", help="show each frame's progress", parents=[logging_flags(nested=True)],
                                 description="Each frame of JOB: done, k/n tiles committed, or pending.")
-    status.add_argument("job", metavar="JOB", help="the job file (.toml)")
+    status.add_argument("job", type=nonempty_path, metavar="JOB", help="the job file (.toml)")
     for sub in (run, status):
-        sub.add_argument("-o", "--output", metavar="DIR", help="output directory (default: the job's)")
+        sub.add_argument("-o", "--output", type=nonempty_path, metavar="DIR", help="output directory (default: the job's)")
 
 
 def run(args: argparse.Namespace) -> int:

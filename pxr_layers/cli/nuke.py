@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .render import nonempty_path
+
 HELP = "write a Nuke script (.nk) that rebuilds a product's beauty from its layers"
 DESCRIPTION = (
     "Write a Nuke script for PRODUCT (a multipart EXR of `pxr-layers render` or `extract`): a Read of the "
@@ -17,8 +19,8 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("product", metavar="PRODUCT", help="the multipart EXR (.exr)")
-    parser.add_argument("-o", "--output", metavar="SCRIPT",
+    parser.add_argument("product", type=nonempty_path, metavar="PRODUCT", help="the multipart EXR (.exr)")
+    parser.add_argument("-o", "--output", type=nonempty_path, metavar="SCRIPT",
                         help="the .nk file to write (default: PRODUCT with .nk instead of .exr)")
 
 

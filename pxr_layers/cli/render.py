@@ -26,14 +26,14 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("stage", metavar="STAGE", help="the USD stage to render (.usd, .usda, .usdc, .usdz)")
+    parser.add_argument("stage", type=nonempty_path, metavar="STAGE", help="the USD stage to render (.usd, .usda, .usdc, .usdz)")
     add_render_flags(parser)
 
 
 def add_render_flags(parser: argparse.ArgumentParser) -> None:
     """Every flag of a render: -o, --frame, --threads and the request's options."""
     parser.add_argument(
-        "-o", "--output", metavar="OUT",
+        "-o", "--output", type=nonempty_path, metavar="OUT",
         help="a directory that receives the recipe's products (their productName, #### = frame) "
         f"and STEM{INDEX_SUFFIX}; or, for a recipe of one product, the .exr path itself. Default: the "
         "current directory",
@@ -105,6 +105,14 @@ def request_from_args(stage_path: Path, args: argparse.Namespace) -> RenderReque
     given = {spec.name: getattr(args, spec.name) for spec in OPTIONS
              if getattr(args, spec.name, None) is not None}
     return RenderRequest(stage=stage_path, **given)
+
+
+def nonempty_path(text: str) -> str:
+    """An argparse type: a file or folder path, refused when empty (an empty word on a command
+    line is most often a shell variable that was never set: a path would silently mean '.')."""
+    if not text:
+        raise argparse.ArgumentTypeError("an empty path (an unset shell variable?)")
+    return text
 
 
 def positive_int(text: str) -> int:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..recipe.model import DEFAULT_CAMERA_PATH, Layer, Product, Recipe
 from ..suggest import DEFAULT_K, STRATEGIES
-from .render import positive_int
+from .render import nonempty_path, positive_int
 
 HELP = "suggest K light layers that partition the beauty, for one index or a shot's frames"
 DESCRIPTION = (
@@ -23,10 +23,10 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("indexes", nargs="+", metavar="INDEX", help="path indexes (.pxlidx) of one shot")
+    parser.add_argument("indexes", nargs="+", type=nonempty_path, metavar="INDEX", help="path indexes (.pxlidx) of one shot")
     parser.add_argument("-k", "--layers", type=positive_int, default=DEFAULT_K, metavar="N",
                         help=f"how many layers (default {DEFAULT_K}; fewer when path space cannot be split further)")
-    parser.add_argument("-o", "--output", metavar="RECIPE",
+    parser.add_argument("-o", "--output", type=nonempty_path, metavar="RECIPE",
                         help="the recipe to write (.usda); the EXRs go beside it "
                         "(default: suggested.usda beside the first index)")
     parser.add_argument("--strategy", choices=STRATEGIES, default=STRATEGIES[0],

@@ -6,7 +6,7 @@ import argparse
 import logging
 
 from ..errors import Terminated
-from .render import positive_int
+from .render import nonempty_path, positive_int
 
 HELP = "inspect a render in the browser: its layers, regraded live, its light paths, new layers"
 DESCRIPTION = (
@@ -24,7 +24,7 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("path", metavar="PATH", help="an output folder, an .exr product or a .pxlidx")
+    parser.add_argument("path", type=nonempty_path, metavar="PATH", help="an output folder, an .exr product or a .pxlidx")
     parser.add_argument("--host", default="127.0.0.1",
                         help="the address to listen on (default 127.0.0.1: this machine only; another "
                         "address lets anyone who can reach it and has the URL use the page)")

@@ -38,6 +38,7 @@ Embree.
 from __future__ import annotations
 
 import difflib
+import ipaddress
 import os
 import re
 from collections.abc import Callable, Mapping
@@ -231,6 +232,21 @@ def _stem(value: Any, base: Path, file: str, key: str) -> str:
     return text
 
 
+_HOST_LABEL = re.compile(r"[A-Za-z0-9_]([A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?")
+
+
+def _valid_host(host: str) -> bool:
+    """An IP address, or a host name of at most 253 characters in labels of 1 to 63 that
+    are not all digits (so that 256.1.1.1 is a bad address at once, not a 30 s timeout)."""
+    try:
+        ipaddress.ip_address(host)
+        return True
+    except ValueError:
+        labels = host.rstrip(".").split(".")
+        return (len(host) <= 253 and all(_HOST_LABEL.fullmatch(label) for label in labels)
+                and not labels[-1].isdigit())
+
+
 def _scheduler(value: Any, base: Path, file: str, key: str) -> str | None:
     text = _string(value, file, key).strip()
     if text == LOCAL_SCHEDULER:
@@ -244,6 +260,10 @@ def _scheduler(value: Any, base: Path, file: str, key: str) -> str | None:
     if scheme not in SCHEDULER_SCHEMES:
         raise job_error(f"bad scheduler address {text!r}: unknown protocol {scheme!r} "
                      f"(allowed: {', '.join(SCHEDULER_SCHEMES)})", file, key)
+    host = match["host"]
+    if not _valid_host(host.strip("[]")):
+        raise job_error(f"bad scheduler address {text!r}: {host!r} is neither an IP address nor a host name",
+                        file, key)
     port = int(match["port"])
     if not 0 < port < 65536:
         raise job_error(f"bad scheduler address {text!r}: port {port} is not 1..65535", file, key)
