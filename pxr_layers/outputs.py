@@ -21,6 +21,17 @@ raised once they are done. Renders are identified by a
 
 Temporaries of processes that were killed (SIGKILL, a crash) cannot remove themselves: the
 next commit into the folder removes those whose process, on this host, no longer runs.
+
+What a final name may be (:func:`output_problem`, the one rule, checked when a file's
+writing begins and again just before the renames): a new name or a regular file, never a
+directory, a FIFO, a device or a socket, nor a symbolic link to one (the rename would replace
+the node itself: ``-o /dev/null`` run as root would make /dev/null a regular file), and never
+one of the files the running command reads (:func:`reading`: its index, the EXR it reads, its
+stage, its recipe), compared as files (device and inode), so a link, a relative or a ``..``
+spelling of an input is that input. Commands also call :func:`check_output` on the names they
+will write before their work begins, so a mistake costs no render. :func:`confined_name_problem`
+is the rule for a name that must stay inside an output folder (a recipe's productName, a
+job's stem).
 """
 
 from __future__ import annotations
@@ -34,7 +45,9 @@ import logging
 import os
 import re
 import socket
+import stat
 import tempfile
+import threading
 import time
 import zlib
 from collections.abc import Callable, Iterable, Iterator
@@ -42,6 +55,7 @@ from pathlib import Path
 
 from . import interrupts
 from .errors import OutputError
+from .inputs import input_problem
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +101,110 @@ _committed: collections.Counter[Path] = collections.Counter()  # folder → file
 _unlockable: set[Path] = set()  # folders already warned of
 
 
+FILE_SUFFIXES = frozenset({
+    ".exr", ".png", ".jpg", ".jpeg", ".tif", ".tiff", ".tx", ".hdr", ".dpx", ".tga", ".bmp", ".gif", ".webp",
+    ".psd", ".jp2", ".heic", ".avif", ".mov", ".mp4",  # images and movies
+    ".pxlidx", ".nk", ".usd", ".usda", ".usdc", ".usdz", ".toml", ".json", ".txt", ".html",  # pxr-layers' own
+})
+"""Suffixes that name a file, never a folder: an ``-o`` that means "a folder" ending so is a
+mistaken file name (``extract -o out/cut.png``), refused rather than made a folder called
+``cut.png`` (:func:`folder_suffix_problem`). Folder names with other dots stay folders
+(``renders/v1.2``, ``shot.final``)."""
+
+_inputs: collections.Counter[tuple[int, int]] = collections.Counter()  # (st_dev, st_ino) → open `reading` blocks
+_input_names: dict[tuple[int, int], str] = {}  # → the name the command was given
+_inputs_lock = threading.Lock()  # the view server saves from several threads
+
+
+@contextlib.contextmanager
+def reading(*paths: str | os.PathLike | None) -> Iterator[None]:
+    """While the block runs, refuse to write over any of ``paths``: the files the running
+    command reads (an index, the EXR beside it, a stage, a recipe layer). A path that does
+    not exist (a preset's name, a file the reader will report missing) or None is skipped.
+
+    Process-wide, not per thread: a file one request of the view server reads is not
+    replaced by another's save either."""
+    keys = []
+    for path in paths:
+        if path is None:
+            continue
+        try:
+            status = os.stat(path)
+        except (OSError, ValueError):
+            continue
+        keys.append((status.st_dev, status.st_ino))
+        with _inputs_lock:
+            _inputs[keys[-1]] += 1
+            _input_names.setdefault(keys[-1], os.fspath(path))
+    try:
+        yield
+    finally:
+        with _inputs_lock:
+            for key in keys:
+                _inputs[key] -= 1
+                if _inputs[key] <= 0:
+                    del _inputs[key]
+                    _input_names.pop(key, None)
+
+
+def output_problem(path: str | os.PathLike, what: str = "file") -> str | None:
+    """Why ``path`` cannot be written as ``what`` (a noun phrase: "Nuke script", "multipart
+    EXR"), or None: it is (or links to) something other than a regular file, or it is an
+    input of the running command (:func:`reading`). A name that does not exist yet is fine;
+    one that cannot even be looked at (too long, a loop of links) is left to the write,
+    which reports it."""
+    try:
+        status = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    if not stat.S_ISREG(status.st_mode):
+        kind = input_problem(path, what) or f"is not a regular file, not a {what}"
+        through = f" (a symbolic link to {os.readlink(path)})" if os.path.islink(path) else ""
+        return f"{kind}{through}: an output replaces only a regular file, so it is not written"
+    with _inputs_lock:
+        given = _input_names.get((status.st_dev, status.st_ino))
+    if given is not None:
+        other = "" if given == os.fspath(path) else f" ({given})"
+        return f"is a file this command reads{other}: it is not replaced by its own output (write to another name)"
+    return None
+
+
+def check_output(path: str | os.PathLike, what: str = "file", suffixes: Iterable[str] | None = None) -> Path:
+    """``path`` as a Path when it may be written as ``what`` (:func:`output_problem`) and,
+    with ``suffixes`` (lower case, with their dot), ends with one of them; else an
+    OutputError naming it."""
+    path = Path(path)
+    if suffixes is not None:
+        allowed = tuple(suffixes)
+        if not path.name.lower().endswith(allowed):
+            raise OutputError(f"{path}: not a {what}'s name: a {what} ends in {' or '.join(allowed)}")
+    problem = output_problem(path, what)
+    if problem is not None:
+        raise OutputError(f"{path}: {problem}")
+    return path
+
+
+def folder_suffix_problem(path: str | os.PathLike) -> str | None:
+    """Why ``path``, meant as an output folder, is rather a mistaken file name (it ends with
+    one of FILE_SUFFIXES and is not an existing folder), or None."""
+    path = Path(path)
+    if path.suffix.lower() in FILE_SUFFIXES and not path.is_dir():
+        return f"names a {path.suffix} file, not a folder"
+    return None
+
+
+def confined_name_problem(name: str) -> str | None:
+    """Why ``name`` (a file name relative to an output folder: a recipe's productName, a job's
+    stem) would write outside that folder, or None: absolute, or climbing out with ``..``
+    (``/`` and ``\\`` both count as separators, as on the Windows share a studio may mount).
+    A subfolder (``beauty/shot.exr``) stays inside."""
+    if Path(name).is_absolute() or name.startswith(("/", "\\")):
+        return f"must be relative to the output folder, not absolute: {name!r}"
+    if ".." in re.split(r"[/\\]", name):
+        return f"must stay inside the output folder: {name!r} climbs out of it with '..'"
+    return None
+
+
 def committed_counts() -> dict[Path, int]:
     """Folder → how many final files this process has put in place there since
     :func:`forget_committed` (for an honest message when a command is interrupted)."""
@@ -103,7 +221,8 @@ def temporary_beside(path: Path) -> tuple[int, Path]:
     Raises OutputError naming the folder when it cannot be created or written."""
     folder = path.parent
     if folder.exists() and not folder.is_dir():
-        raise OutputError(f"{folder}: is a file, not a folder")
+        raise OutputError(f"{folder}: {input_problem(folder, 'folder') or 'is a file, not a folder'}")
+    check_output(path)  # before the work of writing it
     try:
         folder.mkdir(parents=True, exist_ok=True)
         handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.{_PROCESS_SPACE}-{os.getpid()}.",
@@ -142,7 +261,11 @@ def finish(temporary: Path, final: Path, *, last: bool = False) -> Path:
     if outputs is not None:
         outputs.add(temporary, final, last=last)
         return temporary
-    _rename_all([(temporary, final)])
+    try:
+        _rename_all([(temporary, final)])
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
     return final
 
 
@@ -204,6 +327,8 @@ def _rename_all(pairs: list[tuple[Path, Path]]) -> None:
         with interrupts.recorded() as received:
             for folder in folders:
                 remove_stale_temporaries(folder)
+            for _, final in pairs:  # again: a FIFO or a link may have appeared while the files were written
+                check_output(final)
             try:
                 for temporary, _ in pairs:
                     os.chmod(temporary, FILE_MODE)

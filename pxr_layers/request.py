@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import RenderSettingsError
+from .inputs import input_problem
 from .paths.format import SUFFIX as INDEX_SUFFIX
 from .recipe.model import (
     COVARIANCE_MODES,
@@ -312,8 +313,9 @@ class RecipeLayer(Kind):
         if not isinstance(value, (str, os.PathLike)):
             raise ValueError(f"must be a path, not {type_name(value)} ({value!r})")
         path = Path(os.path.abspath(value))
-        if not path.is_file():
-            raise ValueError(f"recipe layer {path}: {'is a directory, not a USD file' if path.is_dir() else 'file not found'}")
+        problem = input_problem(path, "USD file")  # inputs.py: a FIFO would block the open
+        if problem is not None:
+            raise ValueError(f"recipe layer {path}: {problem}")
         return path
 
 

@@ -157,8 +157,9 @@ def bad_sky(tmp_path, texel: float) -> Path:
 
 def ball_of(surface_input: str) -> str:
     """A stage: the camera and ball of ball_lit_by under a plain dome, the ball's
-    UsdPreviewSurface with `surface_input` authored (USD text): material values the reader
-    does not vet, which the beauty check is there for."""
+    UsdPreviewSurface with `surface_input` authored (USD text): material values the beauty
+    check is there for (the reader refuses constants that are not finite or out of range;
+    a primvar's values are data it reads as they are)."""
     return ball_lit_by(f"""    def DomeLight "sky"
     {{
     }}
@@ -186,7 +187,13 @@ def test_a_beauty_with_negative_pixels_names_the_paths_that_made_them(tmp_path):
 
 def test_a_beauty_with_nan_pixels_is_refused_naming_the_paths_that_made_them(tmp_path):
     shot = tmp_path / "nan.usda"
-    shot.write_text(ball_of("color3f inputs:diffuseColor = (nan, 1, 1)"))
+    # A NaN primvar through a UsdPrimvarReader (a NaN constant input is the reader's error)
+    shot.write_text(ball_of('color3f inputs:diffuseColor.connect = </World/look/surface/tint.outputs:result>\n'
+                            '            def Shader "tint"\n            {\n'
+                            '                uniform token info:id = "UsdPrimvarReader_float3"\n'
+                            '                string inputs:varname = "tint"\n                float3 outputs:result\n'
+                            '            }').replace("rel material:binding = </World/look>\n",
+                                        "rel material:binding = </World/look>\n        color3f primvars:tint = (nan, 1, 1)\n"))
     result = run("render", str(shot), "-o", str(tmp_path / "out"), *SMALL, "--no-previews")
     assert result.returncode == 1
     error = result.stderr.strip().splitlines()[-1]

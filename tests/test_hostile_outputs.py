@@ -216,3 +216,339 @@ def test_ctrl_c_during_the_renames_is_raised_after_them():
         raise_recorded(received)
     other.join()
     assert reached
+
+
+# -- issue 33: what an output may be ---------------------------------------------------------
+#
+# Every command that writes refuses, in one line naming the file and before its work: a name
+# that is (or links to) a FIFO, a device, a folder; a name of the wrong kind for what it
+# writes; one of its own inputs (the index, the render's EXR, the stage), however spelt; and
+# a recipe's productName that leaves the output folder. Such a name is never replaced.
+
+import shutil  # noqa: E402 (the section's own imports)
+import stat  # noqa: E402
+
+from test_hostile_jobs import one_error_line  # noqa: E402
+
+from pxr_layers.cli.main import main  # noqa: E402
+from pxr_layers.errors import OutputError, RecipeError  # noqa: E402
+from pxr_layers.outputs import OutputSet, check_output, output_problem, reading, write_atomically  # noqa: E402
+from pxr_layers.recipe.model import Layer, Product  # noqa: E402
+
+SMALL = ["--spp", "2", "--resolution", "16", "16", "--max-depth", "3", "--quiet", "--no-previews"]
+
+
+def cli(capsys, *args: str) -> tuple[int, str, str]:
+    """`pxr-layers ARGS` in this process: (exit code, stdout, stderr)."""
+    code = main(list(args))
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def refused(capsys, name, *args: str) -> str:
+    """Run the command; it must exit 1 with one error line naming ``name``. Returns the line."""
+    code, out, err = cli(capsys, *args)
+    line = one_error_line(err)
+    assert code == 1 and str(name) in line and "internal error" not in line, (code, err)
+    return line
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory) -> Path:
+    """A tiny render of the Cornell box (cornell.exr, cornell.pxlidx) and its passes cut by
+    extract (passes.exr), made once; tests work on a copy (:func:`shot`)."""
+    folder = tmp_path_factory.mktemp("rendered") / "out"
+    assert main(["render", CORNELL, "-o", str(folder), *SMALL]) == 0
+    assert main(["extract", str(folder / "cornell.pxlidx"), "--passes", "-o", str(folder / "passes.exr"),
+                 "--quiet", "--no-previews"]) == 0
+    return folder
+
+
+@pytest.fixture
+def shot(rendered, tmp_path) -> Path:
+    """A copy of the rendered folder, the test's own (tmp_path/out)."""
+    return Path(shutil.copytree(rendered, tmp_path / "out"))
+
+
+def contents(folder: Path) -> dict[str, bytes]:
+    """Every regular file under ``folder`` (names relative to it) and its bytes."""
+    return {str(path.relative_to(folder)): path.read_bytes() for path in sorted(folder.rglob("*")) if path.is_file()}
+
+
+# --- its own inputs ----------------------------------------------------------------------------
+
+OWN_INPUTS = {
+    # suggest names its EXRs after its recipe: shot.usda beside shot.pxlidx would write shot.exr
+    "suggest recipe named after the render": (
+        ["suggest", "{out}/cornell.pxlidx", "-k", "2", "-o", "{out}/cornell.usda"], "{out}/cornell.exr"),
+    "suggest -o the render's EXR": (
+        ["suggest", "{out}/cornell.pxlidx", "-o", "{out}/cornell.exr"], "{out}/cornell.exr"),
+    "suggest -o the index": (["suggest", "{out}/cornell.pxlidx", "-o", "{out}/cornell.pxlidx"], "{out}/cornell.pxlidx"),
+    "extract -o the render's EXR": (["extract", "{out}/cornell.pxlidx", "--passes", "-o", "{out}/cornell.exr"],
+                                    "{out}/cornell.exr"),
+    "extract -o the render's EXR, spelt with ..": (
+        ["extract", "{out}/cornell.pxlidx", "--passes", "-o", "{out}/../out/cornell.exr"], "{out}/../out/cornell.exr"),
+    "extract -o a link to the render's EXR": (["extract", "{out}/cornell.pxlidx", "--passes", "-o", "{out}/link.exr"],
+                                             "{out}/link.exr"),
+    "extract -o the index": (["extract", "{out}/cornell.pxlidx", "--passes", "-o", "{out}/cornell.pxlidx"],
+                             "{out}/cornell.pxlidx"),
+    "nuke -o its product": (["nuke", "{out}/passes.exr", "-o", "{out}/passes.exr"], "{out}/passes.exr"),
+    "nuke -o a link to its product": (["nuke", "{out}/passes.exr", "-o", "{out}/passes_link.nk"],
+                                      "{out}/passes_link.nk"),
+    "render -o its stage": (["render", "{out}/stage.usda", "-o", "{out}/stage.usda", *SMALL], "{out}/stage.usda"),
+}
+
+
+@pytest.mark.parametrize("case", list(OWN_INPUTS))
+def test_a_command_never_replaces_its_own_inputs(shot, capsys, case):
+    (shot / "link.exr").symlink_to("cornell.exr")
+    (shot / "passes_link.nk").symlink_to("passes.exr")
+    shutil.copy(CORNELL, shot / "stage.usda")
+    before = contents(shot)
+    args, name = OWN_INPUTS[case]
+    refused(capsys, name.format(out=shot), *(arg.format(out=shot) for arg in args))
+    assert contents(shot) == before
+    assert (shot / "link.exr").is_symlink() and (shot / "passes_link.nk").is_symlink()
+
+
+def test_an_input_is_known_as_a_file_whatever_its_name(tmp_path):
+    """The rule itself: device and inode, so a link, a relative or a `..` spelling is the input."""
+    source = tmp_path / "in.exr"
+    source.write_bytes(b"x")
+    (tmp_path / "alias.exr").symlink_to(source)
+    (tmp_path / "hard.exr").hardlink_to(source)
+    spellings = [source, tmp_path / "alias.exr", tmp_path / "hard.exr", tmp_path / ".." / tmp_path.name / "in.exr"]
+    with reading(source, tmp_path / "missing.usda", None):  # one missing, one None: skipped
+        for path in spellings:
+            assert "this command reads" in output_problem(path), path
+            with pytest.raises(OutputError, match="this command reads"):
+                write_atomically(path, lambda temporary: temporary.write_bytes(b"y"))
+    assert [output_problem(path) for path in spellings] == [None] * 4  # the block is over
+    assert source.read_bytes() == b"x" and not [p for p in tmp_path.iterdir() if ".tmp" in p.name]
+
+
+def test_a_look_saved_under_the_render_s_name_does_not_replace_its_exr(shot):
+    """The inspector's save with overwrite: true writes NAME.exr, NAME.usda, NAME.nk; a look
+    named after the render would replace the EXR (and index) it reads."""
+    from pxr_layers.view.session import Session
+
+    session = Session.open(shot)
+    layer, _ = session.add_layer("diffuse", "C<RD>.*")
+    before = contents(shot)
+    with pytest.raises(OutputError, match="cornell.exr: is a file this command reads"):
+        session.save("cornell", [{"id": layer.id}], overwrite=True)
+    assert contents(shot) == before
+    assert session.save("look", [{"id": layer.id}])["exr"] == "look.exr"
+
+
+# --- the kind of file a command writes ---------------------------------------------------------
+
+WRONG_SUFFIXES = {
+    "extract -o cut.png": (["extract", "{out}/cornell.pxlidx", "--passes", "-o", "{out}/cut.png"], "{out}/cut.png",
+                           "names a .png file, not a folder"),
+    "extract -o cut.nk": (["extract", "{out}/cornell.pxlidx", "--passes", "-o", "{out}/cut.nk"], "{out}/cut.nk",
+                          "names a .nk file, not a folder"),
+    "render -o shot.png": (["render", CORNELL, "-o", "{out}/shot.png", *SMALL], "{out}/shot.png",
+                           "names a .png file, not a folder"),
+    "suggest -o x.exr": (["suggest", "{out}/cornell.pxlidx", "-o", "{out}/x.exr"], "{out}/x.exr",
+                         "a recipe ends in .usda or .usd or .usdc"),
+    "suggest -o x.nk": (["suggest", "{out}/cornell.pxlidx", "-o", "{out}/x.nk"], "{out}/x.nk",
+                        "a recipe ends in .usda or .usd or .usdc"),
+    "suggest -o x": (["suggest", "{out}/cornell.pxlidx", "-o", "{out}/x"], "{out}/x",
+                     "a recipe ends in .usda or .usd or .usdc"),
+    "nuke -o comp.txt": (["nuke", "{out}/passes.exr", "-o", "{out}/comp.txt"], "{out}/comp.txt",
+                         "a Nuke script ends in .nk"),
+    "nuke -o comp": (["nuke", "{out}/passes.exr", "-o", "{out}/comp"], "{out}/comp", "a Nuke script ends in .nk"),
+}
+
+
+@pytest.mark.parametrize("case", list(WRONG_SUFFIXES))
+def test_a_wrong_extension_is_one_line_and_writes_nothing(shot, capsys, case):
+    before = contents(shot)
+    args, name, said = WRONG_SUFFIXES[case]
+    line = refused(capsys, name.format(out=shot), *(arg.format(out=shot) for arg in args))
+    assert said in line
+    assert contents(shot) == before and sorted(path.name for path in shot.iterdir() if path.is_dir()) == []
+
+
+def test_a_folder_with_a_dot_stays_a_folder(shot, capsys):
+    """Only the suffixes of files (outputs.FILE_SUFFIXES) are refused: `v1.2` is a folder."""
+    code, out, _ = cli(capsys, "extract", str(shot / "cornell.pxlidx"), "--passes", "-o", str(shot / "v1.2"),
+                       "--quiet", "--no-previews")
+    assert code == 0 and (shot / "v1.2" / "cornell.layers.exr").is_file()
+
+
+# --- devices, FIFOs, folders, and links to them ------------------------------------------------
+
+def _fifo(path: Path) -> None:
+    os.mkfifo(path)
+
+
+def _folder(path: Path) -> None:
+    path.mkdir()
+
+
+def _device(path: Path) -> None:
+    """A character device of its own (the null device's numbers): replacing it would be
+    harmless, unlike /dev/null's. Only root may make one."""
+    try:
+        os.mknod(path, 0o644 | stat.S_IFCHR, os.makedev(1, 3))
+    except PermissionError:
+        pytest.skip("making a device node needs root")
+
+
+SPECIAL = {"FIFO": (_fifo, stat.S_ISFIFO), "folder": (_folder, stat.S_ISDIR), "device": (_device, stat.S_ISCHR)}
+WRITERS = {
+    "nuke": (["nuke", "{out}/passes.exr", "-o", "{name}"], ".nk"),
+    "extract": (["extract", "{out}/cornell.pxlidx", "--passes", "-o", "{name}"], ".exr"),
+    "suggest": (["suggest", "{out}/cornell.pxlidx", "-k", "2", "-o", "{name}"], ".usda"),
+    "render": (["render", CORNELL, "-o", "{name}", *SMALL], ".exr"),
+}
+
+
+@pytest.mark.parametrize("linked", [False, True], ids=["itself", "a link to it"])
+@pytest.mark.parametrize("kind", list(SPECIAL))
+@pytest.mark.parametrize("command", list(WRITERS))
+def test_an_output_that_is_not_a_regular_file_is_refused_and_left_alone(shot, capsys, command, kind, linked):
+    make, is_kind = SPECIAL[kind]
+    args, suffix = WRITERS[command]
+    node = shot / f"node{suffix}"
+    make(node)
+    name = node
+    if linked:
+        name = shot / f"link{suffix}"
+        name.symlink_to(node.name)
+    before = os.lstat(node)
+    line = refused(capsys, name, *(arg.format(out=shot, name=name) for arg in args))
+    assert "an output replaces only a regular file" in line and ("symbolic link" in line) == linked, line
+    after = os.lstat(node)
+    assert is_kind(after.st_mode) and (after.st_ino, after.st_rdev) == (before.st_ino, before.st_rdev)
+    assert not linked or name.is_symlink()
+    assert not [path for path in shot.iterdir() if ".tmp" in path.name]
+
+
+def test_dev_null_is_not_a_file_to_write():
+    """Checked without writing: were the rule broken, a write would make /dev/null a regular file."""
+    assert "is a character device" in output_problem("/dev/null", "Nuke script")
+    with pytest.raises(OutputError, match="^/dev/null: is a character device"):
+        check_output("/dev/null")
+
+
+def test_a_fifo_that_appears_while_the_files_are_written_is_not_replaced(tmp_path):
+    """The names are checked again under the folder's lock, just before the renames: nothing
+    of the set is put in place and the FIFO stays."""
+    final = tmp_path / "late.exr"
+    with pytest.raises(OutputError, match="late.exr: is a FIFO"):
+        with OutputSet():
+            write_atomically(tmp_path / "other.png", lambda temporary: temporary.write_bytes(b"png"))
+            write_atomically(final, lambda temporary: temporary.write_bytes(b"exr"))
+            os.mkfifo(final)
+    assert stat.S_ISFIFO(os.lstat(final).st_mode) and sorted(os.listdir(tmp_path)) == ["late.exr"]
+
+
+# --- productName ---------------------------------------------------------------------------------
+
+def recipe_layer(product_name: str) -> str:
+    return f'''#usda 1.0
+(
+    renderSettingsPrimPath = "/Render/Out/Settings"
+)
+def Scope "Render"
+{{
+    def Scope "Out"
+    {{
+        def RenderSettings "Settings"
+        {{
+            rel products = </Render/Out/escape>
+        }}
+        def RenderProduct "escape"
+        {{
+            rel orderedVars = </Render/Out/diffuse>
+            token productName = "{product_name}"
+        }}
+        def RenderVar "diffuse"
+        {{
+            uniform token sourceType = "lpe"
+            uniform string sourceName = "C<RD>.*"
+            uniform token dataType = "color3f"
+        }}
+    }}
+}}
+'''
+
+
+ESCAPING = ["../../escaped.exr", "sub/../../escaped.exr", "..\\\\escaped.exr", "/tmp/pxr-layers-escaped.exr"]
+
+
+@pytest.mark.parametrize("product_name", ESCAPING)
+@pytest.mark.parametrize("command", ["render", "extract"])
+def test_a_product_name_that_leaves_the_output_folder_is_refused(shot, capsys, command, product_name):
+    recipe = shot / "escape.usda"
+    recipe.write_text(recipe_layer(product_name))
+    before = contents(shot.parent)
+    source = [CORNELL] if command == "render" else [str(shot / "cornell.pxlidx")]
+    # named as every recipe error is: the composed stage's file, the prim, the attribute
+    line = refused(capsys, "/Render/Out/escape.productName", command, *source, "--recipe", str(recipe), "-o",
+                   str(shot / "deep" / "er"), *(SMALL if command == "render" else ["--quiet"]))
+    assert "output folder" in line and "escaped.exr" in line
+    assert contents(shot.parent) == before
+    assert not Path("/tmp/pxr-layers-escaped.exr").exists()
+
+
+def test_a_product_name_may_name_a_subfolder():
+    layers = (Layer("diffuse", "lpe", "C<RD>.*"),)
+    product = Product("p", "beauty/shot.####.exr", "/World/Camera", (4, 4), layers)
+    assert product.output_path(12, "out") == Path("out/beauty/shot.0012.exr")
+    with pytest.raises(RecipeError, match=r"product 'p'\.productName: productName must stay inside the output folder"):
+        Product("p", "beauty/../../shot.exr", "/World/Camera", (4, 4), layers)
+
+
+# --- an EXR cut short ----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("cut", [1, 100, 1000, "header"])
+def test_nuke_on_an_exr_cut_short_is_one_line_and_writes_nothing(shot, cut):
+    """Its last bytes cut off (an interrupted copy): OpenEXR's binding would drop the parts it
+    cannot read, printing to stdout and stderr; the real console script says one line."""
+    data = (shot / "passes.exr").read_bytes()
+    cut = len(data) - 200 if cut == "header" else cut  # into the headers
+    damaged = shot / "damaged.exr"
+    damaged.write_bytes(data[:-cut])
+    result = run("nuke", str(damaged), "--quiet")
+    assert result.returncode == 1 and result.stdout == "", result
+    line = one_error_line(result.stderr)
+    assert line.startswith(f"pxr-layers: error: {damaged}: ")
+    assert "cut short or damaged" in line or "cannot open it" in line, line
+    assert not (shot / "damaged.nk").exists()
+
+
+def test_an_exr_cut_short_is_refused_wherever_it_is_read(shot, capsys):
+    """extract and suggest read the render's EXR beside the index (its beauty), the inspector
+    its products: each refuses the file, naming it, instead of reading what is left."""
+    from pxr_layers.errors import PxrLayersError
+    from pxr_layers.view.session import Session
+
+    exr = shot / "cornell.exr"
+    exr.write_bytes(exr.read_bytes()[:-20])
+    for args in (["extract", str(shot / "cornell.pxlidx"), "--passes", "-o", str(shot / "cut.exr")],
+                 ["suggest", str(shot / "cornell.pxlidx"), "-k", "2", "-o", str(shot / "suggested.usda")]):
+        line = refused(capsys, exr, *args, "--quiet")
+        assert "cut short or damaged" in line
+    with pytest.raises(PxrLayersError, match="cut short or damaged"):
+        Session.open(exr)
+    assert not (shot / "cut.exr").exists() and not (shot / "suggested.usda").exists()
+
+
+def test_a_file_that_is_not_an_exr_is_named_as_such(shot, capsys):
+    line = refused(capsys, shot / "cornell.pxlidx", "nuke", str(shot / "cornell.pxlidx"), "-o", str(shot / "x.nk"))
+    assert "not an OpenEXR file" in line
+
+
+def test_suggest_for_two_indexes_of_one_time_refuses_to_write_one_exr_twice(shot, capsys):
+    """Each index gets `<recipe stem>[.FFFF].exr`: two renders at the same time (or both at
+    the default one) would give one name, the second EXR silently replacing the first."""
+    other = shot / "retake"
+    other.mkdir()
+    shutil.copy(shot / "cornell.pxlidx", other / "cornell.pxlidx")
+    line = refused(capsys, shot / "look.exr", "suggest", str(shot / "cornell.pxlidx"), str(other / "cornell.pxlidx"),
+                   "-k", "2", "-o", str(shot / "look.usda"))
+    assert "would write it" in line and not (shot / "look.usda").exists()

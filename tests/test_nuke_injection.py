@@ -10,6 +10,7 @@ the file (``[...]``, ``$``, backslashes); both levels are checked.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -228,3 +229,30 @@ def test_a_part_name_with_a_trailing_newline_is_refused(name):
     with pytest.raises(Exception, match="not an identifier"):
         Layer(name, "lpe", "C<RD>.*")
     assert layer_problems(Layer("key", "lpe", "C<RD>.*")) == []
+
+
+@pytest.mark.parametrize("where", ["beside", "below", "elsewhere"])
+def test_the_file_knob_names_the_exr_from_any_working_directory(tcl, tmp_path, monkeypatch, where):
+    """Written from one working directory with relative names, the script's file knob,
+    substituted by a real, unrestricted Tcl (``file dirname``, ``value root.name`` = the
+    script as opened) run from another folder, is an existing file: the EXR (issue 33)."""
+    rng = np.random.default_rng(7)
+    layers = {"key": rng.uniform(0, 1, (3, 4, 3)).astype(np.float32)}
+    beauty = np.concatenate([layers["key"], np.ones((3, 4, 1), np.float32)], axis=2)
+    shots = tmp_path / "shots [v1] $x"
+    exr = shots / ("sub" if where == "below" else "") / "a {b} ;c.exr"
+    exr.parent.mkdir(parents=True)
+    write_multipart(exr, beauty, layers)
+    script = (tmp_path / "comp" if where == "elsewhere" else shots) / "look.nk"
+    monkeypatch.chdir(shots)
+    written = write_nuke_script(os.path.relpath(script), os.path.relpath(exr), ["key"], {}, resolution=(4, 3),
+                                partition=True)
+    (read,) = (command for command in tcl.run(written.read_text(encoding="utf-8")) if command[0] == "Read")
+    file = knobs(tcl, read[1])["file"]
+    assert file.startswith("[file dirname [value root.name]]/") == (where != "elsewhere")
+    real = tkinter.Tcl()
+    real.eval(f"proc value {{knob}} {{ return {tcl_word(script.as_posix())} }}")
+    real.eval(f"cd {tcl_word(tmp_path.parent.as_posix())}")
+    real.setvar("knob", file)
+    assert os.path.realpath(real.eval("subst $knob")) == os.path.realpath(exr)
+    assert real.eval("file isfile [subst $knob]") == "1"

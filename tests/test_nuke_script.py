@@ -647,3 +647,54 @@ def test_render_and_extract_write_the_nuke_command_s_script_beside_every_product
     for exr in [*exrs, extracted]:
         again = write_product_script(exr, exr.with_name(f"{exr.stem}.again.nk"))  # beside it: the same file knob
         assert exr.with_suffix(".nk").read_text() == again.read_text()
+
+
+def test_a_look_saved_in_the_inspector_reads_its_exr_from_any_working_directory(tmp_path, monkeypatch):
+    """The inspector's save writes NAME.nk beside NAME.exr: its file knob is relative to the
+    script's folder, whatever folder the server was started from, and the script rebuilds
+    the look from another one (issue 33: it named the EXR relative to the server's cwd)."""
+    from pxr_layers.view.session import Session
+
+    folder = tmp_path / "shot"
+    assert main(["render", str(ROOT / "render" / "cornell.usda"), "-o", str(folder), "--spp", "2",
+                 "--resolution", "12", "10", "--max-depth", "3", "--quiet", "--no-previews"]) == 0
+    (tmp_path / "server").mkdir()
+    monkeypatch.chdir(tmp_path / "server")
+    session = Session.open(folder)
+    diffuse, _ = session.add_layer("diffuse", "C<RD>.*")
+    saved = session.save("look", [{"id": diffuse.id, "stops": 1.0}])
+    script = folder / saved["nuke"]
+    text = script.read_text()
+    assert r'file "\[file dirname \[value root.name]]/look.exr"' in text
+    (tmp_path / "artist").mkdir()
+    monkeypatch.chdir(tmp_path / "artist")
+    out, _ = evaluate(text, script)
+    file = OpenEXR.File(str(folder / "look.exr"))
+    beauty, layer = file.parts[0].channels["RGBA"].pixels, file.parts[1].channels["diffuse"].pixels
+    expected = composite_rule(beauty, {"diffuse": layer}, {"diffuse": LayerGrade(stops=1.0)}, 0.0)
+    assert np.all(np.abs(out[..., :3] - expected) <= bound(beauty, {"diffuse": layer},
+                                                           {"diffuse": LayerGrade(stops=1.0)}, 0.0))
+
+
+@pytest.mark.parametrize("script, exr", [("look.nk", "look.exr"), ("comp/look.nk", "look.exr"),
+                                         ("look.nk", "./sub/../look.exr"), ("sub/look.nk", "sub/../look.exr")])
+def test_the_nuke_command_s_script_opens_from_any_working_directory(stack, tmp_path, monkeypatch, script, exr):
+    """`pxr-layers nuke` given names relative to one folder: the script, read from another
+    folder, finds the EXR and rebuilds the beauty."""
+    beauty, _ = stack(True)
+    for folder in ("comp", "sub", "elsewhere"):
+        (tmp_path / folder).mkdir()
+    monkeypatch.chdir(tmp_path)
+    assert main(["nuke", exr, "-o", script, "--quiet"]) == 0
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    out, _ = evaluate((tmp_path / script).read_text(), tmp_path / script)
+    np.testing.assert_array_equal(out[..., :3], beauty[..., :3])
+
+
+@pytest.mark.parametrize("name", ["look.txt", "look", "look.nk.bak"])
+def test_a_nuke_script_is_written_only_under_a_nk_name(stack, tmp_path, name):
+    _, layers = stack(True)
+    with pytest.raises(OutputError, match=f"{name}: not a Nuke script's name: a Nuke script ends in .nk"):
+        write_nuke_script(tmp_path / name, tmp_path / "look.exr", list(layers), {}, resolution=(5, 6),
+                          partition=True)
+    assert not (tmp_path / name).exists()

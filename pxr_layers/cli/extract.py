@@ -15,12 +15,13 @@ from ..layers.deliver import (
     cryptomattes_beside,
     deliver,
     index_frame,
+    index_inputs,
     index_metadata,
     output_target,
     plan_outputs,
 )
 from ..layers.extract import extraction_threads
-from ..outputs import OutputSet
+from ..outputs import OutputSet, reading
 from ..paths.reader import PathIndex
 from ..recipe.model import Layer, Product, Recipe
 from ..request import VariantSelection
@@ -76,6 +77,12 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     index = PathIndex(args.index)
+    # What this command reads is never replaced by what it writes (-o onto the render's EXR)
+    with reading(*index_inputs(index), *(args.recipe_layers or ())):
+        return _cut(index, args)
+
+
+def _cut(index: PathIndex, args: argparse.Namespace) -> int:
     loaded = _recipe(index, args) if args.recipe_layers else None
     products = list(loaded.products) if loaded else []
     expressions, clash = _command_line_layers(args, index)

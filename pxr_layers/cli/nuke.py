@@ -25,9 +25,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..layers.nuke import NUKE_SCRIPT_SUFFIX
+    from ..outputs import check_output, reading
+
     product = Path(args.product)
-    output = Path(args.output) if args.output else product.with_suffix(".nk")
-    print(write_product_script(product, output))
+    output = Path(args.output) if args.output else product.with_suffix(NUKE_SCRIPT_SUFFIX)
+    with reading(product):  # `-o` naming the product itself must not replace it
+        check_output(output, "Nuke script", (NUKE_SCRIPT_SUFFIX,))  # before the EXR is read
+        print(write_product_script(product, output))
     return 0
 
 

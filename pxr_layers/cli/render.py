@@ -90,9 +90,11 @@ def run(args: argparse.Namespace) -> int:
     # Imported here, not with the module: every command's parser imports this module, and
     # the frame pulls in numba, Embree and the tracer (0.7 s an `extract` need not pay).
     from ..jobs.frame import render_frame
+    from ..outputs import reading
 
-    result = render_frame(request_from_args(Path(args.stage), args), args.frame, output=args.output,
-                          threads=args.threads, show_progress=args.show_progress)
+    with reading(args.stage, *(args.recipe_layers or ())):  # never replaced by the render's outputs
+        result = render_frame(request_from_args(Path(args.stage), args), args.frame, output=args.output,
+                              threads=args.threads, show_progress=args.show_progress)
     for delivered in result.delivered:
         print(delivered.exr)
         if delivered.nuke_script:

@@ -6,9 +6,13 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from ..recipe.model import DEFAULT_CAMERA_PATH, Layer, Product, Recipe
+from ..errors import OutputError
+from ..recipe.model import DEFAULT_CAMERA_PATH, RECIPE_SUFFIXES, Layer, Product, Recipe
 from ..suggest import DEFAULT_K, STRATEGIES
 from .render import nonempty_path, positive_int
+
+DEFAULT_RECIPE_NAME = "suggested.usda"
+"""The recipe's name beside the first index when -o is not given."""
 
 HELP = "suggest K light layers that partition the beauty, for one index or a shot's frames"
 DESCRIPTION = (
@@ -27,8 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-k", "--layers", type=positive_int, default=DEFAULT_K, metavar="N",
                         help=f"how many layers (default {DEFAULT_K}; fewer when path space cannot be split further)")
     parser.add_argument("-o", "--output", type=nonempty_path, metavar="RECIPE",
-                        help="the recipe to write (.usda); the EXRs go beside it "
-                        "(default: suggested.usda beside the first index)")
+                        help=f"the recipe to write ({', '.join(RECIPE_SUFFIXES)}); the EXRs go beside it, named "
+                        f"after it (default: {DEFAULT_RECIPE_NAME} beside the first index)")
     parser.add_argument("--strategy", choices=STRATEGIES, default=STRATEGIES[0],
                         help=f"how the layers are searched for (default {STRATEGIES[0]}; docs/suggest.md)")
     parser.add_argument("--threads", type=positive_int, default=2, metavar="N",
@@ -38,30 +42,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..layers.deliver import index_inputs
+    from ..outputs import reading
+    from ..paths.reader import PathIndex
+
+    indexes = [PathIndex(path) for path in args.indexes]
+    # The indexes and the renders' EXRs beside them are never replaced by what suggest writes
+    # (-o out/shot.usda beside out/shot.pxlidx would otherwise write its EXR over out/shot.exr).
+    with reading(*(path for index in indexes for path in index_inputs(index))):
+        return _suggest(indexes, args)
+
+
+def _suggest(indexes: list, args: argparse.Namespace) -> int:
     from ..layers.deliver import at_index_view, beauty_beside, deliver, index_frame, index_metadata, plan_outputs
     from ..layers.extract import extraction_threads
-    from ..outputs import OutputSet
-    from ..paths.reader import PathIndex
+    from ..outputs import OutputSet, check_output
     from ..stage.recipe_writer import write_recipe
     from ..suggest import suggest
 
-    indexes = [PathIndex(path) for path in args.indexes]
+    target = Path(args.output) if args.output else indexes[0].path.parent / DEFAULT_RECIPE_NAME
+    check_output(target, "recipe", RECIPE_SUFFIXES)  # before the search: a mistake costs nothing
     suggestion = suggest(indexes, args.layers, strategy=args.strategy, threads=args.threads)
-    target = Path(args.output) if args.output else indexes[0].path.parent / "suggested.usda"
     recipe = suggested_recipe(suggestion.layers, indexes[0], target.stem)
+    plans = []  # (index, its recipe, product → EXR), every name checked before anything is written
+    written: dict[Path, Path] = {}  # EXR → the index it is cut from
+    for index in indexes if not args.no_exr else ():
+        at_index = dataclasses.replace(recipe, products=(at_index_view(recipe.products[0], index),))
+        outputs = plan_outputs(at_index, index_frame(index), target.parent)
+        for exr in outputs.values():
+            other = written.setdefault(exr, index.path)
+            if other != index.path:  # two frames at one time (or none): one EXR would silently replace the other
+                raise OutputError(f"{exr}: both {other} and {index.path} would write it (the same frame "
+                                  "time); suggest for each on its own, with its own -o")
+        plans.append((index, at_index, outputs))
     width = max(len(name) for name in suggestion.layers)
     for name, expression in suggestion.layers.items():
         print(f"{name:<{width}}  {suggestion.shares[name]:6.1%}  {expression}")
     print(f"objective {suggestion.objective:.4f} ({suggestion.strategy}; splits: {', '.join(suggestion.splits) or 'none'})")
     with OutputSet(), extraction_threads(args.threads):  # the recipe and every EXR of the command, or none
         write_recipe(target, recipe)
-        if not args.no_exr:
-            for index in indexes:
-                at_index = dataclasses.replace(recipe, products=(at_index_view(recipe.products[0], index),))
-                outputs = plan_outputs(at_index, index_frame(index), target.parent)
-                for delivered in deliver(index, at_index, beauty_beside(index), outputs,
-                                         metadata=index_metadata(index, target.parent), previews=not args.no_previews):
-                    print(delivered.exr)
+        for index, at_index, outputs in plans:
+            for delivered in deliver(index, at_index, beauty_beside(index), outputs,
+                                     metadata=index_metadata(index, target.parent), previews=not args.no_previews):
+                print(delivered.exr)
     print(target)
     return 0
 

@@ -42,6 +42,9 @@ import numpy as np
 logger = logging.getLogger(__name__)
 
 TILE = 128  # texels of the full-resolution image per analysis tile
+TILES_AT_ONCE = 512
+"""Tiles whose spectra are computed together (about 0.3 GiB of float64 and complex arrays):
+memory stays bounded whatever the texture's size."""
 
 
 @dataclass(frozen=True)
@@ -63,9 +66,11 @@ class TextureSpectrum:
     @classmethod
     def of_image(cls, pixels: np.ndarray) -> TextureSpectrum:
         """Measure T for every tile and level of `pixels` (h, w, c) float, row 0 = top."""
-        image = np.asarray(pixels, dtype=np.float64)
+        image = np.asarray(pixels)
         if image.ndim == 3:  # the colour channels: RGB, or the grey of grey (+ alpha)
-            image = image[..., :3].mean(axis=2) if image.shape[2] >= 3 else image[..., 0]
+            # in float64 without a float64 copy of every channel first (a large texture's GiBs)
+            image = image[..., :3].mean(axis=2, dtype=np.float64) if image.shape[2] >= 3 else image[..., 0]
+        image = np.asarray(image, dtype=np.float64)
         height, width = image.shape
         tile_h, tile_w = min(TILE, height), min(TILE, width)
         rows = _tile_starts(height, tile_h)
@@ -83,17 +88,23 @@ class TextureSpectrum:
         masks = [_band(freq_row, freq_col, level) * pair_weight for level in range(level_count)]
         window_moments = [_moments(np.abs(np.fft.rfft2(window)), freq_row, freq_col, mask) for mask in masks]
 
-        tiles = np.stack([image[r : r + tile_h, c : c + tile_w] for r in rows for c in cols])
-        spectra = np.abs(np.fft.rfft2(tiles * window))  # (tiles, tile_h, tile_w // 2 + 1)
         blocks = np.zeros((level_count, len(rows), len(cols), 3), np.float32)
-        for level, mask in enumerate(masks):
-            col_col, col_row, row_row = _moments(spectra, freq_row, freq_col, mask)
-            w_cc, w_cr, w_rr = window_moments[level]
-            # texels -> texture units: s = col / width, t = 1 - row / height
-            ss = (col_col - w_cc) * width**2
-            st = -(col_row - w_cr) * width * height
-            tt = (row_row - w_rr) * height**2
-            blocks[level] = np.stack(_clamp_psd(ss, st, tt), axis=-1).reshape(len(rows), len(cols), 3)
+        # A few rows of tiles at a time: each tile is measured alone, and the spectra of all
+        # of a large texture's tiles at once would take GiBs (tiles overlap: 4 × its texels).
+        group = max(1, TILES_AT_ONCE // len(cols))
+        for first in range(0, len(rows), group):
+            chosen = rows[first : first + group]
+            tiles = np.stack([image[r : r + tile_h, c : c + tile_w] for r in chosen for c in cols])
+            spectra = np.abs(np.fft.rfft2(tiles * window))  # (tiles, tile_h, tile_w // 2 + 1)
+            for level, mask in enumerate(masks):
+                col_col, col_row, row_row = _moments(spectra, freq_row, freq_col, mask)
+                w_cc, w_cr, w_rr = window_moments[level]
+                # texels -> texture units: s = col / width, t = 1 - row / height
+                ss = (col_col - w_cc) * width**2
+                st = -(col_row - w_cr) * width * height
+                tt = (row_row - w_rr) * height**2
+                blocks[level, first : first + len(chosen)] = np.stack(
+                    _clamp_psd(ss, st, tt), axis=-1).reshape(len(chosen), len(cols), 3)
         centres_s = (np.asarray(cols) + tile_w / 2) / width
         centres_t = 1.0 - (np.asarray(rows) + tile_h / 2) / height
         logger.debug("texture spectrum: %dx%d texels, %d×%d tiles, %d levels", width, height, len(rows),

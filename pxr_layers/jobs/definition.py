@@ -52,6 +52,8 @@ except ModuleNotFoundError:  # Python 3.10: the same parser, as a package
     import tomli as tomllib
 
 from ..cores import available_cores
+from ..inputs import input_problem
+from ..outputs import confined_name_problem
 from ..paths.format import SUFFIX as INDEX_SUFFIX
 from ..request import OPTIONS, OPTIONS_BY_NAME, EntryError, Option, RenderRequest, type_name
 from .frames import check_template, expand_template, has_frame_token, job_error, parse_frames, shortened
@@ -214,13 +216,12 @@ def _stem(value: Any, base: Path, file: str, key: str) -> str:
         raise job_error("must be a file stem, not an empty string", file, key)
     if text.lower().endswith((BEAUTY_SUFFIX, INDEX_SUFFIX)):
         raise job_error(f"a stem, without a suffix: {text!r} names both the .exr and the .pxlidx", file, key)
-    if Path(text).is_absolute() or text.startswith(("/", "\\")):
-        raise job_error(f"must be relative to output.directory, not absolute: {text!r}", file, key)
     # A stem may name a subfolder (beauty/$F4), never a way out of the output directory:
     # every file of the job, and the scratch folders a run removes, stay inside it.
+    escape = confined_name_problem(text)
+    if escape:
+        raise job_error(escape, file, key)
     parts = re.split(r"[/\\]", text)
-    if ".." in parts:
-        raise job_error(f"must stay inside output.directory: {text!r} climbs out of it with '..'", file, key)
     if not parts[-1].strip():
         raise job_error(f"must end with a file name, not a folder: {text!r}", file, key)
     # The longest name a frame gets: the stem, 9 digits of frame number, the longest suffix.
@@ -306,10 +307,9 @@ class _Setting:
 
 
 def _read_toml(path: Path, child: str | None) -> dict[str, Any]:
-    if not path.is_file():
-        where = child or str(path)
-        message = "is a directory, not a job file" if path.is_dir() else "file not found"
-        raise job_error(f"{path}: {message}" if child else message, where, "extends" if child else None)
+    problem = input_problem(path, "job file")  # a FIFO would block the open
+    if problem is not None:
+        raise job_error(f"{path}: {problem}" if child else problem, child or str(path), "extends" if child else None)
     try:
         with open(path, "rb") as stream:
             return tomllib.load(stream)
@@ -427,9 +427,9 @@ def _resolve(leaf: Path, sources: list[Path], merged: dict[str, _Setting]) -> Jo
         return merged[key]
 
     stage = required("stage", '"shot.usda"')
-    if not stage.value.is_file():
-        what = "is a directory, not a USD file" if stage.value.is_dir() else "file not found"
-        raise job_error(f"{stage.value}: {what}", stage.file, "stage")
+    problem = input_problem(stage.value, "USD file")
+    if problem is not None:
+        raise job_error(f"{stage.value}: {problem}", stage.file, "stage")
     frames = required("frames", '"1-24"')
 
     directory_text = value("output.directory", str(leaf.parent / DEFAULT_DIRECTORY))

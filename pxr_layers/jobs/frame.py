@@ -284,7 +284,7 @@ class FrameAssembler:
         for source in plan.cryptomattes:
             found = coverage(data[source], hits, plan.trace.spp)
             ranked[source] = rank(found.names, found.pixel, found.name, found.weight, plan.resolution,
-                                  plan.request.cryptomatte_depth)
+                                  plan.request.cryptomatte_depth, type_name=source)
         return ranked
 
     def deliver(self, vocabulary, data: dict[str, np.ndarray], object_paths: Sequence[str], *,
@@ -364,6 +364,51 @@ def _culprit_paths(index: PathIndex | None, non_finite: bool) -> str:
             culprits[class_id] = culprits.get(class_id, 0) + count
     named = sorted(culprits, key=culprits.get, reverse=True)[:_CULPRITS_NAMED]
     return "; ".join(path_text(index.classes[class_id].events) for class_id in named) if named else "unknown"
+
+
+# -- a black picture's reason --------------------------------------------------------------
+
+BLACK_LEVEL = 1e-6
+"""A beauty none of whose colour values is above this (linear; 20 stops under 1, nothing a
+display shows) is a black picture, whose reason :func:`warn_of_black_picture` looks for."""
+
+INSIDE_SHARE = 0.95
+"""Share of the camera's probe rays (trace.aovs.camera_surroundings) that must hit back faces
+for the camera to be inside closed geometry: nearly all, leaving a few to slip through seams."""
+
+ENCLOSING_NAMED = 3
+"""Prims a camera-inside warning names at most (those whose insides most probe rays hit)."""
+
+
+def warn_of_black_picture(plan: FramePlan, rgba: np.ndarray, integrator=None) -> str | None:
+    """Warn (one line, logged and returned) when the beauty is black for a reason the
+    render can see: no camera ray hits anything (the camera looks away from the scene, or
+    clips it), or the camera is inside closed geometry (nearly every ray through its film
+    hits the back of a surface: INSIDE_SHARE), naming the prims around it. A black picture
+    because no light sends anything is told when the lights are built (trace.lights.darkness).
+
+    rgba       : (h, w, 4) float32, the traced beauty
+    integrator : the frame's trace.Integrator; None (a job's committed tiles) prepares the
+                 frame again, for a black picture only
+    """
+    if not (rgba[..., :3] <= BLACK_LEVEL).all():  # NaN is not black: check_beauty refuses it
+        return None
+    if not (rgba[..., 3] > 0).any():
+        reason = (f"no ray of the camera {plan.camera} hits anything (look at its position, its direction and its "
+                  "clipping range) and no light shows in the background")
+    else:
+        from ..trace.aovs import camera_surroundings
+
+        around = camera_surroundings(integrator or prepare_frame(plan))
+        if around.back_faces < INSIDE_SHARE * around.rays:
+            return None
+        named = ", ".join(around.enclosing[:ENCLOSING_NAMED])
+        more = len(around.enclosing) - ENCLOSING_NAMED
+        reason = (f"the camera {plan.camera} is inside {named}{f' and {more} more' if more > 0 else ''}: "
+                  f"{around.back_faces} of {around.rays} rays through its film hit the back of a surface")
+    message = f"{plan.stage}: the picture is black: {reason}"
+    log.warning(message)
+    return message
 
 
 def file_sha256(path: Path) -> str:
@@ -480,6 +525,8 @@ def render_frame(request: RenderRequest, frame: float | None = None, *, output: 
     source = source or LocalTrace(plan, shot, threads=threads, show_progress=show_progress)
     with FrameAssembler(plan) as assembler:
         source.trace(assembler.add)
+        # LocalTrace holds the frame's Integrator; a job's committed tiles do not (None)
+        warn_of_black_picture(plan, assembler.images()[0], getattr(source, "integrator", None))
         data, vocabulary, object_paths = source.frame_data()
         delivered = assembler.deliver(vocabulary, data, object_paths, show_progress=show_progress)
     rgba, norms = assembler.images()

@@ -29,11 +29,14 @@ the tests decode with their own implementation of the specification.
 from __future__ import annotations
 
 import json
+import logging
 import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 HASH = "MurmurHash3_32"
 CONVERSION = "uint32_to_float32"
@@ -96,6 +99,36 @@ def manifest(names: Sequence[str]) -> dict[str, str]:
     return {name: id_hex(name) for name in names}
 
 
+COLLISIONS_NAMED = 5
+"""Groups of names sharing an id a warning lists at most (then how many more)."""
+
+
+def collisions(type_manifest: Mapping[str, str]) -> list[tuple[str, ...]]:
+    """The groups of names of a manifest (name → id_hex) that share one id, in the
+    manifest's order. 32-bit hashes collide by chance (even odds among some 77 000 names,
+    by the birthday bound), and the exponent fix gives two hashes one id when they differ
+    only in bit 23 and one's exponent is 0 (or 255), the other's 1 (or 254)."""
+    by_id: dict[str, list[str]] = {}
+    for name, hex_id in type_manifest.items():
+        by_id.setdefault(hex_id, []).append(name)
+    return [tuple(names) for names in by_id.values() if len(names) > 1]
+
+
+def warn_of_collisions(type_name: str, type_manifest: Mapping[str, str]) -> str | None:
+    """One warning line (logged and returned) naming the names of ``type_name`` that share
+    an id: a compositor's matte of one picks the others too. None when every id is unique."""
+    groups = collisions(type_manifest)
+    if not groups:
+        return None
+    shown = "; ".join(" and ".join(map(repr, names)) + f" (id {type_manifest[names[0]]})"
+                      for names in groups[:COLLISIONS_NAMED])
+    more = f"; and {len(groups) - COLLISIONS_NAMED} more" if len(groups) > COLLISIONS_NAMED else ""
+    message = (f"{type_name}: names share a Cryptomatte id, so a matte of one picks the other too: "
+               f"{shown}{more} (rename one of each)")
+    log.warning(message)
+    return message
+
+
 def header_attributes(type_name: str, type_manifest: Mapping[str, str]) -> dict[str, str]:
     """The ``cryptomatte/<key>/...`` header attributes of one type (on its parts and part 0)."""
     prefix = f"{ATTRIBUTE_PREFIX}{type_key(type_name)}/"
@@ -140,8 +173,9 @@ class Cryptomatte:
 
 
 def rank(names: Sequence[str], pixel: np.ndarray, name: np.ndarray, weight: np.ndarray,
-         resolution: tuple[int, int], depth: int) -> Cryptomatte:
-    """Rank the coverage of one type into a Cryptomatte of ``depth`` ranks.
+         resolution: tuple[int, int], depth: int, type_name: str = "Cryptomatte") -> Cryptomatte:
+    """Rank the coverage of one type into a Cryptomatte of ``depth`` ranks; names whose
+    ids collide are warned of (:func:`warn_of_collisions`, ``type_name`` naming the type).
 
     names  : the type's names (the manifest, in this order)
     pixel  : (k,) int64 pixel index y·w + x; name : (k,) int index into ``names``;
@@ -155,6 +189,7 @@ def rank(names: Sequence[str], pixel: np.ndarray, name: np.ndarray, weight: np.n
     ids = np.zeros((height * width, depth), np.float32)
     coverage = np.zeros((height * width, depth), np.float32)
     table = manifest(names)
+    warn_of_collisions(type_name, table)
     if len(pixel) and depth:
         bits = np.array([int(table[n], 16) for n in names], np.uint32)
         order = np.lexsort((bits[name], -np.asarray(weight, np.float64), pixel))

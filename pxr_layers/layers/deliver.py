@@ -8,8 +8,10 @@ Where things go (:func:`plan_outputs`): each product's ``productName`` relative 
 output directory, with ``####`` replaced by the frame number (a name without ``#``
 rendered at an explicit frame gets ``.FFFF`` before ``.exr``, so frames never overwrite
 each other). An explicit ``.exr`` output path replaces the name of a recipe's only
-product. Previews go beside each EXR as ``<exr stem>.<layer>.png`` plus
-``<exr stem>.contact.png``.
+product; an ``-o`` ending in another file's suffix (``cut.png``) is refused rather than made
+a folder, and every output name goes through :func:`pxr_layers.outputs.check_output` (never
+a device, FIFO or folder, never a file the command reads: :func:`index_inputs`). Previews go
+beside each EXR as ``<exr stem>.<layer>.png`` plus ``<exr stem>.contact.png``.
 
 A product's layers come from three places: ``lpe`` layers from the index (one automaton,
 one read of the index for all products), the raw ``color`` var is the beauty (part 0,
@@ -33,13 +35,15 @@ import OpenEXR
 
 from .. import __version__, lpe
 from ..errors import OutputError, PathIndexError, RecipeError
+from ..inputs import input_problem
+from ..outputs import check_output, folder_suffix_problem
 from ..paths.reader import PathIndex
-from ..recipe.model import Layer, Product, Recipe
+from ..recipe.model import EXR_SUFFIX, Layer, Product, Recipe
 from .cryptomatte import Cryptomatte
 from .extract import extract
-from .exr import METADATA_PREFIX
+from .exr import METADATA_PREFIX, read_exr
 from .multipart import read_multipart, write_multipart
-from .nuke import write_product_script
+from .nuke import NUKE_SCRIPT_SUFFIX, write_product_script
 from .previews import energy_shares, write_previews
 
 log = logging.getLogger(__name__)
@@ -76,22 +80,53 @@ def product_path(product: Product, frame: float | None, directory: Path) -> Path
 
 
 def output_target(output: str | os.PathLike | None, default: Path = Path(".")) -> tuple[Path, Path | None]:
-    """(directory, explicit .exr path or None) from ``-o``; ``default`` when it is not given."""
+    """(directory, explicit .exr path or None) from ``-o``; ``default`` when it is not given.
+
+    Raises OutputError for an ``-o`` that names another kind of file (``cut.png``,
+    ``shot.pxlidx``: :func:`~pxr_layers.outputs.folder_suffix_problem`) or an .exr that
+    cannot be written (:func:`~pxr_layers.outputs.check_output`)."""
     text = os.fspath(output) if output is not None else ""
-    if text.lower().endswith(".exr"):
-        return Path(text).parent, Path(text)
+    if text.lower().endswith(EXR_SUFFIX):
+        return Path(text).parent, check_output(text, "multipart EXR")
+    problem = folder_suffix_problem(text) if text else None
+    if problem:
+        raise OutputError(f"{text}: {problem}: the products are multipart EXRs (give a folder for them, "
+                          f"or one product's {EXR_SUFFIX} file)")
     return Path(text) if text else default, None
 
 
 def plan_outputs(recipe: Recipe, frame: float | None, directory: Path, exr: Path | None = None) -> dict[str, Path]:
-    """Product name → its EXR path. ``exr``: an explicit file for a one-product recipe."""
+    """Product name → its EXR path. ``exr``: an explicit file for a one-product recipe.
+
+    Raises OutputError when a product's EXR cannot be written there (a folder, a FIFO, a
+    device, a file the command reads: :func:`~pxr_layers.outputs.check_output`), before any
+    work is done for it."""
     if exr is not None:
         if len(recipe.products) != 1:
             names = ", ".join(product.name for product in recipe.products)
             raise RecipeError(f"-o names one file ({exr}) but the recipe writes {len(recipe.products)} products "
                               f"({names}): give a directory instead", prim=recipe.settings_path or None)
-        return {recipe.products[0].name: exr}
-    return {product.name: product_path(product, frame, directory) for product in recipe.products}
+        outputs = {recipe.products[0].name: exr}
+    else:
+        outputs = {product.name: product_path(product, frame, directory) for product in recipe.products}
+    for path in outputs.values():
+        check_output(path, "multipart EXR")
+    return outputs
+
+
+def index_inputs(index: PathIndex) -> tuple[Path, ...]:
+    """What a command that cuts layers from ``index`` reads or may read, for
+    :func:`pxr_layers.outputs.reading`: the index, the render's EXR beside it
+    (:func:`beauty_beside`) and the stage it was rendered from (its recipe's base; a look
+    saved under the stage's name must not replace it). Some may not exist."""
+    stage = index.manifest.get("stage")
+    return (index.path, render_exr_path(index), *((Path(stage),) if stage else ()))
+
+
+def render_exr_path(index: PathIndex) -> Path:
+    """Where the render of ``index`` wrote its first product: the manifest's ``beauty``, else
+    ``<index stem>.exr``, beside the index."""
+    return index.path.parent / index.manifest.get("beauty", index.path.stem + EXR_SUFFIX)
 
 
 def at_index_view(product: Product, index: PathIndex) -> Product:
@@ -186,7 +221,7 @@ def _nuke_script(exr: Path, beauty: np.ndarray, images: Mapping[str, np.ndarray 
     """Write the product's Nuke script, with unit grades, beside its EXR ``exr`` (the final
     path); returns the script's final path."""
     kinds = {layer.name: layer for layer in product.layers}
-    script = exr.with_suffix(".nk")
+    script = exr.with_suffix(NUKE_SCRIPT_SUFFIX)
     write_product_script(script, exr, beauty, {name: image for name, image in images.items() if not kinds[name].is_data},
                          {name: image.depth for name, image in images.items() if isinstance(image, Cryptomatte)},
                          product.pixel_aspect_ratio)
@@ -238,20 +273,23 @@ def beauty_beside(index: PathIndex) -> np.ndarray:
 
 
 def _render_exr_beside(index: PathIndex, *, header_only: bool) -> tuple[Path, OpenEXR.File] | None:
-    """The EXR the render of ``index`` wrote beside it (the manifest's ``beauty``, else
-    ``<index stem>.exr``) and its contents (its headers only with ``header_only``); None when
-    there is no such file.
+    """The EXR the render of ``index`` wrote beside it (:func:`render_exr_path`) and its
+    contents (its headers only with ``header_only``); None when there is no such file.
 
     Raises OutputError when OpenEXR cannot read it, PathIndexError when its
     ``pxrLayers/renderId`` is not the index's ``render_id`` (another render wrote it).
     """
-    beside = index.path.parent / index.manifest.get("beauty", index.path.stem + ".exr")
+    beside = render_exr_path(index)
     if not beside.exists():
         return None
     try:
-        exr = OpenEXR.File(str(beside), header_only=header_only)
+        problem = input_problem(beside, "multipart EXR")
+        if problem is not None:  # a FIFO would block the read
+            raise OutputError(problem)
+        exr = read_exr(beside, header_only=header_only)  # a beauty cut short is refused, not read in part
     except Exception as error:  # the binding raises RuntimeError and others for a damaged file
-        raise OutputError(f"{beside}: the render's EXR beside {index.path.name} cannot be read ({error}); "
+        cause = str(error).removeprefix(f"{beside}: ")
+        raise OutputError(f"{beside}: the render's EXR beside {index.path.name} cannot be read ({cause}); "
                           "remove it to rebuild the beauty from the index") from error
     expected = index.manifest.get("render_id")
     found = exr.header().get(METADATA_PREFIX + "renderId")

@@ -32,6 +32,7 @@ import numpy as np
 from .. import lpe
 from ..errors import PathIndexError
 from ..lpe.automaton import DEAD
+from ..lpe.labels import KnownNames, unknown_labels
 from ..paths.events import path_text
 from ..paths.reader import PathIndex, padded_event_ids
 from ..progress import Progress
@@ -46,11 +47,14 @@ class Extraction:
     """layers : name → (h, w, 3) float32 linear images (same scale as the beauty)
     records_read : records of the classes some layer can use (the chunks holding them are
     read whole: their other records are decoded too, and skipped); classes_matched : those classes
+    warnings : one line per quoted label that names nothing in the index (logged too:
+    lpe.labels.unknown_labels), for callers that show them elsewhere (the inspector)
     """
 
     layers: dict[str, np.ndarray]
     records_read: int
     classes_matched: int
+    warnings: tuple[str, ...] = ()
 
 
 _THREADS: contextvars.ContextVar[int | None] = contextvars.ContextVar("extraction_threads", default=None)
@@ -93,8 +97,7 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
                              f"{path_text(index.classes[broken[0]].events)}); the render that wrote it went wrong",
                              file=str(index.shown_as))
     automata = _automata(expressions)
-    for automaton in automata:
-        warn_unknown_labels(automaton, index)
+    warnings = warn_unknown_labels(automata, index)
     names = list(expressions)
     class_count = len(index.classes)
     always = np.zeros((len(names), class_count), bool)
@@ -166,7 +169,7 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     sums = accumulator.sums
     log.info("extracted %d layers from %d of %d records (%d of %d classes)", len(names), records_read,
              index.record_count, len(wanted), class_count)
-    return Extraction(_images(sums, names, index), records_read, len(wanted))
+    return Extraction(_images(sums, names, index), records_read, len(wanted), tuple(warnings))
 
 
 def _automata(expressions: dict[str, str]) -> list[lpe.LayerAutomaton]:
@@ -270,17 +273,12 @@ def extract_reference(index: PathIndex, expressions: dict[str, str]) -> dict[str
     return _images(sums, list(trees), index)
 
 
-def warn_unknown_labels(automaton: lpe.LayerAutomaton, index: PathIndex) -> None:
-    """A label that names nothing in the index is a warning listing the closest names."""
-    table = automaton.alphabet.patterns
-    matched = 0
-    for label in index.labels:
-        matched |= table.label_mask(label)
-    for bit, pattern in enumerate(table.patterns):
-        if not matched >> bit & 1:
-            closest = lpe.closest_labels(pattern, index.labels)
-            log.warning("label '%s' names nothing in %s; closest: %s", pattern, index.shown_as,
-                        ", ".join(f"'{name}'" for name in closest) or "none")
+def warn_unknown_labels(automata: list[lpe.LayerAutomaton], index: PathIndex) -> list[str]:
+    """A label that names nothing in the index is a warning (logged, and returned) naming
+    its layers and the closest names of its kind (lpe.labels.unknown_labels): the layer
+    would be silently empty, or a negated label exclude nothing."""
+    trees = {layer: tree for automaton in automata for layer, tree in automaton.trees.items()}
+    return unknown_labels(trees, KnownNames.of_events(index.events), str(index.shown_as))
 
 
 def _images(sums: np.ndarray, names: list[str], index: PathIndex) -> dict[str, np.ndarray]:

@@ -39,6 +39,7 @@ import OpenEXR
 
 from .. import __version__
 from ..errors import OutputError
+from ..inputs import input_problem
 from ..outputs import write_atomically
 from ..recipe.model import (
     BEAUTY_EXPRESSION,
@@ -52,7 +53,7 @@ from ..recipe.model import (
     is_data_layer,
 )
 from .cryptomatte import ATTRIBUTE_PREFIX, Cryptomatte, header_attributes, type_key
-from .exr import METADATA_PREFIX, header, use_cores
+from .exr import METADATA_PREFIX, header, read_exr, use_cores
 from .previews import HALF_MAX
 
 logger = logging.getLogger(__name__)
@@ -261,16 +262,16 @@ class MultipartImage:
 def read_multipart(path: str | os.PathLike) -> MultipartImage:
     """Read a multipart EXR of pxr-layers (any part types, as float32).
 
-    Raises OutputError naming the file when OpenEXR cannot read it, part 0 is not an RGBA
+    Raises OutputError naming the file when it cannot be read whole (:func:`~.exr.read_exr`:
+    damaged, or its last bytes cut off), part 0 is not an RGBA
     beauty, or a Cryptomatte part lacks a channel ``NAME.R/G/B/A`` or a readable manifest.
     """
     path = Path(path)
-    if not path.is_file():  # before OpenEXR, whose C library prints its own line for a missing file
-        raise OutputError(f"{path}: no such file")
-    try:
-        exr = OpenEXR.File(str(path), separate_channels=True)
-    except Exception as error:  # the binding raises RuntimeError and others for a damaged file
-        raise OutputError(f"{path}: OpenEXR cannot read the file ({error})") from None
+    # before OpenEXR, whose C library prints its own line for a missing file (and blocks on a FIFO)
+    problem = input_problem(path, "multipart EXR")
+    if problem is not None:
+        raise OutputError(f"{path}: {problem}")
+    exr = read_exr(path, separate_channels=True)  # whole: a file cut short is refused, not read in part
     first = exr.parts[0]
     if sorted(first.channels) != ["A", "B", "G", "R"]:
         raise OutputError(f"{path}: part 0 is not an RGBA beauty (channels {', '.join(sorted(first.channels))})")

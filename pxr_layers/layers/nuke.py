@@ -67,12 +67,14 @@ from pathlib import Path
 
 from .. import __version__
 from ..errors import OutputError
-from ..outputs import write_atomically
+from ..outputs import check_output, write_atomically
 from ..recipe.model import BEAUTY_PART, LAYER_NAME, MAX_CRYPTOMATTE_DEPTH, cryptomatte_parts
 from .previews import layers_partition
 
 logger = logging.getLogger(__name__)
 
+NUKE_SCRIPT_SUFFIX = ".nk"
+"""A Nuke script's file name ends so (Nuke's File > Open lists only these)."""
 NUKE_VERSION = "12.0 v1"
 """The oldest Nuke the script is written for (its ``version`` line)."""
 NUKE_RESERVED_LAYERS = frozenset({"rgba", "rgb", "alpha", "depth", "motion", "forward", "backward", "mask",
@@ -224,11 +226,17 @@ def write_nuke_script(path: str | os.PathLike, exr_path: str | os.PathLike, part
 
     ``exr_path`` is the EXR as this process sees it (absolute, or relative to the working
     directory); the script reads it relative to its own folder when it lies in that folder
-    or below (the two can move together), else by its absolute path.
+    or below (the two can move together), else by its absolute path: either way the script
+    opens from any working directory. Both folders are compared as the file system has them
+    (links and ``..`` resolved), so ``out/../out/x.exr`` is beside ``out/x.nk``.
+
+    Raises OutputError when ``path`` does not end in NUKE_SCRIPT_SUFFIX or cannot be
+    written (:func:`~pxr_layers.outputs.check_output`).
     """
-    path = Path(path)
-    exr = Path(exr_path).absolute()
-    folder = path.absolute().parent
+    path = check_output(path, "Nuke script", (NUKE_SCRIPT_SUFFIX,))
+    exr = Path(exr_path)
+    exr = exr.parent.resolve() / exr.name  # the folder resolved, not the file: a link to an EXR stays the link
+    folder = path.parent.resolve()  # likewise: Nuke's root.name is the script as opened
     file_name = exr.relative_to(folder) if exr.is_relative_to(folder) else exr
     text = nuke_script(file_name, parts, grades, resolution=resolution, partition=partition,
                        beauty_part=beauty_part, exposure=exposure, cryptomattes=cryptomattes,

@@ -31,8 +31,8 @@ from ..errors import LpeError
 from ..paths.events import ALL_SCATTERINGS, EVENT_TYPES
 from . import conditions as cond
 from . import nodes
-from .events import Event, PatternTable, label_matches
-from .labels import closest_labels
+from .events import Event, PatternTable
+from .labels import KnownNames, unknown_labels
 from .limits import MAX_DFA_STATES, MAX_NFA_STATES
 from .outcomes import (
     ALWAYS,
@@ -739,22 +739,9 @@ class LayerAutomaton:
         return Conditional(tuple(kept), reduced, layer, events)
 
     def unknown_labels(self, known_labels) -> list[str]:
-        """Warnings for quoted labels that match none of ``known_labels`` (logged too).
-
-        Each names the layer and the closest known names, as a typo is the likely cause.
-        """
-        known = sorted(set(known_labels))
-        warnings = []
-        for layer, tree in self.trees.items():
-            for pattern in nodes.label_patterns(tree):
-                if pattern == nodes.ANY_LABEL or any(label_matches(pattern, label) for label in known):
-                    continue
-                suggestions = closest_labels(pattern, known)
-                hint = f"; closest: {', '.join(repr(s) for s in suggestions)}" if suggestions else ""
-                message = f"layer {layer!r}: label '{pattern}' matches no known label{hint}"
-                log.warning(message)
-                warnings.append(message)
-        return warnings
+        """Warnings for quoted labels that match none of ``known_labels`` (bare labels, of no
+        known kind; logged too): :func:`pxr_layers.lpe.labels.unknown_labels`."""
+        return unknown_labels(self.trees, KnownNames.of_labels(known_labels))
 
 
 @dataclass(frozen=True, eq=False)

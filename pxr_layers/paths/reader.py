@@ -30,6 +30,7 @@ import zstandard
 
 from ..compiled import inline, kernel
 from ..errors import PathIndexError
+from ..inputs import regular_input
 from ..progress import Progress
 from ..request import MAX_PIXELS
 from . import format as fmt
@@ -146,6 +147,7 @@ class PathIndex:
         reads its index under its temporary name, before the frame's files are put in place)."""
         self.path = Path(path)
         self.shown_as = Path(shown_as) if shown_as is not None else self.path
+        regular_input(self.path, "path index", PathIndexError, name=self.shown_as)  # a FIFO would block the open
         footer = self._footer_bytes()
         try:
             self._load(self._footer_tables(footer))

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from ..errors import RecipeError
+from ..outputs import confined_name_problem
 from ..paths.format import MODES as INDEX_FORMAT_MODES
 
 PIXEL_TYPES = ("float", "half")
@@ -35,6 +36,12 @@ MAX_PREVIEW_STOPS = 64
 """A preview's exposure, in stops, at most this far from 0: 2^64 brightens the faintest
 float32 light to white and keeps the gain finite (2^128 overflows float32 to inf)."""
 PER_LIGHT_MODES = ("none", "lights", "groups")
+EXR_SUFFIX = ".exr"
+"""What every product's file name ends with (its productName; ``-o`` when it names one
+product's file rather than a folder): a product is a multipart OpenEXR."""
+RECIPE_SUFFIXES = (".usda", ".usd", ".usdc")
+"""The names a recipe is written under (``suggest -o``, the inspector's save): USD layers
+that USD exports (.usda text, .usd and .usdc crate); a .usdz package is read-only to it."""
 
 DEFAULT_PIXEL_TYPE = "float"
 DEFAULT_COMPRESSION = "zip"
@@ -389,9 +396,14 @@ class Product:
         if self.per_light not in PER_LIGHT_MODES:
             raise RecipeError(f"unknown perLight {self.per_light!r} (allowed: {', '.join(PER_LIGHT_MODES)})",
                               prim=where, attribute="pxrLayers:perLight")
-        if not self.output_name.lower().endswith(".exr"):
-            raise RecipeError(f"productName {self.output_name!r} must name an .exr file", prim=where,
+        if not self.output_name.lower().endswith(EXR_SUFFIX):
+            raise RecipeError(f"productName {self.output_name!r} must name an {EXR_SUFFIX} file", prim=where,
                               attribute="productName")
+        # Relative to the output folder and inside it, as a job's stem is: a recipe is data
+        # from anywhere (a preset, a layer a colleague sent) and must not choose where files go.
+        escape = confined_name_problem(self.output_name)
+        if escape:
+            raise RecipeError(f"productName {escape}", prim=where, attribute="productName")
 
     @property
     def camera_view(self) -> View:
@@ -414,13 +426,13 @@ class Product:
 
     def output_path(self, frame: float | None = None, directory: str | Path | None = None) -> Path:
         """The EXR path: each run of ``#`` in output_name becomes the frame number padded to
-        the run's length (``####`` → 0012); a relative name is taken relative to ``directory``."""
+        the run's length (``####`` → 0012), relative to ``directory`` (the name is relative:
+        :func:`~pxr_layers.outputs.confined_name_problem`)."""
         name = self.output_name
         if frame is not None:
             number = round(frame)
             name = re.sub(r"#+", lambda run: f"{number:0{len(run.group())}d}", name)
-        path = Path(name)
-        return path if directory is None or path.is_absolute() else Path(directory) / path
+        return Path(name) if directory is None else Path(directory) / name
 
 
 @dataclass(frozen=True)

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from pxr import Usd, UsdGeom
 
 from pxr_layers.scene import DEFAULT_INCLUDED_PURPOSES
 
+from .budgets import SceneBudget
 from .diagnostics import Diagnostics
 
 
@@ -18,6 +19,7 @@ class ReadContext:
     xform_cache       : world transforms at ``time``; shared so each ancestor is composed once
     file              : the path given to load_stage, for error messages
     rendered_purposes : gprim purposes that render (RenderSettings includedPurposes)
+    budget            : what the read has taken of the scene's budgets (budgets.py)
     """
 
     stage: Usd.Stage
@@ -28,3 +30,4 @@ class ReadContext:
     diagnostics: Diagnostics
     file: str
     rendered_purposes: tuple[str, ...] = DEFAULT_INCLUDED_PURPOSES
+    budget: SceneBudget = field(default_factory=SceneBudget)

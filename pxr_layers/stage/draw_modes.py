@@ -44,6 +44,8 @@ import numpy as np
 import OpenImageIO as oiio
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, Vt
 
+from pxr_layers.inputs import input_problem
+
 from .defaults import ROOT
 from .diagnostics import Diagnostics
 from .textures import anchored_asset_path
@@ -357,6 +359,8 @@ def _from_texture_faces(textures: list[str | None]) -> list[_CardFace] | None:
 
 def _world_to_screen(path: str) -> Gf.Matrix4d | None:
     """The image's ``worldtoscreen`` matrix (16 row-major values), or None."""
+    if input_problem(path, "texture") is not None:
+        return None  # missing, or a FIFO that would block the open: textures.py says which
     image = oiio.ImageInput.open(path)
     if image is None:
         oiio.geterror()  # clear OIIO's error; the missing file is reported by textures.py

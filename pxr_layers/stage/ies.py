@@ -27,13 +27,14 @@ the horizontal angles; the candela values, one row of vertical values per horizo
   π/2 + 0.1 rad (a hemisphere, with hdEmbree's slack).
 
 Malformed files raise StageError naming the file and what is wrong (the line of a bad
-number, or how many numbers the header's counts need against how many there are).
+number, NaN and infinities included, or how many numbers the header's counts need against
+how many there are). How bright a profile may make its light is the light's rule
+(lights.py: its peak intensity counts in the light's brightest radiance).
 """
 
 from __future__ import annotations
 
 import math
-import os
 import re
 
 import numpy as np
@@ -41,6 +42,8 @@ from pxr import Ar
 
 from pxr_layers.errors import StageError
 from pxr_layers.scene import IesProfile
+
+from .textures import on_disk
 
 # hdEmbree's slack (rad) above π/2 for a vertical span that still counts as a hemisphere.
 _HEMISPHERE_SLACK = 0.1
@@ -53,7 +56,7 @@ def read_ies(resolved_path: str) -> tuple[IesProfile, tuple[str, ...]]:
     """Read and parse the IES file at a resolved asset path (a file, a package member, any
     path USD's asset resolver resolved): :func:`parse_ies` of its text."""
     try:
-        if os.path.isfile(resolved_path):
+        if on_disk(resolved_path, "IES profile"):
             with open(resolved_path, "rb") as file:
                 contents = file.read()
         else:
@@ -112,7 +115,12 @@ def parse_ies(text: str, path: str) -> tuple[IesProfile, tuple[str, ...]]:
     if factor < 0.0 or (candela < 0.0).any():
         raise StageError(f"negative candela values (multiplier {multiplier} × ballast factor {ballast})",
                          file=path)
-    horizontal, candela = _unfold(horizontal, candela.reshape(horizontal_count, vertical_count) * factor, path)
+    with np.errstate(over="ignore"):
+        scaled = candela.reshape(horizontal_count, vertical_count) * factor
+    if not np.isfinite(scaled).all():
+        raise StageError(f"candela values × multiplier {multiplier:g} × ballast factor {ballast:g} overflow: "
+                         f"the largest is {float(candela.max()):g}", file=path)
+    horizontal, candela = _unfold(horizontal, scaled, path)
     vertical, horizontal = np.radians(vertical), np.radians(horizontal)
     return IesProfile(path=path, vertical=vertical, horizontal=horizontal, candela=candela,
                       power=_power(vertical, horizontal, candela)), tuple(notes)
@@ -129,9 +137,12 @@ class _Numbers:
                 if not token:
                     continue
                 try:
-                    values.append(float(token))
+                    value = float(token)
                 except ValueError:
                     raise StageError(f"line {line_number}: {token!r} is not a number", file=path) from None
+                if not math.isfinite(value):  # "nan", "inf", "1e999": no angle, count or intensity is
+                    raise StageError(f"line {line_number}: {token!r} is not a finite number", file=path)
+                values.append(value)
                 line_numbers.append(line_number)
         self._values = np.array(values, dtype=np.float64)
         self._lines = line_numbers

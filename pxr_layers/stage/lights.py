@@ -55,6 +55,15 @@ hides; Karma's ``rendervisibility`` is a ray-type rule (see _karma_sees_primary:
 hides, "*" shows). The ``primvars:`` ones are inherited from ancestors as constant primvars
 are. When authored ones disagree, the light is named (with their values) in one warning.
 
+Values (values.checked, one rule with materials): every control is a finite number in its
+range, else a StageError naming the prim and the attribute: intensity, colour, sizes and
+the diffuse and specular multipliers ≥ 0, colorTemperature ≥ 1, a distant light's angle
+within 0–360°, the ShapingAPI values finite (NaN is no cone that is not there), sizes at
+most placement.MAX_WORLD_COORDINATE in metres; a light's brightest radiance, intensity ·
+2^exposure · colour times its IES profile's peak, at most values.MAX_RADIANCE. A light whose
+transform puts it out of that reach is skipped with a warning, as a gprim is; an IES profile
+whose candela values are all 0 gets a warning that its lights are black.
+
 Linking: ``light_link`` and ``shadow_link`` are the meshes (indices into SceneData.meshes,
 tested by Mesh.path) that the light's ``collection:lightLink`` and ``collection:shadowLink``
 include, by the collection's own membership query (includeRoot, includes, excludes,
@@ -75,11 +84,14 @@ from pxr import Gf, Sdf, Usd, UsdLux
 from pxr_layers.errors import StageError
 from pxr_layers.scene import REC709_LUMINANCE, IesProfile, Light, LightKind, LightShaping
 
+from . import values
 from .context import ReadContext
 from .ies import read_ies
+from .placement import MAX_WORLD_COORDINATE
 from .surfaces import find_primvar
 from .textures import TextureLibrary, anchored_asset_path
 from .transforms import Z_UP_FROM_Y_UP, column_matrix, nearest_rotation, to_metres
+from .values import MAX_RADIANCE
 
 SUPPORTED_LIGHT_TYPES = (
     UsdLux.RectLight,
@@ -143,7 +155,8 @@ def read_lights(
     """
     profiles: dict[str, IesProfile | None] = {}  # resolved path → profile: each file parsed once
     members = [Sdf.Path(path) for path in mesh_paths]
-    return [_read_light(context, prim, textures, profiles, members) for prim in prims]
+    lights = (_read_light(context, prim, textures, profiles, members) for prim in prims)
+    return [light for light in lights if light is not None]
 
 
 def _read_light(
@@ -152,27 +165,33 @@ def _read_light(
     textures: TextureLibrary,
     profiles: dict[str, IesProfile | None],
     mesh_paths: Sequence[Sdf.Path],
-) -> Light:
+) -> Light | None:
+    """The light, or None (with a warning) when its transform puts it beyond
+    MAX_WORLD_COORDINATE, as the placement does with gprims."""
     time = context.time
     light = UsdLux.LightAPI(prim)
     path = str(prim.GetPath())
     world_from_local = column_matrix(context.xform_cache.GetLocalToWorldTransform(prim))
     linear = world_from_local[:3, :3]
-    def checked(attribute: Usd.Attribute, least: float | None = 0.0) -> float:
-        return _checked(context, path, attribute, float(attribute.Get(time)), least)
 
-    color = np.array([_checked(context, path, light.GetColorAttr(), float(value), 0.0)
-                      for value in light.GetColorAttr().Get(time)], dtype=np.float64)
+    def checked(attribute: Usd.Attribute, least: float | None = 0.0, most: float | None = None) -> float:
+        return values.checked(_number(context, attribute), attribute.GetName(), file=context.file, prim=path,
+                              least=least, most=most)
+
+    def size(attribute: Usd.Attribute) -> float:
+        # Larger, the light would reach past where geometry may be placed (and its area and
+        # sampling overflow float32): a mistake in the value or its units.
+        return checked(attribute, 0.0, MAX_WORLD_COORDINATE / context.meters_per_unit)
+
+    color_attribute = light.GetColorAttr()
+    color = np.array(values.checked_all(values.reals(color_attribute, time, 3, context.file) or (1.0, 1.0, 1.0),
+                                        color_attribute.GetName(), file=context.file, prim=path, least=0.0))
     intensity, exposure = checked(light.GetIntensityAttr()), checked(light.GetExposureAttr(), None)
     if light.GetEnableColorTemperatureAttr().Get(time):
-        temperature = light.GetColorTemperatureAttr()
-        color = color * blackbody_rgb(_checked(context, path, temperature, float(temperature.Get(time)), 1.0))
+        color = color * blackbody_rgb(checked(light.GetColorTemperatureAttr(), 1.0))
     brightest = intensity * float(color.max())
-    # in powers of two: 2^exposure itself overflows a float past exposure 1023
-    if brightest > 0 and math.log2(brightest) + exposure > math.log2(_LARGEST_RADIANCE):
-        raise StageError(f"intensity · 2^exposure · color reaches 2^{math.log2(brightest) + exposure:.1f}: more "
-                         f"than a render can hold (at most 2^{math.log2(_LARGEST_RADIANCE):.0f})",
-                         file=context.file, prim=path)
+    log2_brightest = math.log2(brightest) + exposure if brightest > 0 else -math.inf
+    _check_brightness(context, path, log2_brightest, "intensity · 2^exposure · color")
     radiance = intensity * 2.0**exposure * color if brightest > 0 else np.zeros(3)
     normalize = bool(light.GetNormalizeAttr().Get(time))
     _note_ignored_controls(context, prim, light)
@@ -183,29 +202,29 @@ def _read_light(
     if prim.IsA(UsdLux.RectLight):
         kind = "rect"
         rect = UsdLux.RectLight(prim)
-        width, height = checked(rect.GetWidthAttr()), checked(rect.GetHeightAttr())
+        width, height = size(rect.GetWidthAttr()), size(rect.GetHeightAttr())
         fields.update(width=width, height=height, texture=_light_texture(context, prim, textures))
         size_factor = width * height * _parallelogram_area(linear)
     elif prim.IsA(UsdLux.DiskLight):
         kind = "disk"
-        radius = checked(UsdLux.DiskLight(prim).GetRadiusAttr())
+        radius = size(UsdLux.DiskLight(prim).GetRadiusAttr())
         fields.update(radius=radius)
         size_factor = math.pi * radius**2 * _parallelogram_area(linear)
     elif prim.IsA(UsdLux.SphereLight):
         sphere = UsdLux.SphereLight(prim)
         kind = "point" if sphere.GetTreatAsPointAttr().Get(time) else "sphere"
-        radius = checked(sphere.GetRadiusAttr())
+        radius = size(sphere.GetRadiusAttr())
         fields.update(radius=radius)
         size_factor = _ellipsoid_area(radius * np.linalg.svd(linear, compute_uv=False))
     elif prim.IsA(UsdLux.CylinderLight):
         cylinder = UsdLux.CylinderLight(prim)
         kind = "line" if cylinder.GetTreatAsLineAttr().Get(time) else "cylinder"
-        radius, length = checked(cylinder.GetRadiusAttr()), checked(cylinder.GetLengthAttr())
+        radius, length = size(cylinder.GetRadiusAttr()), size(cylinder.GetLengthAttr())
         fields.update(radius=radius, length=length)
         size_factor = _cylinder_side_area(linear, radius, length)
     elif prim.IsA(UsdLux.DistantLight):
         kind = "distant"
-        angle = checked(UsdLux.DistantLight(prim).GetAngleAttr())
+        angle = checked(UsdLux.DistantLight(prim).GetAngleAttr(), 0.0, 360.0)  # a diameter: 360° is all round
         fields.update(angle=angle)
         size_factor = distant_size_factor(angle)
     else:
@@ -232,13 +251,26 @@ def _read_light(
             )
     if kind != "dome":
         world_from_local = to_metres(world_from_local, context.meters_per_unit)
+    if kind not in ("dome", "distant") and not _within_reach(world_from_local, fields):
+        context.diagnostics.note(
+            "light-out-of-reach",
+            f"lights placed beyond {MAX_WORLD_COORDINATE:g} m from the origin (or whose size there overflows) "
+            "skipped: {prims}",
+            path,
+        )
+        return None
+    shaping = _shaping(context, prim, kind, profiles)
+    if shaping is not None and shaping.ies is not None:
+        peak = float(shaping.ies.candela.max()) / (shaping.ies.power if shaping.ies_normalize else 1.0)
+        _check_brightness(context, path, log2_brightest + math.log2(peak) if peak > 0 else -math.inf,
+                          f"intensity · 2^exposure · color · the IES profile's peak ({peak:g})")
     return Light(
         name=prim.GetName(),
         path=path,
         kind=kind,
         world_from_light=world_from_local,
         radiance=radiance.astype(np.float64),
-        shaping=_shaping(context, prim, kind, profiles),
+        shaping=shaping,
         diffuse=checked(light.GetDiffuseAttr()),
         specular=checked(light.GetSpecularAttr()),
         camera_visible=_camera_visible(context, prim),
@@ -248,17 +280,38 @@ def _read_light(
     )
 
 
-_LARGEST_RADIANCE = 1e30  # far beyond any light, far below float32's 3.4e38 (pixel sums stay finite)
+def _number(context: ReadContext, attribute: Usd.Attribute) -> float:
+    """A light's scalar attribute at the read's time (its schema's fallback when unauthored);
+    StageError when it is authored as something else than a number (values.real). A
+    negative intensity, colour or size would make negative (or NaN) pixels, which no layer
+    can hold: the callers' ranges say so (values.checked)."""
+    value = values.real(attribute, context.time, context.file)
+    if value is None:  # blocked (= None): the schema's fallback, as for an unauthored attribute
+        fallback = attribute.GetPrim().GetPrimDefinition().GetAttributeFallbackValue(attribute.GetName())
+        value = float(fallback) if fallback is not None else 0.0
+    return value
 
 
-def _checked(context: ReadContext, path: str, attribute: Usd.Attribute, value: float, least: float | None) -> float:
-    """`value` of a light's `attribute` if it is finite and (unless `least` is None) at least
-    `least`; else a StageError naming the prim and the attribute. A negative intensity,
-    colour or size would make negative (or NaN) pixels, which no layer can hold."""
-    if math.isfinite(value) and (least is None or value >= least):
-        return value
-    bound = "a finite number" if least is None else f"a finite number ≥ {least:g}"
-    raise StageError(f"{attribute.GetName()} is {value:g}: it must be {bound}", file=context.file, prim=path)
+def _check_brightness(context: ReadContext, path: str, log2_radiance: float, what: str) -> None:
+    """StageError naming the light when its brightest radiance, 2^log2_radiance (``what`` makes
+    it), is above MAX_RADIANCE. In powers of two: 2^exposure itself overflows a float past
+    exposure 1023."""
+    if log2_radiance > math.log2(MAX_RADIANCE):
+        raise StageError(f"{what} reaches 2^{log2_radiance:.4g}: more than a render can hold (at most "
+                         f"2^{math.log2(MAX_RADIANCE):.1f}, {MAX_RADIANCE:g})", file=context.file, prim=path)
+
+
+def _within_reach(world_from_light: np.ndarray, fields: dict[str, object]) -> bool:
+    """Whether a light of the local sizes ``fields`` (width, height, radius, length) under
+    ``world_from_light`` ((4, 4), metres) lies within MAX_WORLD_COORDINATE of the origin:
+    its centre's distance plus its local half-extent times the transform's largest scale."""
+    half_width, half_height = float(fields.get("width", 0.0)) / 2, float(fields.get("height", 0.0)) / 2
+    radius, half_length = float(fields.get("radius", 0.0)), float(fields.get("length", 0.0)) / 2
+    extent = max(math.hypot(half_width, half_height), math.hypot(radius, half_length))
+    with np.errstate(over="ignore", invalid="ignore"):
+        scale = float(np.linalg.svd(world_from_light[:3, :3], compute_uv=False)[0])
+        reach = float(np.linalg.norm(world_from_light[:3, 3])) + extent * scale
+    return reach <= MAX_WORLD_COORDINATE  # False for NaN too
 
 
 def blackbody_rgb(kelvin: float) -> np.ndarray:
@@ -360,19 +413,32 @@ def _shaping(
     # normals asset applies it to distant lights and authors only pre-"inputs:" names).
     authored_only = kind in _UNSHAPED_KINDS
 
+    def attribute(name: str) -> Usd.Attribute | None:
+        found = prim.GetAttribute(f"inputs:shaping:{name}")
+        return None if not found or (authored_only and not found.HasAuthoredValue()) else found
+
     def value(name: str, unset: object) -> object:
-        attribute = prim.GetAttribute(f"inputs:shaping:{name}")
-        if not attribute or (authored_only and not attribute.HasAuthoredValue()):
-            return unset
-        got = attribute.Get(time)
+        found = attribute(name)
+        got = found.Get(time) if found else None
         return unset if got is None else got
+
+    def number(name: str, unset: float) -> float:
+        """A finite number (values.checked: NaN is an error naming it, not a cone that is not there)."""
+        found = attribute(name)
+        got = values.real(found, time, context.file) if found else None
+        if got is None:
+            return unset
+        return values.checked(got, found.GetName(), file=context.file, prim=str(prim.GetPath()))
 
     # Unset (no ShapingAPI and nothing authored): no cone. Negative angles would invert the
     # smooth step's edges; softness and focus are clamped as UsdLux says.
-    cone_angle = max(float(value("cone:angle", 180.0)), 0.0)
-    softness = min(max(float(value("cone:softness", 0.0)), 0.0), 1.0)
-    focus = max(float(value("focus", 0.0)), 0.0)
-    tint = tuple(float(channel) for channel in value("focusTint", (0.0, 0.0, 0.0)))
+    cone_angle = max(number("cone:angle", 180.0), 0.0)
+    softness = min(max(number("cone:softness", 0.0), 0.0), 1.0)
+    focus = max(number("focus", 0.0), 0.0)
+    tint_attribute = attribute("focusTint")
+    tint_values = values.reals(tint_attribute, time, 3, context.file) if tint_attribute else None
+    tint = values.checked_all(tint_values, tint_attribute.GetName(), file=context.file, prim=str(prim.GetPath()),
+                              least=0.0) if tint_values else (0.0, 0.0, 0.0)
     ies = _asset(prim, "inputs:shaping:ies:file", time)
     widest = 90.0 if kind in _ONE_SIDED_KINDS else 180.0
     # Below the smooth start the factor is 1 (softness 0: up to the cone angle itself). The
@@ -399,7 +465,7 @@ def _shaping(
     if profile:
         # A profile of no power is black whatever its normalisation: there is nothing to divide by.
         normalize = bool(value("ies:normalize", False)) and profile.power > 0.0
-        shaping.update(ies=profile, ies_angle_scale=float(value("ies:angleScale", 0.0)), ies_normalize=normalize)
+        shaping.update(ies=profile, ies_angle_scale=number("ies:angleScale", 0.0), ies_normalize=normalize)
     return LightShaping(**shaping)
 
 
@@ -423,6 +489,9 @@ def _ies_profile(
             profile, notes = None, ()
         for note in notes:
             context.diagnostics.warn(f"IES profile {resolved} ({path}): {note}", once_key=f"ies note:{resolved}")
+        if profile is not None and not profile.candela.max() > 0.0:
+            context.diagnostics.warn(f"IES profile {resolved} ({path}): every candela value is 0: the lights that "
+                                     "use it are black", once_key=f"ies black:{resolved}")
         profiles[resolved] = profile
     return profiles[resolved]
 

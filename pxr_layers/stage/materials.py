@@ -7,6 +7,17 @@ fallback, wrap modes, colour space, ``<UDIM>`` tiles), UsdTransform2d, and
 UsdPrimvarReader_float/float2/float3/float4/int into any input. MaterialX looks, bound
 through UsdShade prims with MaterialX ids or referenced as ``.mtlx`` documents, are read by
 the materialx package (materialx/). Anything else renders with the default material, after one note.
+
+Values (values.checked, one rule): every number a network authors (an input's value, a
+UsdUVTexture's scale, bias and fallback, a transform's, a primvar reader's fallback; in
+MaterialX, every value of a node or a document) must be finite, else a StageError names the
+file, the shader (or MaterialX node) and the input: a NaN diffuseColor or a metallic of inf
+would make NaN pixels, where no layer can hold them. Then each Material field within its
+range (FIELD_RANGES: a reflectance at most MAX_REFLECTANCE, an emission at most
+values.MAX_RADIANCE), checked on what the network computes (:func:`check_fields`, for
+UsdPreviewSurface and MaterialX alike), so that a base_color of 1e30 is an error naming it
+rather than pixels of 1e30. Below 0, the tracer reads diffuse and transmission colours and
+weights as 0.
 """
 
 from __future__ import annotations
@@ -21,10 +32,12 @@ from pxr_layers import shader_nodes as nodes
 from pxr_layers.scene import DEFAULT_MATERIAL_PATH, Material
 from pxr_layers.shader_nodes import ShaderNode
 
+from . import values
 from .context import ReadContext
 from .defaults import DEFAULT_UV_SET
 from .materialx import PREVIEW_INPUTS, MaterialXReader, is_flat_normal
 from .textures import UDIM, TextureLibrary, anchored_asset_path
+from .values import MAX_RADIANCE, checked_all
 
 InputKind = Literal["color", "scalar", "float", "bool", "normal"]  # PREVIEW_INPUTS' kinds
 
@@ -32,6 +45,23 @@ InputKind = Literal["color", "scalar", "float", "bool", "normal"]  # PREVIEW_INP
 # UsdPreviewSurface inputs the tracer has no use for. Occlusion is baked ambient occlusion,
 # which a path tracer computes itself: it is ignored silently. Displacement gets one note.
 _NOTED_PREVIEW_INPUTS = ("displacement",)
+
+MAX_REFLECTANCE = 10.0
+"""The largest constant reflectance (diffuse, specular or transmission colour) a material may
+have. Above 1 a surface reflects more light than it receives; a little above is a stylised
+look some assets use, but 10 times is a mistake: a colour authored in 0–255 instead of 0–1,
+or a unit slip, which each bounce would multiply into fireflies and overflow."""
+
+FIELD_RANGES: dict[str, tuple[float | None, float | None]] = {
+    "diffuse_color": (None, MAX_REFLECTANCE),
+    "specular_color": (None, MAX_REFLECTANCE),
+    "transmission_color": (None, MAX_REFLECTANCE),
+    "emissive_color": (None, MAX_RADIANCE),
+}
+"""(least, most) of the scene.Material fields whose constant values have a range beyond being
+finite (None: no bound); every other number needs only be finite (the tracer clamps weights
+and roughness to [0, 1] and the ior to its least)."""
+_FIELD_NAMES = {spec.field: spec.usd_name for spec in PREVIEW_INPUTS}  # for messages
 
 _OUTPUT_CHANNELS = {"rgb": (0, 1, 2), "r": (0,), "g": (1,), "b": (2,), "a": (3,)}
 _WRAP_TOKENS = ("black", "clamp", "repeat", "mirror")
@@ -127,12 +157,16 @@ class MaterialLibrary:
         if isinstance(material, DocumentMaterial):
             look = self._materialx.from_document(material.document, material.name, path)
             name = path.rsplit("/", 1)[-1]
+            file = material.document
         else:
             name = material.GetPrim().GetName()
             shader, _, _ = material.ComputeSurfaceSource(UsdShade.Tokens.universalRenderContext)
             if shader and shader.GetShaderId() == "UsdPreviewSurface":
-                return self._add(name, path, *self._preview_surface(shader, path))
+                fields, uv_primvars, primvars = self._preview_surface(shader, path)
+                check_fields(fields, file=self._context.file, prim=str(shader.GetPath()), prefix="inputs:")
+                return self._add(name, path, fields, uv_primvars, primvars)
             look = self._materialx.from_usd(material)
+            file = self._context.file
             if look is None:
                 self._context.diagnostics.note(
                     "unsupported-material",
@@ -142,6 +176,7 @@ class MaterialLibrary:
                 )
         if look is None:
             return None
+        check_fields(look.fields, file=file, prim=path, prefix="its MaterialX surface's ")
         return self._add(name, path, look.fields, list(look.uv_primvars), look.primvars)
 
     def _add(self, name: str, path: str, fields: dict, uv_primvars: list[str],
@@ -192,7 +227,11 @@ class _Network:
         if source is None:
             return None
         if not isinstance(source, tuple):
-            return _constant(source, kind)
+            value = _constant(source, kind)
+            if isinstance(value, (tuple, float)):  # numbers: values.checked (bools and normals need not)
+                values.checked_all(value if isinstance(value, tuple) else (value,), f"inputs:{input_name}",
+                                   file=self._context.file, prim=str(shader.GetPath()))
+            return value
         if kind not in ("color", "scalar", "normal"):
             self._unsupported_connection(shader, input_name)
             return None
@@ -235,7 +274,13 @@ class _Network:
             components = tuple(float(component) for component in value)
         except TypeError:
             return default
-        return components if len(components) == len(default) else default
+        if len(components) != len(default):
+            return default
+        return self._finite(shader, name, components)
+
+    def _finite(self, shader: UsdShade.Shader, name: str, numbers: tuple[float, ...]) -> tuple[float, ...]:
+        """``numbers`` of the input ``name`` of a shader of the network (values.checked)."""
+        return values.checked_all(numbers, f"inputs:{name}", file=self._context.file, prim=str(shader.GetPath()))
 
     def _primvar_reader(self, reader: UsdShade.Shader, shader_id: str) -> ShaderNode:
         width = {"float": 1, "float2": 2, "float3": 3, "normal": 3, "point": 3, "vector": 3, "float4": 4,
@@ -245,7 +290,7 @@ class _Network:
             fallback = tuple(float(component) for component in raw_fallback)
         except TypeError:
             fallback = (float(raw_fallback),) if isinstance(raw_fallback, (int, float)) else ()
-        fallback = (fallback + (0.0,) * 4)[:4]
+        fallback = self._finite(reader, "fallback", (fallback + (0.0,) * 4)[:4])
         varname = str(_value_source(reader, "varname", self._context.time) or "")
         if not varname:
             return nodes.constant(*fallback)
@@ -266,7 +311,8 @@ class _Network:
         sx, sy = self._vector(transform, "scale", (1.0, 1.0))
         tx, ty = self._vector(transform, "translation", (0.0, 0.0))
         rotation = _value_source(transform, "rotation", self._context.time)
-        angle = math.radians(float(rotation)) if isinstance(rotation, (int, float)) else 0.0
+        degrees = self._finite(transform, "rotation", (float(rotation),))[0] if isinstance(rotation, (int, float)) else 0.0
+        angle = math.radians(degrees)
         cos, sin = math.cos(angle), math.sin(angle)
         return nodes.node("affine2d", source, values=(sx * cos, -sy * sin, tx, sx * sin, sy * cos, ty))
 
@@ -344,6 +390,22 @@ class _Network:
         return from_file or "repeat"
 
 
+def check_fields(fields: dict[str, object], *, file: str | None, prim: str, prefix: str) -> None:
+    """StageError naming ``file``, ``prim`` and the input (``prefix`` + its UsdPreviewSurface
+    name: "inputs:diffuseColor", "its MaterialX surface's diffuseColor") when a Material
+    field's constant is not finite or outside FIELD_RANGES, or a constant inside its
+    ShaderNode tree is not finite (a texture's fallback, a folded division by 0)."""
+    for field, value in fields.items():
+        name = f"{prefix}{_FIELD_NAMES.get(field, field)}"
+        if isinstance(value, ShaderNode):
+            for node in value.walk():
+                values.checked_all(node.values, f"{name} (its {node.op} node)", file=file, prim=prim)
+        elif isinstance(value, (tuple, float, int)) and not isinstance(value, bool):
+            least, most = FIELD_RANGES.get(field, (None, None))
+            values.checked_all(value if isinstance(value, tuple) else (value,), name, file=file, prim=prim,
+                               least=least, most=most)
+
+
 def _value_source(shader: UsdShade.Shader, input_name: str, time: Usd.TimeCode):
     """What drives an input: (shader, output name) for a connection, a plain value, or None
     when nothing is authored."""
@@ -384,8 +446,9 @@ def _constant(value, kind: InputKind):
         return None
 
 
-def display_color(prim: Usd.Prim, time: Usd.TimeCode) -> tuple[float, float, float] | None:
-    """``primvars:displayColor`` when authored with a single (constant) value.
+def display_color(prim: Usd.Prim, time: Usd.TimeCode, file: str | None = None) -> tuple[float, float, float] | None:
+    """``primvars:displayColor`` when authored with a single (constant) value; StageError naming
+    ``file`` and the prim that authors it when it is not finite or above MAX_REFLECTANCE.
 
     Constant primvars inherit down namespace, so a colour on a model's root counts.
     """
@@ -397,5 +460,8 @@ def display_color(prim: Usd.Prim, time: Usd.TimeCode) -> tuple[float, float, flo
         return None
     if primvar.GetInterpolation() != UsdGeom.Tokens.constant and len(values) != 1:
         return None
-    red, green, blue = (float(component) for component in values[0])
+    # The default material's diffuse colour: a reflectance, checked as a material's is.
+    red, green, blue = checked_all((float(component) for component in values[0]), primvar.GetAttr().GetName(),
+                                   file=file, prim=str(primvar.GetAttr().GetPrim().GetPath()),
+                                   most=FIELD_RANGES["diffuse_color"][1])
     return (red, green, blue)

@@ -21,6 +21,7 @@ from collections.abc import Iterator, Sequence
 from pxr import Pcp, Sdf, Tf, Usd
 
 from pxr_layers.errors import RecipeError, StageError
+from pxr_layers.inputs import regular_input
 from pxr_layers.request import VariantSelection
 
 from .diagnostics import Diagnostics
@@ -79,17 +80,14 @@ def compose_stage(
 
     The recipe layers are sublayers of the stage's session layer (the first strongest), and
     variant selections are authored in the session layer itself, so they win over both.
-    Raises StageError (naming the file) when the shot file is missing or is not USD,
-    RecipeError for a missing recipe layer, StageError for a variant selection that names
-    no prim, no variant set or no variant of it, and for composition errors when ``strict``.
+    Raises StageError (naming the file) when the shot file is missing, not a regular file
+    (inputs.py) or not USD, RecipeError for a recipe layer missing or not a regular file,
+    StageError for a variant selection that names no prim, no variant set or no variant of
+    it, and for composition errors when ``strict``.
     """
-    if not os.path.exists(path):
-        raise StageError("file not found", file=path)
-    if os.path.isdir(path):
-        raise StageError("is a directory, not a USD file", file=path)
+    regular_input(path, "USD file", StageError)  # a FIFO or a device would block the open
     for layer in recipe_layers:
-        if not os.path.isfile(layer):
-            raise RecipeError("file not found", file=os.fspath(layer))
+        regular_input(layer, "recipe layer", RecipeError)
         with Tf.DiagnosticTrap() as trap:
             try:
                 readable = Sdf.Layer.FindOrOpen(os.fspath(layer)) is not None

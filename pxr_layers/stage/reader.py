@@ -110,7 +110,7 @@ class _MeshBuilder:
     def build(self, placement: GprimPlacement) -> Mesh | None:
         context = self._context
         prim = placement.prim
-        color = display_color(prim, context.time)
+        color = display_color(prim, context.time, context.file)
         mesh_material = self._materials.resolve(self._materials.bound_material(prim), color)
         subset_materials = self._subset_materials(prim, color)
         uv_sets = list(dict.fromkeys(resolved.uv_primvar for resolved in [mesh_material, *(m for _, m in subset_materials)]
@@ -143,6 +143,9 @@ class _MeshBuilder:
             return None
 
         local = surface.surface
+        # Each placement is a copy of the surface's triangles in the world: counted each time.
+        context.budget.take_triangles(len(local.triangles), f"its {len(local.triangles):,} triangles",
+                                      file=context.file, prim=placement.path)
         face_material = np.full(local.face_count, mesh_material.index, dtype=INDEX)
         # Reversed so that, where subsets overlap, the first subset listed wins.
         for faces, resolved in reversed(subset_materials):
@@ -170,7 +173,7 @@ class _MeshBuilder:
     ) -> LocalSurface | None:
         context = self._context
         return read_mesh(prim, context.time, uv_primvar, diagnostics, context.file,
-                         subdiv_level=self._subdiv_level, points=points, primvars=primvars)
+                         subdiv_level=self._subdiv_level, points=points, primvars=primvars, budget=context.budget)
 
     def _subset_materials(
         self, prim: Usd.Prim, color: tuple[float, float, float] | None

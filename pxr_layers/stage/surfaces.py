@@ -26,6 +26,7 @@ from pxr_layers.errors import StageError
 from pxr_layers.request import MAX_REFINED_FACES
 
 from . import subdivision
+from .budgets import SceneBudget
 from .diagnostics import Diagnostics
 from .values import integer_array, real_array, usd_type_name
 
@@ -134,6 +135,7 @@ def read_mesh(
     subdiv_level: int,
     points: np.ndarray | None = None,
     primvars: tuple[str, ...] = (),
+    budget: SceneBudget | None = None,
 ) -> LocalSurface | None:
     """Triangulate a UsdGeom.Mesh with its normals, the ``uv_primvar`` primvar and the
     ``primvars`` its materials read.
@@ -148,6 +150,8 @@ def read_mesh(
                    LocalSurface.primvars, of any interpolation, indexed or not, found with
                    inheritance (find_primvar); missing ones are left out, ones of another type
                    than 1–4 numbers or with too few values are left out with a note
+    budget       : the read's budgets (budgets.py), for the triangles already in the scene;
+                   None: this mesh alone
 
     Faces listed in ``holeIndices`` produce no triangles, nor do faces of fewer than 3
     vertices (noted, naming the first; Hydra leaves them out too).
@@ -155,7 +159,9 @@ def read_mesh(
     Raises StageError naming the attribute for points, faceVertexCounts, faceVertexIndices
     or holeIndices of another type than the schema's (values.py) and for inconsistent
     topology (a negative count, counts that do not add up to the indices, an index past the
-    points). A mesh with NaN or infinite points (a simulation that blew up, a broken
+    points), and for a mesh whose faces alone would take the scene past its triangle budget
+    (budgets.MAX_SCENE_TRIANGLES: checked on faceVertexCounts, before the indices and the
+    points are read). A mesh with NaN or infinite points (a simulation that blew up, a broken
     deformer) is computed data gone bad, not a mistake in the topology: it is skipped with a
     note naming it and how many points, and None returned, as the walk skips a prim with a
     non-finite transform.
@@ -163,9 +169,10 @@ def read_mesh(
     mesh = UsdGeom.Mesh(prim)
     path = str(prim.GetPath())
     points_override = points
-    points = _mesh_points(mesh, time, points, file, path)
     counts = integer_array(mesh.GetFaceVertexCountsAttr(), time, file)
+    _check_budget(counts, budget or SceneBudget(), file, path)
     indices = integer_array(mesh.GetFaceVertexIndicesAttr(), time, file)
+    points = _mesh_points(mesh, time, points, file, path)
     _check_topology(points, counts, indices, file, path)
     non_finite = int(np.count_nonzero(~np.isfinite(points).all(axis=1)))
     if non_finite:
@@ -261,6 +268,16 @@ def _mesh_points(
             prim=path,
         )
     return given
+
+
+def _check_budget(counts: np.ndarray, budget: SceneBudget, file: str, path: str) -> None:
+    """StageError when the faces ``counts`` declares, fan-triangulated (the most a mesh of them
+    can make: subdivision surfaces are refined within MAX_REFINED_FACES), would take the
+    scene past its triangle budget."""
+    budget.check_triangles(len(counts), f"faceVertexCounts declares {len(counts):,} faces", file=file, prim=path)
+    triangles = int(np.maximum(counts - 2, 0).sum())
+    budget.check_triangles(triangles, f"its {len(counts):,} faces make {triangles:,} triangles", file=file,
+                           prim=path)
 
 
 def _check_topology(

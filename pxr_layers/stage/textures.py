@@ -19,6 +19,17 @@ rect light's colour map) negative ones too, which would be negative radiance, wh
 above MAX_LIGHT_TEXEL are lowered to it. Those of materials keep their sign, which normal
 maps, displacement and scale/bias offsets need.
 
+Images are bounded (a 20000 × 20000 PNG of one colour is a 1 MB file that decodes to 4.8 GB
+of float32): the header is read first, before any pixel. A file of more than
+MAX_FILE_TEXELS is not decoded at all (a warning, and the fallback value, as for any
+unreadable texture). One of more than MAX_TEXTURE_TEXELS is read at a reduced resolution
+within that budget, with a warning naming the file and both sizes: the first MIP level that
+fits when the file has levels (a tiled EXR or .tx), else the file decoded a band of rows at a
+time and averaged over n × n texel blocks (the values as stored: 8-bit sRGB is averaged
+before it is decoded), so memory never holds more than the reduced image and one band.
+A studio's 16k texture still renders, at 8k, rather than stopping the shot or taking the
+machine's memory; a texture cache would read such a file at a coarser MIP level too.
+
 The textures of the last stage read are remembered in the process by identity (see
 _texture_identity): the frames of a shot read the same files one after another, and the next
 read takes the decoded images instead of decoding them again. The images are read-only
@@ -40,19 +51,31 @@ import numpy as np
 import OpenImageIO as oiio
 from pxr import Ar, Sdf, Usd
 
+from pxr_layers.inputs import input_problem
 from pxr_layers.scene import FLOAT, TextureImage, WrapMode
 
 from .diagnostics import Diagnostics
+from .values import MAX_RADIANCE
 
 logger = logging.getLogger(__name__)
 
 ColorSpace = Literal["raw", "sRGB"]
 # An image as a read uses it: its colour space, and whether a light emits it (_repaired).
 _Use = tuple[ColorSpace, bool]
-# Light texels above this are lowered to it: far above any sun an HDRI holds (1e9 for the
-# Sun's disc in cd/m²), far enough below float32's 3.4e38 that the dome sampler's float32
-# sums over an image of up to 2^32 texels (trace/lights.py) stay finite.
-MAX_LIGHT_TEXEL = 1e20
+MAX_LIGHT_TEXEL = MAX_RADIANCE
+"""Light texels above this are lowered to it: a light's texel is a radiance (values.MAX_RADIANCE:
+far above any sun an HDRI holds, far enough below float32's range that the dome sampler's
+sums over an image of up to 2^32 texels stay finite)."""
+MAX_TEXTURE_TEXELS = 1 << 26
+"""The most texels (width × height) a texture is held at in memory: 8192 × 8192, 1 GiB as RGBA
+float32. A larger file is read reduced to fit (see the module docstring): a 16k × 8k lat-long
+sky is read at 8k × 4k."""
+MAX_FILE_TEXELS = 1 << 30
+"""The most texels an image file may declare (32768 × 32768, the largest texture a paint
+package exports) and still be read: decoding more takes tens of seconds before anything is
+reduced, and a header claiming more is a decompression bomb or a damaged file."""
+_BAND_BYTES = 1 << 24
+"""About how many bytes of float32 rows a reduced read decodes at a time (16 MiB)."""
 UDIM = "<UDIM>"  # the tile token of a texture path (Mari's convention, as USD and MaterialX use it)
 
 # OIIO's "wrapmodes" metadata ("s,t") uses RenderMan words; scene.py uses UsdUVTexture's.
@@ -66,11 +89,16 @@ _OIIO_WRAP: dict[str, WrapMode] = {
 
 @dataclass(frozen=True)
 class _DecodedFile:
-    """One file as stored: (h, w, c) float32 values in [0, 1] for integer formats."""
+    """One file as stored: (h, w, c) float32 values in [0, 1] for integer formats.
+
+    reduced_from : (width, height) of the file when it was read reduced to fit
+                   MAX_TEXTURE_TEXELS, else None
+    """
 
     pixels: np.ndarray
     is_uint8: bool
     wrap_modes: tuple[WrapMode | None, WrapMode | None]
+    reduced_from: tuple[int, int] | None = None
 
 
 @dataclass
@@ -82,6 +110,7 @@ class _FileTexture:
     is_uint8: bool
     channels: int
     wrap_modes: tuple[WrapMode | None, WrapMode | None]
+    reduced_from: tuple[int, int] | None  # _DecodedFile.reduced_from
     decoded: _DecodedFile | None = None
     images: dict[_Use, np.ndarray] = field(default_factory=dict)  # (h, w, c) read-only
     repaired: dict[_Use, int] = field(default_factory=dict)  # texels _repaired in images[use]
@@ -216,6 +245,13 @@ class TextureLibrary:
                 texture.repaired[use] = _repaired(pixels, light)
                 pixels.flags.writeable = False
                 texture.images[use] = pixels
+            if texture.reduced_from is not None:  # said at every read, as below
+                (width, height), pixels = texture.reduced_from, texture.images[use]
+                self._diagnostics.warn(
+                    f"texture {path} (used by {user_prim}): {width}×{height} texels, more than the "
+                    f"{MAX_TEXTURE_TEXELS:,} a texture may hold: read at {pixels.shape[1]}×{pixels.shape[0]}",
+                    once_key=f"texture-reduced:{path}",
+                )
             if texture.repaired[use]:  # said at every read: each frame's warnings are its own
                 pixels = texture.images[use]
                 what = (f"NaN, infinite or negative (read as 0) or above {MAX_LIGHT_TEXEL:g} (read as that)"
@@ -265,7 +301,7 @@ class TextureLibrary:
             try:
                 decoded = _read_texture(path)
                 texture = _FileTexture(identity, decoded.is_uint8, decoded.pixels.shape[2], decoded.wrap_modes,
-                                       decoded)
+                                       decoded.reduced_from, decoded)
             except OSError as error:
                 self._unreadable(path, user_prim, error)
         self._files[path] = texture
@@ -278,9 +314,21 @@ class TextureLibrary:
         )
 
 
+def on_disk(resolved_path: str, what: str) -> bool:
+    """Whether a resolved asset path is a file on disk, to be opened directly (False: a path
+    only USD's asset resolver can open, a package member or a custom resolver's); OSError
+    when it is on disk but not a regular file (a FIFO would block the read: inputs.py)."""
+    if Ar.IsPackageRelativePath(resolved_path) or not os.path.lexists(resolved_path):
+        return False
+    problem = input_problem(resolved_path, what)
+    if problem is not None:
+        raise OSError(problem)
+    return True
+
+
 def _read_texture(resolved_path: str) -> _DecodedFile:
     """Decode a resolved asset path: a plain file directly, anything else through Ar."""
-    if os.path.isfile(resolved_path):
+    if on_disk(resolved_path, "texture"):
         return _read_file(resolved_path)
     asset = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(resolved_path))
     if not asset:
@@ -314,14 +362,25 @@ def _read_file(path: str, name: str | None = None) -> _DecodedFile:
     image_input = oiio.ImageInput.open(path, config)
     if image_input is None:
         raise OSError(oiio.geterror() or "unreadable image")
+    reduced_from = None
     try:
-        spec = image_input.spec()
-        pixels = image_input.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        spec = image_input.spec()  # the header alone: nothing is decoded yet
+        width, height = spec.width, spec.height
+        if spec.depth > 1:
+            raise OSError(f"a volume image ({width}×{height}×{spec.depth}) is not a texture")
+        if width * height > MAX_FILE_TEXELS:
+            raise OSError(f"{width}×{height} texels: more than the {MAX_FILE_TEXELS:,} a texture file may have")
+        if width * height > MAX_TEXTURE_TEXELS:
+            reduced_from = (width, height)
+            pixels = _read_reduced(image_input, spec)
+        else:
+            pixels = image_input.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
         if pixels is None:
             raise OSError(image_input.geterror() or "cannot decode pixels")
     finally:
         image_input.close()
-    pixels = np.asarray(pixels, dtype=FLOAT).reshape(spec.height, spec.width, spec.nchannels)
+    if reduced_from is None:
+        pixels = np.asarray(pixels, dtype=FLOAT).reshape(spec.height, spec.width, spec.nchannels)
     wrap_modes: list[WrapMode | None] = [None, None]
     metadata = spec.get_string_attribute("wrapmodes")
     if metadata:
@@ -334,7 +393,63 @@ def _read_file(path: str, name: str | None = None) -> _DecodedFile:
         pixels=pixels,
         is_uint8=spec.format.basetype == oiio.UINT8,
         wrap_modes=(wrap_modes[0], wrap_modes[1]),
+        reduced_from=reduced_from,
     )
+
+
+def _read_reduced(image_input: oiio.ImageInput, spec: oiio.ImageSpec) -> np.ndarray | None:
+    """(h', w', c) float32 of an image of more than MAX_TEXTURE_TEXELS, within it: its first MIP
+    level that fits, or its full resolution averaged over n × n blocks (the smallest n that
+    fits; the blocks of the last row and column may be partial), decoded a band of n-row
+    strips at a time. None when a read fails (image_input.geterror() says why)."""
+    channels = spec.nchannels
+    level = 1
+    while True:  # a MIP level's spec has width 0 past the last level
+        level_spec = image_input.spec_dimensions(0, level)
+        if level_spec.width == 0:
+            break
+        if level_spec.width * level_spec.height <= MAX_TEXTURE_TEXELS:
+            pixels = image_input.read_image(0, level, 0, channels, oiio.FLOAT)
+            return None if pixels is None else np.asarray(pixels, FLOAT).reshape(
+                level_spec.height, level_spec.width, channels)
+        level += 1
+    width, height = spec.width, spec.height
+    factor = 2
+    while -(-width // factor) * -(-height // factor) > MAX_TEXTURE_TEXELS:
+        factor += 1
+    # 8- and 16-bit files are decoded as stored (a quarter or half the bytes of float32: most
+    # of a large PNG's read time) and scaled to [0, 1] as OIIO's float conversion does.
+    stored = {oiio.UINT8: (oiio.UINT8, 1.0 / 255.0), oiio.UINT16: (oiio.UINT16, 1.0 / 65535.0)}
+    decoded_as, scale = stored.get(spec.format.basetype, (oiio.FLOAT, 1.0))
+    reduced = np.empty((-(-height // factor), -(-width // factor), channels), FLOAT)
+    strips_per_band = max(1, _BAND_BYTES // (factor * width * channels * 4))
+    for first in range(0, height, factor * strips_per_band):
+        last = min(first + factor * strips_per_band, height)
+        band = image_input.read_scanlines(0, 0, first, last, 0, 0, channels, decoded_as)
+        if band is None:
+            return None
+        band = np.asarray(band).reshape(last - first, width, channels)
+        means = _block_means(band, factor)
+        reduced[first // factor:first // factor + len(means)] = means * FLOAT(scale)
+    return reduced
+
+
+def _block_means(band: np.ndarray, factor: int) -> np.ndarray:
+    """(⌈r/n⌉, ⌈w/n⌉, c) float32 means of the n × n blocks (``factor`` n) of the (r, w, c) ``band``;
+    the blocks of its last row and column hold what is left. Summed one strided offset at a
+    time (n vectorised additions per axis), far faster than numpy's reductions over short axes."""
+    rows, width, channels = band.shape
+    row_sums = np.zeros((-(-rows // factor), width, channels), FLOAT)
+    for offset in range(min(factor, rows)):
+        part = band[offset::factor]
+        row_sums[:len(part)] += part
+    sums = np.zeros((len(row_sums), -(-width // factor), channels), FLOAT)
+    for offset in range(min(factor, width)):
+        part = row_sums[:, offset::factor]
+        sums[:, :part.shape[1]] += part
+    row_counts = np.minimum(factor, rows - factor * np.arange(sums.shape[0])).astype(FLOAT)
+    column_counts = np.minimum(factor, width - factor * np.arange(sums.shape[1])).astype(FLOAT)
+    return sums / (row_counts[:, None, None] * column_counts[None, :, None])
 
 
 def _repaired(pixels: np.ndarray, light: bool) -> int:
@@ -361,5 +476,9 @@ def _linear(pixels: np.ndarray, color_space: ColorSpace) -> np.ndarray:
     linear = np.array(pixels[:, :, :channels], dtype=FLOAT)  # a copy: the decoded file stays as stored
     if color_space == "sRGB":
         colour = 3 if channels >= 3 else 1
-        linear[:, :, :colour] = srgb_to_linear(linear[:, :, :colour])
+        # A band of rows at a time: the EOTF's temporaries stay small beside a large image.
+        rows = max(1, _BAND_BYTES // (4 * linear.shape[1] * colour))
+        for top in range(0, linear.shape[0], rows):
+            band = linear[top:top + rows, :, :colour]
+            band[...] = srgb_to_linear(band)
     return linear

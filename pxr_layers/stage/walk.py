@@ -19,6 +19,10 @@ the warnings fatal): gprims, lights and instancers whose world transform is not 
 cause: NaN or infinite positions, orientations or scales, protoIndices out of range,
 arrays too short; the rest of their instancer renders). Implicit gprims of size 0, which
 describe a shape that is not there, are skipped with a warning too.
+
+Every placement counts against the scene's mesh budget (budgets.MAX_SCENE_MESHES), a
+PointInstancer's as soon as its protoIndices are read, before its other arrays and its
+transforms: a StageError naming the instancer, not minutes of expansion.
 """
 
 from __future__ import annotations
@@ -111,6 +115,7 @@ def walk_stage(context: ReadContext) -> StageContents:
                 continue
             world = _finite_world_transform(context, prim)
             if world is not None:
+                context.budget.take_meshes(1, "one more gprim", file=context.file, prim=str(prim.GetPath()))
                 contents.gprims.append(
                     GprimPlacement(prim, world, str(prim.GetPath()), prim.GetName())
                 )
@@ -297,6 +302,10 @@ def _expand_instancer(
     proto_indices = values.integer_array(instancer.GetProtoIndicesAttr(), time, context.file)
     if not prototype_paths or not len(proto_indices):
         return
+    # Before the other arrays are read and the transforms computed (128 bytes an instance):
+    # every instance places at least one mesh.
+    context.budget.check_meshes(len(proto_indices), f"protoIndices lists {len(proto_indices):,} instances",
+                                file=context.file, prim=instancer_path)
     prototype_roots = [context.stage.GetPrimAtPath(path) for path in prototype_paths]
     instancer_from_instances, usable = _instance_transforms(
         context, instancer, proto_indices, prototype_roots, instancer_path
@@ -306,6 +315,11 @@ def _expand_instancer(
     shown = usable & mask if len(mask) == len(usable) else usable
     prototypes = [_prototype_items(context, root, instancer_path) for root in prototype_roots]
     shown_instances = np.flatnonzero(shown)
+    # The gprims the shown instances place (nested instancers count theirs when expanded).
+    gprims_per_prototype = np.array([sum(not item.is_instancer for item in items) for items in prototypes])
+    placed = int(gprims_per_prototype[proto_indices[shown_instances]].sum())
+    context.budget.take_meshes(placed, f"its {len(shown_instances):,} instances place {placed:,} gprims",
+                               file=context.file, prim=instancer_path)
     # Finite transforms can still overflow in these products: the placement skips what
     # lands out of reach (placement.MAX_WORLD_COORDINATE), without numpy's warnings here.
     with np.errstate(over="ignore", invalid="ignore"):

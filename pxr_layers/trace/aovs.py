@@ -28,6 +28,9 @@ Every array is float32 with row 0 the top row of the image, like FrameResult.rgb
                            ray hits nothing
 
 Ids are exact in float32 up to 2**24 objects / instances.
+
+:func:`camera_surroundings` casts a small grid of such rays to tell what is around the
+camera (a black picture's diagnosis: a camera inside closed geometry sees only back faces).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -161,3 +165,44 @@ class _DataTracer:
             flat["normal"][hits] = normal[hits]
         if "Neye" in flat:
             flat["Neye"][hits] = normal[hits].astype(np.float64) @ self.camera_from_world.T
+
+
+# -- what the camera sees around it (the diagnosis of a black picture) ----------------------
+
+PROBE_GRID = 16
+"""Rays per side of the grid :func:`camera_surroundings` casts through the film (256 rays):
+enough to tell "nearly all" from "most" and negligible beside any render."""
+
+
+@dataclass(frozen=True)
+class CameraSurroundings:
+    """What unjittered rays through a PROBE_GRID × PROBE_GRID grid of the film first hit.
+
+    rays       : rays cast; hits : those that hit a surface or light shape
+    back_faces : those whose first hit is the back of a surface (its geometric normal, wound
+                 as authored, turned away from the camera): the inside of a closed mesh
+    enclosing  : the prim paths of the objects whose backs they hit, most hit first
+    """
+
+    rays: int
+    hits: int
+    back_faces: int
+    enclosing: tuple[str, ...]
+
+
+def camera_surroundings(integrator: Integrator, grid: int = PROBE_GRID) -> CameraSurroundings:
+    """Cast a ``grid`` × ``grid`` grid of rays through the film of the frame ``integrator``
+    was prepared for, as the camera casts them (lights hidden from the camera crossed), and
+    say what they hit first: the signature of a camera inside closed geometry is that nearly
+    every ray hits a back face. Host-side, from the compiled stages the render uses."""
+    queue = camera_rays(integrator.camera, integrator.key, (grid, grid), 1, 0, grid * grid, jitter=False)
+    geometry = integrator.geometry
+    hits = intersect(integrator.caster, queue, geometry.triangle_light, integrator.hidden_lights, integrator.epsilon)
+    hit = np.flatnonzero(hits.triangle >= 0)
+    triangles = hits.triangle[hit]
+    facing = np.einsum("ij,ij->i", geometry.geometric_normal[triangles].astype(np.float64),
+                       queue.direction[hit].astype(np.float64))
+    back = triangles[facing > 0]
+    objects, counts = np.unique(np.take(integrator.world.triangle_object, back), return_counts=True)
+    paths = tuple(integrator.world.object_paths[int(obj)] for obj in objects[np.argsort(-counts, kind="stable")])
+    return CameraSurroundings(len(queue), len(hit), len(back), paths)

@@ -210,6 +210,24 @@ def _shaping_row(light: Light, ies_row: int) -> np.ndarray:
     return row
 
 
+def _oriented(light: Light) -> bool:
+    """Whether the light's transform keeps every axis (no scale of 0): a distant light's
+    direction and a dome's orientation are read from it."""
+    axes = np.linalg.norm(np.asarray(light.world_from_light, np.float64)[:3, :3], axis=0)
+    return bool(np.isfinite(axes).all() and (axes > 0).all())
+
+
+def _light_from_world(light: Light) -> np.ndarray:
+    """(4, 4) float64 the inverse of the light's transform; a light scaled to nothing (a
+    scale of 0: no area, it sends nothing, and darkness says so) has none, and gets the
+    pseudo-inverse (its emission table row is never read for a point it could light)."""
+    world_from_light = np.asarray(light.world_from_light, np.float64)
+    try:
+        return np.linalg.inv(world_from_light)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(world_from_light)
+
+
 def _emission_table(scene: SceneData) -> tuple[EmissionTable, np.ndarray]:
     """(EmissionTable of `scene`'s lights, atlas_index (lights,) int64: each light's image in
     its texture atlas, −1 for none)."""
@@ -221,7 +239,7 @@ def _emission_table(scene: SceneData) -> tuple[EmissionTable, np.ndarray]:
     texels, texture_info = textures.pack([scene.textures[light.texture].pixels
                                           for light, has in zip(lights, textured) if has])
     atlas_index = np.where(textured, np.cumsum(textured) - 1, -1).astype(np.int64)
-    inverse = [np.linalg.inv(np.asarray(light.world_from_light, np.float64))[:3] for light in lights]
+    inverse = [_light_from_world(light)[:3] for light in lights]
     shaping = [_shaping_row(light, ies_rows.get(id(light.shaping.ies), -1) if light.shaping else -1)
                for light in lights]
     table = EmissionTable(
@@ -242,6 +260,10 @@ class LightSampler:
                           emissive surfaces)
     has_lights          : some light sends something
     has_infinite_lights : some dome or distant cone (escaped rays find them)
+    darkness            : why the lights will light nothing (no light sends anything, naming
+                          each light's reason; or every light that sends something has
+                          inputs:diffuse and inputs:specular 0), one line; None when some
+                          light lights the scene
     """
 
     def __init__(self, scene: SceneData, world: World, materials: MaterialTable, geometry: GeometryArrays):
@@ -276,21 +298,30 @@ class LightSampler:
         point_power = _point_power(emission, point_light, point_segment, point_scale)
         sources.extend((POINT, item, power * lit_table[:, point_light[item]]) for item, power in enumerate(point_power))
         scene_area = np.pi * world.radius**2
+        # (lights,) each light's power estimate, and the emissive surfaces': what darkness reads
+        lit = triangle_light >= 0
+        light_power = np.bincount(triangle_light[lit], triangle_power[lit], minlength=len(lights)).astype(np.float64)
+        np.add.at(light_power, point_light, point_power)
+        surface_power = float(triangle_power[~lit].sum())
         distant: list[DistantLight] = []
         domes: list[DomeDistribution] = []
         for index, light in enumerate(lights):
             rotation = np.asarray(light.world_from_light, np.float64)[:3, :3]
+            if light.kind in ("distant", "dome") and not _oriented(light):
+                continue  # scaled to nothing, it has no direction: it sends nothing (darkness says so)
             if light.kind == "distant":
                 toward = rotation @ np.array([0.0, 0.0, 1.0])
                 half_angle = np.radians(np.clip(light.angle, 0.0, 360.0) / 2)
                 one = DistantLight(index, (toward / np.linalg.norm(toward)).astype(FLOAT),
                                    np.asarray(light.radiance, FLOAT), float(np.cos(half_angle)))
+                light_power[index] += float(luminance(one.irradiance)) * scene_area
                 sources.append((DISTANT, len(distant), float(luminance(one.irradiance)) * scene_area * lit_table[:, index]))
                 distant.append(one)
             elif light.kind == "dome":
                 orthonormal = rotation / np.linalg.norm(rotation, axis=0, keepdims=True)
                 pixels = None if light.texture is None else scene.textures[light.texture].pixels
                 dome = DomeDistribution(index, light.radiance, pixels, orthonormal.T)
+                light_power[index] += dome.mean_luminance * np.pi * scene_area
                 sources.append((DOME, len(domes), dome.mean_luminance * np.pi * scene_area * lit_table[:, index]))
                 domes.append(dome)
 
@@ -301,6 +332,8 @@ class LightSampler:
         power = power[:, useful]
         total = power.sum(axis=1)
         self.has_lights = bool(sources)
+        self.darkness = darkness(scene, world, light_power * lit_table.any(axis=0), surface_power,
+                                 bool(surface_emitter.any()), self.has_lights)
         self.has_infinite_lights = bool(domes or any(not d.is_delta for d in distant))
         probability = power / np.maximum(total, 1e-300)[:, None]
         column = {(kind, item): at for at, (kind, item, _) in enumerate(sources)}
@@ -356,6 +389,69 @@ class LightSampler:
             source_cdf=np.array([_cumulative(row) if row.sum() > 0 else np.ones(len(row))
                                  for row in (power if sources else np.ones((groups, 1)))]),
         )
+
+
+DARK_LIGHTS_NAMED = 4
+"""Lights a darkness warning names with their reasons at most (then "and N more")."""
+
+
+def darkness(scene: SceneData, world: World, light_power: np.ndarray, surface_power: float,
+             emissive_surfaces: bool, has_lights: bool) -> str | None:
+    """Why the lights of ``scene`` will light nothing, as the tracer sees them (one line),
+    or None when some light lights the scene.
+
+    light_power   : (lights,) float64 each light's power estimate (0 when linked to nothing)
+    surface_power : the emissive surfaces' power estimate
+    emissive_surfaces : some triangle has an emissive material
+    has_lights    : some source has power (LightSampler.has_lights)
+
+    Either nothing sends anything (each light's reason: it emits 0, its image is black, it
+    has no size, its light link holds nothing; or there is no light at all), or every light
+    that does has inputs:diffuse and inputs:specular 0, and only lights seen directly show.
+    """
+    lights = scene.lights
+    if has_lights:
+        sending = np.flatnonzero(light_power > 0)
+        if surface_power > 0 or not len(sending) or any(lights[i].diffuse or lights[i].specular for i in sending):
+            return None
+        return (f"every light that sends light has inputs:diffuse and inputs:specular 0 "
+                f"({_named([lights[i].path for i in sending])}): they light nothing, only a light seen "
+                "directly shows")
+    if not world.triangle_count:
+        return None  # nothing to light: a dome seen directly is the picture
+    reasons = [f"{light.path} {_dark_reason(index, light, scene, world, light_power)}"
+               for index, light in enumerate(lights)]
+    if emissive_surfaces:
+        reasons.append("the emissive surfaces send nothing (no area, or a black emission)")
+    if not reasons:
+        reasons = ["the renderer sees no light (an inactive or invisible light is none) and no emissive surface"]
+    return f"no light emits anything: the image will be black ({_named(reasons, '; ')})"
+
+
+def _dark_reason(index: int, light: Light, scene: SceneData, world: World, light_power: np.ndarray) -> str:
+    """Why one light of no power sends nothing, as the tracer sees it."""
+    radiance = np.asarray(light.radiance, np.float64)
+    if not (radiance > 0).any():
+        return "emits nothing (inputs:intensity × 2^inputs:exposure × inputs:color is 0)"
+    if light.texture is not None and not (scene.textures[light.texture].pixels > 0).any():
+        return "has a black image (inputs:texture:file)"
+    if light.kind in ("point", "line"):
+        if light.radius <= 0 or (light.kind == "line" and light.length <= 0):
+            return "has no size (inputs:radius or inputs:length 0)"
+    elif light.kind in ("distant", "dome"):
+        if not _oriented(light):
+            return "has no direction (a scale of 0)"
+    elif not world.area[world.triangle_light == index].sum() > 0:
+        return "has no area (inputs:width, height, radius or length 0, or a scale of 0)"
+    if light.light_link is not None and light_power[index] == 0:
+        return "lights nothing (its collection:lightLink includes no object)"
+    return "sends nothing the renderer can sample"
+
+
+def _named(items: list[str], separator: str = ", ") -> str:
+    """The first DARK_LIGHTS_NAMED items, then how many more."""
+    shown = separator.join(items[:DARK_LIGHTS_NAMED])
+    return shown + (f"{separator}and {len(items) - DARK_LIGHTS_NAMED} more" if len(items) > DARK_LIGHTS_NAMED else "")
 
 
 def _flat(values: list[np.ndarray]) -> np.ndarray:

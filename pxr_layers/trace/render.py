@@ -44,8 +44,8 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
     geometry = geometry_arrays(world)
     materials = MaterialTable(scene, world.primvar_columns)
     lights = LightSampler(scene, world, materials, geometry)
-    if not lights.has_lights:
-        log.warning("%s: no light emits anything: the image will be black", scene.stage_path)
+    if lights.darkness:
+        log.warning("%s: %s", scene.stage_path, lights.darkness)
     camera = PinholeCamera.from_spec(spec)
     bounce_norms = BounceNorms(scene, world) if settings.norm_bounces > 0 else None
     # every distinct (object, material) pair of the triangles is one event subject, in

@@ -28,13 +28,13 @@ import numpy as np
 
 from .. import lpe
 from ..errors import LpeSyntaxError, PxrLayersError, RecipeError
-from ..layers.deliver import at_index_view, beauty_beside, deliver, index_metadata
+from ..layers.deliver import at_index_view, beauty_beside, deliver, index_inputs, index_metadata
 from ..layers.display_lut import DisplayLut, bake_display_lut, lut_bytes, lut_description
 from ..layers.extract import extract
 from ..layers.multipart import MultipartImage, read_multipart
 from ..layers.nuke import NUKE_RESERVED_LAYERS, LayerGrade, write_nuke_script
 from ..layers.previews import energy_shares, layers_partition
-from ..outputs import OutputSet
+from ..outputs import OutputSet, reading
 from ..paths.events import (
     SCATTERING_NAMES,
     SCATTERING_TYPE_NAMES,
@@ -241,7 +241,8 @@ class Session:
             raise ViewError(str(error)) from None
 
     def add_layer(self, name: str, expression: str) -> tuple[ViewLayer, dict]:
-        """Extract a new layer from the index into the stack: /api/layer."""
+        """Extract a new layer from the index into the stack: /api/layer. The facts: classes
+        matched, seconds, and the warnings of labels that name nothing in the index."""
         index = self._need_index("make a layer")
         if not isinstance(name, str) or len(name) > MAX_NAME_CHARS or not LAYER_NAME.fullmatch(name) \
                 or name in NUKE_RESERVED_LAYERS:
@@ -262,7 +263,9 @@ class Session:
             self.layers[name] = layer
         seconds = time.perf_counter() - start
         log.info("layer %s = %s: %.2f s", name, expression, seconds)
-        return layer, {"classes": extraction.classes_matched, "seconds": seconds}
+        # a label naming nothing (a typo: 'flor' for 'floor') leaves the layer empty: the
+        # answer says so, with the close names, as the log does
+        return layer, {"classes": extraction.classes_matched, "seconds": seconds, "warnings": list(extraction.warnings)}
 
     def suggest_layers(self, k: int) -> tuple[list[ViewLayer], dict]:
         """Layers found automatically (pxr_layers.suggest, docs/suggest.md): K layers that
@@ -315,7 +318,9 @@ class Session:
         paths = {"recipe": self.folder / f"{name}.usda", "exr": self.folder / f"{name}.exr",
                  "nuke": self.folder / f"{name}.nk"}
         partition = self._partition([self.layers[entry["id"]] for entry in stack if entry["id"] != "beauty"])
-        with self._lock, OutputSet():  # the check and the writes together: of two saves of one name, one is refused
+        # The check and the writes together: of two saves of one name, one is refused. A save
+        # named after the render (overwrite: true) does not replace the index and EXR it reads.
+        with self._lock, reading(*index_inputs(index)), OutputSet():
             existing = [path.name for path in paths.values() if path.exists()]
             if existing and not overwrite:
                 raise ViewError(f"{', '.join(existing)} exist in {self.folder}: save under another name, "
@@ -323,7 +328,7 @@ class Session:
             deliver(index, recipe, self.beauty, {recipe.products[0].name: paths["exr"]},
                     metadata=index_metadata(index, self.folder))
             write_recipe(paths["recipe"], recipe)
-            write_nuke_script(paths["nuke"], paths["exr"].name, [layer.name for layer in chosen], grades,
+            write_nuke_script(paths["nuke"], paths["exr"], [layer.name for layer in chosen], grades,
                               resolution=(self.width, self.height), exposure=float(exposure), partition=partition,
                               pixel_aspect_ratio=self.base_product.pixel_aspect_ratio)
         log.info("saved %s", ", ".join(str(path) for path in paths.values()))

@@ -15,10 +15,16 @@ translated by it; any other node whose nodedef is implemented by a NodeGraph (Us
 UsdPrimvarReader, UsdTransform2d, place2d, most of stdlib) is expanded with its inputs bound
 to the graph's interface, as MaterialX's code generators do. Anything else is noted once per
 category and gives its output's default.
+
+Values: a number that is not finite is a StageError naming where it is authored (the USD
+attribute of a UsdShade network, or the node input and the file of a document), as
+values.checked does for every other input; what the surface computes from them is checked
+by materials.check_fields.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import threading
 from typing import Callable
@@ -26,11 +32,14 @@ from typing import Callable
 import MaterialX as mx
 from pxr import Sdf, Usd, UsdShade
 
+from pxr_layers.errors import StageError
+from pxr_layers.inputs import input_problem
 from pxr_layers.shader_nodes import ShaderNode, broadcast, constant
 
 from ..context import ReadContext
 from ..defaults import DEFAULT_UV_SET
 from ..textures import anchored_asset_path
+from ..values import checked_all
 
 MAX_DEPTH = 128
 """Nested node evaluations before a graph counts as runaway (cyclic). Each level costs a
@@ -169,6 +178,11 @@ class Evaluator:
         if not value_port.getValueString() and geomprop:
             return self._geomprop(geomprop)
         values = parse_value(value_port.getValueString(), value_port.getType() or type_name)
+        if values and not all(math.isfinite(value) for value in values):  # values.checked's rule, for a document
+            node = value_port.getParent()
+            where = f"{node.getName()}.{value_port.getName()}" if node is not None else value_port.getName()
+            raise StageError(f"MaterialX input {where} is {value_port.getValueString()!r}: it must be finite "
+                             f"(used by {self.material_path})", file=value_port.getActiveSourceUri() or None)
         return constant(*values) if values else None
 
     def port_string(self, port, frame: Frame):
@@ -390,6 +404,9 @@ class Documents:
             return self._documents[path]
         document = mx.createDocument()
         try:
+            problem = input_problem(path, "MaterialX document")  # a FIFO would block the read
+            if problem is not None:
+                raise OSError(problem)
             mx.readFromXmlFile(document, path)
         except Exception as error:  # MaterialX raises its own exception types (file, parse)
             self.context.diagnostics.warn(
@@ -488,11 +505,12 @@ class UsdNetwork:
             return "true" if value else "false"
         if isinstance(value, (bool, int)) and type_name == "integer":
             return str(int(value))
-        if isinstance(value, (int, float)):
-            return repr(float(value))
         if isinstance(value, str):
             return value
         try:
-            return ", ".join(repr(float(component)) for component in value)
+            numbers = (float(value),) if isinstance(value, (int, float)) else tuple(float(part) for part in value)
         except TypeError:
             return str(value)
+        # Checked here, where the USD attribute can be named (values.checked), not in the copy
+        numbers = checked_all(numbers, attribute.GetName(), file=self.context.file, prim=str(attribute.GetPrim().GetPath()))
+        return ", ".join(repr(number) for number in numbers)
