@@ -66,6 +66,9 @@ def _scatter_kernel(key, position, facing, frame, wo, lobes, cut, scatters, tria
                                                                              wo[lane, 2], u0, u1, u2)
         dx, dy, dz = to_world(frame, lane, x, y, z)
         side = dx * nx + dy * ny + dz * nz
+        # A direction on the wrong side of the geometric surface would leave from inside the
+        # object: it ends the path. The shading normal was bent (surface.bent_normal) so that
+        # a lobe's centre never falls there; only its tail can.
         consistent = side < 0 if transmit else side > 0
         scattered = valid and consistent
         lobe_out[lane], scatter_out[lane], transmit_out[lane], scattered_out[lane] = lobe, code, transmit, scattered

@@ -1,7 +1,49 @@
-"""Stage 5: the surface a path reached — position, shading frame, material, cut-out, lobes."""
+"""Stage 5: the surface a path reached — position, shading frame, material, cut-out, lobes.
+
+The shading frame is built here once per hit, and every consumer reads it (BSDF sampling
+in scatter.py, BSDF evaluation for next-event estimation, the covariance and bounce-norm
+records, the normal AOV), so all of them see one normal.
+
+Shading normals and the geometric surface
+-----------------------------------------
+A shading normal n (interpolated, or bent further by a normal map) differs from the
+triangle's geometric normal g. The path may only continue on g's side (scatter.py: a
+direction below the real surface would leave from inside the object), so where the mirror
+reflection of wo about n falls below the geometric surface, a smooth or glossy lobe
+centred on it loses all or most of its samples: whole pixels go exactly black (strong
+normal maps, bevels, interpolated normals at grazing views).
+
+:func:`bent_normal` bends n toward g, per hit and per view direction, just enough that
+the mirror reflection of wo about it rises SPECULAR_CLEARANCE (a cosine) above the
+geometric surface, or 0.9·cos θo for a view that grazes more than that (a reflection may
+always be as shallow as the incoming ray): the rule of Iray (Keller et al. 2017, "The
+Iray light transport simulation and rendering system", appendix A.3) that Cycles
+applies as ``ensure_valid_specular_reflection`` (kernel/closure/bsdf_util.h) and that
+Arnold applies to its shading normals too. n is left alone wherever its reflection
+already clears the surface. Cycles keeps n' in the plane of g and n and solves a quadratic
+for it; here the reflection R is lifted to that height keeping its direction along the
+surface, and n' is the half vector of wo and the lifted R' (the normal that mirrors wo
+onto R'): one normalisation, no root to choose, continuous in n. The lobes of a hit share
+one frame, so the bend applies to the diffuse lobe too (Cycles bends glossy closures
+only): where it acts, the diffuse lobe's cosine turns toward g as well, and fewer of its
+samples fall below the surface.
+
+Energy: every lobe is still evaluated and sampled in the (bent) shading frame with
+shading-frame cosines, so a hit reflects at most its shading-frame albedo (no energy is
+created: tests/test_shading_normal.py, furnace); directions that still fall below the
+geometric surface (the far tail of a lobe, part of a diffuse lobe about a tilted normal)
+are still discarded, which is physically right. Schüssler et al. 2017 ("Microfacet-based
+normal mapping for robust Monte Carlo path tracing") would keep energy exactly and stay
+reciprocal, by replacing each lobe with a microsurface of two facets (n and a tangent
+facet) and a random walk between them; it changes every lobe's sampling and evaluation
+(bsdf.py), its pdf is no longer closed form for MIS, and it darkens and reshapes normal
+maps relative to what artists authored for other renderers. The bend is local to the
+frame, costs a few flops per hit, and matches Cycles/Arnold looks, so it is the one here.
+"""
 
 from __future__ import annotations
 
+import math
 
 import numpy as np
 
@@ -11,6 +53,10 @@ from ..shading import MaterialArrays
 from ..vectors import basis, normalized
 from ..world import GeometryArrays
 from .queues import Hits, PathQueue, SurfaceQueue
+
+SPECULAR_CLEARANCE = 0.01
+"""The height (a cosine above the geometric surface, ≈ 0.57°) to which the bend lifts the
+mirror reflection of wo (module docstring): Iray's and Cycles' value."""
 
 
 def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry: GeometryArrays,
@@ -27,10 +73,11 @@ def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry
     makes every choice fixed (what is less than half present passes), for data passes.
 
     The shading normal is the interpolated normal, perturbed by the material's tangent-space
-    normal (mapped_normal), turned to the viewer's side of the geometric normal (and
-    replaced by it where it would face away from the viewer). Paths at `max_depth` get no
-    lobe. curvature: (t,) float32 C per triangle, or (0,) for none (C = 0). Also adds the
-    hit distance to ``queue.travelled``.
+    normal (mapped_normal), turned to the viewer's side of the geometric normal with the
+    interpolated normal, then bent toward the geometric normal where the mirror reflection
+    of the view direction would fall below the surface (bent_normal, module docstring).
+    Paths at `max_depth` get no lobe. curvature: (t,) float32 C per triangle, or (0,) for
+    none (C = 0). Also adds the hit distance to ``queue.travelled``.
     """
     n = len(queue)
     out = SurfaceQueue(
@@ -85,6 +132,37 @@ def mapped_normal(geometry, triangle, inputs, nx, ny, nz):
     return mx, my, mz
 
 
+@inline
+def bent_normal(nx, ny, nz, gx, gy, gz, wx, wy, wz):
+    """The unit shading normal n bent toward the unit geometric normal g (on the viewer's
+    side) just enough that the mirror reflection of wo (unit, toward the viewer) about it
+    is min(SPECULAR_CLEARANCE, 0.9·cos θo) above the geometric surface; n itself where its
+    reflection already is, and it faces wo and g (module docstring). Returns (x, y, z)."""
+    cos_o = wx * gx + wy * gy + wz * gz
+    clearance = min(0.9 * cos_o, SPECULAR_CLEARANCE)
+    cos_n = nx * wx + ny * wy + nz * wz
+    rx, ry, rz = 2.0 * cos_n * nx - wx, 2.0 * cos_n * ny - wy, 2.0 * cos_n * nz - wz
+    height = rx * gx + ry * gy + rz * gz
+    if cos_n > 0 and nx * gx + ny * gy + nz * gz > 0 and height >= clearance:
+        return nx, ny, nz
+    # R's direction along the surface; straight down (n ⟂ g) it has none: take the mirror
+    # of wo's own, the direction a flat surface reflects toward.
+    px, py, pz = rx - height * gx, ry - height * gy, rz - height * gz
+    length = math.sqrt(px * px + py * py + pz * pz)
+    if not length > 1e-6:
+        px, py, pz = cos_o * gx - wx, cos_o * gy - wy, cos_o * gz - wz
+        length = math.sqrt(px * px + py * py + pz * pz)
+        if not length > 1e-6:  # wo along g: the flat surface's own mirror
+            return gx, gy, gz
+    along = math.sqrt(max(1.0 - clearance * clearance, 0.0)) / length
+    # n' = the half vector of wo and the lifted reflection R' = along·p + clearance·g
+    hx, hy, hz = wx + px * along + clearance * gx, wy + py * along + clearance * gy, wz + pz * along + clearance * gz
+    size = math.sqrt(hx * hx + hy * hy + hz * hz)
+    if not size > 1e-6:  # R' opposite wo: only on a hit grazed exactly (cos θo = 0)
+        return gx, gy, gz
+    return hx / size, hy / size, hz / size
+
+
 @kernel
 def _surface_kernel(alive, key, pixel, sample, frame_key, spp, presence_dimension, triangle, bary_u, bary_v, t_hit, direction, depth, travelled,
                     max_depth, geometry, materials, curvature, point, normal, registers, inputs, position_out,
@@ -116,14 +194,14 @@ def _surface_kernel(alive, key, pixel, sample, frame_key, spp, presence_dimensio
             cut = u_presence < passing
         scatters = not cut and depth[lane] < max_depth
         nx, ny, nz = normalized(normal[0], normal[1], normal[2], 1e-12)
-        if inputs[shading.HAS_NORMAL] > 0:
-            nx, ny, nz = mapped_normal(geometry, tri, inputs, nx, ny, nz)
         if cos_geometric < 0:
             gx, gy, gz = -gx, -gy, -gz
-        if nx * gx + ny * gy + nz * gz < 0:
-            nx, ny, nz = -nx, -ny, -nz
-        if nx * wx + ny * wy + nz * wz <= 1e-4:
-            nx, ny, nz = gx, gy, gz
+        # The side is the interpolated normal's: a normal map that tilts past the geometric
+        # surface is bent back up below, not turned inside out.
+        side = 1.0 if nx * gx + ny * gy + nz * gz >= 0 else -1.0
+        if inputs[shading.HAS_NORMAL] > 0:
+            nx, ny, nz = mapped_normal(geometry, tri, inputs, nx, ny, nz)
+        nx, ny, nz = bent_normal(side * nx, side * ny, side * nz, gx, gy, gz, wx, wy, wz)
         tx, ty, tz, bx, by, bz = basis(nx, ny, nz)
         frame = frame_out[lane]
         frame[0, 0], frame[0, 1], frame[0, 2] = tx, ty, tz
