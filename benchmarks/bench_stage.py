@@ -1,6 +1,6 @@
 """Stage read: ``load_stage`` against a plain usd-core read loop on the same stage, in one run.
 
-    python benchmarks/bench_stage.py [--stage PATH] [--repeats 5] [--subdiv-level 2]
+    python benchmarks/bench_stage.py [--stage PATH] [--repeats 5] [--subdiv-level N]
 
 Both sides read the same USD file; each repeat runs the baseline, then ours, each in a
 **fresh Python subprocess**, and the fastest of --repeats is kept for each. Fresh processes
@@ -23,16 +23,16 @@ covers only the read.
   ``np.asarray``, as any reader that hands numpy arrays on must. Tf warnings are trapped
   (as ``load_stage`` traps them), so neither side pays for printing them.
 * ours: ``pxr_layers.stage.load_stage(path)``: the same open, plus triangulation
-  (subdivision surfaces refined to ``--subdiv-level``, the render's default 2 unless given;
-  0 reads the cages), primvar expansion per corner, placement in world metres (instances
+  (subdivision surfaces refined to ``--subdiv-level``, by default the render's level per
+  mesh from its size on screen; 0 reads the cages), primvar expansion per corner, placement in world metres (instances
   included), degenerate triangles, materials and textures, lights, camera and render
   settings.
 
 Prints both times (the baseline split into open and traversal), the ratio ours/baseline and
 the triangle count of the SceneData. Target: ours ≤ 2× the baseline.
 
-The default stage is the OpenChessSet (21 mesh prims placed 49 times, 2.5 M triangles at the
-default subdivision level, payloads, PointInstancers, MaterialX looks); the script prints a
+The default stage is the OpenChessSet (21 mesh prims placed 49 times, 1.7 M triangles at the
+automatic subdivision levels at 640 px, payloads, PointInstancers, MaterialX looks); the script prints a
 message and exits 0 when the asset is absent. Stages are read as shipped: one without a
 camera gets load_stage's automatic camera (its framing is part of our read), and a load_stage
 error is printed as such.
@@ -47,7 +47,6 @@ import sys
 import textwrap
 from pathlib import Path
 
-from pxr_layers.request import DEFAULT_SUBDIV_LEVEL
 
 SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 DEFAULT_STAGE = SCENES / "usd-wg" / "full_assets" / "OpenChessSet" / "chess_set.usda"
@@ -118,7 +117,8 @@ import pxr_layers.stage.reader  # load_stage imports it on first use: an import,
 from pxr_layers.errors import PxrLayersError
 from pxr_layers.request import RenderRequest
 logging.basicConfig(level=logging.CRITICAL)  # the reader's warnings are not what is timed
-request = RenderRequest(stage=path, subdiv_level=int(sys.argv[2]))
+level = sys.argv[2]
+request = RenderRequest(stage=path, subdiv_level=None if level == "auto" else int(level))
 
 start = time.perf_counter()
 try:
@@ -134,9 +134,9 @@ print(json.dumps({"seconds": seconds, "meshes": len(scene.meshes),
 """
 
 
-def run_child(code: str, stage: Path, subdiv_level: int) -> dict:
+def run_child(code: str, stage: Path, subdiv_level: int | None) -> dict:
     """Run one timed read in a fresh interpreter; its last stdout line is a JSON report."""
-    completed = subprocess.run([sys.executable, "-P", "-c", code, str(stage), str(subdiv_level)],
+    completed = subprocess.run([sys.executable, "-P", "-c", code, str(stage), "auto" if subdiv_level is None else str(subdiv_level)],
                                capture_output=True, text=True)
     if completed.returncode != 0:
         raise SystemExit(f"bench_stage: a child failed (exit {completed.returncode}):\n"
@@ -148,9 +148,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--stage", type=Path, default=DEFAULT_STAGE, help=f"default: {DEFAULT_STAGE}")
     parser.add_argument("--repeats", type=int, default=5, help="fresh-process reads of each side; fastest kept")
-    parser.add_argument("--subdiv-level", type=int, default=DEFAULT_SUBDIV_LEVEL,
-                        help=f"our refinement level of subdivision surfaces (default {DEFAULT_SUBDIV_LEVEL}, "
-                             "the render's; 0 reads the cages)")
+    parser.add_argument("--subdiv-level", type=int, default=None,
+                        help="our refinement level of every subdivision surface (default: the render's, "
+                             "a level per mesh from its size on screen; 0 reads the cages)")
     args = parser.parse_args()
     if not args.stage.exists():
         print(f"bench_stage: {args.stage} is absent; skipped")
@@ -159,7 +159,7 @@ def main() -> int:
         parser.error("--repeats must be at least 1")
 
     stage = args.stage
-    print(f"{stage} (our subdivision level: {args.subdiv_level})")
+    print(f"{stage} (our subdivision level: {'automatic' if args.subdiv_level is None else args.subdiv_level})")
     print(f"fastest of {args.repeats}, each read in a fresh process, baseline then ours per repeat")
     baselines, ours = [], []
     for repeat in range(args.repeats):

@@ -14,6 +14,7 @@ Plain data (no pxr): it travels to Dask workers and into tests as it is.
 from __future__ import annotations
 
 import difflib
+import math
 import os
 import re
 from collections.abc import Sequence
@@ -39,6 +40,8 @@ from .recipe.presets import PRESETS, preset
 DEFAULT_SPP = 64
 DEFAULT_MAX_DEPTH = 8
 DEFAULT_SEED = 0
+NO_CLAMP = 0.0
+"""The clamp_indirect value that turns the clamp off: indirect contributions as traced."""
 DEFAULT_RESOLUTION = (512, 512)
 """(width, height) in pixels of a stage whose recipe (or lack of one) names no resolution."""
 MAX_SPP = 1 << 16
@@ -49,18 +52,17 @@ MAX_DEPTH = 1024
 """Scattering events per path at most (Russian roulette ends paths long before; more is a typo)."""
 MAX_SEED = (1 << 64) - 1
 """The largest seed: seeds key 64-bit random streams, so a larger one would wrap silently."""
-DEFAULT_SUBDIV_LEVEL = 2
-"""Uniform refinement levels of subdivision surfaces: each level splits a quad in four, so
-level 2 turns a cube into 96 quads; enough for a smooth silhouette at shot resolution of
-the cages studios author, and cheap next to the render."""
+AUTO_CAMERA_VIEWS = ("front", "three-quarter")
+"""How a stage without a camera may be framed (stage/defaults.frame_auto_camera), the default first."""
 MAX_SUBDIV_LEVEL = 6
 """Past this a level multiplies a production mesh's triangles by another 4x: a mistake, not a
 look (a 100 k-face cage at 6 is 400 M quads)."""
-MAX_REFINED_FACES = 1 << 16
-"""The most faces a subdivision surface is refined to. Each level multiplies the faces by 4,
-and a dense cage (a scan, a sculpt, the OpenChessSet's 20 k-face pieces) is already finer
-than a pixel at shot resolution: refining it would multiply the render's triangles by 16 at
-level 2 for no visible change. Such meshes get the levels that fit, or their cage."""
+MAX_SUBDIVISION_TRIANGLES = 1 << 22
+"""The most triangles a scene's subdivision surfaces are refined to (4,194,304), every placed
+copy counted: about 2 GB of render memory (stage.budgets.MAX_SCENE_TRIANGLES says 500 bytes
+a triangle). Each level multiplies a mesh's triangles by 4; past the budget the reader lowers
+the highest levels first (a dense cage, the OpenChessSet's 20 k-face pieces, is already finer
+than a pixel at shot resolution and loses least), with one warning naming them."""
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 AS_AUTHORED = "recipe"
 """The per-light word for "each product's pxrLayers:perLight as authored" (the default)."""
@@ -145,6 +147,33 @@ class Integer(Kind):
     @property
     def _unit(self) -> str:
         return f" {self.unit}" if self.unit else ""
+
+
+@dataclass(frozen=True)
+class Number(Kind):
+    """A finite real number of at least ``minimum`` (an integer is taken as a number)."""
+
+    minimum: float
+    metavar = "X"
+
+    def from_text(self, text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(f"must be a number, not {text!r}") from None
+        return self.check(value)
+
+    def check(self, value: Any) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"must be a number, not {type_name(value)} ({value!r})")
+        if not math.isfinite(value):
+            raise ValueError(f"must be a finite number, not {value!r}")
+        if value < self.minimum:
+            raise ValueError(f"must be at least {self.minimum:g}, not {value!r}")
+        return float(value)
+
+    def describe(self, default: Any) -> str:
+        return f"{default:g}"
 
 
 @dataclass(frozen=True)
@@ -443,10 +472,17 @@ class RenderRequest:
                             f"most scattering events per path; 1 = direct light only (at most {MAX_DEPTH})")
     seed: int = option(DEFAULT_SEED, Integer(0, MAX_SEED),
                        "random seed (with the frame, pixel and sample, it keys every random stream)")
+    clamp_indirect: float = option(
+        NO_CLAMP, Number(0.0), "firefly clamp: each indirect contribution (light arriving after a bounce past "
+        "the first visible hit; direct light and emitters seen directly are never clamped) is scaled down, all "
+        "three channels alike, so that its largest channel is at most this value; the beauty, the path index "
+        "and every layer cut from it see the clamped light (biased: darker, less noisy); 0 = off",
+        default_text="0 (off)")
     norm_bounces: int | None = option(
         None, Integer(0, MAX_INDEX_BOUNCES), "events per path (camera side) whose covariance norms C, T, R "
         f"the path index keeps (default: the products' pxrLayers:index:bounces, else {DEFAULT_INDEX_BOUNCES}, "
-        f"raised to the max depth when a layer has a covariance condition; 0: none; at most {MAX_INDEX_BOUNCES})",
+        f"raised to the max depth when a layer has a covariance condition; none with --no-index and no condition; "
+        f"0: none; at most {MAX_INDEX_BOUNCES})",
         default_text="the products'")
     index_mode: str | None = option(
         None, Choice(INDEX_MODES), "merged: one index record per pixel, path class and covariance bin (bins "
@@ -457,14 +493,23 @@ class RenderRequest:
         None, Choice(COVARIANCE_MODES), "norms: the index keeps C, T, R per event; sigma: also the whole "
         "4x4 covariance, for conditions on S11 ... S44 (default: the products' pxrLayers:index:covariance)",
         default_text="the products'")
-    subdiv_level: int = option(
-        DEFAULT_SUBDIV_LEVEL, Integer(0, MAX_SUBDIV_LEVEL), "uniform refinement level of subdivision "
-        f"surfaces (catmullClark, loop, bilinear), lowered where a mesh would pass {MAX_REFINED_FACES} faces; "
-        f"0 renders the cage (at most {MAX_SUBDIV_LEVEL})")
+    subdiv_level: int | None = option(
+        None, Integer(0, MAX_SUBDIV_LEVEL), "refinement level of every subdivision surface (catmullClark, "
+        f"loop, bilinear), 0 the cage, at most {MAX_SUBDIV_LEVEL} (default: a level per mesh from its size on the "
+        "image, for refined edges of a few pixels; few levels out of view); either way "
+        f"the highest levels are lowered first where the scene would pass {MAX_SUBDIVISION_TRIANGLES:,} "
+        "refined triangles", default_text="automatic (from the projected size)")
     default_lights: bool = option(
-        True, Switch(), "a stage that nothing lights (no light, no emissive material) gets a dome and a key "
-        "light under /pxrLayers/defaultLights", flag_help="a stage that nothing lights stays unlit (default: "
-        "it gets a dome and a key light under /pxrLayers/defaultLights)")
+        True, Switch(), "a stage that nothing lights (no light, no emissive material) gets a turntable rig under "
+        "/pxrLayers/defaultLights (dome, key, fill and rim, placed from the camera)",
+        flag_help="a stage that nothing lights stays unlit (default: it gets a turntable rig under "
+        "/pxrLayers/defaultLights: dome, key, fill and rim, placed from the camera)")
+    auto_camera: str = option(
+        AUTO_CAMERA_VIEWS[0], Choice(AUTO_CAMERA_VIEWS), "how a stage without a camera is framed by "
+        "/pxrLayers/autoCamera: front (looking down -Z on a Y-up stage, +Y on a Z-up one, as usdview's free "
+        "camera) "
+        "or three-quarter (30 degrees to the right, 20 above); either way the bounds fill the render's frame "
+        "with a small margin")
     strict: bool = option(
         False, Switch(), "any composition error (a missing or unreadable reference, payload or sublayer) is "
         "fatal, exit 1 (default: a warning, and the rest renders)")
@@ -507,12 +552,21 @@ class RenderRequest:
                 raise RenderSettingsError(f"{spec.name.replace('_', ' ')}{separator}{said}") from None
 
     def resolved_norm_bounces(self, product_bounces: int, has_conditions: bool) -> int:
-        """The norm-bounce rule: the request's own number, else the products' index bounces
-        raised to ``max_depth`` (at most MAX_INDEX_BOUNCES) when a layer has a covariance
-        condition (a condition under ``.*`` may test any event of the path)."""
+        """The norm-bounce rule: none when nothing reads them (no index kept, no covariance
+        condition, no ``debug_covariance``: tracing covariance costs 2-4x); else the request's
+        own number, else the products' index bounces raised to ``max_depth`` (at most
+        MAX_INDEX_BOUNCES) when a layer has a covariance condition (a condition under ``.*``
+        may test any event of the path); at least 1 for ``debug_covariance``, whose maps are
+        the first bounce's norms."""
+        if not (self.keep_index or has_conditions or self.debug_covariance):
+            return 0
         if self.norm_bounces is not None:
-            return self.norm_bounces
-        return max(product_bounces, min(self.max_depth, MAX_INDEX_BOUNCES)) if has_conditions else product_bounces
+            bounces = self.norm_bounces
+        elif has_conditions:
+            bounces = max(product_bounces, min(self.max_depth, MAX_INDEX_BOUNCES))
+        else:
+            bounces = product_bounces
+        return max(bounces, 1) if self.debug_covariance else bounces
 
 
 def _options() -> tuple[Option, ...]:

@@ -172,6 +172,65 @@ def test_uniform_dome_on_a_diffuse_plane(tmp_path):
     np.testing.assert_allclose(rgb, 0.5 * 0.8 * np.array([1, 0.5, 0.25]), rtol=0.01)
 
 
+def grey_card_stage(camera: str = "") -> str:
+    """A 2 × 2 m Lambertian card of albedo 0.18 facing +Z, and nothing that lights it."""
+    header = '#usda 1.0\n(\n    upAxis = "Y"\n    metersPerUnit = 1\n    defaultPrim = "World"\n)\n'
+    card = """
+    def Mesh "card" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        point3f[] points = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]
+        rel material:binding = </World/Looks/grey>
+    }
+"""
+    return header + f'def Xform "World"\n{{\n    def Scope "Looks"\n    {{\n{lambert("grey", 0.18, 0)}\n    }}\n{card}\n{camera}\n}}\n'
+
+
+# The default rig on a surface facing the camera (stage/defaults.DEFAULT_RIG): a distant
+# light at azimuth a, elevation e from the view axis meets it at cos e · cos a; the rim,
+# behind, not at all; the 0.3 dome gives ρ · 0.3 over the open hemisphere.
+DEFAULT_RIG_ON_A_FACING_CARD = (0.18 / math.pi * (5.0 * math.cos(math.radians(35)) * math.cos(math.radians(45))
+                                                  + 1.25 * math.cos(math.radians(10)) * math.cos(math.radians(60)))
+                                + 0.18 * 0.3)
+
+
+def test_a_grey_card_under_the_default_rig_and_automatic_camera_is_mid_grey(tmp_path):
+    """No camera, no light: the automatic camera looks at the card from the front and fills
+    the frame with it; the normalised key and fill give their irradiance, as documented."""
+    path = write(tmp_path, "card.usda", grey_card_stage())
+    _, result = mean_rgb(path, spp=64, max_depth=1, resolution=(24, 16))
+    centre = result.rgba[4:12, 8:16, :3].reshape(-1, 3).mean(axis=0)
+    np.testing.assert_allclose(centre, DEFAULT_RIG_ON_A_FACING_CARD, rtol=0.01)
+    assert 0.24 < DEFAULT_RIG_ON_A_FACING_CARD < 0.27  # mid grey in an sRGB preview
+    # The card (2 × 2 m, square) binds the frame's height: about 1/AUTO_CAMERA_MARGIN of it.
+    card_rows = np.flatnonzero(np.abs(result.rgba[:, 12, 0] - 0.3) > 0.02)
+    assert 12 <= len(card_rows) <= 15
+
+
+def test_the_default_rig_turns_with_the_users_camera(tmp_path):
+    """A camera on the +X side looking down −X at a card turned to face it sees the same
+    grey; the key comes from the camera's upper left on a sphere."""
+    side_camera = camera_prim(35, 20, translate=(4, 0, 0), rotate=(0, 90, 0))
+    turned = grey_card_stage(side_camera).replace(
+        "(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)", "(0, -1, 1), (0, -1, -1), (0, 1, -1), (0, 1, 1)")
+    _, result = mean_rgb(write(tmp_path, "side.usda", turned), spp=64, max_depth=1)
+    np.testing.assert_allclose(result.rgba[4:12, 4:12, :3].reshape(-1, 3).mean(axis=0),
+                               DEFAULT_RIG_ON_A_FACING_CARD, rtol=0.01)
+
+    sphere = grey_card_stage(side_camera).replace(
+        'def Mesh "card"', 'def Sphere "card"').replace(
+        "int[] faceVertexCounts = [4]\n        int[] faceVertexIndices = [0, 1, 2, 3]\n", "").replace(
+        "point3f[] points = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]", "double radius = 0.5")
+    _, result = mean_rgb(write(tmp_path, "sphere.usda", sphere), spp=16, max_depth=1, resolution=(32, 32))
+    luminance, on_sphere = result.rgba[..., :3].mean(axis=2), result.rgba[..., 3] > 0.99
+    centre_row, centre_column = (indices.mean() for indices in np.nonzero(on_sphere))
+    rows, columns = np.ogrid[:32, :32]
+    upper_left = luminance[on_sphere & (rows < centre_row) & (columns < centre_column)].mean()
+    lower_right = luminance[on_sphere & (rows > centre_row) & (columns > centre_column)].mean()
+    assert upper_left > 2.0 * lower_right
+
+
 RECT_LIGHT = """
     def RectLight "panel"
     {{

@@ -298,9 +298,10 @@ def test_invisible_lights_are_skipped(tmp_path):
 def test_a_stage_nothing_lights_gets_the_default_rig_with_one_warning(tmp_path):
     stage = new_stage(tmp_path)
     scene = load(stage)
-    assert [(light.name, light.kind) for light in scene.lights] == [("defaultDome", "dome"), ("defaultKey", "distant")]
-    assert [light.path for light in scene.lights] == ["/pxrLayers/defaultLights/defaultDome",
-                                                      "/pxrLayers/defaultLights/defaultKey"]
+    names = ["defaultDome", "defaultKey", "defaultFill", "defaultRim"]
+    assert [(light.name, light.kind) for light in scene.lights] == [
+        (name, "dome" if name == "defaultDome" else "distant") for name in names]
+    assert [light.path for light in scene.lights] == [f"/pxrLayers/defaultLights/{name}" for name in names]
     assert len([warning for warning in scene.warnings if "default rig" in warning]) == 1
 
 

@@ -10,7 +10,9 @@ import pytest
 from pxr import Gf, Usd, UsdGeom, UsdRender
 
 from pxr_layers.errors import PxrLayersError
+from pxr_layers.request import AUTO_CAMERA_VIEWS, RenderRequest
 from pxr_layers.stage import load_stage
+from pxr_layers.stage.defaults import AUTO_CAMERA_MARGIN
 
 
 def new_stage(tmp_path, *, meters_per_unit=1.0) -> Usd.Stage:
@@ -188,8 +190,9 @@ def test_included_purposes_of_the_settings_select_what_renders(tmp_path):
 
 
 @pytest.mark.parametrize("up_axis", ["Y", "Z"])
-@pytest.mark.parametrize("resolution", [(64, 48), (48, 64)])
-def test_a_stage_without_camera_is_framed_whole_from_the_front_right_and_above(tmp_path, up_axis, resolution):
+@pytest.mark.parametrize("resolution", [(64, 48), (48, 64), (96, 24)])
+@pytest.mark.parametrize("view", AUTO_CAMERA_VIEWS)
+def test_a_stage_without_camera_is_framed_tightly_at_the_render_aspect(tmp_path, up_axis, resolution, view):
     from pxr_layers.trace.camera import PinholeCamera
 
     stage = new_stage(tmp_path, meters_per_unit=0.01)
@@ -198,24 +201,31 @@ def test_a_stage_without_camera_is_framed_whole_from_the_front_right_and_above(t
     cube.CreateSizeAttr(200.0)  # 2 m in centimetres
     cube.AddTranslateOp().Set(Gf.Vec3d(300, -100, 50))
     stage.GetRootLayer().Save()
-    scene, spec = load_stage(stage.GetRootLayer().realPath)
+    request = RenderRequest("x", resolution=resolution, auto_camera=view)
+    scene, spec = load_stage(stage.GetRootLayer().realPath, request=request)
     assert spec.camera.path == "/pxrLayers/autoCamera"
-    spec = dataclasses.replace(spec, resolution=resolution)
     camera = PinholeCamera.from_spec(spec)
+    assert camera.half_width / camera.half_height == pytest.approx(resolution[0] / resolution[1])  # no conform crop
     centre = np.array([3.0, -1.0, 0.5])
     corners = centre + np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
-    # Every corner of the box projects inside the film window, the centre on its middle.
+    # Every corner of the box projects inside the film window, the centre on its middle, and
+    # the box spans 1/AUTO_CAMERA_MARGIN of the dimension that binds: a tight fit.
     local = (corners - camera.position) @ camera.world_from_camera
     assert (local[:, 2] < 0).all()
-    film = local[:, :2] / -local[:, 2:3]
-    assert (np.abs(film[:, 0]) < camera.half_width).all() and (np.abs(film[:, 1]) < camera.half_height).all()
-    view = (centre - camera.position) @ camera.world_from_camera
-    assert np.allclose(view[:2] / -view[2], 0.0, atol=1e-9)
-    # Seen from the front (+Z for Y-up, −Y for Z-up), to the right and from above.
+    film = local[:, :2] / -local[:, 2:3] / [camera.half_width, camera.half_height]
+    assert np.abs(film).max() == pytest.approx(1.0 / AUTO_CAMERA_MARGIN)
+    view_axis = (centre - camera.position) @ camera.world_from_camera
+    assert np.allclose(view_axis[:2] / -view_axis[2], 0.0, atol=1e-9)
+    # Seen from the front (+Z for Y-up, −Y for Z-up), up the stage's up; three-quarter: also
+    # from the right and from above.
     up = np.array([0, 0, 1.0]) if up_axis == "Z" else np.array([0, 1.0, 0])
     front = np.array([0, -1.0, 0]) if up_axis == "Z" else np.array([0, 0, 1.0])
-    eye = camera.position - centre
-    assert eye @ up > 0 and eye @ front > 0 and eye[0] > 0
+    eye = (camera.position - centre) / np.linalg.norm(camera.position - centre)
+    if view == "front":
+        assert eye @ front == pytest.approx(1.0)
+        assert camera.world_from_camera[:, 1] @ up == pytest.approx(1.0)
+    else:
+        assert eye @ up > 0.3 and eye @ front > 0.5 and eye[0] > 0.3
     near, far = spec.camera.clipping
     distances = np.linalg.norm(corners - camera.position, axis=1)
     assert near < distances.min() and distances.max() < far

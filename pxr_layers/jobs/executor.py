@@ -136,8 +136,10 @@ def _fingerprint(plan: FramePlan) -> str:
         "recipe": plan.recipe.to_json(), "data_aovs": list(plan.data_aovs),
         "variants": [str(selection) for selection in plan.request.variants],
         "subdiv_level": plan.request.subdiv_level, "default_lights": plan.request.default_lights,
+        "auto_camera": plan.request.auto_camera,
         "spp": trace.spp, "max_depth": trace.max_depth, "seed": trace.seed, "norm_bounces": trace.norm_bounces,
         "record": trace.record_paths, "merge": trace.merge_records, "sigma": trace.record_sigma,
+        "clamp_indirect": trace.clamp_indirect,
     }, sort_keys=True)
 
 

@@ -42,7 +42,7 @@ from ..errors import RenderSettingsError
 from ..outputs import OutputSet
 from ..paths.events import path_text
 from ..paths.format import SUFFIX as INDEX_SUFFIX
-from ..paths.reader import PathIndex
+from ..paths.reader import AUTOMATIC_SUBDIV_LEVEL, PathIndex
 from ..paths.writer import PathIndexWriter
 from ..recipe.model import CRYPTOMATTE_SOURCES, Product, Recipe
 from ..request import RenderRequest
@@ -116,10 +116,12 @@ def plan_frame(
 
     Outputs: ``product_path(product)`` if given, else :func:`plan_outputs` (``exr``: one
     product's explicit file). The index: ``index_path``, else beside ``exr``, else
-    ``directory/STEM[.FFFF].pxlidx``. Norm bounces: :meth:`RenderRequest.resolved_norm_bounces`
-    (at least 1 for ``debug_covariance``). The request's Cryptomattes are added to every
-    product, each of ``cryptomatte_depth`` ranks (those the recipe asks for too).
+    ``directory/STEM[.FFFF].pxlidx``. Norm bounces: :meth:`RenderRequest.resolved_norm_bounces`.
+    The request's Cryptomattes are added to every product, each of ``cryptomatte_depth`` ranks
+    (those the recipe asks for too).
     """
+    from ..stage.defaults import AUTO_CAMERA_PATH
+
     stage = request.stage
     if recipe is None:
         recipe = resolve_recipe(request, frame, shot)
@@ -150,15 +152,14 @@ def plan_frame(
     norm_bounces = request.resolved_norm_bounces(product_bounces, has_conditions(recipe))
     if norm_bounces > product_bounces and request.norm_bounces is None:
         log.info("the recipe has covariance conditions: the index keeps the norms of all %d bounces", norm_bounces)
-    if request.debug_covariance:
-        norm_bounces = max(norm_bounces, 1)  # the first bounce's norms are what it shows
     keep_index = request.keep_index
     # The layers are cut from the index, so lpe layers need one even when it is not kept.
     record = keep_index or any(product.expressions() for product in recipe.products)
     index_mode, sigma = index_settings(request, recipe)
     trace = TraceSettings(spp=request.spp, max_depth=request.max_depth, seed=request.seed, norm_bounces=norm_bounces,
                           record_paths=record, merge_records=record and index_mode == "merged",
-                          record_sigma=record and sigma and norm_bounces > 0, first_hits=bool(crypto_sources))
+                          record_sigma=record and sigma and norm_bounces > 0, first_hits=bool(crypto_sources),
+                          clamp_indirect=request.clamp_indirect)
     metadata = {
         "version": __version__,
         "stage": str(stage.resolve()),
@@ -168,18 +169,25 @@ def plan_frame(
         "maxDepth": str(request.max_depth),
         "seed": str(request.seed),
     }
+    if request.clamp_indirect:  # only then: unclamped renders keep their bytes
+        metadata["clampIndirect"] = repr(request.clamp_indirect)
     if request.variants:
         metadata["variants"] = " ".join(str(selection) for selection in request.variants)
     if not request.default_lights:
         metadata["defaultLights"] = "false"
+    if view_camera == AUTO_CAMERA_PATH:
+        metadata["autoCamera"] = request.auto_camera
     if keep_index:
         metadata["index"] = os.path.relpath(index_path, first.parent)
     manifest = {
         **metadata, "stage_sha256": stage_sha256 or file_sha256(stage), "resolution": list(resolution),
         "spp": request.spp, "seed": request.seed, "max_depth": request.max_depth,
-        "subdiv_level": request.subdiv_level, "beauty": os.path.relpath(first, index_path.parent),
+        "subdiv_level": AUTOMATIC_SUBDIV_LEVEL if request.subdiv_level is None else request.subdiv_level,
+        "beauty": os.path.relpath(first, index_path.parent),
     }
     manifest.pop("index", None)
+    if request.clamp_indirect:
+        manifest["clamp_indirect"] = request.clamp_indirect
     if view.pixel_aspect_ratio != 1.0:  # only then: square-pixel indexes keep their bytes
         manifest["pixel_aspect_ratio"] = view.pixel_aspect_ratio
     return FramePlan(request, frame, view_camera, resolution, trace, recipe, outputs, index_path,
@@ -221,7 +229,8 @@ def prepare_frame(plan: FramePlan, shot=None):
     from ..trace import prepare
 
     shot = shot or open_request(plan.request)
-    spec = shot.spec(plan.frame, plan.recipe, camera=plan.camera, resolution=plan.resolution)
+    spec = shot.spec(plan.frame, plan.recipe, camera=plan.camera, resolution=plan.resolution,
+                     auto_camera=plan.request.auto_camera)
     return prepare(shot.scene(spec, subdiv_level=plan.request.subdiv_level), spec, plan.trace)
 
 

@@ -236,7 +236,8 @@ def index_metadata(index: PathIndex, directory: Path) -> dict[str, object]:
     """The ``pxrLayers/`` metadata of products cut from `index` into `directory`: the
     render's facts, the index's path relative to the products, and its render id."""
     metadata = {"version": __version__, **{key: index.manifest[key] for key in
-                                           ("stage", "camera", "frame", "spp", "maxDepth", "seed") if key in index.manifest}}
+                                           ("stage", "camera", "frame", "spp", "maxDepth", "seed", "clampIndirect")
+                                           if key in index.manifest}}
     metadata["index"] = os.path.relpath(index.path, directory)
     if "render_id" in index.manifest:
         metadata["renderId"] = index.manifest["render_id"]

@@ -47,8 +47,9 @@ other, which lets zstd see the slowly varying high bytes):
             records: f32 (r, N, 10)
 
 The footer's JSON (see ``PathIndexWriter._footer``): ``manifest`` (what was rendered: stage
-path and SHA-256, frame, camera, resolution, spp, seed, N, the mode, norm names, units and
-bins, record, contribution and class counts), ``labels`` (every name an event carries),
+path and SHA-256, frame, camera, resolution, spp, seed, ``clamp_indirect`` when the render
+clamped indirect light, N, the mode, norm names, units and bins, record, contribution and
+class counts), ``labels`` (every name an event carries),
 ``events`` (every distinct event as [type, scatter, [label ids], display name]),
 ``classes`` (per class, its event ids camera first), ``class_records`` and ``class_rgb``
 (per class, its record count and summed rgb), ``chunks`` (per chunk: offset, payload

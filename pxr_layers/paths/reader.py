@@ -55,9 +55,13 @@ RGB_SUM_TOLERANCE = 1e-6
 footer's: both are float64 sums of the same float32 values, in another order (the footer's
 per flush of the writer), which differ by some 1e-16 × the number of records at most."""
 
+AUTOMATIC_SUBDIV_LEVEL = -1
+"""The manifest's ``subdiv_level`` of a render whose subdivision levels were automatic (a level
+per mesh from its size on the image: RenderRequest.subdiv_level None); else it is the one
+level asked. Either way the levels may have been lowered to the scene's budget."""
 RENDER_KEYS = {"stage": str, "stage_sha256": str, "camera": str, "frame": str, "variants": str,
                "defaultLights": str, "beauty": str, "version": str, "maxDepth": str, "spp": int,
-               "seed": int, "max_depth": int, "subdiv_level": int}
+               "seed": int, "max_depth": int, "subdiv_level": int, "clampIndirect": str, "clamp_indirect": float}
 """Manifest keys that whoever wrote the index may give (PathIndexWriter stores its manifest
 as given) and that pxr-layers reads, with their types; checked when present."""
 
@@ -264,6 +268,9 @@ class PathIndex:
                 _typed(manifest, key, kind, "the manifest's ")
         if manifest.get("spp", 1) < 1:
             raise _Malformed(f"the manifest's spp is {manifest['spp']}")
+        clamp = manifest.get("clamp_indirect", 0.0)  # present when the render clamped indirect light
+        if not (math.isfinite(clamp) and clamp >= 0):
+            raise _Malformed(f"the manifest's clamp_indirect is {clamp!r}, not a finite number of at least 0")
         frame = manifest.get("frame", "default")
         if frame != "default" and not math.isfinite(_number(frame)):
             raise _Malformed(f"the manifest's frame is {frame!r}, not a finite number or 'default'")

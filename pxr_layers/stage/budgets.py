@@ -9,13 +9,19 @@ crosses it, the count and the budget, raised as soon as the count is known (an a
 length, before it is triangulated, placed or even copied by numpy), within seconds and
 without a large allocation: never a MemoryError, never an hour of work.
 
-Textures have their own budget (textures.MAX_TEXTURE_TEXELS), and so do subdivision surfaces
-(request.MAX_REFINED_FACES) and arrays (values.MAX_ARRAY_VALUES, derived from the triangles').
+Textures have their own budget (textures.MAX_TEXTURE_TEXELS), and so do arrays
+(values.MAX_ARRAY_VALUES, derived from the triangles'). Subdivision surfaces are not refused
+but fitted: their levels are lowered until they fit request.MAX_SUBDIVISION_TRIANGLES
+(:func:`fit_subdivision_levels`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Hashable, Mapping, Sequence
+from typing import TypeVar
+
 from pxr_layers.errors import StageError
+from pxr_layers.request import MAX_SUBDIVISION_TRIANGLES
 
 MAX_SCENE_TRIANGLES = 1 << 24
 """The most triangles a flattened scene may hold (16,777,216): every mesh, subdivision surfaces
@@ -63,3 +69,34 @@ class SceneBudget:
         """:meth:`check_triangles`, then count them."""
         self.check_triangles(count, why, file=file, prim=prim)
         self.triangles += count
+
+
+Surface = TypeVar("Surface", bound=Hashable)
+
+
+def fit_subdivision_levels(
+    wanted: Mapping[Surface, int], triangles: Mapping[Surface, Sequence[int]],
+    budget: int = MAX_SUBDIVISION_TRIANGLES,
+) -> dict[Surface, int]:
+    """The levels of ``wanted`` lowered, the highest first, until the surfaces' triangles fit
+    ``budget``. At one level the surfaces with the most triangles are lowered first (the
+    densest cages, which lose least); none goes below 0, so cages alone past the budget stay
+    as they are (MAX_SCENE_TRIANGLES still bounds them).
+
+    wanted    : surface → level
+    triangles : surface → triangles of all its placed copies at each level 0, 1, ... (at
+                least up to its wanted level)
+    """
+    levels = dict(wanted)
+    total = sum(triangles[surface][level] for surface, level in levels.items())
+    for level in range(max(levels.values(), default=0), 0, -1):
+        if total <= budget:
+            break
+        at_level = sorted((surface for surface, chosen in levels.items() if chosen == level),
+                          key=lambda surface: triangles[surface][level], reverse=True)
+        for surface in at_level:
+            if total <= budget:
+                break
+            total -= triangles[surface][level] - triangles[surface][level - 1]
+            levels[surface] = level - 1
+    return levels

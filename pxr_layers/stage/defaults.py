@@ -5,40 +5,72 @@ everything downstream sees them as it sees the stage's own: the camera is a UsdG
 that recipes and ``--camera`` can name, the lights are UsdLux prims whose names label their
 path events (``C.*<L.'defaultKey'>``) and get per-light layers.
 
-The automatic camera (``/pxrLayers/autoCamera``) frames the bounding box of what renders
-(the render purposes, at the frame's time) from the front, 30° to the right and 20° above
-(front is +Z on a Y-up stage, −Y on a Z-up stage, the view USD's own cameras have), with a
-35 mm lens on a 36 × 24 mm gate: the box's bounding sphere fills the narrower field of view
-with a 5 % margin. Its clipping range hugs that sphere.
+The automatic camera (``/pxrLayers/autoCamera``), aimed anew at every frame, looks at the
+bounding box of what renders (the render purposes, at the frame's time) from the stage's
+front, as usdview's and usdrecord's free camera does: from +Z looking down −Z on a Y-up stage,
+from −Y looking down +Y on a Z-up one, its up the stage's up axis (``--auto-camera
+three-quarter``: from 30° to the right and 20° above instead). Its 35 mm lens has a gate of the
+render's own aspect ratio (36 mm wide), and it stands as close as it can while all eight
+corners of the box project inside the frame with a margin (the box fills 1/AUTO_CAMERA_MARGIN
+of the frame's width or height, whichever binds: a tight fit of the box, not of its bounding
+sphere). Its clipping range hugs the box.
 
-The default rig (``/pxrLayers/defaultLights``) is a white DomeLight of intensity 0.5 and a
-DistantLight ``defaultKey`` of intensity 3 (angle 2°) from the upper front left: a grey 0.18
-diffuse card facing the key comes out near 0.26, mid-grey in an sRGB preview.
+The default rig (``/pxrLayers/defaultLights``) is a look-development turntable rig placed
+from the render camera at every frame (directions from the camera's heading, elevations from
+the stage's up axis, so the rig turns with the camera and never lights from below):
+
+* ``defaultKey``: a DistantLight from 45° to the camera's left and 35° above, irradiance 5;
+* ``defaultFill``: from 60° to the right and 10° above, irradiance 1.25 (a 4:1 key-to-fill);
+* ``defaultRim``: from behind, 150° to the right and 40° above, irradiance 3: an edge light;
+* ``defaultDome``: a white DomeLight of radiance 0.3, which also reads as a mid-grey backdrop.
+
+The distant lights are ``normalize``d, so their intensity is the irradiance they give a
+surface facing them, whatever their angle. A 0.18 grey card facing the camera comes out near
+0.25 (mid grey in an sRGB preview); a white diffuse surface facing the key near 1.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
+
+from pxr_layers.request import AUTO_CAMERA_VIEWS
 
 ROOT = "/pxrLayers"
 AUTO_CAMERA_PATH = f"{ROOT}/autoCamera"
 DEFAULT_LIGHTS_PATH = f"{ROOT}/defaultLights"
 
-AUTO_CAMERA_AZIMUTH_DEGREES = 30.0
-AUTO_CAMERA_ELEVATION_DEGREES = 20.0
+AUTO_CAMERA_THREE_QUARTER_DEGREES = (30.0, 20.0)  # azimuth to the right, elevation
 AUTO_CAMERA_FOCAL_LENGTH_MM = 35.0
-AUTO_CAMERA_APERTURE_MM = (36.0, 24.0)
-_FRAMING_MARGIN = 1.05
+AUTO_CAMERA_APERTURE_WIDTH_MM = 36.0
+AUTO_CAMERA_MARGIN = 1.15  # the box spans 87 % of the binding dimension
 
 DEFAULT_UV_SET = "st"  # the texture coordinates a texture reads when nothing names them (USD's convention)
-DEFAULT_DOME_INTENSITY = 0.5
-DEFAULT_KEY_INTENSITY = 3.0
-DEFAULT_KEY_ANGLE_DEGREES = 2.0
-# Where the key light comes from, on a Y-up stage: up, to the front, from the left.
-_KEY_FROM_Y_UP = np.array([-0.5, 1.0, 0.7])
+
+
+@dataclass(frozen=True)
+class RigLight:
+    """One distant light of the default rig: where it comes from relative to the camera
+    (degrees: azimuth to the camera's right from its view axis, elevation above the
+    horizon), its irradiance and its angular diameter."""
+
+    name: str
+    azimuth: float
+    elevation: float
+    irradiance: float
+    angle: float
+
+
+DEFAULT_DOME_NAME = "defaultDome"
+DEFAULT_DOME_INTENSITY = 0.3
+DEFAULT_RIG = (
+    RigLight("defaultKey", -45.0, 35.0, 5.0, 3.0),
+    RigLight("defaultFill", 60.0, 10.0, 1.25, 10.0),
+    RigLight("defaultRim", 150.0, 40.0, 3.0, 3.0),
+)
 
 
 def _from_y_up(vector: np.ndarray, up_axis: str) -> np.ndarray:
@@ -84,15 +116,17 @@ def define_auto_camera(stage: Usd.Stage) -> str:
     with _define_in_session(stage):
         camera = UsdGeom.Camera.Define(stage, AUTO_CAMERA_PATH)
         camera.CreateFocalLengthAttr(AUTO_CAMERA_FOCAL_LENGTH_MM)
-        camera.CreateHorizontalApertureAttr(AUTO_CAMERA_APERTURE_MM[0])
-        camera.CreateVerticalApertureAttr(AUTO_CAMERA_APERTURE_MM[1])
+        camera.CreateHorizontalApertureAttr(AUTO_CAMERA_APERTURE_WIDTH_MM)
     return AUTO_CAMERA_PATH
 
 
-def frame_auto_camera(stage: Usd.Stage, time: Usd.TimeCode, purposes: tuple[str, ...], up_axis: str) -> bool:
+def frame_auto_camera(stage: Usd.Stage, time: Usd.TimeCode, purposes: tuple[str, ...], up_axis: str,
+                      aspect: float, view: str = "front") -> bool:
     """Aim the automatic camera at the bounding box of what renders at ``time``.
 
     purposes : the gprim purposes that render (the settings' includedPurposes)
+    aspect   : the render's width / height (pixel aspect included): the gate's own
+    view     : one of AUTO_CAMERA_VIEWS (request.py)
     Returns False when nothing has a bounding box (a dome alone): the camera then stands at
     the origin looking to the front, which is all a sky needs.
     """
@@ -103,42 +137,70 @@ def frame_auto_camera(stage: Usd.Stage, time: Usd.TimeCode, purposes: tuple[str,
         if not is_ours(prim.GetPath()):  # not the draw-mode cards an earlier frame authored
             box.UnionWith(cache.ComputeWorldBound(prim).ComputeAlignedRange())
     up = _up_vector(up_axis)
-    azimuth = math.radians(AUTO_CAMERA_AZIMUTH_DEGREES)
-    elevation = math.radians(AUTO_CAMERA_ELEVATION_DEGREES)
+    assert view in AUTO_CAMERA_VIEWS, view
+    azimuth, elevation = (math.radians(angle) for angle in (AUTO_CAMERA_THREE_QUARTER_DEGREES
+                                                            if view == "three-quarter" else (0.0, 0.0)))
     toward_eye = _from_y_up(np.array([math.sin(azimuth) * math.cos(elevation), math.sin(elevation),
                                       math.cos(azimuth) * math.cos(elevation)]), up_axis)
+    rotation = _looking_along(-toward_eye, up)
     framed = not box.IsEmpty() and all(math.isfinite(value) for value in (*box.GetMin(), *box.GetMax()))
     if framed:
-        centre = np.array(box.GetMidpoint(), dtype=np.float64)
-        radius = max(0.5 * float(np.linalg.norm(np.array(box.GetSize()))), 1e-6)
-        half_angle = math.atan(0.5 * min(AUTO_CAMERA_APERTURE_MM) / AUTO_CAMERA_FOCAL_LENGTH_MM)
-        distance = _FRAMING_MARGIN * radius / math.sin(half_angle)
+        low, high = np.array(box.GetMin(), dtype=np.float64), np.array(box.GetMax(), dtype=np.float64)
+        centre = 0.5 * (low + high)
+        corners = np.array([[(low, high)[(i >> axis) & 1][axis] for axis in range(3)] for i in range(8)])
+        right, camera_up, back = ((corners - centre) @ rotation.T).T
+        # Half-widths of the frame per unit of depth, shrunk by the margin; a corner at
+        # (x, y, z) in the camera's axes fits when |x| <= tan * (distance - z).
+        tan_x = 0.5 * AUTO_CAMERA_APERTURE_WIDTH_MM / AUTO_CAMERA_FOCAL_LENGTH_MM / AUTO_CAMERA_MARGIN
+        tan_y = tan_x / aspect
+        extent = max(float(np.linalg.norm(high - low)), 1e-6)
+        distance = float(np.max(np.maximum(back + np.abs(right) / tan_x, back + np.abs(camera_up) / tan_y)))
+        distance = max(distance, float(back.max()) + 1e-3 * extent)  # every corner in front of the lens
         eye = centre + toward_eye * distance
-        clipping = (max(distance - radius, 0.0) * 0.5 or radius * 1e-3, (distance + radius) * 2.0)
-        rotation = _looking_along(centre - eye, up)
+        clipping = (0.5 * (distance - float(back.max())), 2.0 * (distance - float(back.min())))
     else:
         eye, clipping = np.zeros(3), (0.01, 1.0e6)
-        rotation = _looking_along(-_from_y_up(np.array([0.0, 0.0, 1.0]), up_axis), up)
     with _define_in_session(stage):
         camera = UsdGeom.Camera.Get(stage, AUTO_CAMERA_PATH)
         _set_transform(camera, _transform(rotation, eye))
         camera.CreateClippingRangeAttr(Gf.Vec2f(*clipping))
+        camera.CreateVerticalApertureAttr(AUTO_CAMERA_APERTURE_WIDTH_MM / aspect)
     return framed
 
 
-def define_default_lights(stage: Usd.Stage, up_axis: str) -> tuple[str, ...]:
-    """Author the default rig; returns the light prim paths."""
+def define_default_lights(stage: Usd.Stage) -> tuple[str, ...]:
+    """Author the default rig (not yet aimed: :func:`aim_default_lights` aims it per frame);
+    returns the light prim paths."""
     with _define_in_session(stage):
         UsdGeom.Scope.Define(stage, DEFAULT_LIGHTS_PATH)
-        dome = UsdLux.DomeLight.Define(stage, f"{DEFAULT_LIGHTS_PATH}/defaultDome")
+        dome = UsdLux.DomeLight.Define(stage, f"{DEFAULT_LIGHTS_PATH}/{DEFAULT_DOME_NAME}")
         dome.CreateIntensityAttr(DEFAULT_DOME_INTENSITY)
-        key = UsdLux.DistantLight.Define(stage, f"{DEFAULT_LIGHTS_PATH}/defaultKey")
-        key.CreateIntensityAttr(DEFAULT_KEY_INTENSITY)
-        key.CreateAngleAttr(DEFAULT_KEY_ANGLE_DEGREES)
-        # A distant light shines along its local −Z: toward the stage from where the key is.
-        rotation = _looking_along(-_from_y_up(_KEY_FROM_Y_UP, up_axis), _up_vector(up_axis))
-        _set_transform(key, _transform(rotation, np.zeros(3)))
-    return (str(dome.GetPath()), str(key.GetPath()))
+        paths = [str(dome.GetPath())]
+        for rig_light in DEFAULT_RIG:
+            light = UsdLux.DistantLight.Define(stage, f"{DEFAULT_LIGHTS_PATH}/{rig_light.name}")
+            light.CreateIntensityAttr(rig_light.irradiance)
+            light.CreateAngleAttr(rig_light.angle)
+            light.CreateNormalizeAttr(True)
+            paths.append(str(light.GetPath()))
+    return tuple(paths)
+
+
+def aim_default_lights(stage: Usd.Stage, view_direction: np.ndarray, up_axis: str) -> None:
+    """Turn the default rig to a camera looking along ``view_direction`` (3,), world space."""
+    up = _up_vector(up_axis)
+    heading = view_direction - np.dot(view_direction, up) * up
+    if np.linalg.norm(heading) < 1e-6:  # looking straight down or up: head to the stage's front
+        heading = -_from_y_up(np.array([0.0, 0.0, 1.0]), up_axis)
+    heading = heading / np.linalg.norm(heading)
+    right = np.cross(heading, up)
+    with _define_in_session(stage):
+        for rig_light in DEFAULT_RIG:
+            azimuth, elevation = math.radians(rig_light.azimuth), math.radians(rig_light.elevation)
+            toward_light = (math.cos(elevation) * (math.sin(azimuth) * right - math.cos(azimuth) * heading)
+                            + math.sin(elevation) * up)
+            # A distant light shines along its local −Z.
+            light = UsdLux.DistantLight.Get(stage, f"{DEFAULT_LIGHTS_PATH}/{rig_light.name}")
+            _set_transform(light, _transform(_looking_along(-toward_light, up), np.zeros(3)))
 
 
 def is_ours(path: Sdf.Path | str) -> bool:

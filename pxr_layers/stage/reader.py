@@ -1,4 +1,11 @@
-"""``read_scene``: a composed stage at one time code → SceneData."""
+"""``read_scene``: a composed stage at one time code → SceneData.
+
+Subdivision levels are chosen before any mesh is read (:class:`_SubdivisionLevels`): each
+subdividing mesh wants the level its size on the image asks for (subdivision.PixelFootprint)
+or the request's uniform one; meshes that share a surface (one prototype, one asset) share
+the highest level their placements want; then the highest levels are lowered first until
+the scene's refined triangles fit request.MAX_SUBDIVISION_TRIANGLES (one warning naming them).
+"""
 
 from __future__ import annotations
 
@@ -8,8 +15,10 @@ import os
 import numpy as np
 from pxr import Usd, UsdGeom, UsdShade
 
+from pxr_layers.request import MAX_SUBDIVISION_TRIANGLES
 from pxr_layers.scene import INDEX, Mesh, SceneData
 
+from .budgets import fit_subdivision_levels
 from .context import ReadContext
 from .defaults import DEFAULT_UV_SET
 from .diagnostics import Diagnostics
@@ -19,8 +28,18 @@ from .lights import read_lights
 from .materials import MaterialLibrary, ResolvedMaterial, display_color
 from .placement import PreparedSurface, place_surface, prepare_surface
 from .skinning import SkinnedPoser
-from .surfaces import LocalSurface, find_primvar, mesh_opinions, read_mesh, with_constant_primvars
-from .transforms import column_matrix
+from .subdivision import PixelFootprint
+from .surfaces import (
+    LocalSurface,
+    SubdivisionCage,
+    find_primvar,
+    geometry_opinions,
+    mesh_opinions,
+    read_cage,
+    read_mesh,
+    with_constant_primvars,
+)
+from .transforms import column_matrix, to_metres
 from .textures import TextureLibrary
 from .values import integer_array
 from .walk import GprimPlacement, walk_stage
@@ -28,18 +47,21 @@ from .walk import GprimPlacement, walk_stage
 logger = logging.getLogger(__name__)
 
 
-
 def read_scene(
     context: ReadContext,
     frame_value: float,
     material_binding_purposes: tuple[str, ...],
-    subdiv_level: int,
+    footprint: PixelFootprint,
+    subdiv_level: int | None = None,
     earlier_warnings: tuple[str, ...] = (),
 ) -> SceneData:
     """Read everything the tracer needs from ``context``'s stage at its time code.
 
     frame_value       : SceneData.frame (NaN for "the earliest sample")
-    subdiv_level      : uniform refinement level of subdivision surfaces
+    footprint         : what the render camera sees, which subdivision levels follow
+    subdiv_level      : one refinement level for every subdivision surface; None: a level
+                        per surface from ``footprint`` (see the module docstring); either
+                        way lowered to fit the scene's subdivision budget
     earlier_warnings  : warnings already logged for this stage (its opening), kept in
                         SceneData.warnings but not logged again
 
@@ -57,7 +79,8 @@ def read_scene(
     materials = MaterialLibrary(context, textures, material_binding_purposes)
     contents = walk_stage(context)
 
-    builder = _MeshBuilder(context, materials, subdiv_level)
+    levels = _SubdivisionLevels(context, contents.gprims, footprint, subdiv_level)
+    builder = _MeshBuilder(context, materials, levels)
     meshes = [mesh for placement in contents.gprims if (mesh := builder.build(placement))]
     lights = read_lights(context, contents.lights, textures, [mesh.path for mesh in meshes])
     if not meshes:
@@ -95,10 +118,10 @@ class _MeshBuilder:
     read's warnings under its own path, as if it had been read itself.
     """
 
-    def __init__(self, context: ReadContext, materials: MaterialLibrary, subdiv_level: int) -> None:
+    def __init__(self, context: ReadContext, materials: MaterialLibrary, levels: _SubdivisionLevels) -> None:
         self._context = context
         self._materials = materials
-        self._subdiv_level = subdiv_level
+        self._levels = levels
         self._poser = SkinnedPoser(context.stage, context.time, context.diagnostics, xform_cache=context.xform_cache)
         # (prototype prim path, uv primvar, material primvars, where they are found: see
         # _primvar_owners) → surface, and mesh_opinions key → (surface, the path it was read
@@ -173,7 +196,8 @@ class _MeshBuilder:
     ) -> LocalSurface | None:
         context = self._context
         return read_mesh(prim, context.time, uv_primvar, diagnostics, context.file,
-                         subdiv_level=self._subdiv_level, points=points, primvars=primvars, budget=context.budget)
+                         subdiv_level=self._levels.level(prim), points=points, primvars=primvars,
+                         budget=context.budget)
 
     def _subset_materials(
         self, prim: Usd.Prim, color: tuple[float, float, float] | None
@@ -190,8 +214,7 @@ class _MeshBuilder:
         return subsets
 
     def _surface(self, prim: Usd.Prim, uv_primvar: str, primvars: tuple[str, ...]) -> PreparedSurface | None:
-        source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
-        key = (str(source.GetPath()), uv_primvar, primvars, _primvar_owners(prim, primvars))
+        key = (_source_path(prim), uv_primvar, primvars, _primvar_owners(prim, primvars))
         if key in self._surfaces:
             return self._surfaces[key]
         context = self._context
@@ -233,6 +256,83 @@ def _primvar_owners(prim: Usd.Prim, primvars: tuple[str, ...]) -> tuple[str, ...
         owner = primvar.GetAttr().GetPrim()
         owners.append(str((owner.GetPrimInPrototype() if owner.IsInstanceProxy() else owner).GetPath()))
     return tuple(owners)
+
+
+class _SubdivisionLevels:
+    """The refinement level of every subdividing mesh of a scene, chosen before any is read.
+
+    A mesh's level is keyed by its cage (:meth:`key`): the prims that share a surface in
+    _MeshBuilder (one prototype gprim; equal opinions) have equal keys, so a shared surface
+    is refined once, at the highest level its placements want (the nearest copy decides).
+    A skinned mesh is sized by its rest pose under its prim's transform.
+    """
+
+    def __init__(self, context: ReadContext, gprims: list[GprimPlacement], footprint: PixelFootprint,
+                 subdiv_level: int | None) -> None:
+        self._context = context
+        self._key_of: dict[str, tuple | None] = {}  # source prim path → key (None: no subdivision)
+        cages: dict[tuple, SubdivisionCage] = {}
+        first_path: dict[tuple, str] = {}
+        copies: dict[tuple, int] = {}
+        wanted: dict[tuple, int] = {}
+        for placement in gprims:
+            key = self.key(placement.prim)
+            if key is None:
+                continue
+            if key not in cages:
+                cage = read_cage(placement.prim, context.time, context.file)
+                if cage is None:  # nothing to refine: the key goes
+                    self._key_of[_source_path(placement.prim)] = None
+                    continue
+                cages[key], first_path[key] = cage, placement.path
+            cage = cages[key]
+            copies[key] = copies.get(key, 0) + 1
+            level = subdiv_level if subdiv_level is not None else footprint.level(
+                to_metres(placement.world_from_local, context.meters_per_unit), cage.edge_length,
+                cage.lower, cage.upper)
+            wanted[key] = max(wanted.get(key, 0), level)
+        triangles = {key: [copies[key] * count for count in cages[key].triangles] for key in wanted}
+        self._levels = fit_subdivision_levels(wanted, triangles)
+        asked = "their size on the image asks for" if subdiv_level is None else f"the {subdiv_level} asked"
+        for key in wanted:
+            if self._levels[key] < wanted[key]:
+                context.diagnostics.note(
+                    "subdivision-budget",
+                    f"subdivision surfaces refined to fewer levels than {asked}, the highest first, to keep the "
+                    f"scene's within {MAX_SUBDIVISION_TRIANGLES:,} triangles: {{prims}}",
+                    f"{first_path[key]} (level {wanted[key]} → {self._levels[key]})",
+                )
+        if wanted:
+            histogram = {}
+            for level in self._levels.values():
+                histogram[level] = histogram.get(level, 0) + 1
+            logger.info("%s: subdivision levels (%s): %s surfaces; %d refined triangles", context.file,
+                        "automatic" if subdiv_level is None else f"{subdiv_level} asked",
+                        ", ".join(f"level {level}: {count}" for level, count in sorted(histogram.items())),
+                        sum(triangles[key][level] for key, level in self._levels.items()))
+
+    def key(self, prim: Usd.Prim) -> tuple | None:
+        """What identifies ``prim``'s cage: its geometry's opinions (surfaces.geometry_opinions),
+        else (animated) its prototype gprim's path; None for a gprim that does not subdivide."""
+        source = _source_path(prim)
+        if source not in self._key_of:
+            key = None
+            if prim.IsA(UsdGeom.Mesh) and (
+                    UsdGeom.Mesh(prim).GetSubdivisionSchemeAttr().Get(self._context.time) != UsdGeom.Tokens.none):
+                opinions = geometry_opinions(prim, self._context.time)
+                key = ("opinions", opinions) if opinions is not None else ("prim", source)
+            self._key_of[source] = key
+        return self._key_of[source]
+
+    def level(self, prim: Usd.Prim) -> int:
+        """The level chosen for ``prim`` (0 for one that does not subdivide)."""
+        key = self.key(prim)
+        return 0 if key is None else self._levels.get(key, 0)
+
+
+def _source_path(prim: Usd.Prim) -> str:
+    """The path of the gprim ``prim`` reads: its prototype's for an instance proxy."""
+    return str((prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim).GetPath())
 
 
 class _NoteRecorder:

@@ -6,7 +6,7 @@ frame's render spec and a frame's scene, all read from that one composition.
     shot = open_shot(request)                  # composition warnings are logged here, once
     recipe = shot.recipe(settings=..., camera=..., per_light=...)
     spec = shot.spec(frame, recipe)            # camera at the frame, resolution, purposes
-    scene = shot.scene(spec, subdiv_level=2)   # SceneData at spec.frame
+    scene = shot.scene(spec)                   # SceneData at spec.frame (subdiv_level=N: uniform)
 """
 
 from __future__ import annotations
@@ -26,13 +26,15 @@ from pxr_layers.scene import RenderSpec, SceneData
 
 from . import schema
 from .context import ReadContext
-from .defaults import AUTO_CAMERA_PATH, define_auto_camera, define_default_lights, frame_auto_camera, is_ours
+from .defaults import (AUTO_CAMERA_PATH, aim_default_lights, define_auto_camera, define_default_lights,
+                       frame_auto_camera, is_ours)
 from .diagnostics import Diagnostics
 from .lights import is_supported_light
 from .opening import compose_stage, resolve_time, trapped_usd_diagnostics
 from .reader import read_scene
 from .recipe_reader import find_settings, read_recipe
 from .render_spec import camera_prim, read_camera, settings_fields
+from .subdivision import PixelFootprint
 from .walk import walk_stage
 
 logger = logging.getLogger(__name__)
@@ -48,6 +50,7 @@ class Shot:
     recipe_layers : the recipe layers composed over it, as given
     warnings      : what opening it warned of (logged once, when it was opened)
     first_camera  : the stage's first UsdGeom.Camera in traversal order, or the automatic one
+    default_rig   : whether the default lights were authored (each frame's camera aims them)
     """
 
     stage: Usd.Stage
@@ -57,6 +60,7 @@ class Shot:
     first_camera: str
     up_axis: str
     meters_per_unit: float
+    default_rig: bool = False
 
     def find_settings(self, settings: str | None = None) -> UsdRender.Settings | None:
         """The RenderSettings prim that applies (the one rule of :func:`recipe_reader.find_settings`)."""
@@ -94,11 +98,13 @@ class Shot:
             return found
 
     def spec(self, frame: float | None, recipe: Recipe, *, camera: str | None = None,
-             resolution: tuple[int, int] | None = None) -> RenderSpec:
+             resolution: tuple[int, int] | None = None, auto_camera: str = "front") -> RenderSpec:
         """The frame's render spec: ``recipe``'s camera and resolution (or these overrides),
         pixel aspect ratio and conform policy, the camera read at the frame, and the
-        settings' purposes."""
+        settings' purposes. The automatic camera is framed (``auto_camera``: its view, one of
+        request.AUTO_CAMERA_VIEWS) and the default rig aimed from the camera, at the frame."""
         view = recipe.shared_view()
+        resolution = tuple(resolution or view.resolution)
         with trapped_usd_diagnostics(self.file):
             time, _ = resolve_time(self.stage, frame)
             settings = self.find_settings(recipe.settings_path) if recipe.settings_path else None
@@ -107,22 +113,34 @@ class Shot:
             context = self._context(time, fields["included_purposes"], Diagnostics())
             prim = camera_prim(context, camera_path)
             if camera_path == AUTO_CAMERA_PATH:
-                if not frame_auto_camera(self.stage, time, fields["included_purposes"], self.up_axis):
+                aspect = resolution[0] * view.pixel_aspect_ratio / resolution[1]
+                if not frame_auto_camera(self.stage, time, fields["included_purposes"], self.up_axis, aspect,
+                                         auto_camera):
                     logger.info("%s: nothing to frame (no geometry): the automatic camera looks to the front",
                                 self.file)
                 context.xform_cache.Clear()
-            return RenderSpec(camera=read_camera(context, prim), resolution=tuple(resolution or view.resolution),
+            render_camera = read_camera(context, prim)
+            if self.default_rig:
+                aim_default_lights(self.stage, -render_camera.world_from_camera[:3, 2], self.up_axis)
+            return RenderSpec(camera=render_camera, resolution=resolution,
                               pixel_aspect_ratio=view.pixel_aspect_ratio,
                               aspect_ratio_conform_policy=view.aspect_ratio_conform_policy,
                               frame=frame, recipe=recipe, **fields)
 
-    def scene(self, spec: RenderSpec, *, subdiv_level: int) -> SceneData:
-        """Everything the tracer needs at ``spec.frame``."""
+    def scene(self, spec: RenderSpec, *, subdiv_level: int | None = None) -> SceneData:
+        """Everything the tracer needs at ``spec.frame``.
+
+        subdiv_level : one refinement level for every subdivision surface; None: a level per
+                       surface from its size through ``spec``'s camera at its resolution
+                       (reader.py)
+        """
+        footprint = PixelFootprint.of_camera(spec.camera, spec.resolution, spec.pixel_aspect_ratio)
         with trapped_usd_diagnostics(self.file):
             time, frame_value = resolve_time(self.stage, spec.frame)
             diagnostics = Diagnostics()
             context = self._context(time, spec.included_purposes, diagnostics)
-            return read_scene(context, frame_value, spec.material_binding_purposes, subdiv_level, self.warnings)
+            return read_scene(context, frame_value, spec.material_binding_purposes, footprint, subdiv_level,
+                              self.warnings)
 
     def _context(self, time: Usd.TimeCode, purposes: tuple[str, ...], diagnostics: Diagnostics) -> ReadContext:
         return ReadContext(stage=self.stage, time=time, meters_per_unit=self.meters_per_unit, up_axis=self.up_axis,
@@ -144,9 +162,10 @@ def open_shot(path: str | os.PathLike[str], *, recipe_layers: Sequence[str | os.
         if first_camera is None:
             first_camera = define_auto_camera(stage)
             logger.info("%s has no camera: %s frames the stage (--camera picks another)", file, first_camera)
+        default_rig = not has_light and default_lights
         if not has_light:
             if default_lights:
-                paths = define_default_lights(stage, up_axis)
+                paths = define_default_lights(stage)
                 diagnostics.warn(f"{file} has no light and no emissive material: lit by the default rig ({', '.join(paths)}; "
                                  "--no-default-lights keeps it unlit)")
             else:
@@ -154,7 +173,7 @@ def open_shot(path: str | os.PathLike[str], *, recipe_layers: Sequence[str | os.
                                  "was given: the image will be black")
     return Shot(stage=stage, file=file, recipe_layers=tuple(os.fspath(layer) for layer in recipe_layers),
                 warnings=diagnostics.finish(), first_camera=first_camera, up_axis=up_axis,
-                meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)))
+                meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)), default_rig=default_rig)
 
 
 def open_request(request: RenderRequest) -> Shot:
@@ -203,11 +222,12 @@ def load_stage(path: str | os.PathLike[str], *, frame: float | None = None, came
                time sample (SceneData.frame is then NaN)
     camera   : camera prim path, overriding the recipe's
     settings : RenderSettings prim path, instead of the one rule's choice
-    request  : the rest (recipe layers, variants, subdiv level, default lights, strict);
+    request  : the rest (recipe layers, variants, resolution, automatic camera view, subdiv
+               level, default lights, strict);
                its stage, camera and settings are replaced by the arguments above
     """
     request = dataclasses.replace(request, stage=path) if request else RenderRequest(stage=path)
     shot = open_request(request)
     recipe = shot.recipe(settings=settings, camera=camera, frame=frame, check_colour=False)
-    spec = shot.spec(frame, recipe, camera=camera)
+    spec = shot.spec(frame, recipe, camera=camera, resolution=request.resolution, auto_camera=request.auto_camera)
     return shot.scene(spec, subdiv_level=request.subdiv_level), spec

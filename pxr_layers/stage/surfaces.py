@@ -1,9 +1,11 @@
 """Triangulate UsdGeom.Mesh prims into object-space surfaces.
 
 Polygonal meshes (``subdivisionScheme = none``) are fan-triangulated. Subdivision meshes are
-refined to the requested level with :mod:`.subdivision` (OpenSubdiv's rules, limit points and
-limit normals) and their quads split in two; as the UsdGeom schema says, their authored
-normals are ignored.
+refined to the level the reader chose for them with :mod:`.subdivision` (OpenSubdiv's rules,
+limit points and limit normals) and their quads split in two; as the UsdGeom schema says,
+their authored normals are then ignored (with a warning: meshes exported with normals often
+leave ``subdivisionScheme`` at its catmullClark default by mistake). :func:`read_cage` reads
+what choosing that level takes (see subdivision.PixelFootprint and reader.py).
 
 Besides the uv primvar, :func:`read_mesh` reads the primvars materials' primvar readers name
 (any interpolation, 1–4 components) per triangle corner; constant ones (inherited from
@@ -23,7 +25,7 @@ import numpy as np
 from pxr import Usd, UsdGeom
 
 from pxr_layers.errors import StageError
-from pxr_layers.request import MAX_REFINED_FACES
+from pxr_layers.request import MAX_SUBDIV_LEVEL
 
 from . import subdivision
 from .budgets import SceneBudget
@@ -66,14 +68,46 @@ class LocalSurface:
     primvars: Mapping[str, np.ndarray] = field(default_factory=dict)
 
 
-def affordable_subdiv_level(face_count: int, asked: int) -> int:
-    """The highest level <= ``asked`` whose refined mesh keeps within MAX_REFINED_FACES faces
-    (each level multiplies the faces by 4; the first turns an n-gon into n quads, at most 4
-    for the cages this matters for)."""
-    level = 0
-    while level < asked and face_count * 4 ** (level + 1) <= MAX_REFINED_FACES:
-        level += 1
-    return level
+@dataclass(frozen=True, eq=False)
+class SubdivisionCage:
+    """What choosing a subdivision mesh's level takes (:func:`read_cage`), object space.
+
+    edge_length  : the cage edge that stands for the mesh (subdivision.cage_edge_length),
+                   stage units
+    lower, upper : (3,) float64 bounds of its points, stage units
+    triangles    : triangles it makes at each level 0 .. MAX_SUBDIV_LEVEL
+    """
+
+    edge_length: float
+    lower: np.ndarray
+    upper: np.ndarray
+    triangles: tuple[int, ...]
+
+
+def read_cage(prim: Usd.Prim, time: Usd.TimeCode, file: str) -> SubdivisionCage | None:
+    """The cage of a UsdGeom.Mesh that subdivides (``subdivisionScheme`` other than none,
+    catmullClark when unauthored); None for one that does not, has no faces, or has
+    non-finite points (read_mesh notes those). Raises StageError as read_mesh does for the
+    same attributes (types, topology, a mesh past the triangle budget on its own)."""
+    mesh = UsdGeom.Mesh(prim)
+    scheme = mesh.GetSubdivisionSchemeAttr().Get(time)
+    if scheme == UsdGeom.Tokens.none:
+        return None
+    path = str(prim.GetPath())
+    counts = integer_array(mesh.GetFaceVertexCountsAttr(), time, file)
+    _check_budget(counts, SceneBudget(), file, path)
+    indices = integer_array(mesh.GetFaceVertexIndicesAttr(), time, file)
+    points = _mesh_points(mesh, time, None, file, path)
+    _check_topology(points, counts, indices, file, path)
+    if not len(indices) or not np.isfinite(points).all():
+        return None
+    return SubdivisionCage(
+        edge_length=subdivision.cage_edge_length(points, counts, indices),
+        lower=points.min(axis=0),
+        upper=points.max(axis=0),
+        triangles=tuple(subdivision.refined_triangle_count(counts, level, scheme)
+                        for level in range(MAX_SUBDIV_LEVEL + 1)),
+    )
 
 
 # Every attribute read_mesh reads (their metadata too: interpolation, elementSize), but the
@@ -105,6 +139,18 @@ def mesh_opinions(
     for name in primvars:
         primvar = find_primvar(prim, name)
         attributes += [primvar.GetAttr(), primvar.GetIndicesAttr()] if primvar else [None, None]
+    return _opinions(attributes, time)
+
+
+def geometry_opinions(prim: Usd.Prim, time: Usd.TimeCode) -> tuple | None:
+    """:func:`mesh_opinions` of the attributes that make the shape alone (no uv, no material
+    primvars): meshes with equal keys have one cage, and share one subdivision level."""
+    return _opinions([prim.GetAttribute(name) for name in _SURFACE_ATTRIBUTES], time)
+
+
+def _opinions(attributes: list[Usd.Attribute | None], time: Usd.TimeCode) -> tuple | None:
+    """For each attribute, the (layer, spec path) of every opinion on it (() for a missing
+    one); None when a value might vary in time."""
     key = []
     for attribute in attributes:
         if not attribute:
@@ -140,9 +186,11 @@ def read_mesh(
     """Triangulate a UsdGeom.Mesh with its normals, the ``uv_primvar`` primvar and the
     ``primvars`` its materials read.
 
-    subdiv_level : refinement level of subdivision meshes, lowered for dense ones (see
-                   MAX_REFINED_FACES); 0 (or ``subdivisionScheme = none``) fan-triangulates
-                   the control mesh, shaded smooth if it is a subdivision mesh
+    subdiv_level : refinement level of a subdivision mesh (the reader's choice: see
+                   reader.py); 0 (or ``subdivisionScheme = none``) fan-triangulates the
+                   control mesh, shaded smooth if it is a subdivision mesh without authored
+                   normals (at level 0 authored normals are kept, as Storm keeps them on an
+                   unrefined mesh; refined, they are ignored with a warning)
     points       : (v, 3) object-space points (stage units) replacing the authored ones,
                    e.g. skinned (the authored normals, of the rest pose, are then replaced by
                    smooth normals of these points); None reads ``points`` at ``time``
@@ -185,20 +233,16 @@ def read_mesh(
     _note_short_faces(counts, diagnostics, path)
 
     scheme = mesh.GetSubdivisionSchemeAttr().Get(time)
-    if scheme != UsdGeom.Tokens.none:
-        level = affordable_subdiv_level(len(counts), subdiv_level)
-        if level < subdiv_level:
-            diagnostics.note(
-                "subdivision-budget",
-                f"dense subdivision surfaces refined to fewer levels than the {subdiv_level} asked, "
-                f"to stay within {MAX_REFINED_FACES} faces each (level 0: the cage, shaded smooth): "
-                "{prims}",
-                f"{path} ({len(counts)} faces: level {level})",
-            )
-        subdiv_level = level
     if scheme != UsdGeom.Tokens.none and subdiv_level > 0:
-        # UsdGeom: normals are ignored on subdivision surfaces; a wrong type is still reported.
-        _authored_normals(mesh, time, diagnostics, path)
+        # UsdGeom: normals are ignored on subdivision surfaces (a wrong type is still reported).
+        if _authored_normals(mesh, time, diagnostics, path) is not None:
+            diagnostics.note(
+                "subdivision-normals",
+                "authored normals are ignored on meshes that subdivide (the limit surface's normals "
+                "shade them; subdivisionScheme is catmullClark unless authored): author "
+                'subdivisionScheme = "none" on a polygon mesh to keep its normals: {prims}',
+                path,
+            )
         return _subdivision_surface(
             mesh, time, uv_primvar, primvars, diagnostics, file, path, points, counts, indices, scheme,
             subdiv_level,
@@ -271,9 +315,9 @@ def _mesh_points(
 
 
 def _check_budget(counts: np.ndarray, budget: SceneBudget, file: str, path: str) -> None:
-    """StageError when the faces ``counts`` declares, fan-triangulated (the most a mesh of them
-    can make: subdivision surfaces are refined within MAX_REFINED_FACES), would take the
-    scene past its triangle budget."""
+    """StageError when the faces ``counts`` declares, as faces or fan-triangulated, would take
+    the scene past its triangle budget (refinement adds triangles within the scene's
+    subdivision budget: budgets.fit_subdivision_levels)."""
     budget.check_triangles(len(counts), f"faceVertexCounts declares {len(counts):,} faces", file=file, prim=path)
     triangles = int(np.maximum(counts - 2, 0).sum())
     budget.check_triangles(triangles, f"its {len(counts):,} faces make {triangles:,} triangles", file=file,

@@ -9,7 +9,9 @@ through the stages together, as lane-major queues compacted after each bounce
     ray, tentative radiance) → scatter (BSDF sampling) → roulette → next bounce
 
 and every stage's results go to the batch's observers (stages/observer.py): its film,
-and with covariance or an index the first-bounce pictures and the path recorder.
+and with covariance or an index the first-bounce pictures and the path recorder. With
+``clamp_indirect``, each stage's indirect contributions are clamped first (stages/film.py),
+so every observer sees the same, clamped light.
 
 Emission found by BSDF sampling and by light sampling is combined with the power
 heuristic, per lobe (see bsdf.py). ``max_depth`` counts scattering events: with
@@ -23,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..request import DEFAULT_MAX_DEPTH, DEFAULT_SEED, DEFAULT_SPP
+from ..request import DEFAULT_MAX_DEPTH, DEFAULT_SEED, DEFAULT_SPP, NO_CLAMP
 from ..paths import events
 from . import rng
 from .bounce_norms import BounceNorms
@@ -39,7 +41,7 @@ from .stages.queues import MAX_PASS_THROUGH
 from .stages.camera import camera_rays
 from .stages.emission import emission
 from .stages.escaped import escaped
-from .stages.film import BatchFilm, FirstHits
+from .stages.film import BatchFilm, FirstHits, clamp_lit, clamp_splats
 from .stages.intersect import intersect
 from .stages.observer import Observer
 from .stages.next_event import cast_shadows, light_samples
@@ -60,6 +62,8 @@ class TraceSettings:
     record_sigma : with them, each event's whole 4×4 Σ (``Contributions.sigma``, trace/sigma.py).
     first_hits : count, per pixel, the camera samples whose first visible hit is each surface
                  subject (``BatchResult.first_hits``): what the Cryptomattes are made of.
+    clamp_indirect : the largest channel an indirect contribution may have (stages/film.py,
+                 ``clamp_splats``); NO_CLAMP (0): none is clamped.
     """
 
     spp: int = DEFAULT_SPP
@@ -71,6 +75,7 @@ class TraceSettings:
     merge_records: bool = False
     record_sigma: bool = False
     first_hits: bool = False
+    clamp_indirect: float = NO_CLAMP
 
 
 @dataclass
@@ -156,11 +161,13 @@ class Integrator:
             hit = hits.triangle >= 0
             if lights.has_infinite_lights:
                 splats = escaped(queue, hits, light_arrays)
+                clamp_splats(queue, splats, settings.clamp_indirect)
                 for observer in observers:
                     observer.escaped(queue, splats)
             if not hit.any():
                 break  # every path escaped (always, in a world of sky alone: no triangle to index)
             splats = emission(queue, hits, lights.triangle_emits, geometry, materials, light_arrays)
+            clamp_splats(queue, splats, settings.clamp_indirect)
             for observer in observers:
                 observer.emitted(queue, splats)
 
@@ -185,6 +192,7 @@ class Integrator:
                 rays += len(shadows)
                 cast_shadows(self.caster, shadows, geometry, materials, light_arrays, self.materials.see_through,
                              self.epsilon)
+                clamp_lit(queue, shadows, settings.clamp_indirect)
                 for observer in observers:
                     observer.lit(queue, surfaces, shadows)
 

@@ -1,4 +1,6 @@
-"""Stage 9: the film of a batch — every contribution summed into its pixel, in order."""
+"""Stage 9: the film of a batch — every contribution summed into its pixel, in order — and
+the indirect clamp that every contribution passes before any observer sees it, so that the
+film and the path index hold the same light."""
 
 from __future__ import annotations
 
@@ -9,6 +11,12 @@ import numpy as np
 from ...compiled import kernel
 from .observer import Observer
 from .queues import PathQueue, ShadowQueue, Splats, SurfaceQueue
+
+FIRST_INDIRECT_VERTEX = 1
+"""A path's scattering vertices are numbered from 0, its first visible hit. Light that
+reaches it at vertex 0 (sampled there, or found by the ray scattered there: the two halves of
+one MIS estimate) is direct, as is an emitter seen from the camera; from vertex 1 on it is
+indirect (Cycles' sample_clamp_indirect draws the same line)."""
 
 
 @dataclass(frozen=True)
@@ -80,6 +88,40 @@ class BatchFilm(Observer):
         else:  # too many subjects for one: sort the keys
             unique, samples = np.unique(keys, return_counts=True)
         return FirstHits(self.first_pixel + unique // count, (unique % count).astype(np.int32), samples.astype(np.int64))
+
+
+def clamp_splats(queue: PathQueue, splats: Splats, limit: float) -> None:
+    """Clamp `splats` (escaped or emission, ``queue``'s lanes) in place with :func:`_clamp_kernel`.
+    Their light reaches the path at its last scattering vertex, number depth − 1 (−1: the
+    camera). A `limit` of 0 clamps nothing."""
+    if limit > 0:
+        _clamp_kernel(splats.rgb[:, None, :], splats.lane, queue.depth, 1, limit)
+
+
+def clamp_lit(queue: PathQueue, shadows: ShadowQueue, limit: float) -> None:
+    """Clamp each lobe's radiance of the light samples `shadows` in place (after their shadow
+    rays: what the film would add). Their light reaches the path at its shading point, vertex
+    number depth. A `limit` of 0 clamps nothing."""
+    if limit > 0:
+        _clamp_kernel(shadows.radiance, shadows.lane, queue.depth, 0, limit)
+
+
+@kernel
+def _clamp_kernel(rgb, lane, depth, vertex_offset, limit):
+    """rgb (n, k, 3) float32: k contributions of path lane[i] (depth (lanes,) int32), whose
+    light reaches it at vertex depth − vertex_offset. Where that vertex is indirect
+    (FIRST_INDIRECT_VERTEX on) and a contribution's largest channel is above `limit`, all
+    three channels are scaled by limit / largest: the hue is kept and no channel exceeds
+    `limit` (up to float32 rounding)."""
+    for entry in range(len(lane)):
+        if depth[lane[entry]] - vertex_offset < FIRST_INDIRECT_VERTEX:
+            continue
+        for item in range(rgb.shape[1]):
+            largest = max(rgb[entry, item, 0], rgb[entry, item, 1], rgb[entry, item, 2])
+            if largest > limit:
+                scale = limit / largest
+                for channel in range(3):
+                    rgb[entry, item, channel] *= scale
 
 
 @kernel
