@@ -481,8 +481,8 @@ class RenderRequest:
     norm_bounces: int | None = option(
         None, Integer(0, MAX_INDEX_BOUNCES), "events per path (camera side) whose covariance norms C, T, R "
         f"the path index keeps (default: the products' pxrLayers:index:bounces, else {DEFAULT_INDEX_BOUNCES}, "
-        f"raised to the max depth when a layer has a covariance condition; none with --no-index and no condition; "
-        f"0: none; at most {MAX_INDEX_BOUNCES})",
+        f"raised to the max depth when a layer has a covariance condition; none with --no-index and no condition, "
+        f"which nothing would read; 0: none; at most {MAX_INDEX_BOUNCES})",
         default_text="the products'")
     index_mode: str | None = option(
         None, Choice(INDEX_MODES), "merged: one index record per pixel, path class and covariance bin (bins "
@@ -508,8 +508,8 @@ class RenderRequest:
         AUTO_CAMERA_VIEWS[0], Choice(AUTO_CAMERA_VIEWS), "how a stage without a camera is framed by "
         "/pxrLayers/autoCamera: front (looking down -Z on a Y-up stage, +Y on a Z-up one, as usdview's free "
         "camera) "
-        "or three-quarter (30 degrees to the right, 20 above); either way the bounds fill the render's frame "
-        "with a small margin")
+        "or three-quarter (30 degrees to the right, 20 above; a flat subject is seen from 45 degrees above); "
+        "either way the bounds fill the render's frame with a small margin")
     strict: bool = option(
         False, Switch(), "any composition error (a missing or unreadable reference, payload or sublayer) is "
         "fatal, exit 1 (default: a warning, and the rest renders)")
@@ -552,16 +552,16 @@ class RenderRequest:
                 raise RenderSettingsError(f"{spec.name.replace('_', ' ')}{separator}{said}") from None
 
     def resolved_norm_bounces(self, product_bounces: int, has_conditions: bool) -> int:
-        """The norm-bounce rule: none when nothing reads them (no index kept, no covariance
-        condition, no ``debug_covariance``: tracing covariance costs 2-4x); else the request's
-        own number, else the products' index bounces raised to ``max_depth`` (at most
+        """The norm-bounce rule: the request's own number; else none when nothing reads them
+        (no index kept, no covariance condition, no ``debug_covariance``: tracing covariance
+        costs 2-4x); else the products' index bounces raised to ``max_depth`` (at most
         MAX_INDEX_BOUNCES) when a layer has a covariance condition (a condition under ``.*``
         may test any event of the path); at least 1 for ``debug_covariance``, whose maps are
         the first bounce's norms."""
-        if not (self.keep_index or has_conditions or self.debug_covariance):
-            return 0
         if self.norm_bounces is not None:
             bounces = self.norm_bounces
+        elif not (self.keep_index or has_conditions or self.debug_covariance):
+            bounces = 0
         elif has_conditions:
             bounces = max(product_bounces, min(self.max_depth, MAX_INDEX_BOUNCES))
         else:

@@ -33,9 +33,11 @@ def test_the_norm_bounce_rule():
     assert request.resolved_norm_bounces(5, has_conditions=False) == 5
     assert request.resolved_norm_bounces(5, has_conditions=True) == 8  # a condition under .* tests any bounce
     assert RenderRequest("shot.usda", norm_bounces=2).resolved_norm_bounces(5, has_conditions=True) == 2
-    # Nothing reads norms without an index, a condition or the debug maps: none are traced.
-    unindexed = RenderRequest("shot.usda", keep_index=False, norm_bounces=3)
+    # Nothing reads norms without an index, a condition or the debug maps: none are traced
+    # unless asked for.
+    unindexed = RenderRequest("shot.usda", keep_index=False)
     assert unindexed.resolved_norm_bounces(5, has_conditions=False) == 0
-    assert unindexed.resolved_norm_bounces(5, has_conditions=True) == 3
+    assert unindexed.resolved_norm_bounces(5, has_conditions=True) == 8
+    assert RenderRequest("shot.usda", keep_index=False, norm_bounces=3).resolved_norm_bounces(5, False) == 3
     debug = RenderRequest("shot.usda", keep_index=False, debug_covariance=True)
     assert debug.resolved_norm_bounces(0, has_conditions=False) == 1

@@ -229,3 +229,26 @@ def test_a_stage_without_camera_is_framed_tightly_at_the_render_aspect(tmp_path,
     near, far = spec.camera.clipping
     distances = np.linalg.norm(corners - camera.position, axis=1)
     assert near < distances.min() and distances.max() < far
+
+
+@pytest.mark.parametrize("up_axis", ["Y", "Z"])
+def test_a_flat_subject_is_seen_from_above_not_edge_on(tmp_path, up_axis):
+    """A ground with decals seen from the front would be a line of pixels: the automatic
+    camera looks at a flat subject from AUTO_CAMERA_FLAT_ELEVATION above; a tall one stays front."""
+    from pxr_layers.stage.defaults import AUTO_CAMERA_FLAT_ELEVATION
+    from pxr_layers.trace.camera import PinholeCamera
+
+    up = np.array([0, 0, 1.0]) if up_axis == "Z" else np.array([0, 1.0, 0])
+    elevations = {}
+    for name, height in (("ground", 0.05), ("wall", 1.0)):
+        (tmp_path / name).mkdir()
+        stage = new_stage(tmp_path / name)
+        UsdGeom.SetStageUpAxis(stage, up_axis)
+        cube = UsdGeom.Cube.Define(stage, "/World/subject")
+        cube.AddScaleOp().Set(Gf.Vec3d(*(np.ones(3) + (height - 1) * up)))
+        stage.GetRootLayer().Save()
+        _, spec = load_stage(stage.GetRootLayer().realPath, request=RenderRequest("x", resolution=(32, 32)))
+        camera = PinholeCamera.from_spec(spec)
+        eye = camera.position / np.linalg.norm(camera.position)  # the subject sits at the origin
+        elevations[name] = np.degrees(np.arcsin(eye @ up))
+    assert elevations == pytest.approx({"ground": AUTO_CAMERA_FLAT_ELEVATION, "wall": 0.0}, abs=1e-6)

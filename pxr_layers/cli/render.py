@@ -19,8 +19,9 @@ DESCRIPTION = (
     "or --recipe layers composed over it; a stage without one gives a beauty EXR. Camera and "
     "resolution come from the recipe's products, else the settings, else the stage's first "
     "camera, else an automatic camera that frames the stage; the flags below override them. A "
-    "stage that nothing lights (no light, no emissive material) gets a default rig (a dome and a key). References this USD build "
-    "cannot read and missing files are warnings, and the rest renders (--strict: errors)."
+    "stage that nothing lights (no light, no emissive material) gets a turntable rig (dome, key, fill "
+    "and rim). References this USD build cannot read and missing files are warnings, and the rest "
+    "renders (--strict: errors)."
 )
 log = logging.getLogger(__name__)
 

@@ -9,7 +9,9 @@ The automatic camera (``/pxrLayers/autoCamera``), aimed anew at every frame, loo
 bounding box of what renders (the render purposes, at the frame's time) from the stage's
 front, as usdview's and usdrecord's free camera does: from +Z looking down −Z on a Y-up stage,
 from −Y looking down +Y on a Z-up one, its up the stage's up axis (``--auto-camera
-three-quarter``: from 30° to the right and 20° above instead). Its 35 mm lens has a gate of the
+three-quarter``: from 30° to the right and 20° above instead). A flat subject, less than a
+tenth as tall as it is deep (a ground with decals), is seen from 45° above: from the front it
+would be a line. Its 35 mm lens has a gate of the
 render's own aspect ratio (36 mm wide), and it stands as close as it can while all eight
 corners of the box project inside the frame with a margin (the box fills 1/AUTO_CAMERA_MARGIN
 of the frame's width or height, whichever binds: a tight fit of the box, not of its bounding
@@ -47,6 +49,10 @@ AUTO_CAMERA_THREE_QUARTER_DEGREES = (30.0, 20.0)  # azimuth to the right, elevat
 AUTO_CAMERA_FOCAL_LENGTH_MM = 35.0
 AUTO_CAMERA_APERTURE_WIDTH_MM = 36.0
 AUTO_CAMERA_MARGIN = 1.15  # the box spans 87 % of the binding dimension
+# A subject less than this tall for its depth (a ground, decals on it) is seen from this
+# elevation (degrees): from the front it would be an edge, a line of pixels.
+AUTO_CAMERA_FLAT_RATIO = 0.1
+AUTO_CAMERA_FLAT_ELEVATION = 45.0
 
 DEFAULT_UV_SET = "st"  # the texture coordinates a texture reads when nothing names them (USD's convention)
 
@@ -138,14 +144,18 @@ def frame_auto_camera(stage: Usd.Stage, time: Usd.TimeCode, purposes: tuple[str,
             box.UnionWith(cache.ComputeWorldBound(prim).ComputeAlignedRange())
     up = _up_vector(up_axis)
     assert view in AUTO_CAMERA_VIEWS, view
-    azimuth, elevation = (math.radians(angle) for angle in (AUTO_CAMERA_THREE_QUARTER_DEGREES
-                                                            if view == "three-quarter" else (0.0, 0.0)))
-    toward_eye = _from_y_up(np.array([math.sin(azimuth) * math.cos(elevation), math.sin(elevation),
-                                      math.cos(azimuth) * math.cos(elevation)]), up_axis)
-    rotation = _looking_along(-toward_eye, up)
+    azimuth, elevation = AUTO_CAMERA_THREE_QUARTER_DEGREES if view == "three-quarter" else (0.0, 0.0)
     framed = not box.IsEmpty() and all(math.isfinite(value) for value in (*box.GetMin(), *box.GetMax()))
     if framed:
         low, high = np.array(box.GetMin(), dtype=np.float64), np.array(box.GetMax(), dtype=np.float64)
+        front = _from_y_up(np.array([0.0, 0.0, 1.0]), up_axis)
+        if np.dot(high - low, up) < AUTO_CAMERA_FLAT_RATIO * np.dot(high - low, np.abs(front)):
+            elevation = max(elevation, AUTO_CAMERA_FLAT_ELEVATION)  # a ground seen edge-on is nothing
+    azimuth, elevation = math.radians(azimuth), math.radians(elevation)
+    toward_eye = _from_y_up(np.array([math.sin(azimuth) * math.cos(elevation), math.sin(elevation),
+                                      math.cos(azimuth) * math.cos(elevation)]), up_axis)
+    rotation = _looking_along(-toward_eye, up)
+    if framed:
         centre = 0.5 * (low + high)
         corners = np.array([[(low, high)[(i >> axis) & 1][axis] for axis in range(3)] for i in range(8)])
         right, camera_up, back = ((corners - centre) @ rotation.T).T
