@@ -231,6 +231,24 @@ def test_the_default_rig_turns_with_the_users_camera(tmp_path):
     assert upper_left > 2.0 * lower_right
 
 
+def test_a_coarse_subdivision_cage_is_framed_by_the_surface_that_renders(tmp_path):
+    """A Catmull-Clark cube's limit surface is smaller than its cage: framed by the cage's
+    box, the rendered ball spanned 57 % of the frame; framed by the limit surface's, more,
+    and nothing is cut at the frame's edge. (A round subject framed by its box's eight
+    corners spans less than the box's 1/AUTO_CAMERA_MARGIN: its silhouette lies deeper.)"""
+    cube = grey_card_stage().replace(
+        "int[] faceVertexCounts = [4]\n        int[] faceVertexIndices = [0, 1, 2, 3]",
+        "int[] faceVertexCounts = [4, 4, 4, 4, 4, 4]\n"
+        "        int[] faceVertexIndices = [0, 1, 3, 2, 2, 3, 5, 4, 4, 5, 7, 6, 6, 7, 1, 0, 1, 7, 5, 3, 6, 0, 2, 4]").replace(
+        "(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)",
+        "(-1, -1, 1), (1, -1, 1), (-1, 1, 1), (1, 1, 1), (-1, 1, -1), (1, 1, -1), (-1, -1, -1), (1, -1, -1)")
+    _, result = mean_rgb(write(tmp_path, "cube.usda", cube), spp=1, max_depth=1, resolution=(64, 64))
+    covered = result.rgba[..., 3] > 0.5
+    rows = np.flatnonzero(covered.any(axis=1))
+    assert 0.6 <= (rows[-1] - rows[0] + 1) / 64 <= 0.87
+    assert not (covered[[0, -1]].any() or covered[:, [0, -1]].any())
+
+
 RECT_LIGHT = """
     def RectLight "panel"
     {{

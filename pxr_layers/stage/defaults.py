@@ -15,7 +15,8 @@ would be a line. Its 35 mm lens has a gate of the
 render's own aspect ratio (36 mm wide), and it stands as close as it can while all eight
 corners of the box project inside the frame with a margin (the box fills 1/AUTO_CAMERA_MARGIN
 of the frame's width or height, whichever binds: a tight fit of the box, not of its bounding
-sphere). Its clipping range hugs the box.
+sphere). A coarse subdivision cage counts by its limit surface, which renders, not by its
+cage. Its clipping range hugs the box.
 
 The default rig (``/pxrLayers/defaultLights``) is a look-development turntable rig placed
 from the render camera at every frame (directions from the camera's heading, elevations from
@@ -37,9 +38,14 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdSkel
 
+from pxr_layers.errors import PxrLayersError
 from pxr_layers.request import AUTO_CAMERA_VIEWS
+
+from . import subdivision
+from .diagnostics import Diagnostics
+from .surfaces import subdivision_tags
 
 ROOT = "/pxrLayers"
 AUTO_CAMERA_PATH = f"{ROOT}/autoCamera"
@@ -53,6 +59,7 @@ AUTO_CAMERA_MARGIN = 1.15  # the box spans 87 % of the binding dimension
 # elevation (degrees): from the front it would be an edge, a line of pixels.
 AUTO_CAMERA_FLAT_RATIO = 0.1
 AUTO_CAMERA_FLAT_ELEVATION = 45.0
+FRAMING_REFINED_FACES = 2048  # cages up to this many faces are framed by their limit surface
 
 DEFAULT_UV_SET = "st"  # the texture coordinates a texture reads when nothing names them (USD's convention)
 
@@ -137,11 +144,7 @@ def frame_auto_camera(stage: Usd.Stage, time: Usd.TimeCode, purposes: tuple[str,
     the origin looking to the front, which is all a sky needs.
     """
     tokens = [UsdGeom.Tokens.default_ if purpose == "default" else purpose for purpose in purposes]
-    cache = UsdGeom.BBoxCache(time, tokens, useExtentsHint=True)
-    box = Gf.Range3d()
-    for prim in stage.GetPseudoRoot().GetChildren():
-        if not is_ours(prim.GetPath()):  # not the draw-mode cards an earlier frame authored
-            box.UnionWith(cache.ComputeWorldBound(prim).ComputeAlignedRange())
+    box = _subject_box(stage, UsdGeom.BBoxCache(time, tokens, useExtentsHint=True), time)
     up = _up_vector(up_axis)
     assert view in AUTO_CAMERA_VIEWS, view
     azimuth, elevation = AUTO_CAMERA_THREE_QUARTER_DEGREES if view == "three-quarter" else (0.0, 0.0)
@@ -176,6 +179,53 @@ def frame_auto_camera(stage: Usd.Stage, time: Usd.TimeCode, purposes: tuple[str,
         camera.CreateClippingRangeAttr(Gf.Vec2f(*clipping))
         camera.CreateVerticalApertureAttr(AUTO_CAMERA_APERTURE_WIDTH_MM / aspect)
     return framed
+
+
+def _subject_box(stage: Usd.Stage, cache: UsdGeom.BBoxCache, time: Usd.TimeCode) -> Gf.Range3d:
+    """The world box of what renders: each boundable's bound (visibility and purposes as
+    ``cache`` computes them), a coarse subdivision cage's replaced by its limit surface's."""
+    box = Gf.Range3d()
+    prims = iter(Usd.PrimRange(stage.GetPseudoRoot(), Usd.TraverseInstanceProxies()))
+    for prim in prims:
+        if is_ours(prim.GetPath()):  # not the draw-mode cards an earlier frame authored
+            prims.PruneChildren()
+            continue
+        if not prim.IsA(UsdGeom.Boundable):
+            continue
+        prims.PruneChildren()  # a boundable's bound holds its children (a PointInstancer's prototypes)
+        bound = cache.ComputeWorldBound(prim).ComputeAlignedRange()
+        if not bound.IsEmpty() and prim.IsA(UsdGeom.Mesh):
+            bound = _limit_surface_box(UsdGeom.Mesh(prim), time, stage) or bound
+        box.UnionWith(bound)
+    return box
+
+
+def _limit_surface_box(mesh: UsdGeom.Mesh, time: Usd.TimeCode, stage: Usd.Stage) -> Gf.Range3d | None:
+    """The world box of a coarse subdivision cage's limit surface, or None to keep its cage's.
+
+    A limit surface lies inside the hull of the control points of every refinement level, and
+    a coarse cage's can be far smaller than the cage (the no-crease pyramid's is 60 % of it),
+    so the twice-refined control points bound it closely. Only cages of at most
+    FRAMING_REFINED_FACES faces (a dense cage's limit is its cage), not skinned (posed later).
+    Whatever the reader would refuse keeps the cage's box: the reader says why."""
+    scheme = mesh.GetSubdivisionSchemeAttr().Get(time)
+    counts = mesh.GetFaceVertexCountsAttr().Get(time)
+    if (scheme not in ("catmullClark", "loop") or counts is None or len(counts) > FRAMING_REFINED_FACES
+            or mesh.GetPrim().HasAPI(UsdSkel.BindingAPI)):
+        return None
+    path = str(mesh.GetPath())
+    try:
+        refined = subdivision.refine(
+            np.asarray(mesh.GetPointsAttr().Get(time), np.float64), np.asarray(counts, np.int64),
+            np.asarray(mesh.GetFaceVertexIndicesAttr().Get(time), np.int64), 2, scheme=scheme,
+            tags=subdivision_tags(mesh, time, Diagnostics(), stage.GetRootLayer().identifier, path), limit=False)
+    except (ValueError, TypeError, IndexError, PxrLayersError):
+        return None
+    world = np.asarray(mesh.ComputeLocalToWorldTransform(time))  # row vectors: p_world = p @ M
+    points = refined.points @ world[:3, :3] + world[3, :3]
+    if not len(points) or not np.isfinite(points).all():
+        return None
+    return Gf.Range3d(Gf.Vec3d(*points.min(axis=0)), Gf.Vec3d(*points.max(axis=0)))
 
 
 def define_default_lights(stage: Usd.Stage) -> tuple[str, ...]:

@@ -765,7 +765,7 @@ def _subdivision_surface(
         indices,
         level,
         scheme=scheme,
-        tags=_subdivision_tags(mesh, time, diagnostics, file, path),
+        tags=subdivision_tags(mesh, time, diagnostics, file, path),
         vertex_data=np.hstack(vertex_columns) if vertex_columns else None,
         varying_data=np.hstack(varying_columns) if varying_columns else None,
         face_varying=face_varying,
@@ -819,7 +819,7 @@ def _reversed_face_corners(counts: np.ndarray) -> np.ndarray:
     return offsets[corner_face] + (size - local) % size
 
 
-def _subdivision_tags(
+def subdivision_tags(
     mesh: UsdGeom.Mesh, time: Usd.TimeCode, diagnostics: Diagnostics, file: str, path: str
 ) -> subdivision.SubdivisionTags:
     """The mesh's subdivision attributes; unknown tokens fall back to the schema's default;
