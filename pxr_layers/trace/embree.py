@@ -1,33 +1,292 @@
-"""The one place that talks to Embree (through embreex).
+"""The one place that talks to Embree: bindings to the Embree 4 C API of the libembree4 that
+the embreex wheel ships (``embreex.libs/`` beside the ``embreex`` package; embreex's own
+Python wrapper is not used, the wheel only carries the library).
 
-Embree's scene is built once per World; `intersect` and `occluded` take whole batches of
-rays. Each call runs single-threaded inside Embree and releases the GIL, so the render
-drives several batches from a thread pool.
+Scenes are built on the host through ctypes, once per World. Queries are numba kernels that
+call ``rtcIntersect1`` / ``rtcOccluded1`` one ray per lane, without the GIL, so the render
+drives several batches from a thread pool; the per-ray helpers (:func:`cast_closest`,
+:func:`cast_any`) inline into any other kernel. Kernels name Embree's functions by symbol
+(numba ``ExternalFunction``), which LLVM resolves in the library loaded at import: no
+address is baked into the machine code, so the on-disk kernel cache stays valid from one
+process to the next.
+
+Structures and enum values are those of Embree 4.4's headers (include/embree4/rtcore_*.h).
+Scenes are built as embreex built them (RTC_SCENE_FLAG_ROBUST, the default medium build
+quality, tnear 0, every ray mask bit set), so hits are the same as before the bindings.
 """
 
 from __future__ import annotations
 
-import numpy as np
-from embreex import mesh_construction, rtcore_scene
+import ctypes
+import importlib.util
+import weakref
+from pathlib import Path
 
+import numpy as np
+from llvmlite import binding as llvm
+from numba import types
+
+from ..compiled import inline, kernel
 from ..scene import FLOAT
 from .world import World
 
 MISS = -1
+"""Triangle, geometry or instance id of no hit: Embree's RTC_INVALID_GEOMETRY_ID,
+(unsigned) -1, read as int32."""
+
+# Enum values (rtcore_common.h, rtcore_device.h, rtcore_scene.h, rtcore_buffer.h,
+# rtcore_geometry.h).
+RTC_SCENE_FLAG_ROBUST = 1 << 2
+RTC_BUILD_QUALITY_MEDIUM = 1
+RTC_GEOMETRY_TYPE_TRIANGLE = 0
+RTC_GEOMETRY_TYPE_INSTANCE = 121
+RTC_BUFFER_TYPE_INDEX = 0
+RTC_BUFFER_TYPE_VERTEX = 1
+RTC_FORMAT_UINT3 = 0x5003
+RTC_FORMAT_FLOAT3 = 0x9003
+RTC_FORMAT_FLOAT3X4_ROW_MAJOR = 0x9134
+
+RAYHIT = np.dtype({
+    # struct RTCRayHit (rtcore_ray.h): RTCRay (48 bytes) then RTCHit, both 16-byte aligned,
+    # every member 4 bytes. The library is Embree's official build (one instance level,
+    # instance arrays on): RTCHit ends with instID[1] and instPrimID[1], 36 bytes padded to
+    # 48. The unsigned ids are read as int32, so RTC_INVALID_GEOMETRY_ID reads as MISS.
+    "names": ["org_x", "org_y", "org_z", "tnear", "dir_x", "dir_y", "dir_z", "time",
+              "tfar", "mask", "id", "flags",
+              "Ng_x", "Ng_y", "Ng_z", "u", "v", "primID", "geomID", "instID", "instPrimID"],
+    "formats": ["<f4"] * 9 + ["<i4"] * 3 + ["<f4"] * 5 + ["<i4"] * 4,
+    "offsets": [4 * field for field in range(21)],
+    "itemsize": 96,
+})
+"""One RTCRayHit as a numpy record; a query's scratch is a (1,) array of it at a 16-byte
+aligned address (:func:`rayhit_scratch`)."""
+
+RAYHIT_ALIGNMENT = 16
+
+
+def _library_path() -> Path:
+    """libembree4 in embreex's wheel: ``embreex.libs/`` beside the ``embreex`` package."""
+    spec = importlib.util.find_spec("embreex")
+    if spec is None or not spec.submodule_search_locations:
+        raise ImportError("pxr-layers needs the embreex wheel, which ships libembree4: pip install embreex")
+    libraries = Path(next(iter(spec.submodule_search_locations))).parent / "embreex.libs"
+    found = sorted(libraries.glob("libembree4*.so*"))
+    if not found:
+        raise ImportError(f"no libembree4 in {libraries}: reinstall the embreex wheel")
+    return found[0]
+
+
+def _load_api(path: Path) -> ctypes.CDLL:
+    """The host-side C API through ctypes (which releases the GIL during each call).
+    Handles are void pointers, passed and returned as Python ints."""
+    # LLVM must resolve the kernels' rtcIntersect1/rtcOccluded1 symbols: the same library
+    # (dlopen of one path is one handle), loaded where the JIT linker looks.
+    llvm.load_library_permanently(str(path))
+    library = ctypes.CDLL(str(path))
+    handle, c_int, c_uint, c_size = ctypes.c_void_p, ctypes.c_int, ctypes.c_uint, ctypes.c_size_t
+    signatures = {  # name: (result, arguments), as declared in include/embree4/rtcore_*.h
+        "rtcNewDevice": (handle, [ctypes.c_char_p]),
+        "rtcReleaseDevice": (None, [handle]),
+        "rtcGetDeviceError": (c_int, [handle]),
+        "rtcGetDeviceLastErrorMessage": (ctypes.c_char_p, [handle]),
+        "rtcNewScene": (handle, [handle]),
+        "rtcSetSceneFlags": (None, [handle, c_int]),
+        "rtcSetSceneBuildQuality": (None, [handle, c_int]),
+        "rtcCommitScene": (None, [handle]),
+        "rtcReleaseScene": (None, [handle]),
+        "rtcNewGeometry": (handle, [handle, c_int]),
+        "rtcSetSharedGeometryBuffer": (None, [handle, c_int, c_uint, c_int, handle, c_size, c_size, c_size]),
+        "rtcSetGeometryInstancedScene": (None, [handle, handle]),
+        "rtcSetGeometryTransform": (None, [handle, c_uint, c_int, handle]),
+        "rtcCommitGeometry": (None, [handle]),
+        "rtcAttachGeometry": (c_uint, [handle, handle]),
+        "rtcReleaseGeometry": (None, [handle]),
+    }
+    for name, (result, arguments) in signatures.items():
+        function = getattr(library, name)
+        function.restype, function.argtypes = result, arguments
+    return library
+
+
+_api = _load_api(_library_path())
+
+# The queries, by symbol name. Pointers (scene, RTCRayHit*, the NULL arguments) are passed as
+# 64-bit integers: the same registers as pointers in the x86-64 and AArch64 calling conventions.
+_rtc_intersect1 = types.ExternalFunction("rtcIntersect1", types.void(types.intp, types.intp, types.intp))
+_rtc_occluded1 = types.ExternalFunction("rtcOccluded1", types.void(types.intp, types.intp, types.intp))
+
+
+class Device:
+    """An Embree device (its handle an int). Released by :meth:`close`, or when collected."""
+
+    def __init__(self):
+        handle = _api.rtcNewDevice(None)
+        if not handle:
+            raise RuntimeError(f"Embree: no device: {_error_message(None)}")
+        self.handle: int = handle
+        self._release = weakref.finalize(self, _api.rtcReleaseDevice, handle)
+
+    def check(self, doing: str) -> None:
+        """Raise if an Embree call of this thread on this device failed since the last check."""
+        code = _api.rtcGetDeviceError(self.handle)
+        if code:
+            raise RuntimeError(f"Embree failed {doing}: {_error_message(self.handle)} (RTCError {code})")
+
+    def close(self) -> None:
+        self._release()
+
+
+def _error_message(device: int | None) -> str:
+    message = _api.rtcGetDeviceLastErrorMessage(device)
+    return message.decode(errors="replace") if message else "no message"
+
+
+class Scene:
+    """An Embree scene of `device` (its handle an int, what the kernels take), robust, built
+    at medium quality. It holds what Embree reads without owning: the shared vertex and index
+    arrays and the instanced child scenes. Released by :meth:`close`, or when collected."""
+
+    def __init__(self, device: Device):
+        self.device = device
+        self.handle: int = _api.rtcNewScene(device.handle)
+        device.check("creating a scene")
+        self._release = weakref.finalize(self, _api.rtcReleaseScene, self.handle)
+        _api.rtcSetSceneFlags(self.handle, RTC_SCENE_FLAG_ROBUST)
+        _api.rtcSetSceneBuildQuality(self.handle, RTC_BUILD_QUALITY_MEDIUM)
+        self._shared: list = []
+
+    def commit(self) -> None:
+        """Build the BVH (instanced scenes first). Before any query: the build takes no lock."""
+        _api.rtcCommitScene(self.handle)
+        self.device.check("building the scene's BVH")
+
+    def close(self) -> None:
+        self._release()
+
+
+def add_triangles(scene: Scene, vertices: np.ndarray, triangles: np.ndarray) -> int:
+    """Attach a triangle mesh to `scene` (before its commit); returns its geometry id.
+
+    vertices  : (v, 3) float metres (copied: Embree reads 16 bytes at each vertex, so the
+                shared copy has one row more than the mesh)
+    triangles : (t, 3) integer vertex indices, counter-clockwise front
+    """
+    vertices, triangles = np.asarray(vertices), np.asarray(triangles)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or triangles.ndim != 2 or triangles.shape[1] != 3:
+        raise ValueError(f"triangles need vertices (v, 3) and indices (t, 3), not {vertices.shape} and {triangles.shape}")
+    if triangles.size and (triangles.min() < 0 or triangles.max() >= len(vertices)):
+        raise ValueError(f"triangle indices outside the {len(vertices)} vertices")
+    padded = np.zeros((len(vertices) + 1, 3), np.float32)
+    padded[:-1] = vertices
+    indices = np.ascontiguousarray(triangles, np.uint32)
+    geometry = _api.rtcNewGeometry(scene.device.handle, RTC_GEOMETRY_TYPE_TRIANGLE)
+    _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, padded.ctypes.data,
+                                    0, padded.strides[0], len(vertices))
+    _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, indices.ctypes.data,
+                                    0, indices.strides[0], len(indices))
+    return _attach(scene, geometry, (padded, indices), "adding triangles")
+
+
+def add_instance(scene: Scene, child: Scene, transform: np.ndarray) -> int:
+    """Attach an instance of the committed scene `child` to `scene` (before its commit);
+    returns its geometry id, which hits through it report as their instance id.
+
+    transform : (3, 4) float32, child space to `scene` space: p' = transform[:, :3] p + transform[:, 3]
+    """
+    matrix = np.ascontiguousarray(transform, np.float32)
+    if matrix.shape != (3, 4):
+        raise ValueError(f"an instance transform is (3, 4), not {matrix.shape}")
+    geometry = _api.rtcNewGeometry(scene.device.handle, RTC_GEOMETRY_TYPE_INSTANCE)
+    _api.rtcSetGeometryInstancedScene(geometry, child.handle)
+    _api.rtcSetGeometryTransform(geometry, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, matrix.ctypes.data)  # copied
+    return _attach(scene, geometry, (child,), "adding an instance")
+
+
+def _attach(scene: Scene, geometry: int, shared: tuple, doing: str) -> int:
+    _api.rtcCommitGeometry(geometry)
+    geometry_id = _api.rtcAttachGeometry(scene.handle, geometry)
+    _api.rtcReleaseGeometry(geometry)  # the scene holds it now
+    scene.device.check(doing)
+    scene._shared.extend(shared)
+    return geometry_id
+
+
+def rayhit_scratch() -> np.ndarray:
+    """A query's working RTCRayHit: (1,) RAYHIT at a 16-byte aligned address, as Embree requires.
+    One per thread: queries write it."""
+    raw = np.zeros(RAYHIT.itemsize + RAYHIT_ALIGNMENT, np.uint8)
+    start = -raw.ctypes.data % RAYHIT_ALIGNMENT
+    return raw[start:start + RAYHIT.itemsize].view(RAYHIT)
+
+
+@inline
+def _set_ray(rayhit, ox, oy, oz, dx, dy, dz, tnear, tfar):
+    ray = rayhit[0]
+    ray.org_x, ray.org_y, ray.org_z, ray.tnear = ox, oy, oz, tnear
+    ray.dir_x, ray.dir_y, ray.dir_z, ray.time = dx, dy, dz, 0.0
+    ray.tfar, ray.mask, ray.id, ray.flags = tfar, -1, 0, 0
+
+
+@inline
+def cast_closest(scene, ox, oy, oz, dx, dy, dz, tnear, tfar, rayhit):
+    """The closest hit along o + t d, tnear ≤ t ≤ tfar (d need not be unit; t in its units).
+
+    scene  : a committed Scene's handle (int)
+    rayhit : rayhit_scratch() of the calling thread
+    Returns (primID, geomID, instID int32, MISS for none; u, v float32 barycentrics,
+    p = (1 − u − v) p0 + u p1 + v p2, 0 on a miss; t float32, tfar on a miss).
+    """
+    _set_ray(rayhit, ox, oy, oz, dx, dy, dz, tnear, tfar)
+    hit = rayhit[0]
+    hit.u, hit.v, hit.primID, hit.geomID, hit.instID = 0.0, 0.0, MISS, MISS, MISS
+    _rtc_intersect1(scene, rayhit.ctypes.data, 0)
+    return hit.primID, hit.geomID, hit.instID, hit.u, hit.v, hit.tfar
+
+
+@inline
+def cast_any(scene, ox, oy, oz, dx, dy, dz, tnear, tfar, rayhit):
+    """Whether anything lies along o + t d, tnear ≤ t ≤ tfar (arguments as cast_closest)."""
+    _set_ray(rayhit, ox, oy, oz, dx, dy, dz, tnear, tfar)
+    _rtc_occluded1(scene, rayhit.ctypes.data, 0)
+    return rayhit[0].tfar < 0.0  # Embree marks an occluded ray with tfar = −inf
+
+
+@kernel
+def intersect_kernel(scene, origins, directions, t_max, rayhit, triangle_out, u_out, v_out, t_out):
+    """cast_closest over a batch: origins, directions (n, 3) float32, t_max (n,) float32;
+    writes triangle_out (n,) int32 (primID, MISS for none), u_out, v_out, t_out (n,) float32."""
+    for lane in range(len(t_max)):
+        prim, _, _, u, v, t = cast_closest(scene, origins[lane, 0], origins[lane, 1], origins[lane, 2],
+                                           directions[lane, 0], directions[lane, 1], directions[lane, 2],
+                                           0.0, t_max[lane], rayhit)
+        triangle_out[lane], u_out[lane], v_out[lane], t_out[lane] = prim, u, v, t
+
+
+@kernel
+def occluded_kernel(scene, origins, directions, t_max, rayhit, occluded_out):
+    """cast_any over a batch (arguments as intersect_kernel); writes occluded_out (n,) bool."""
+    for lane in range(len(t_max)):
+        occluded_out[lane] = cast_any(scene, origins[lane, 0], origins[lane, 1], origins[lane, 2],
+                                      directions[lane, 0], directions[lane, 1], directions[lane, 2],
+                                      0.0, t_max[lane], rayhit)
 
 
 class RayCaster:
-    """Closest-hit and any-hit queries against a World's triangles."""
+    """Closest-hit and any-hit queries against a World's triangles (one Embree scene,
+    committed here, before any thread queries it). Calls from several threads at once are
+    safe; each releases the GIL."""
 
     def __init__(self, world: World):
         # A world without triangles (a dome alone) has no Embree scene: every ray misses.
-        self._scene = rtcore_scene.EmbreeScene() if world.triangle_count else None
-        if self._scene is None:
+        self._scene = None
+        self._closed = False
+        if not world.triangle_count:
             return
-        mesh_construction.TriangleMesh(self._scene, world.vertices, world.triangles)
-        # The first query commits the BVH without a lock: do it here, before any thread.
-        probe = np.zeros((1, 3), FLOAT)
-        self._scene.run(probe, np.array([[0, 0, 1]], FLOAT), output=1)
+        device = Device()
+        scene = Scene(device)
+        add_triangles(scene, world.vertices, world.triangles)
+        scene.commit()
+        self._scene = scene
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray):
         """Closest hits.
@@ -35,21 +294,38 @@ class RayCaster:
         origins, directions : (n, 3) float32 (directions need not be unit; t is in their units)
         t_max               : (n,) float32
         Returns (triangle (n,) int32 with MISS for no hit, u (n,), v (n,), t (n,) float32);
-        u and v are Embree's barycentrics: p = (1 - u - v) p0 + u p1 + v p2.
+        u and v are Embree's barycentrics: p = (1 - u - v) p0 + u p1 + v p2; a miss has
+        u = v = 0 and t = t_max.
         """
-        if self._scene is None:
-            n = len(t_max)
-            return np.full(n, MISS, np.int32), np.zeros(n, FLOAT), np.zeros(n, FLOAT), np.asarray(t_max, FLOAT)
-        # embreex writes the hit distances into `dists`: a copy keeps the caller's t_max
-        result = self._scene.run(_rows(origins), _rows(directions), dists=np.array(t_max, FLOAT), output=1)
-        return result["primID"], result["u"], result["v"], result["tfar"]
+        self._check_open()
+        n = len(t_max)
+        triangle, u, v = np.full(n, MISS, np.int32), np.zeros(n, FLOAT), np.zeros(n, FLOAT)
+        t = np.array(t_max, FLOAT)
+        if self._scene is not None and n:
+            intersect_kernel(self._scene.handle, _rows(origins), _rows(directions), np.ascontiguousarray(t_max, FLOAT),
+                             rayhit_scratch(), triangle, u, v, t)
+        return triangle, u, v, t
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray) -> np.ndarray:
         """Any hit with t < t_max for origins, directions (n, 3): (n,) bool."""
-        if self._scene is None:
-            return np.zeros(len(t_max), bool)
-        hit = self._scene.run(_rows(origins), _rows(directions), dists=np.array(t_max, FLOAT), query="OCCLUDED")
-        return hit != MISS
+        self._check_open()
+        blocked = np.zeros(len(t_max), bool)
+        if self._scene is not None and len(t_max):
+            occluded_kernel(self._scene.handle, _rows(origins), _rows(directions), np.ascontiguousarray(t_max, FLOAT),
+                            rayhit_scratch(), blocked)
+        return blocked
+
+    def close(self) -> None:
+        """Release the Embree scene and device now (no query may be running; later ones raise)."""
+        if self._scene is not None:
+            self._scene.close()
+            self._scene.device.close()
+            self._scene = None
+        self._closed = True
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError("RayCaster queried after close()")
 
 
 def _rows(vectors: np.ndarray) -> np.ndarray:
