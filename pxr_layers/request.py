@@ -481,7 +481,7 @@ class RenderRequest:
     norm_bounces: int | None = option(
         None, Integer(0, MAX_INDEX_BOUNCES), "events per path (camera side) whose covariance norms C, T, R "
         f"the path index keeps (default: the products' pxrLayers:index:bounces, else {DEFAULT_INDEX_BOUNCES}, "
-        f"raised to the max depth when a layer has a covariance condition; none with --no-index and no condition, "
+        "raised to the max depth when a layer has a covariance condition; none with --no-index and no condition, "
         f"which nothing would read; 0: none; at most {MAX_INDEX_BOUNCES})",
         default_text="the products'")
     index_mode: str | None = option(

@@ -134,7 +134,7 @@ def define_auto_camera(stage: Usd.Stage) -> str:
 
 
 def frame_auto_camera(stage: Usd.Stage, time: Usd.TimeCode, purposes: tuple[str, ...], up_axis: str,
-                      aspect: float, view: str = "front") -> bool:
+                      aspect: float, view: str = AUTO_CAMERA_VIEWS[0]) -> bool:
     """Aim the automatic camera at the bounding box of what renders at ``time``.
 
     purposes : the gprim purposes that render (the settings' includedPurposes)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pxr import Usd, UsdGeom, UsdRender, UsdShade
 
 from pxr_layers.recipe.model import Recipe
-from pxr_layers.request import RenderRequest, VariantSelection
+from pxr_layers.request import AUTO_CAMERA_VIEWS, RenderRequest, VariantSelection
 from pxr_layers.scene import RenderSpec, SceneData
 
 from . import schema
@@ -98,7 +98,7 @@ class Shot:
             return found
 
     def spec(self, frame: float | None, recipe: Recipe, *, camera: str | None = None,
-             resolution: tuple[int, int] | None = None, auto_camera: str = "front") -> RenderSpec:
+             resolution: tuple[int, int] | None = None, auto_camera: str = AUTO_CAMERA_VIEWS[0]) -> RenderSpec:
         """The frame's render spec: ``recipe``'s camera and resolution (or these overrides),
         pixel aspect ratio and conform policy, the camera read at the frame, and the
         settings' purposes. The automatic camera is framed (``auto_camera``: its view, one of
