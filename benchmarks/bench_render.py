@@ -496,6 +496,23 @@ def cold_start(cli, scratch: Path) -> None:
 # ------------------------------------------------------------------------------------------
 
 
+
+def measure_figure(title: str, wait: float, failures: list[str], function, *arguments):
+    """Measure one figure once the machine is quiet: its result, or None with its title added
+    to ``failures`` (the traceback printed, the other figures still measured)."""
+    print(f"\n== {title}", flush=True)
+    wait_for_quiet(wait)
+    start = time.perf_counter()
+    try:
+        return function(*arguments)
+    except Exception:  # noqa: BLE001 — report and go on with the other figures
+        failures.append(title)
+        traceback.print_exc()
+        row(title, "FAILED")
+        return None
+    finally:
+        print(f"   ({time.perf_counter() - start:.0f} s)", flush=True)
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--resolution", type=int, nargs=2, default=(256, 256), help="of 1.-3. (default 256 256)")
@@ -509,19 +526,10 @@ def main() -> int:
     args = parser.parse_args()
     spp = 16 if args.quick and "--spp" not in sys.argv else args.spp
     resolution = tuple(args.resolution)
-    failures = []
+    failures: list[str] = []
 
     def attempt(title, function, *arguments):
-        print(f"\n== {title}", flush=True)
-        wait_for_quiet(args.wait)
-        start = time.perf_counter()
-        try:
-            function(*arguments)
-        except Exception:  # noqa: BLE001 — report and go on with the other figures
-            failures.append(title)
-            traceback.print_exc()
-            row(title, "FAILED")
-        print(f"   ({time.perf_counter() - start:.0f} s)", flush=True)
+        measure_figure(title, args.wait, failures, function, *arguments)
 
     with tempfile.TemporaryDirectory(prefix="bench-render-") as folder:
         scratch = Path(folder)
