@@ -37,6 +37,8 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_view.py || test $$? -eq 2  # 2: no Chromium (the browser benchmark)
 	$(BIN)/python benchmarks/bench_looks.py || test $$? -eq 2  # 2: no ../shared (the OpenChessSet)
 	$(BIN)/python benchmarks/bench_lights.py
+	$(BIN)/python benchmarks/bench_scaling.py
+	$(BIN)/python benchmarks/bench_defaults.py
 	$(BIN)/python benchmarks/luxtest_table.py || test $$? -eq 2  # 2: no ../shared (the luxtest stages)
 	$(BIN)/python benchmarks/bench_vs_mitsuba.py || test $$? -eq 2  # 2: Mitsuba not installed (optional)
 
