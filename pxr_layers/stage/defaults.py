@@ -43,9 +43,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdSkel
 from pxr_layers.errors import PxrLayersError
 from pxr_layers.request import AUTO_CAMERA_VIEWS
 
-from . import subdivision
-from .diagnostics import Diagnostics
-from .surfaces import subdivision_tags
+from .surfaces import refined_control_points
 
 ROOT = "/pxrLayers"
 AUTO_CAMERA_PATH = f"{ROOT}/autoCamera"
@@ -183,48 +181,45 @@ def frame_auto_camera(stage: Usd.Stage, time: Usd.TimeCode, purposes: tuple[str,
 
 def _subject_box(stage: Usd.Stage, cache: UsdGeom.BBoxCache, time: Usd.TimeCode) -> Gf.Range3d:
     """The world box of what renders: each boundable's bound (visibility and purposes as
-    ``cache`` computes them), a coarse subdivision cage's replaced by its limit surface's."""
+    ``cache`` computes them), a coarse subdivision cage's replaced by its limit surface's. An
+    instance counts by its whole bound (cages included): a set of thousands of instances is
+    not walked prim by prim at every frame."""
     box = Gf.Range3d()
-    prims = iter(Usd.PrimRange(stage.GetPseudoRoot(), Usd.TraverseInstanceProxies()))
+    file = stage.GetRootLayer().identifier
+    prims = iter(Usd.PrimRange(stage.GetPseudoRoot()))
     for prim in prims:
         if is_ours(prim.GetPath()):  # not the draw-mode cards an earlier frame authored
             prims.PruneChildren()
             continue
-        if not prim.IsA(UsdGeom.Boundable):
+        if not (prim.IsInstance() or prim.IsA(UsdGeom.Boundable)):
             continue
-        prims.PruneChildren()  # a boundable's bound holds its children (a PointInstancer's prototypes)
+        prims.PruneChildren()  # the bound holds the children (a PointInstancer's prototypes)
         bound = cache.ComputeWorldBound(prim).ComputeAlignedRange()
         if not bound.IsEmpty() and prim.IsA(UsdGeom.Mesh):
-            bound = _limit_surface_box(UsdGeom.Mesh(prim), time, stage) or bound
+            bound = _limit_surface_box(UsdGeom.Mesh(prim), time, file) or bound
         box.UnionWith(bound)
     return box
 
 
-def _limit_surface_box(mesh: UsdGeom.Mesh, time: Usd.TimeCode, stage: Usd.Stage) -> Gf.Range3d | None:
+def _limit_surface_box(mesh: UsdGeom.Mesh, time: Usd.TimeCode, file: str) -> Gf.Range3d | None:
     """The world box of a coarse subdivision cage's limit surface, or None to keep its cage's.
 
-    A limit surface lies inside the hull of the control points of every refinement level, and
-    a coarse cage's can be far smaller than the cage (the no-crease pyramid's is 60 % of it),
-    so the twice-refined control points bound it closely. Only cages of at most
-    FRAMING_REFINED_FACES faces (a dense cage's limit is its cage), not skinned (posed later).
-    Whatever the reader would refuse keeps the cage's box: the reader says why."""
-    scheme = mesh.GetSubdivisionSchemeAttr().Get(time)
+    A coarse cage's limit surface can be far smaller than the cage (the no-crease pyramid's
+    is 60 % of it); the hull of its twice-refined control points bounds it closely. Only
+    cages of at most FRAMING_REFINED_FACES faces (a dense cage's limit is its cage), not
+    skinned (posed later). Whatever the reader would refuse keeps the cage's box: the reader
+    says why."""
     counts = mesh.GetFaceVertexCountsAttr().Get(time)
-    if (scheme not in ("catmullClark", "loop") or counts is None or len(counts) > FRAMING_REFINED_FACES
-            or mesh.GetPrim().HasAPI(UsdSkel.BindingAPI)):
+    if counts is None or len(counts) > FRAMING_REFINED_FACES or mesh.GetPrim().HasAPI(UsdSkel.BindingAPI):
         return None
-    path = str(mesh.GetPath())
     try:
-        refined = subdivision.refine(
-            np.asarray(mesh.GetPointsAttr().Get(time), np.float64), np.asarray(counts, np.int64),
-            np.asarray(mesh.GetFaceVertexIndicesAttr().Get(time), np.int64), 2, scheme=scheme,
-            tags=subdivision_tags(mesh, time, Diagnostics(), stage.GetRootLayer().identifier, path), limit=False)
-    except (ValueError, TypeError, IndexError, PxrLayersError):
+        points = refined_control_points(mesh.GetPrim(), time, file, 2)
+    except (ValueError, PxrLayersError):
+        return None
+    if points is None:
         return None
     world = np.asarray(mesh.ComputeLocalToWorldTransform(time))  # row vectors: p_world = p @ M
-    points = refined.points @ world[:3, :3] + world[3, :3]
-    if not len(points) or not np.isfinite(points).all():
-        return None
+    points = points @ world[:3, :3] + world[3, :3]
     return Gf.Range3d(Gf.Vec3d(*points.min(axis=0)), Gf.Vec3d(*points.max(axis=0)))
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections import Counter
 
 import numpy as np
 from pxr import Usd, UsdGeom, UsdShade
@@ -303,9 +304,7 @@ class _SubdivisionLevels:
                     f"{first_path[key]} (level {wanted[key]} → {self._levels[key]})",
                 )
         if wanted:
-            histogram = {}
-            for level in self._levels.values():
-                histogram[level] = histogram.get(level, 0) + 1
+            histogram = Counter(self._levels.values())
             logger.info("%s: subdivision levels (%s): %s surfaces; %d refined triangles", context.file,
                         "automatic" if subdiv_level is None else f"{subdiv_level} asked",
                         ", ".join(f"level {level}: {count}" for level, count in sorted(histogram.items())),

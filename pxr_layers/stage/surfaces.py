@@ -89,6 +89,36 @@ def read_cage(prim: Usd.Prim, time: Usd.TimeCode, file: str) -> SubdivisionCage 
     catmullClark when unauthored); None for one that does not, has no faces, or has
     non-finite points (read_mesh notes those). Raises StageError as read_mesh does for the
     same attributes (types, topology, a mesh past the triangle budget on its own)."""
+    arrays = _cage_arrays(prim, time, file)
+    if arrays is None:
+        return None
+    scheme, points, counts, indices = arrays
+    return SubdivisionCage(
+        edge_length=subdivision.cage_edge_length(points, counts, indices),
+        lower=points.min(axis=0),
+        upper=points.max(axis=0),
+        triangles=tuple(subdivision.refined_triangle_count(counts, level, scheme)
+                        for level in range(MAX_SUBDIV_LEVEL + 1)),
+    )
+
+
+def refined_control_points(prim: Usd.Prim, time: Usd.TimeCode, file: str, level: int) -> np.ndarray | None:
+    """(v, 3) float64 control points, object space, of a subdividing mesh refined ``level``
+    times without taking them to the limit: a subdivision surface lies inside the hull of
+    every level's control points, so they bound it, closer at each level. None as read_cage;
+    raises StageError as read_cage does, and ValueError where the refiner does."""
+    arrays = _cage_arrays(prim, time, file)
+    if arrays is None:
+        return None
+    scheme, points, counts, indices = arrays
+    tags = subdivision_tags(UsdGeom.Mesh(prim), time, Diagnostics(), file, str(prim.GetPath()))
+    return subdivision.refine(points, counts, indices, level, scheme=scheme, tags=tags, limit=False).points
+
+
+def _cage_arrays(prim: Usd.Prim, time: Usd.TimeCode, file: str
+                 ) -> tuple[str, np.ndarray, np.ndarray, np.ndarray] | None:
+    """(scheme, points, face counts, face indices) of a mesh that subdivides, checked as
+    read_mesh checks them; None for one that does not, has no faces or non-finite points."""
     mesh = UsdGeom.Mesh(prim)
     scheme = mesh.GetSubdivisionSchemeAttr().Get(time)
     if scheme == UsdGeom.Tokens.none:
@@ -101,13 +131,7 @@ def read_cage(prim: Usd.Prim, time: Usd.TimeCode, file: str) -> SubdivisionCage 
     _check_topology(points, counts, indices, file, path)
     if not len(indices) or not np.isfinite(points).all():
         return None
-    return SubdivisionCage(
-        edge_length=subdivision.cage_edge_length(points, counts, indices),
-        lower=points.min(axis=0),
-        upper=points.max(axis=0),
-        triangles=tuple(subdivision.refined_triangle_count(counts, level, scheme)
-                        for level in range(MAX_SUBDIV_LEVEL + 1)),
-    )
+    return str(scheme), points, counts, indices
 
 
 # Every attribute read_mesh reads (their metadata too: interpolation, elementSize), but the
