@@ -114,9 +114,19 @@ class Mesh:
                         innermost UsdGeom.PointInstancer's arrays (the ``instance_<N>`` of
                         its path); -1 for a gprim that is not point-instanced. Native
                         (scenegraph) instances are not point instances: -1.
+    prototype         : -1: points and normals are in world metres, as above. Else the
+                        mesh is one placement of a surface it shares with every mesh of the
+                        same prototype number: they share every geometry array (points,
+                        triangles, normal_values, normal_indices, uvs, triangle_material,
+                        primvars: the same objects), in the surface's own space, and the
+                        tracer builds that geometry once and instances it (Embree two-level
+                        scenes) instead of a copy per placement.
+    world_from_points : with a prototype, (4, 4) float64, column convention: the placement,
+                        own space → world metres; a similarity (rotation, mirror, uniform
+                        scale, translation). None without one.
 
     The placements of one surface share their read-only triangles, normal_indices and uvs
-    arrays; only points and normal_values are their own.
+    arrays; only points and normal_values are their own (all of them, when instanced).
     """
 
     name: str
@@ -129,6 +139,8 @@ class Mesh:
     triangle_material: np.ndarray
     instance: int = -1
     primvars: Mapping[str, np.ndarray] = field(default_factory=dict)
+    prototype: int = -1
+    world_from_points: np.ndarray | None = None
 
     @property
     def normals(self) -> np.ndarray | None:

@@ -17,11 +17,15 @@ from pxr_layers.trace import embree
 from pxr_layers.trace.embree import MISS, RayCaster
 
 
+NO_INSTANCES = {"prototype_vertices": (), "prototype_triangles": (), "prototype_first": np.zeros(0, np.int64),
+                "instance_prototype": np.zeros(0, np.int32), "instance_transform": np.zeros((0, 3, 4), np.float32)}
+
+
 def world_of(vertices, triangles):
     """What RayCaster reads of a World."""
     triangles = np.asarray(triangles, np.int32).reshape(-1, 3)
     return SimpleNamespace(vertices=np.asarray(vertices, np.float32).reshape(-1, 3), triangles=triangles,
-                           triangle_count=len(triangles))
+                           triangle_count=len(triangles), **NO_INSTANCES)
 
 
 def rays(*pairs):
@@ -41,7 +45,7 @@ def test_closest_hit_reports_triangle_barycentrics_and_t():
                                ([0.2, 0.3, 0], [0, 0, 4]),      # the same, direction 4x: t in its units
                                ([0.9, 0.9, 0], [0, 0, 1]),      # beside triangle 0: triangle 1 at z = 3
                                ([0.1, 0.1, 5], [0, 0, -1]))     # from behind: triangle 1 first, seen from its back
-    triangle, u, v, t = caster.intersect(origins, directions, np.full(4, 100, np.float32))
+    triangle, _, u, v, t = caster.intersect(origins, directions, np.full(4, 100, np.float32))
     assert triangle.dtype == np.int32 and u.dtype == v.dtype == t.dtype == np.float32
     np.testing.assert_array_equal(triangle, [0, 0, 1, 1])
     np.testing.assert_allclose(t, [1, 0.25, 3, 2], rtol=1e-6)
@@ -58,7 +62,7 @@ def test_misses_keep_t_max():
                                ([0.2, 0.3, 0], [0, 0, -1]),     # away from everything
                                ([0.2, 0.3, 0], [0, 0, 1]))      # stops short of triangle 0
     t_max = np.array([100, 100, 0.5], np.float32)
-    triangle, u, v, t = caster.intersect(origins, directions, t_max)
+    triangle, _, u, v, t = caster.intersect(origins, directions, t_max)
     np.testing.assert_array_equal(triangle, MISS)
     np.testing.assert_array_equal(t, t_max)
     np.testing.assert_array_equal(u, 0)
@@ -77,7 +81,7 @@ def test_a_world_without_triangles_misses_everything():
     caster = RayCaster(world_of(np.zeros((0, 3)), np.zeros((0, 3))))
     origins, directions = rays(([0, 0, 0], [0, 0, 1]), ([1, 2, 3], [1, 0, 0]))
     t_max = np.array([5, 7], np.float32)
-    triangle, u, v, t = caster.intersect(origins, directions, t_max)
+    triangle, _, u, v, t = caster.intersect(origins, directions, t_max)
     np.testing.assert_array_equal(triangle, MISS)
     np.testing.assert_array_equal(t, t_max)
     assert not caster.occluded(origins, directions, t_max).any()
@@ -135,7 +139,7 @@ def test_many_triangles_match_brute_force(rng):
     vertices, triangles = random_soup(rng, 2000)
     origins, directions = random_rays(rng, 10_000)
     t_max = np.full(len(origins), 1e30, np.float32)
-    triangle, u, v, t = RayCaster(world_of(vertices, triangles)).intersect(origins, directions, t_max)
+    triangle, _, u, v, t = RayCaster(world_of(vertices, triangles)).intersect(origins, directions, t_max)
     expected, t_expected, u_expected, v_expected, t_second = moller_trumbore(origins, directions, t_max, vertices,
                                                                              triangles)
     # Rays whose answer float32 cannot settle (a near tie, a hit on an edge) are left out.
@@ -237,7 +241,10 @@ def test_a_fresh_process_runs_the_disk_cached_kernels(tmp_path):
         from types import SimpleNamespace
         from pxr_layers.trace import embree
         world = SimpleNamespace(vertices=np.array([[0, 0, 1], [1, 0, 1], [0, 1, 1]], np.float32),
-                                triangles=np.array([[0, 1, 2]], np.int32), triangle_count=1)
+                                triangles=np.array([[0, 1, 2]], np.int32), triangle_count=1, prototype_vertices=(),
+                                prototype_triangles=(), prototype_first=np.zeros(0, np.int64),
+                                instance_prototype=np.zeros(0, np.int32),
+                                instance_transform=np.zeros((0, 3, 4), np.float32))
         caster = embree.RayCaster(world)
         origins = np.array([[0.2, 0.3, 0], [2, 2, 0]], np.float32)
         directions = np.array([[0, 0, 1], [0, 0, 1]], np.float32)

@@ -284,7 +284,7 @@ def direction_pdf(frame: Frame, directions: np.ndarray, point=SHADING_POINT) -> 
     out = np.zeros(len(directions))
     _sky_pdf_kernel(frame.lights, directions, out)
     origin = np.tile(np.asarray(point, np.float32), (len(directions), 1))
-    triangle, u, v, t = frame.caster.intersect(origin, directions, np.full(len(directions), np.inf, np.float32))
+    triangle, _, u, v, t = frame.caster.intersect(origin, directions, np.full(len(directions), np.inf, np.float32))
     _hit_pdf_kernel(frame.lights, frame.geometry, directions, triangle.astype(np.int64), u.astype(np.float64),
                     v.astype(np.float64), t.astype(np.float64), out)
     return out
@@ -517,7 +517,7 @@ def test_sphere_samples_reach_the_spheres_front_and_no_shadow_ray_hits_its_own_s
     draws = draw(frame, count=20_000)
     origins = np.tile(SHADING_POINT.astype(np.float32), (len(draws.pdf), 1))
     direction = draws.direction.astype(np.float32)
-    triangle, _, _, t = frame.caster.intersect(origins, direction, np.full(len(draws.pdf), np.inf, np.float32))
+    triangle, _, _, _, t = frame.caster.intersect(origins, direction, np.full(len(draws.pdf), np.inf, np.float32))
     assert (triangle >= 0).all()
     facing = np.einsum("ki,ik->k", draws.direction, frame.world.geometric_normal[:, triangle])
     assert (facing < 0).all()

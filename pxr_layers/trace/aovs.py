@@ -107,6 +107,10 @@ class _DataTracer:
 
     def trace_rows(self, first_row: int, stop_row: int, out: dict[str, np.ndarray]) -> None:
         """Fill rows [first_row, stop_row) of every array in `out`."""
+        with self.integrator.slot() as slot:
+            self._trace_rows(first_row, stop_row, out, None if slot is None else slot.path_region(0))
+
+    def _trace_rows(self, first_row: int, stop_row: int, out: dict[str, np.ndarray], region) -> None:
         integrator = self.integrator
         world = integrator.world
         width = integrator.width
@@ -114,7 +118,7 @@ class _DataTracer:
                             stop_row * width, jitter=False)
         n = len(queue)
         view = queue.direction.astype(np.float64)  # (n, 3) unit rays through the pixel centres
-        triangle = np.full(n, -1, np.int32)
+        seen_object = np.full(n, -1, np.int32)  # what each pixel sees (a hit's row is reused by the next query)
         distance = np.zeros(n, np.float64)  # metres along the ray from the camera
         normal = np.zeros((n, 3), FLOAT)
         lanes = np.arange(n)
@@ -122,7 +126,7 @@ class _DataTracer:
         # it, as the integrator's paths do (stages.surface decides what is cut out).
         for step in range(MAX_PASS_THROUGH + 1):
             hits = intersect(integrator.caster, queue, integrator.geometry.triangle_light, integrator.hidden_lights,
-                             integrator.epsilon)
+                             integrator.epsilon, region)
             hit = np.flatnonzero(hits.triangle >= 0)
             queue, hits, lanes = queue.take(hit), hits.take(hit), lanes[hit]
             if not len(queue):
@@ -131,7 +135,7 @@ class _DataTracer:
             surfaces = surface(queue, hits, np.ones(len(queue), bool), step, integrator.geometry, integrator.materials.arrays,
                                np.zeros(0, FLOAT), max_depth=0, spp=-1)
             seen = np.flatnonzero(~surfaces.cut)
-            triangle[lanes[seen]] = hits.triangle[seen]
+            seen_object[lanes[seen]] = np.take(world.triangle_object, hits.triangle[seen])
             distance[lanes[seen]] = queue.travelled[seen]
             normal[lanes[seen]] = surfaces.frame[seen, 2]  # the shading normal, on the camera's side
             crossing = np.flatnonzero(surfaces.cut)
@@ -142,14 +146,13 @@ class _DataTracer:
             queue.t_max = np.full(len(queue), T_INFINITY, FLOAT)
         # lanes still crossing cut-outs after MAX_PASS_THROUGH of them see nothing
 
-        hits = np.flatnonzero(triangle >= 0)
+        hits = np.flatnonzero(seen_object >= 0)
         rows = slice(first_row, stop_row)
         flat = {name: array[rows].reshape(n, -1) for name, array in out.items()}  # views
         if not len(hits):
             return
-        tri = triangle[hits]
         if "primId" in flat or "instanceId" in flat:
-            obj = np.take(world.triangle_object, tri)
+            obj = seen_object[hits]
             if "primId" in flat:
                 flat["primId"][hits, 0] = obj
             if "instanceId" in flat:
@@ -197,12 +200,14 @@ def camera_surroundings(integrator: Integrator, grid: int = PROBE_GRID) -> Camer
     every ray hits a back face. Host-side, from the compiled stages the render uses."""
     queue = camera_rays(integrator.camera, integrator.key, (grid, grid), 1, 0, grid * grid, jitter=False)
     geometry = integrator.geometry
-    hits = intersect(integrator.caster, queue, geometry.triangle_light, integrator.hidden_lights, integrator.epsilon)
-    hit = np.flatnonzero(hits.triangle >= 0)
-    triangles = hits.triangle[hit]
-    facing = np.einsum("ij,ij->i", geometry.geometric_normal[triangles].astype(np.float64),
-                       queue.direction[hit].astype(np.float64))
-    back = triangles[facing > 0]
-    objects, counts = np.unique(np.take(integrator.world.triangle_object, back), return_counts=True)
+    with integrator.slot() as slot:
+        hits = intersect(integrator.caster, queue, geometry.triangle_light, integrator.hidden_lights,
+                         integrator.epsilon, None if slot is None else slot.path_region(0))
+        hit = np.flatnonzero(hits.triangle >= 0)
+        triangles = hits.triangle[hit]
+        facing = np.einsum("ij,ij->i", geometry.geometric_normal[triangles].astype(np.float64),
+                           queue.direction[hit].astype(np.float64))
+        back = triangles[facing > 0]
+        objects, counts = np.unique(np.take(integrator.world.triangle_object, back), return_counts=True)
     paths = tuple(integrator.world.object_paths[int(obj)] for obj in objects[np.argsort(-counts, kind="stable")])
     return CameraSurroundings(len(queue), len(hit), len(back), paths)

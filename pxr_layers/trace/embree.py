@@ -252,14 +252,20 @@ def cast_any(scene, ox, oy, oz, dx, dy, dz, tnear, tfar, rayhit):
 
 
 @kernel
-def intersect_kernel(scene, origins, directions, t_max, rayhit, triangle_out, u_out, v_out, t_out):
+def intersect_kernel(scene, origins, directions, t_max, rayhit, instance_first_row, triangle_out, instance_out, u_out,
+                     v_out, t_out):
     """cast_closest over a batch: origins, directions (n, 3) float32, t_max (n,) float32;
-    writes triangle_out (n,) int32 (primID, MISS for none), u_out, v_out, t_out (n,) float32."""
+    instance_first_row (i,) int64 the first World row of each instance's prototype. Writes
+    triangle_out (n,) int32 the World row hit (MISS for none): a top-level hit's primID, an
+    instanced hit's prototype row; instance_out (n,) int32 the instance (MISS: none);
+    u_out, v_out, t_out (n,) float32."""
     for lane in range(len(t_max)):
-        prim, _, _, u, v, t = cast_closest(scene, origins[lane, 0], origins[lane, 1], origins[lane, 2],
-                                           directions[lane, 0], directions[lane, 1], directions[lane, 2],
-                                           0.0, t_max[lane], rayhit)
-        triangle_out[lane], u_out[lane], v_out[lane], t_out[lane] = prim, u, v, t
+        prim, _, instance, u, v, t = cast_closest(scene, origins[lane, 0], origins[lane, 1], origins[lane, 2],
+                                                  directions[lane, 0], directions[lane, 1], directions[lane, 2],
+                                                  0.0, t_max[lane], rayhit)
+        if prim != MISS and instance != MISS:
+            prim += instance_first_row[instance]
+        triangle_out[lane], instance_out[lane], u_out[lane], v_out[lane], t_out[lane] = prim, instance, u, v, t
 
 
 @kernel
@@ -272,9 +278,10 @@ def occluded_kernel(scene, origins, directions, t_max, rayhit, occluded_out):
 
 
 class RayCaster:
-    """Closest-hit and any-hit queries against a World's triangles (one Embree scene,
-    committed here, before any thread queries it). Calls from several threads at once are
-    safe; each releases the GIL."""
+    """Closest-hit and any-hit queries against a World (committed here, before any thread
+    queries it): a top-level Embree scene of the flat rows as one mesh and an instance per
+    World instance (geometry id = instance number, so a hit's instID is it) of one child
+    scene per prototype. Calls from several threads at once are safe; each releases the GIL."""
 
     def __init__(self, world: World):
         # A world without triangles (a dome alone) has no Embree scene: every ray misses.
@@ -284,27 +291,39 @@ class RayCaster:
             return
         device = Device()
         scene = Scene(device)
-        add_triangles(scene, world.vertices, world.triangles)
+        prototypes = []
+        for vertices, triangles in zip(world.prototype_vertices, world.prototype_triangles):
+            child = Scene(device)
+            add_triangles(child, vertices, triangles)
+            child.commit()
+            prototypes.append(child)
+        for prototype, transform in zip(world.instance_prototype.tolist(), world.instance_transform):
+            add_instance(scene, prototypes[prototype], transform)
+        if len(world.triangles):
+            add_triangles(scene, world.vertices, world.triangles)
         scene.commit()
         self._scene = scene
+        self._instance_first_row = np.ascontiguousarray(world.prototype_first[world.instance_prototype]
+                                                        if len(world.instance_prototype) else np.zeros(0), np.int64)
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray):
         """Closest hits.
 
         origins, directions : (n, 3) float32 (directions need not be unit; t is in their units)
         t_max               : (n,) float32
-        Returns (triangle (n,) int32 with MISS for no hit, u (n,), v (n,), t (n,) float32);
-        u and v are Embree's barycentrics: p = (1 - u - v) p0 + u p1 + v p2; a miss has
-        u = v = 0 and t = t_max.
+        Returns (triangle (n,) int32 the World row hit, MISS for none (through an instance:
+        its prototype's row); instance (n,) int32 the World instance hit through, MISS for
+        none; u (n,), v (n,), t (n,) float32). u and v are Embree's barycentrics:
+        p = (1 - u - v) p0 + u p1 + v p2; a miss has u = v = 0 and t = t_max.
         """
         self._check_open()
         n = len(t_max)
-        triangle, u, v = np.full(n, MISS, np.int32), np.zeros(n, FLOAT), np.zeros(n, FLOAT)
-        t = np.array(t_max, FLOAT)
+        triangle, instance = np.full(n, MISS, np.int32), np.full(n, MISS, np.int32)
+        u, v, t = np.zeros(n, FLOAT), np.zeros(n, FLOAT), np.array(t_max, FLOAT)
         if self._scene is not None and n:
             intersect_kernel(self._scene.handle, _rows(origins), _rows(directions), np.ascontiguousarray(t_max, FLOAT),
-                             rayhit_scratch(), triangle, u, v, t)
-        return triangle, u, v, t
+                             rayhit_scratch(), self._instance_first_row, triangle, instance, u, v, t)
+        return triangle, instance, u, v, t
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray) -> np.ndarray:
         """Any hit with t < t_max for origins, directions (n, 3): (n,) bool."""

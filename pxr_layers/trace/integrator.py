@@ -21,6 +21,8 @@ surfaces (opacityThreshold) does not count.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +33,7 @@ from . import rng
 from .bounce_norms import BounceNorms
 from .camera import PinholeCamera
 from .embree import RayCaster
+from .instances import SHADOW, InstanceRows, Slot
 from .lights import LightSampler
 from .merge import MergedContributions, merged
 from .sigma import ray_cone_footprint
@@ -108,7 +111,7 @@ class Integrator:
     def __init__(self, world: World, geometry: GeometryArrays, materials: MaterialTable, lights: LightSampler,
                  camera: PinholeCamera, resolution: tuple[int, int], settings: TraceSettings, frame: float,
                  caster: RayCaster, vocabulary: events.EventVocabulary, triangle_subject: np.ndarray,
-                 bounce_norms: BounceNorms | None = None):
+                 bounce_norms: BounceNorms | None = None, instance_rows: InstanceRows | None = None):
         self.world = world
         self.geometry = geometry
         self.materials = materials
@@ -120,6 +123,7 @@ class Integrator:
         self.caster = caster
         self.vocabulary = vocabulary  # names behind the event ids of recorded paths
         self.triangle_subject = triangle_subject  # (t,) the vocabulary's surface subject of each triangle
+        self.instance_rows = instance_rows  # where hits through instances are placed (None: no instances)
         self.bounce_norms = bounce_norms if settings.norm_bounces > 0 else None
         self.curvature = self.bounce_norms.curvature if self.bounce_norms else np.zeros(0, np.float32)
         self.epsilon = float(np.float32(1e-5 * (world.radius + np.linalg.norm(world.center)) + 1e-7))
@@ -141,8 +145,22 @@ class Integrator:
         subjects = (self.triangle_subject, len(self.vocabulary.surface_objects)) if self.settings.first_hits else None
         return BatchFilm(first_pixel, pixel_count, subjects), first_bounce, recorder
 
+    @contextmanager
+    def slot(self) -> Iterator[Slot | None]:
+        """This thread's scratch rows for hits through instances while the block runs
+        (instances.py); None in a world without instances."""
+        if self.instance_rows is None:
+            yield None
+        else:
+            with self.instance_rows.slot() as slot:
+                yield slot
+
     def trace(self, first_path: int, stop_path: int) -> BatchResult:
         """Trace paths [first_path, stop_path) to completion."""
+        with self.slot() as slot:
+            return self._trace(first_path, stop_path, slot)
+
+    def _trace(self, first_path: int, stop_path: int, slot: Slot | None) -> BatchResult:
         settings, lights = self.settings, self.lights
         geometry, materials, light_arrays = self.geometry, self.materials.arrays, lights.arrays
         spp = settings.spp
@@ -156,7 +174,8 @@ class Integrator:
         for step in range(settings.max_depth + MAX_PASS_THROUGH + 1):
             if not len(queue):
                 break
-            hits = intersect(self.caster, queue, geometry.triangle_light, self.hidden_lights, self.epsilon)
+            hits = intersect(self.caster, queue, geometry.triangle_light, self.hidden_lights, self.epsilon,
+                             None if slot is None else slot.path_region(step))
             rays += len(queue)
             hit = hits.triangle >= 0
             if lights.has_infinite_lights:
@@ -191,7 +210,7 @@ class Integrator:
                 shadows = light_samples(queue, surfaces, step, self.epsilon, geometry, materials, light_arrays)
                 rays += len(shadows)
                 cast_shadows(self.caster, shadows, geometry, materials, light_arrays, self.materials.see_through,
-                             self.epsilon)
+                             self.epsilon, None if slot is None else slot.region(SHADOW))
                 clamp_lit(queue, shadows, settings.clamp_indirect)
                 for observer in observers:
                     observer.lit(queue, surfaces, shadows)

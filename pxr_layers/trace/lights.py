@@ -258,6 +258,8 @@ class LightSampler:
 
     triangle_emits      : (t,) bool the triangles rays find emission on (light shapes and
                           emissive surfaces)
+    object_link_group   : (objects,) int32 each object's light link group, (0,) when no
+                          light is linked (an instance's placed rows take its object's)
     has_lights          : some light sends something
     has_infinite_lights : some dome or distant cone (escaped rays find them)
     darkness            : why the lights will light nothing (no light sends anything, naming
@@ -270,9 +272,11 @@ class LightSampler:
         lights = scene.lights
         emissive_material = np.concatenate([materials.emissive, [False]])  # index -1 → False
         surface_emitter = (world.triangle_light < 0) & emissive_material[world.triangle_material]
+        if surface_emitter[len(world.triangles):].any():  # the stage never instances an emitter
+            raise ValueError("an instanced surface has an emissive material: emitters are sampled as flat rows only")
         self.triangle_emits = surface_emitter | (world.triangle_light >= 0)  # (t,) bool
         emission, atlas_index = _emission_table(scene)
-        group, lit_table, blocks_table = _link_groups(scene, world)
+        group, self.object_link_group, lit_table, blocks_table = _link_groups(scene, world)
         groups = len(lit_table)
         # lights that light each group; the appended last column: emissive surfaces (light −1) light every group
         lit_or_surface = np.concatenate([lit_table, np.ones((groups, 1), bool)], axis=1)
@@ -291,7 +295,7 @@ class LightSampler:
         area_power = group_power.sum(axis=1)
         if len(emitter_triangles):
             sources.append((AREA, 0, area_power))
-        triangle_probability = np.zeros((groups, world.triangle_count), FLOAT)
+        triangle_probability = np.zeros((groups, len(world.area)), FLOAT)
         triangle_probability[:, emitter_triangles] = group_power / np.maximum(area_power, 1e-300)[:, None]
 
         point_light, point_center, point_segment, point_scale = _positional(lights)
@@ -496,13 +500,15 @@ def _positional(lights: tuple[Light, ...]) -> tuple[np.ndarray, np.ndarray, np.n
             np.array(segments, np.float64).reshape(-1, 3), np.array(scales, np.float64))
 
 
-def _link_groups(scene: SceneData, world: World) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(link_group (t,) int32, lit (groups, lights) bool, blocks (groups, lights) bool) of
-    the lights' light and shadow links; ((0,), (1, lights) True, same) when no light is
-    linked. Light shapes light nothing and block every light whose shadows are not linked."""
+def _link_groups(scene: SceneData, world: World) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(link_group (t,) int32 per row (0 on prototype and scratch rows), object_group
+    (objects,) int32, lit (groups, lights) bool, blocks (groups, lights) bool) of the lights'
+    light and shadow links; ((0,), (0,), (1, lights) True, same) when no light is linked.
+    Light shapes light nothing and block every light whose shadows are not linked."""
     lights = scene.lights
     if all(light.light_link is None and light.shadow_link is None for light in lights):
-        return np.zeros(0, np.int32), np.ones((1, len(lights)), bool), np.ones((1, len(lights)), bool)
+        return (np.zeros(0, np.int32), np.zeros(0, np.int32), np.ones((1, len(lights)), bool),
+                np.ones((1, len(lights)), bool))
     mesh_of_object = world.object_mesh
     rows = np.ones((len(mesh_of_object), 2, len(lights)), bool)
     for column, light in enumerate(lights):
@@ -514,8 +520,9 @@ def _link_groups(scene: SceneData, world: World) -> tuple[np.ndarray, np.ndarray
             rows[:, side, column] = member[mesh_of_object]
     unique, object_group = np.unique(rows.reshape(len(rows), -1), axis=0, return_inverse=True)
     unique = unique.reshape(-1, 2, len(lights))
-    group = object_group.reshape(-1).astype(np.int32)[world.triangle_object]
-    return group, np.ascontiguousarray(unique[:, 0]), np.ascontiguousarray(unique[:, 1])
+    object_group = object_group.reshape(-1).astype(np.int32)
+    group = np.where(world.triangle_object >= 0, object_group[world.triangle_object], 0).astype(np.int32)
+    return group, object_group, np.ascontiguousarray(unique[:, 0]), np.ascontiguousarray(unique[:, 1])
 
 
 # -- power estimates (compiled, run once per frame while the tables are built)

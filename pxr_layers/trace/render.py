@@ -19,11 +19,12 @@ from ..scene import FLOAT, RenderSpec, SceneData
 from .bounce_norms import BounceNorms
 from .camera import PinholeCamera
 from .embree import RayCaster
+from .instances import MAX_SLOTS, InstanceRows, InstanceTables, RowTables, rows_needed
 from .integrator import BatchResult, Integrator, TraceSettings
 from .stages.film import FirstHits
 from .lights import LightSampler
 from .shading import MaterialTable
-from .world import build_world, geometry_arrays
+from .world import World, build_world, flatten_instances, geometry_arrays
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +41,15 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
     if settings.max_depth < 0:
         raise RenderSettingsError(f"max depth must be 0 or more, got {settings.max_depth}")
     check_work(spec.resolution, settings.spp)  # a recipe's own resolution too
-    world = build_world(scene)
+    if settings.record_sigma and any(mesh.prototype >= 0 for mesh in scene.meshes):
+        # A Σ record keeps its vertices' rows until the batch ends, when a placed row
+        # (instances.py) has been written over: the whole Σ is recorded on flat rows.
+        log.info("%s: instanced surfaces flattened, since the index keeps each event's whole Σ", scene.stage_path)
+        scene = flatten_instances(scene)
+    instanced = any(mesh.prototype >= 0 for mesh in scene.meshes)
+    # the most lanes one query places: a batch's paths (trace_pixels), a row of data passes
+    lanes, slots = max(DEFAULT_BATCH_PATHS, width), min(available_cores(), MAX_SLOTS)
+    world = build_world(scene, rows_needed(lanes, slots) if instanced else 0)
     geometry = geometry_arrays(world)
     materials = MaterialTable(scene, world.primvar_columns)
     lights = LightSampler(scene, world, materials, geometry)
@@ -48,9 +57,19 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
         log.warning("%s: %s", scene.stage_path, lights.darkness)
     camera = PinholeCamera.from_spec(spec)
     bounce_norms = BounceNorms(scene, world) if settings.norm_bounces > 0 else None
-    # every distinct (object, material) pair of the triangles is one event subject, in
-    # (object, material) order: unique of one int64 key (far faster than rows of a matrix)
-    pairs, triangle_subject = _distinct_pairs(world.triangle_object, world.triangle_material)
+    pairs, triangle_subject, subject_first, subject_rank = _subjects(world)
+    instance_rows = None
+    if instanced:
+        rows = RowTables(geometry, world.geometric_normal, world.corner_positions, world.corner_normals,
+                         world.corner_uvs, world.corner_primvars, world.curvature_k1, world.curvature_k2,
+                         world.principal_direction, world.gradient_s, world.gradient_t, world.triangle_object,
+                         triangle_subject, bounce_norms.curvature if bounce_norms else np.zeros(0, FLOAT),
+                         lights.arrays.link_group)
+        link_group = (lights.object_link_group[world.instance_object] if len(lights.arrays.link_group)
+                      else np.zeros(0, np.int32))
+        instances = InstanceTables(world.instance_transform, world.instance_rotation, world.instance_scale,
+                                   world.instance_object, subject_first, link_group.astype(np.int32), subject_rank)
+        instance_rows = InstanceRows(world, rows, instances, lanes, slots)
     vocabulary = EventVocabulary(
         surface_objects=tuple(pairs[:, 0].tolist()), surface_materials=tuple(pairs[:, 1].tolist()),
         object_names=world.object_names, object_paths=world.object_paths,
@@ -58,7 +77,36 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
         light_names=tuple(light.name for light in scene.lights), light_paths=tuple(light.path for light in scene.lights),
     )
     return Integrator(world, geometry, materials, lights, camera, spec.resolution, settings, scene.frame, RayCaster(world),
-                      vocabulary, triangle_subject.reshape(-1).astype(np.int64), bounce_norms)
+                      vocabulary, triangle_subject, bounce_norms, instance_rows)
+
+
+def _subjects(world: World) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The event subjects: every distinct (object, material) pair of the flat rows and of
+    each instance with its prototype's materials, in (object, material) order (unique of
+    one int64 key: far faster than rows of a matrix).
+
+    Returns pairs (s, 2) int64; triangle_subject (rows,) int64 each flat row's subject (0
+    elsewhere until placed); subject_first (i,) int64 each instance's first subject and
+    subject_rank (rows,) int64 a prototype row's material among its prototype's distinct
+    materials (instances.InstanceTables: an instance's pairs are consecutive, one object).
+    """
+    flat = len(world.triangles)
+    rows = len(world.triangle_object)
+    materials = [np.unique(world.triangle_material[first:first + len(triangles)])
+                 for first, triangles in zip(world.prototype_first.tolist(), world.prototype_triangles)]
+    subject_rank = np.zeros(rows, np.int64)
+    for first, triangles, distinct in zip(world.prototype_first.tolist(), world.prototype_triangles, materials):
+        own = slice(first, first + len(triangles))
+        subject_rank[own] = np.searchsorted(distinct, world.triangle_material[own])
+    per_instance = np.array([len(materials[prototype]) for prototype in world.instance_prototype.tolist()], np.int64)
+    objects = np.concatenate([world.triangle_object[:flat], np.repeat(world.instance_object, per_instance)])
+    pair_materials = np.concatenate([world.triangle_material[:flat],
+                                     *(materials[prototype] for prototype in world.instance_prototype.tolist())])
+    pairs, inverse = _distinct_pairs(objects, pair_materials)
+    triangle_subject = np.zeros(rows, np.int64)
+    triangle_subject[:flat] = inverse[:flat]
+    subject_first = inverse[flat + np.cumsum(per_instance) - per_instance] if len(per_instance) else np.zeros(0, np.int64)
+    return pairs, triangle_subject, subject_first.astype(np.int64), subject_rank
 
 
 def _distinct_pairs(first: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

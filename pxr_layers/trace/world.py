@@ -1,9 +1,18 @@
-"""Flatten SceneData into the tracer's world: one triangle soup with per-triangle tables.
+"""SceneData as the tracer's world: per-triangle tables, and the instances of shared surfaces.
 
-Meshes come first, then the tessellated shapes of the area lights (rect, disk, sphere,
-cylinder), so a ray that reaches a light hits real geometry and the same triangles are
-sampled for next-event estimation. Light triangles are wound so that their geometric
-normal points the way the light emits.
+The tables' rows, in this order:
+
+* the flat rows: meshes in world space (those that are not instanced), then the tessellated
+  shapes of the area lights (rect, disk, sphere, cylinder), so a ray that reaches a light
+  hits real geometry and the same triangles are sampled for next-event estimation. Light
+  triangles are wound so that their geometric normal points the way the light emits.
+  Embree's top-level scene holds them as one mesh: a hit's primID is its row.
+* the prototype rows: each instanced surface (scene.Mesh.prototype) once, in its own space.
+  Its placements are Embree instances of one child scene; rays never hit these rows as
+  such (trace/instances.py: a hit through instance k on prototype row r is shaded from a
+  scratch row holding r placed by k's transform).
+* the scratch rows: ``scratch_rows`` rows written while tracing (trace/instances.py), zero
+  until then, that no light samples and no table built here counts.
 
 Material primvars (scene.Mesh.primvars) become columns of one scene-wide table,
 ``corner_primvars``: :func:`primvar_columns` lays them out.
@@ -11,7 +20,8 @@ Material primvars (scene.Mesh.primvars) become columns of one scene-wide table,
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -57,15 +67,31 @@ class World:
 
     Per-triangle vectors are component-major (see vectors.py): gathering lanes with
     np.take(..., axis=-1) yields (3, n) rows directly.
-    triangle_object  : (t,) int32 index into object_names / object_paths
-    triangle_material: (t,) int32 index into SceneData.materials, -1 on light shapes
+    triangle_object  : (t,) int32 index into object_names / object_paths, -1 on prototype
+                       and scratch rows (until written)
+    triangle_material: (t,) int32 index into SceneData.materials, -1 on light shapes and
+                       scratch rows
     triangle_light   : (t,) int32 index into SceneData.lights, -1 on surfaces
     object_instance  : (objects,) int32 per object (object_names order): the instance
                        number N of a point-instanced mesh (scene.Mesh.instance), -1 for
                        other meshes and for lights
     object_mesh      : (objects,) int32 per object: its index in SceneData.meshes, -1 for
                        light shapes
-    center, radius   : bounding sphere of all vertices (metres)
+    center, radius   : bounding sphere of the world-space geometry, instances placed (metres)
+
+    vertices, triangles : the flat rows' geometry, what Embree's top-level scene holds
+    prototype_vertices, prototype_triangles : per prototype, (v, 3) float32 in its own space
+                       and (t, 3) int32 indices into them (its rows, in order)
+    prototype_first  : (p,) int64 each prototype's first row
+    instance_object  : (i,) int32 each instance's object (Embree's instance id i)
+    instance_prototype : (i,) int32 its prototype
+    instance_transform : (i, 3, 4) float32 its placement, own space → world metres
+                       (scene.Mesh.world_from_points without the last row)
+    instance_rotation : (i, 3, 3) float32 the orthogonal part R of the placement's linear
+                       part s·R (det −1 for a mirror): normals and directions map by R
+    instance_scale   : (i,) float32 its scale s > 0: lengths scale by s, areas s², curvatures
+                       and gradients 1/s
+    scratch_first    : the first scratch row (rows before it: flat and prototype rows)
     """
 
     vertices: np.ndarray
@@ -91,10 +117,25 @@ class World:
     object_mesh: np.ndarray
     center: np.ndarray
     radius: float
+    prototype_vertices: tuple[np.ndarray, ...] = ()
+    prototype_triangles: tuple[np.ndarray, ...] = ()
+    prototype_first: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    instance_object: np.ndarray = field(default_factory=lambda: np.zeros(0, INDEX))
+    instance_prototype: np.ndarray = field(default_factory=lambda: np.zeros(0, INDEX))
+    instance_transform: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 4), FLOAT))
+    instance_rotation: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3), FLOAT))
+    instance_scale: np.ndarray = field(default_factory=lambda: np.zeros(0, FLOAT))
+    scratch_first: int = -1
 
     @property
     def triangle_count(self) -> int:
-        return len(self.triangles)
+        """Rows a ray can hit: the flat rows and every instanced prototype row (scratch rows
+        are not geometry of their own)."""
+        return len(self.triangles) + sum(len(triangles) for triangles in self.prototype_triangles)
+
+    @property
+    def has_instances(self) -> bool:
+        return len(self.instance_object) > 0
 
 
 class GeometryArrays(NamedTuple):
@@ -143,93 +184,89 @@ def primvar_columns(meshes) -> dict[str, tuple[int, int]]:
     return columns
 
 
-def build_world(scene: SceneData) -> World:
-    """Concatenate every mesh and area-light shape of `scene` into one World.
+def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
+    """Every mesh and area-light shape of `scene` as one World (rows: see the module
+    docstring), with `scratch_rows` scratch rows after them.
 
     The per-triangle tables are filled chunk by chunk (CHUNK_TRIANGLES): temporaries the size
     of the whole scene would cost more in fresh pages than in arithmetic.
     """
-    # every mesh and light shape as a Mesh, with the light it is the shape of (NOT_A_LIGHT)
-    pieces: list[tuple[Mesh, int]] = [(mesh, NOT_A_LIGHT) for mesh in scene.meshes if len(mesh.triangles)]
-    object_mesh = [index for index, mesh in enumerate(scene.meshes) if len(mesh.triangles)]
+    # objects (name, path, instance, mesh index) in order: the meshes, then the light shapes
+    objects: list[tuple[str, str, int, int]] = []
+    flat: list[tuple[Mesh, int, int]] = []  # (mesh or light shape, its light or NOT_A_LIGHT, object)
+    instanced: list[tuple[Mesh, int]] = []  # (placement of a shared surface, object)
+    for index, mesh in enumerate(scene.meshes):
+        if not len(mesh.triangles):
+            continue
+        if mesh.prototype < 0:
+            flat.append((mesh, NOT_A_LIGHT, len(objects)))
+        else:
+            instanced.append((mesh, len(objects)))
+        objects.append((mesh.name, mesh.path, mesh.instance, index))
     for light_index, light in enumerate(scene.lights):
         shape = light_shape(light)
         if shape is not None:
             points, triangles = shape
-            pieces.append((Mesh(light.name, light.path, points, triangles, None, None, None,
-                                np.full(len(triangles), -1, dtype=INDEX)), light_index))
-            object_mesh.append(-1)
-    if not pieces and not scene.lights:
+            flat.append((Mesh(light.name, light.path, points, triangles, None, None, None,
+                              np.full(len(triangles), -1, dtype=INDEX)), light_index, len(objects)))
+            objects.append((light.name, light.path, -1, -1))
+    if not objects and not scene.lights:
         raise RenderSettingsError(f"{scene.stage_path}: nothing to render (no geometry and no lights)")
-    if not pieces:
+    if not objects:
         # A sky alone (dome or distant lights, no geometry): every camera ray escapes. One empty
         # piece keeps every table below well formed, with zero rows.
-        pieces.append((Mesh("", "", np.zeros((0, 3), FLOAT), np.zeros((0, 3), INDEX), None, None, None,
-                            np.zeros(0, INDEX)), NOT_A_LIGHT))
-        object_mesh.append(-1)
+        flat.append((Mesh("", "", np.zeros((0, 3), FLOAT), np.zeros((0, 3), INDEX), None, None, None,
+                          np.zeros(0, INDEX)), NOT_A_LIGHT, 0))
+        objects.append(("", "", -1, -1))
+    # each prototype once, as its first placement's geometry (all of them share it)
+    prototype_of = {number: order for order, number in enumerate(dict.fromkeys(m.prototype for m, _ in instanced))}
+    prototypes = list({mesh.prototype: mesh for mesh, _ in reversed(instanced)}.values())[::-1]
+    pieces = [piece for piece, _, _ in flat] + prototypes
 
-    vertex_count = sum(len(piece.points) for piece, _ in pieces)
-    count = sum(len(piece.triangles) for piece, _ in pieces)
-    all_vertices = np.empty((vertex_count, 3), FLOAT)
-    all_triangles = np.empty((count, 3), INDEX)
-    geometric_normal = np.empty((3, count), FLOAT)
-    area = np.empty(count, FLOAT)
-    corner_positions = np.empty((3, 3, count), FLOAT)
-    corner_normals = np.empty((3, 3, count), FLOAT)
-    corner_uvs = np.empty((3, 2, count), FLOAT)
-    columns = primvar_columns(piece for piece, _ in pieces)
+    flat_count = sum(len(piece.triangles) for piece, _, _ in flat)
+    count = sum(len(piece.triangles) for piece in pieces) + scratch_rows
+    geometric_normal = np.zeros((3, count), FLOAT)
+    area = np.zeros(count, FLOAT)
+    corner_positions = np.zeros((3, 3, count), FLOAT)
+    corner_normals = np.zeros((3, 3, count), FLOAT)
+    corner_uvs = np.zeros((3, 2, count), FLOAT)
+    columns = primvar_columns(pieces)
     column_count = sum(width + 1 for _, width in columns.values())
     corner_primvars = np.zeros((3, column_count, count), FLOAT)  # absent: values and presence 0
-    triangle_object = np.empty(count, INDEX)
-    triangle_material = np.empty(count, INDEX)
-    triangle_light = np.empty(count, INDEX)
-    vertex_offset = triangle_offset = 0
-    for object_index, (piece, light_index) in enumerate(pieces):
+    triangle_object = np.full(count, -1, INDEX)
+    triangle_material = np.full(count, -1, INDEX)
+    triangle_light = np.full(count, NOT_A_LIGHT, INDEX)
+    tables = (geometric_normal, area, corner_positions, corner_normals, corner_uvs, corner_primvars, columns)
+
+    vertices = np.empty((sum(len(piece.points) for piece, _, _ in flat), 3), FLOAT)
+    triangles = np.empty((flat_count, 3), INDEX)
+    vertex_offset = row = 0
+    for piece, light_index, object_index in flat:
         points = np.asarray(piece.points, dtype=FLOAT)
-        all_vertices[vertex_offset:vertex_offset + len(points)] = points
-        size = len(piece.triangles)
-        own = slice(triangle_offset, triangle_offset + size)
-        triangle_object[own] = object_index
-        triangle_material[own] = piece.triangle_material
-        triangle_light[own] = light_index
-        # Gathers one component at a time (contiguous (n,) rows in, contiguous rows out) fill
-        # the component-major tables without a transposed copy.
-        point_components = _components(points)
-        normal_components = None if piece.normal_values is None else _components(piece.normal_values)
-        for start in range(0, size, CHUNK_TRIANGLES):
-            rows = slice(start, min(start + CHUNK_TRIANGLES, size))
-            out = slice(triangle_offset + rows.start, triangle_offset + rows.stop)
-            tris = np.asarray(piece.triangles[rows], dtype=INDEX)
-            np.add(tris, vertex_offset, out=all_triangles[out])
-            positions = corner_positions[:, :, out]
-            _gather_corners(point_components, tris, positions)
-            unit_normal, double_area = _unit_cross(positions[1] - positions[0], positions[2] - positions[0])
-            geometric_normal[:, out] = unit_normal
-            np.divide(double_area, 2, out=area[out])
-            if normal_components is None:
-                corner_normals[:, :, out] = unit_normal  # flat: the geometric normal at each corner
-            else:
-                _gather_corners(normal_components, piece.normal_indices[rows], corner_normals[:, :, out])
-            if piece.uvs is None:
-                corner_uvs[:, :, out] = 0.0
-            else:
-                corner_uvs[:, :, out] = np.moveaxis(piece.uvs[rows], 0, -1)
-            for name, values in piece.primvars.items():
-                offset, width = columns[name]
-                own_width = values.shape[2]
-                # (n, 3, w) → (3, w, n); slices of broadcast (constant) values stay views
-                corner_primvars[:, offset:offset + own_width, out] = np.transpose(values[rows], (1, 2, 0))
-                corner_primvars[:, offset + width, out] = 1.0
+        vertices[vertex_offset:vertex_offset + len(points)] = points
+        own = slice(row, row + len(piece.triangles))
+        np.add(piece.triangles, vertex_offset, out=triangles[own], casting="unsafe")
+        triangle_object[own], triangle_material[own], triangle_light[own] = object_index, piece.triangle_material, light_index
+        _fill_rows(piece, row, *tables)
         vertex_offset += len(points)
-        triangle_offset += size
+        row += len(piece.triangles)
+    prototype_first = np.zeros(len(prototypes), np.int64)
+    for order, piece in enumerate(prototypes):
+        prototype_first[order] = row
+        triangle_material[row:row + len(piece.triangles)] = piece.triangle_material
+        _fill_rows(piece, row, *tables)
+        row += len(piece.triangles)
 
     k1, k2, principal_direction = triangle_curvatures(corner_positions, corner_normals)
     gradient_s, gradient_t = uv_gradients(corner_positions, corner_uvs)
-    low, high = (all_vertices.min(axis=0), all_vertices.max(axis=0)) if len(all_vertices) else (np.zeros(3),) * 2
+    placements = np.array([mesh.world_from_points for mesh, _ in instanced], np.float64).reshape(-1, 4, 4)
+    linear = placements[:, :3, :3]
+    scale = np.cbrt(np.abs(np.linalg.det(linear))) if len(linear) else np.zeros(0)
+    low, high = _bounds(vertices, prototypes, [prototype_of[mesh.prototype] for mesh, _ in instanced], placements)
     center = (low + high) / 2
     return World(
-        vertices=all_vertices,
-        triangles=all_triangles,
+        vertices=vertices,
+        triangles=triangles,
         geometric_normal=geometric_normal,
         area=area,
         corner_positions=corner_positions,
@@ -245,13 +282,99 @@ def build_world(scene: SceneData) -> World:
         triangle_object=triangle_object,
         triangle_material=triangle_material,
         triangle_light=triangle_light,
-        object_names=tuple(piece.name for piece, _ in pieces),
-        object_paths=tuple(piece.path for piece, _ in pieces),
-        object_instance=np.asarray([piece.instance for piece, _ in pieces], dtype=INDEX),
-        object_mesh=np.asarray(object_mesh, dtype=INDEX),
+        object_names=tuple(name for name, _, _, _ in objects),
+        object_paths=tuple(path for _, path, _, _ in objects),
+        object_instance=np.asarray([instance for _, _, instance, _ in objects], dtype=INDEX),
+        object_mesh=np.asarray([mesh for _, _, _, mesh in objects], dtype=INDEX),
         center=center.astype(np.float64),
         radius=float(np.linalg.norm(high - low) / 2) or 1.0,
+        prototype_vertices=tuple(np.ascontiguousarray(piece.points, FLOAT) for piece in prototypes),
+        prototype_triangles=tuple(np.ascontiguousarray(piece.triangles, INDEX) for piece in prototypes),
+        prototype_first=prototype_first,
+        instance_object=np.array([object_index for _, object_index in instanced], INDEX),
+        instance_prototype=np.array([prototype_of[mesh.prototype] for mesh, _ in instanced], INDEX),
+        instance_transform=np.ascontiguousarray(placements[:, :3], FLOAT),
+        instance_rotation=np.ascontiguousarray(linear / np.maximum(scale, 1e-300)[:, None, None], FLOAT),
+        instance_scale=scale.astype(FLOAT),
+        scratch_first=count - scratch_rows,
     )
+
+
+def flatten_instances(scene: SceneData) -> SceneData:
+    """`scene` with every instanced mesh (scene.Mesh.prototype) as a flat mesh of its own:
+    its points and normals placed in world metres, corners 1 and 2 swapped under a mirror
+    (the winding stays counter-clockwise seen from the front, as stage/placement.py does)."""
+    if all(mesh.prototype < 0 for mesh in scene.meshes):
+        return scene
+    return dataclasses.replace(scene, meshes=tuple(_flattened(mesh) if mesh.prototype >= 0 else mesh
+                                                   for mesh in scene.meshes))
+
+
+def _flattened(mesh: Mesh) -> Mesh:
+    placement = np.asarray(mesh.world_from_points, np.float64)
+    linear = placement[:3, :3]
+    points = (np.asarray(mesh.points, np.float64) @ linear.T + placement[:3, 3]).astype(FLOAT)
+    normal_values = None
+    if mesh.normal_values is not None:
+        rotation = linear / np.cbrt(abs(np.linalg.det(linear)))
+        normal_values = (np.asarray(mesh.normal_values, np.float64) @ rotation.T).astype(FLOAT)
+    corners = [0, 2, 1] if np.linalg.det(linear) < 0 else [0, 1, 2]
+
+    def wound(per_corner):
+        return None if per_corner is None else np.ascontiguousarray(np.asarray(per_corner)[:, corners])
+
+    return dataclasses.replace(mesh, points=points, triangles=wound(mesh.triangles), normal_values=normal_values,
+                               normal_indices=wound(mesh.normal_indices), uvs=wound(mesh.uvs),
+                               primvars={name: wound(values) for name, values in mesh.primvars.items()},
+                               prototype=-1, world_from_points=None)
+
+
+def _fill_rows(piece: Mesh, first_row: int, geometric_normal, area, corner_positions, corner_normals, corner_uvs,
+               corner_primvars, columns) -> None:
+    """Write `piece`'s rows of the geometry tables, from `first_row` on (in its own space)."""
+    # Gathers one component at a time (contiguous (n,) rows in, contiguous rows out) fill the
+    # component-major tables without a transposed copy.
+    point_components = _components(np.asarray(piece.points, dtype=FLOAT))
+    normal_components = None if piece.normal_values is None else _components(piece.normal_values)
+    size = len(piece.triangles)
+    for start in range(0, size, CHUNK_TRIANGLES):
+        rows = slice(start, min(start + CHUNK_TRIANGLES, size))
+        out = slice(first_row + rows.start, first_row + rows.stop)
+        tris = np.asarray(piece.triangles[rows], dtype=INDEX)
+        positions = corner_positions[:, :, out]
+        _gather_corners(point_components, tris, positions)
+        unit_normal, double_area = _unit_cross(positions[1] - positions[0], positions[2] - positions[0])
+        geometric_normal[:, out] = unit_normal
+        np.divide(double_area, 2, out=area[out])
+        if normal_components is None:
+            corner_normals[:, :, out] = unit_normal  # flat: the geometric normal at each corner
+        else:
+            _gather_corners(normal_components, piece.normal_indices[rows], corner_normals[:, :, out])
+        if piece.uvs is not None:
+            corner_uvs[:, :, out] = np.moveaxis(piece.uvs[rows], 0, -1)
+        for name, values in piece.primvars.items():
+            offset, width = columns[name]
+            own_width = values.shape[2]
+            # (n, 3, w) → (3, w, n); slices of broadcast (constant) values stay views
+            corner_primvars[:, offset:offset + own_width, out] = np.transpose(values[rows], (1, 2, 0))
+            corner_primvars[:, offset + width, out] = 1.0
+
+
+def _bounds(vertices: np.ndarray, prototypes: list[Mesh], instance_prototype: list[int], placements: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) (3,) float64 corners of the box around the flat `vertices` and every
+    instance's placed prototype box (zeros for no geometry)."""
+    lows, highs = ([vertices.min(axis=0)], [vertices.max(axis=0)]) if len(vertices) else ([], [])
+    if len(placements):
+        boxes = np.array([[piece.points.min(axis=0), piece.points.max(axis=0)] for piece in prototypes], np.float64)
+        corners = boxes[:, [[0, 0, 0], [0, 0, 1], [0, 1, 0], [0, 1, 1], [1, 0, 0], [1, 0, 1], [1, 1, 0], [1, 1, 1]],
+                        [0, 1, 2]]  # (p, 8, 3)
+        placed = np.einsum("kij,kcj->kci", placements[:, :3, :3], corners[instance_prototype]) + placements[:, None, :3, 3]
+        lows.append(placed.min(axis=(0, 1)))
+        highs.append(placed.max(axis=(0, 1)))
+    if not lows:
+        return np.zeros(3), np.zeros(3)
+    return np.min(lows, axis=0).astype(np.float64), np.max(highs, axis=0).astype(np.float64)
 
 
 def uv_gradients(corner_positions: np.ndarray, corner_uvs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -5,16 +5,20 @@ from __future__ import annotations
 import numpy as np
 
 from ..embree import RayCaster
+from ..instances import Region
 from .queues import MAX_PASS_THROUGH, Hits, PathQueue
 
 
 def intersect(caster: RayCaster, queue: PathQueue, triangle_light: np.ndarray, hidden_light: np.ndarray,
-              epsilon: float) -> Hits:
-    """The closest hits of `queue`'s rays. Camera rays (depth 0) go on through the shapes of
-    lights hidden from the camera (`hidden_light` (lights,) bool; triangle_light (t,) int32
-    as in World), up to MAX_PASS_THROUGH of them, so no later stage sees those lights: their
-    hits' t is measured from the ray's origin as every hit's is."""
-    triangle, u, v, t = caster.intersect(queue.origin, queue.direction, queue.t_max)
+              epsilon: float, region: Region | None = None) -> Hits:
+    """The closest hits of `queue`'s rays, hits through instances placed in `region`'s rows
+    (instances.py; None: a world without instances). Camera rays (depth 0) go on through the
+    shapes of lights hidden from the camera (`hidden_light` (lights,) bool; triangle_light
+    (t,) int32 as in World), up to MAX_PASS_THROUGH of them, so no later stage sees those
+    lights: their hits' t is measured from the ray's origin as every hit's is."""
+    triangle, instance, u, v, t = caster.intersect(queue.origin, queue.direction, queue.t_max)
+    if region is not None:
+        region.place(triangle, instance)
     if not hidden_light.any():
         return Hits(triangle, u, v, t)
     for _ in range(MAX_PASS_THROUGH):
@@ -24,7 +28,10 @@ def intersect(caster: RayCaster, queue: PathQueue, triangle_light: np.ndarray, h
             break
         past = t[lanes] + np.float32(epsilon)
         origin = queue.origin[lanes] + queue.direction[lanes] * past[:, None]
-        triangle[lanes], u[lanes], v[lanes], t_next = caster.intersect(origin, queue.direction[lanes],
-                                                                       queue.t_max[lanes] - past)
+        crossed, instance, u[lanes], v[lanes], t_next = caster.intersect(origin, queue.direction[lanes],
+                                                                         queue.t_max[lanes] - past)
+        if region is not None:
+            region.place(crossed, instance, lanes)
+        triangle[lanes] = crossed
         t[lanes] = past + t_next
     return Hits(triangle, u, v, t)

@@ -10,6 +10,7 @@ import numpy as np
 from .. import bsdf, light_kernels, rng, shading
 from ...compiled import kernel, scratch
 from ..embree import RayCaster
+from ..instances import Region
 from ..light_kernels import LightArrays
 from ..shading import MaterialArrays
 from ..vectors import normalized, to_local
@@ -46,13 +47,14 @@ def light_samples(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: 
 
 
 def cast_shadows(caster: RayCaster, shadows: ShadowQueue, geometry: GeometryArrays, materials: MaterialArrays,
-                 lights: LightArrays, see_through: bool, epsilon: float) -> None:
+                 lights: LightArrays, see_through: bool, epsilon: float, region: Region | None = None) -> None:
     """Set ``shadows.visible``: which shadow rays reach their light. With `see_through`
     materials in the scene, or lights whose shadows only some geometry casts, a blocked ray
     is followed through the surfaces it crosses (up to MAX_PASS_THROUGH of them): geometry
     outside the light's shadow link and cut-outs pass it whole, a partly present surface
     (opacity without threshold) passes a fraction 1 − opacity, which scales its radiance —
-    the expected value of the camera paths' random choice, without its noise."""
+    the expected value of the camera paths' random choice, without its noise. The surfaces
+    crossed through instances are placed in `region`'s rows (instances.py)."""
     if not len(shadows):
         return
     blocked = caster.occluded(shadows.origin, shadows.direction, shadows.t_max)
@@ -64,7 +66,9 @@ def cast_shadows(caster: RayCaster, shadows: ShadowQueue, geometry: GeometryArra
     t_left = shadows.t_max[lanes].copy()
     transmittance = np.ones(len(lanes), np.float32)
     for _ in range(MAX_PASS_THROUGH):
-        triangle, u, v, t = caster.intersect(origin, direction, t_left)
+        triangle, instance, u, v, t = caster.intersect(origin, direction, t_left)
+        if region is not None:
+            region.place(triangle, instance)
         crossed = triangle < 0
         shadows.visible[lanes[crossed]] = True
         shadows.radiance[lanes[crossed]] *= transmittance[crossed, None, None]

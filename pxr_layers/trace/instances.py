@@ -1,0 +1,193 @@
+"""Hits through Embree instances, placed in scratch rows that every stage reads as it reads
+a flat row.
+
+A ray that hits a surface through an instance reports the prototype's row, in the
+prototype's own space, and the instance (embree.RayCaster.intersect). The stages read a
+hit through per-row tables: the World's, its GeometryArrays, and the tables built from them
+(the event subjects, the light link groups, the curvature norms). So such a hit is
+*placed*: its prototype row is written into a scratch row, transformed by the instance's
+placement s·R + t (positions by it, normals and directions by R, areas ×s², curvatures and
+texture gradients ÷s; the subject and link group are the instance's own), and the hit names
+that row from then on. Downstream, nothing tells it from a flat row, and a scene without
+instances pays nothing.
+
+The scratch rows are per tracing thread and per use: a :class:`Slot` (one per thread at a
+time, :meth:`InstanceRows.slot`) holds REGIONS regions of ``lanes`` rows, and lane j of a
+query writes row ``region start + j``. A path's hits alternate between two regions with the
+bounce, because the row of a path's previous vertex is read again at the next bounce
+(emission's MIS density, light linking); shadow rays crossing surfaces write the third.
+"""
+
+from __future__ import annotations
+
+import queue
+from contextlib import contextmanager
+from typing import Iterator, NamedTuple
+
+import numpy as np
+
+from ..compiled import kernel
+from .world import GeometryArrays, World
+
+PATH_EVEN, PATH_ODD, SHADOW = range(3)
+REGIONS = 3
+MAX_SLOTS = 16
+"""Slots of scratch rows at most: threads beyond that many wait for one (the rows cost about
+REGIONS × lanes × 0.4 kB a slot)."""
+
+
+class RowTables(NamedTuple):
+    """Every per-row table a stage reads at a hit (what a placed row must hold): the
+    GeometryArrays (triangle-major), the World's component-major tables, and the frame's
+    tables built from them. subject: (rows,) int64 the event subject (render.prepare);
+    curvature: (rows,) float32 C, or (0,) without covariance; link_group: (rows,) int32, or
+    (0,) without light linking."""
+
+    geometry: GeometryArrays
+    geometric_normal: np.ndarray
+    corner_positions: np.ndarray
+    corner_normals: np.ndarray
+    corner_uvs: np.ndarray
+    corner_primvars: np.ndarray
+    curvature_k1: np.ndarray
+    curvature_k2: np.ndarray
+    principal_direction: np.ndarray
+    gradient_s: np.ndarray
+    gradient_t: np.ndarray
+    triangle_object: np.ndarray
+    subject: np.ndarray
+    curvature: np.ndarray
+    link_group: np.ndarray
+
+
+class InstanceTables(NamedTuple):
+    """Per instance (i,): transform (i, 3, 4) float32, rotation (i, 3, 3) float32, scale (i,)
+    float32 (World.instance_*), object (i,) int32, subject_first (i,) int64 its first event
+    subject, link_group (i,) int32 ((0,) without light linking); per row, subject_rank (rows,)
+    int64: a prototype row's material among its prototype's distinct materials (the
+    instance's subjects are subject_first + rank)."""
+
+    transform: np.ndarray
+    rotation: np.ndarray
+    scale: np.ndarray
+    object: np.ndarray
+    subject_first: np.ndarray
+    link_group: np.ndarray
+    subject_rank: np.ndarray
+
+
+class InstanceRows:
+    """The scratch rows of a World with instances, and who may write which.
+
+    world    : built with ``scratch_rows = rows_needed(lanes, slots)`` scratch rows
+    lanes    : the most lanes one query places (a batch's paths)
+    """
+
+    def __init__(self, world: World, rows: RowTables, instances: InstanceTables, lanes: int, slots: int):
+        if len(world.area) - world.scratch_first < rows_needed(lanes, slots):
+            raise ValueError(f"the world has {len(world.area) - world.scratch_first} scratch rows, "
+                             f"{rows_needed(lanes, slots)} needed")
+        self.rows, self.instances, self.lanes = rows, instances, lanes
+        self._free: queue.SimpleQueue[int] = queue.SimpleQueue()
+        for slot in range(slots):
+            self._free.put(world.scratch_first + slot * REGIONS * lanes)
+
+    @contextmanager
+    def slot(self) -> Iterator[Slot]:
+        """A slot of scratch rows for this thread's queries, until the block ends (waits for
+        one when every slot is taken)."""
+        first = self._free.get()
+        try:
+            yield Slot(self, first)
+        finally:
+            self._free.put(first)
+
+
+def rows_needed(lanes: int, slots: int) -> int:
+    return slots * REGIONS * lanes
+
+
+class Slot:
+    """One thread's scratch rows: :meth:`region` names where a query's hits go."""
+
+    def __init__(self, owner: InstanceRows, first: int):
+        self._owner, self._first = owner, first
+
+    def region(self, use: int) -> Region:
+        """PATH_EVEN / PATH_ODD (a path's hits at even / odd steps) or SHADOW."""
+        return Region(self._owner, self._first + use * self._owner.lanes)
+
+    def path_region(self, step: int) -> Region:
+        return self.region(PATH_ODD if step % 2 else PATH_EVEN)
+
+
+class Region:
+    """``lanes`` consecutive scratch rows: lane j of a query placed here writes row first + j."""
+
+    def __init__(self, owner: InstanceRows, first: int):
+        self._owner, self.first = owner, first
+
+    def place(self, triangle: np.ndarray, instance: np.ndarray, lanes: np.ndarray | None = None) -> None:
+        """Place the instanced hits among `triangle` (n,) int32 (World rows, changed in place
+        to their scratch rows) with `instance` (n,) int32 (−1: not instanced); entry j is
+        lane ``lanes[j]`` (int64; None: lane j)."""
+        owner = self._owner
+        if lanes is None:
+            lanes = np.arange(len(triangle), dtype=np.int64)
+        if len(lanes) and int(lanes.max()) >= owner.lanes:
+            raise ValueError(f"a query of lane {int(lanes.max())} places hits in regions of {owner.lanes} rows")
+        _place_kernel(owner.rows, owner.instances, triangle, instance, lanes, self.first)
+
+
+@kernel
+def _place_kernel(rows, instances, triangle, instance, lanes, first):
+    geometry = rows.geometry
+    has_curvature, has_links = len(rows.curvature) > 0, len(rows.link_group) > 0
+    for entry in range(len(triangle)):
+        k = instance[entry]
+        source = triangle[entry]
+        if k < 0 or source < 0:
+            continue
+        row = first + lanes[entry]
+        transform, rotation, scale = instances.transform[k], instances.rotation[k], instances.scale[k]
+        for corner in range(3):
+            for axis in range(3):
+                position = transform[axis, 3]
+                normal = 0.0
+                for column in range(3):
+                    position += transform[axis, column] * geometry.corner_positions[source, corner, column]
+                    normal += rotation[axis, column] * geometry.corner_normals[source, corner, column]
+                geometry.corner_positions[row, corner, axis] = position
+                geometry.corner_normals[row, corner, axis] = normal
+                rows.corner_positions[corner, axis, row] = position
+                rows.corner_normals[corner, axis, row] = normal
+            for axis in range(2):
+                geometry.corner_uvs[row, corner, axis] = geometry.corner_uvs[source, corner, axis]
+                rows.corner_uvs[corner, axis, row] = geometry.corner_uvs[source, corner, axis]
+            for column in range(geometry.corner_primvars.shape[2]):
+                geometry.corner_primvars[row, corner, column] = geometry.corner_primvars[source, corner, column]
+                rows.corner_primvars[corner, column, row] = geometry.corner_primvars[source, corner, column]
+        for axis in range(3):
+            normal = principal = along_s = along_t = 0.0
+            for column in range(3):
+                normal += rotation[axis, column] * geometry.geometric_normal[source, column]
+                principal += rotation[axis, column] * rows.principal_direction[column, source]
+                along_s += rotation[axis, column] * rows.gradient_s[column, source]
+                along_t += rotation[axis, column] * rows.gradient_t[column, source]
+            geometry.geometric_normal[row, axis] = normal
+            rows.geometric_normal[axis, row] = normal
+            rows.principal_direction[axis, row] = principal
+            rows.gradient_s[axis, row] = along_s / scale
+            rows.gradient_t[axis, row] = along_t / scale
+        geometry.area[row] = geometry.area[source] * scale * scale
+        geometry.triangle_material[row] = geometry.triangle_material[source]
+        geometry.triangle_light[row] = -1
+        rows.curvature_k1[row] = rows.curvature_k1[source] / scale
+        rows.curvature_k2[row] = rows.curvature_k2[source] / scale
+        rows.triangle_object[row] = instances.object[k]
+        rows.subject[row] = instances.subject_first[k] + instances.subject_rank[source]
+        if has_curvature:
+            rows.curvature[row] = rows.curvature[source] / scale
+        if has_links:
+            rows.link_group[row] = instances.link_group[k]
+        triangle[entry] = row
