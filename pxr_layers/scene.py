@@ -88,6 +88,11 @@ class Material:
     transmission_color: Color = (1.0, 1.0, 1.0)
     thin_walled: bool = False
 
+    @property
+    def emits(self) -> bool:
+        """Whether the surface may send light of its own (a textured emission may)."""
+        return isinstance(self.emissive_color, ShaderNode) or max(self.emissive_color) > 0
+
 
 DEFAULT_MATERIAL_PATH = "<default>"
 

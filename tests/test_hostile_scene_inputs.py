@@ -35,7 +35,7 @@ import numpy as np
 import OpenEXR
 import OpenImageIO as oiio
 import pytest
-from pxr import Usd, UsdGeom, Vt
+from pxr import Gf, Usd, UsdGeom, Vt
 from test_cli import RENDER_DIR, ball_lit_by, ball_of
 from test_hostile_stage import TINY, own_logging
 
@@ -426,7 +426,9 @@ def indices(count: int):
     return build
 
 
-def instancer(count: int, prototype=UsdGeom.Cube, path: str = "/World/bad"):
+def instancer(count: int, prototype=UsdGeom.Cube, path: str = "/World/bad", stretched: bool = False):
+    """`count` point instances of one `prototype`; `stretched`: each scaled (1, 2, 1), not a
+    similarity, so each is a copy of its own (uniform ones share one instanced surface)."""
     def build(stage):
         points = UsdGeom.PointInstancer.Define(stage, path)
         prototype.Define(stage, f"{path}/protos/shape")
@@ -434,6 +436,8 @@ def instancer(count: int, prototype=UsdGeom.Cube, path: str = "/World/bad"):
         points.GetProtoIndicesAttr().Set(Vt.IntArray(count))
         if count < 10**6:
             points.GetPositionsAttr().Set(Vt.Vec3fArray(count))
+        if stretched:
+            points.GetScalesAttr().Set(Vt.Vec3fArray(count, Gf.Vec3f(1, 2, 1)))
     return build
 
 
@@ -454,7 +458,7 @@ BUDGETS = {
                   f"{MAX_SCENE_TRIANGLES:,} triangles a scene may hold"),
     "1e7 instances": (instancer(10**7), "/World/bad", f"protoIndices lists 10,000,000 instances: more than the "
                       f"{MAX_SCENE_MESHES:,} meshes a scene may hold"),
-    "instances past the triangles": (instancer(4300, UsdGeom.Sphere), "/World/bad/instance_",
+    "instances past the triangles": (instancer(4300, UsdGeom.Sphere, stretched=True), "/World/bad/instance_",
                                      f"its 3,968 triangles after the 16,776,704 before it: more than the "
                                      f"{MAX_SCENE_TRIANGLES:,} triangles"),
     "nested instances past the meshes": (forest, "/World/bad/instance_",

@@ -156,3 +156,79 @@ def test_an_emissive_instanced_surface_is_refused(cornell):
     materials[int(prototype.triangle_material[0])] = glowing
     with pytest.raises(ValueError, match="emissive"):
         prepare(dataclasses.replace(scene, materials=tuple(materials)), spec, TraceSettings(spp=1))
+
+
+# -- the stage reader's side: which placements become instances
+
+def _stage_with_balls(path, *, count: int = 40, stretched: bool = False, emissive: bool = False,
+                      native: int = 0) -> str:
+    """A PointInstancer of `count` tessellated spheres (3,968 triangles each) turned and
+    scaled at random (stretched: (1, 2, 1) scales, not a similarity), a sun, and
+    `native` instanceable references of one sphere asset. Returns the file's path."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
+
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.Xform.Define(stage, "/World")
+    points = UsdGeom.PointInstancer.Define(stage, "/World/Balls")
+    UsdGeom.Sphere.Define(stage, "/World/Balls/protos/ball").GetRadiusAttr().Set(0.4)
+    points.GetPrototypesRel().AddTarget("/World/Balls/protos/ball")
+    rng = np.random.default_rng(7)
+    points.GetProtoIndicesAttr().Set(Vt.IntArray([0] * count))
+    points.GetPositionsAttr().Set(Vt.Vec3fArray([Gf.Vec3f(float(i % 8), 0.0, -float(i // 8)) for i in range(count)]))
+    turns = rng.normal(size=(count, 4))
+    turns /= np.linalg.norm(turns, axis=1, keepdims=True)
+    points.GetOrientationsAttr().Set(Vt.QuathArray([Gf.Quath(*map(float, turn)) for turn in turns]))
+    sizes = rng.uniform(0.5, 1.0, count)
+    points.GetScalesAttr().Set(Vt.Vec3fArray([Gf.Vec3f(float(s), float(2 * s if stretched else s), float(s))
+                                              for s in sizes]))
+    if emissive:
+        material = UsdShade.Material.Define(stage, "/World/Glow")
+        shader = UsdShade.Shader.Define(stage, "/World/Glow/surface")
+        shader.CreateIdAttr("UsdPreviewSurface")
+        shader.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(1, 1, 1))
+        material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+        UsdShade.MaterialBindingAPI.Apply(stage.GetPrimAtPath("/World/Balls/protos/ball")).Bind(material)
+    asset = UsdGeom.Xform.Define(stage, "/Asset")
+    asset.GetPrim().SetSpecifier(Sdf.SpecifierClass)
+    UsdGeom.Sphere.Define(stage, "/Asset/ball").GetRadiusAttr().Set(0.3)
+    for number in range(native):
+        holder = UsdGeom.Xform.Define(stage, f"/World/Native{number}")
+        holder.GetPrim().GetReferences().AddInternalReference("/Asset")
+        holder.GetPrim().SetInstanceable(True)
+        holder.AddTranslateOp().Set(Gf.Vec3d(2.0 * number, 1.5, 0.0))
+    sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
+    sun.CreateIntensityAttr(3.0)
+    sun.CreateNormalizeAttr(True)  # the intensity is the irradiance, whatever the sun's angle
+    stage.GetRootLayer().Save()
+    return str(path)
+
+
+def test_point_instances_of_one_surface_are_instanced_and_render_as_copies_would(tmp_path):
+    scene, spec = load_stage(_stage_with_balls(tmp_path / "balls.usda"))
+    spec = dataclasses.replace(spec, resolution=RESOLUTION)
+    balls = [mesh for mesh in scene.meshes if "/World/Balls/" in mesh.path]
+    assert len(balls) == 40 and {mesh.prototype for mesh in balls} == {0}
+    assert all(mesh.points is balls[0].points for mesh in balls)  # one geometry, not 40
+    assert [mesh.instance for mesh in balls] == list(range(40))
+    settings = dataclasses.replace(SETTINGS, record_paths=False)
+    instanced = trace_image(scene, spec, settings, threads=2).rgba
+    flattened = trace_image(flatten_instances(scene), spec, settings, threads=2).rgba
+    assert instanced[..., :3].mean() > 1e-3  # the balls are in the picture, lit
+    assert np.mean(np.abs(instanced - flattened)[..., :3].max(axis=-1) < 1e-3) > 0.98
+
+
+def test_placements_that_are_not_similarities_or_that_emit_are_copies(tmp_path):
+    stretched, _ = load_stage(_stage_with_balls(tmp_path / "stretched.usda", stretched=True))
+    assert all(mesh.prototype < 0 for mesh in stretched.meshes)
+    glowing, _ = load_stage(_stage_with_balls(tmp_path / "glowing.usda", emissive=True))
+    assert all(mesh.prototype < 0 for mesh in glowing.meshes)
+
+
+def test_native_instances_share_their_prototype_surface(tmp_path):
+    scene, _ = load_stage(_stage_with_balls(tmp_path / "native.usda", count=1, native=20))
+    natives = [mesh for mesh in scene.meshes if mesh.path.startswith("/World/Native")]
+    assert len(natives) == 20 and len({mesh.prototype for mesh in natives}) == 1 and natives[0].prototype >= 0
+    assert len({mesh.path for mesh in natives}) == 20  # each its own object, at its own path
+    alone = next(mesh for mesh in scene.meshes if mesh.path.startswith("/World/Balls/"))
+    assert alone.prototype < 0  # one placement: nothing to share

@@ -26,6 +26,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Literal
 
+import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
 from pxr_layers import shader_nodes as nodes
@@ -100,6 +101,10 @@ class MaterialLibrary:
         # Material prim path → converted material, or None when it has no supported surface.
         self._by_path: dict[str, ResolvedMaterial | None] = {}
         self._defaults: dict[tuple[float, float, float] | None, int] = {}
+
+    def emit(self, triangle_material: np.ndarray) -> bool:
+        """Whether any of the materials (indices into ``materials``) sends light of its own."""
+        return any(self.materials[index].emits for index in np.unique(triangle_material).tolist())
 
     def bound_material(self, prim: Usd.Prim) -> UsdShade.Material | DocumentMaterial | None:
         """The material bound to ``prim`` for the first binding purpose that has one."""

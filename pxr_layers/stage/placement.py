@@ -22,6 +22,7 @@ and shared by every placement of it (instances, and prims that read the same opi
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass, field
 from typing import Mapping
@@ -44,6 +45,11 @@ _DEGENERATE_HEIGHT_RATIO = 1e-7
 # A linear map is taken for a similarity when AᵀA is s²·I to this relative tolerance: far
 # below the test's own resolution, far above the rounding of composed rotations.
 _SIMILARITY_TOLERANCE = 1e-9
+
+# A placement this close to a similarity (relative, in AᵀA) may be an instance: USD composes
+# point instances from unnormalised, often half-precision quaternions, up to a few 1e-3 off a
+# rotation; the tracer's normals then turn by as much (a tenth of a degree or so).
+INSTANCE_SIMILARITY_TOLERANCE = 1e-2
 
 # Faces of up to this many triangles find their distinct vertices by comparing neighbouring
 # triangles (fans of quads and small polygons: all but a few faces); bigger ones by np.unique.
@@ -176,12 +182,7 @@ def place_surface(
         points *= meters_per_unit
         reach = float(np.abs(points).max(initial=0.0))
     if not reach <= MAX_WORLD_COORDINATE:  # NaN too
-        diagnostics.note(
-            "out-of-reach",
-            f"gprims placed beyond {MAX_WORLD_COORDINATE:g} m from the origin (or whose placed points "
-            "overflow) skipped: {prims}",
-            path,
-        )
+        _note_out_of_reach(diagnostics, path)
         return None
     # A mirror turns counter-clockwise into clockwise: two corners swapped back.
     mirrored = bool(np.linalg.det(linear) < 0.0)
@@ -232,6 +233,79 @@ def place_surface(
     )
 
 
+def _note_out_of_reach(diagnostics: Diagnostics, path: str) -> None:
+    diagnostics.note(
+        "out-of-reach",
+        f"gprims placed beyond {MAX_WORLD_COORDINATE:g} m from the origin (or whose placed points "
+        "overflow) skipped: {prims}",
+        path,
+    )
+
+
+def is_instanceable(world_from_local: np.ndarray) -> bool:
+    """Whether a placement may be an instance of its surface (scene.Mesh.prototype): a
+    similarity to INSTANCE_SIMILARITY_TOLERANCE, so that the tracer maps normals by the
+    nearest rotation and lengths by one scale (Embree places the points by the transform
+    itself: silhouettes are exact)."""
+    return _is_similarity(world_from_local[:3, :3], INSTANCE_SIMILARITY_TOLERANCE)
+
+
+@dataclass(frozen=True, eq=False)
+class SharedSurface:
+    """A surface in its own space shared by its instanced placements (scene.Mesh.prototype).
+
+    mesh    : its geometry, stage units (name, path and placement are each placement's)
+    corners : (8, 3) float64 the corners of its box
+    dropped : how many degenerate triangles it leaves out (each placement says so)
+    """
+
+    mesh: Mesh
+    corners: np.ndarray
+    dropped: int
+
+
+def shared_surface(surface: PreparedSurface, triangle_material: np.ndarray, prototype: int) -> SharedSurface:
+    """``surface`` as the prototype number `prototype`: its winding as authored, its
+    degenerate triangles dropped (they stay degenerate under a similarity), unit normals."""
+    layout = surface.layout(mirrored=False, drop_degenerate=True)
+    if layout.kept is not None:
+        triangle_material = triangle_material[layout.kept]
+    points = np.asarray(surface.surface.points, np.float64)
+    normal_values, normal_indices = None, layout.normal_indices
+    if surface.normal_values is not None:
+        normal_values, normal_indices = _world_normals(surface.normal_values, normal_indices, points, layout.triangles)
+        normal_values = _read_only(normal_values)
+    mesh = Mesh(name="", path="", points=_read_only(np.ascontiguousarray(points, dtype=FLOAT)),
+                triangles=layout.triangles, normal_values=normal_values, normal_indices=normal_indices, uvs=layout.uvs,
+                triangle_material=_read_only(np.ascontiguousarray(triangle_material, dtype=INDEX)),
+                primvars=layout.primvars, prototype=prototype, world_from_points=np.eye(4))
+    low, high = (points.min(axis=0), points.max(axis=0)) if len(points) else (np.zeros(3),) * 2
+    corners = np.array([[x, y, z] for x in (low[0], high[0]) for y in (low[1], high[1]) for z in (low[2], high[2])])
+    return SharedSurface(mesh, corners, int(np.count_nonzero(surface.degenerate)))
+
+
+def place_instance(shared: SharedSurface, world_from_local: np.ndarray, meters_per_unit: float, name: str, path: str,
+                   diagnostics: Diagnostics, instance: int = -1) -> Mesh | None:
+    """One placement of `shared` as an instance: its geometry shared, ``world_from_points``
+    the placement in metres. None (with the warning place_surface gives) when the placed
+    surface lies beyond MAX_WORLD_COORDINATE or has no triangle.
+
+    world_from_local : (4, 4) float64, column convention, stage units; is_instanceable
+    """
+    if not len(shared.mesh.triangles):
+        return None
+    placement = np.diag([meters_per_unit, meters_per_unit, meters_per_unit, 1.0]) @ world_from_local
+    with np.errstate(over="ignore", invalid="ignore"):
+        reach = float(np.abs(shared.corners @ placement[:3, :3].T + placement[:3, 3]).max())
+    if not reach <= MAX_WORLD_COORDINATE:
+        _note_out_of_reach(diagnostics, path)
+        return None
+    if shared.dropped:
+        diagnostics.note("degenerate-triangles", "dropped {count} degenerate (zero-area) triangles on: {prims}", path,
+                         shared.dropped)
+    return dataclasses.replace(shared.mesh, name=name, path=path, instance=int(instance), world_from_points=placement)
+
+
 def _world_normals(
     directions: np.ndarray, normal_indices: np.ndarray, points: np.ndarray, triangles: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -260,11 +334,12 @@ def _world_normals(
     return np.ascontiguousarray(unit, dtype=FLOAT), normal_indices
 
 
-def _is_similarity(linear: np.ndarray) -> bool:
-    """Whether the (3, 3) map is a rotation, a mirror or a uniform scale, or a product of them."""
+def _is_similarity(linear: np.ndarray, tolerance: float = _SIMILARITY_TOLERANCE) -> bool:
+    """Whether the (3, 3) map is a rotation, a mirror or a uniform scale, or a product of them
+    (AᵀA = s²·I to `tolerance`, relative)."""
     gram = linear.T @ linear
     scale = float(np.trace(gram)) / 3.0
-    return scale > 0.0 and float(np.abs(gram - scale * np.eye(3)).max()) <= _SIMILARITY_TOLERANCE * scale
+    return scale > 0.0 and float(np.abs(gram - scale * np.eye(3)).max()) <= tolerance * scale
 
 
 def _triangle_geometry(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import os
 from collections import Counter
+from dataclasses import dataclass
 
 import numpy as np
 from pxr import Usd, UsdGeom, UsdShade
@@ -27,7 +28,15 @@ from .draw_modes import author_draw_mode_cards
 from .implicit import tessellate
 from .lights import read_lights
 from .materials import MaterialLibrary, ResolvedMaterial, display_color
-from .placement import PreparedSurface, place_surface, prepare_surface
+from .placement import (
+    PreparedSurface,
+    SharedSurface,
+    is_instanceable,
+    place_instance,
+    place_surface,
+    prepare_surface,
+    shared_surface,
+)
 from .skinning import SkinnedPoser
 from .subdivision import PixelFootprint
 from .surfaces import (
@@ -82,7 +91,7 @@ def read_scene(
 
     levels = _SubdivisionLevels(context, contents.gprims, footprint, subdiv_level)
     builder = _MeshBuilder(context, materials, levels)
-    meshes = [mesh for placement in contents.gprims if (mesh := builder.build(placement))]
+    meshes = builder.build_all(contents.gprims)
     lights = read_lights(context, contents.lights, textures, [mesh.path for mesh in meshes])
     if not meshes:
         diagnostics.warn(f"{file} has no geometry that renders: the image holds its lights alone")
@@ -109,6 +118,36 @@ def read_scene(
     )
 
 
+INSTANCING_SAVES = 1 << 16
+"""A surface is instanced when flat copies of its placements would hold at least this many
+triangles more than one copy does: below, copies cost little memory and shade a little
+faster (an instanced hit is placed first, trace/instances.py)."""
+
+
+@dataclass(frozen=True, eq=False)
+class _Resolved:
+    """A placement before it becomes a Mesh: its surface (shared=False: posed for this prim
+    alone), per-triangle materials, transform (stage units) and names."""
+
+    surface: PreparedSurface
+    triangle_material: np.ndarray
+    world_from_local: np.ndarray
+    name: str
+    path: str
+    instance: int
+    shared: bool
+
+    @property
+    def instanceable(self) -> bool:
+        return self.shared and is_instanceable(self.world_from_local)
+
+    @property
+    def sharing_key(self) -> tuple:
+        """Placements with equal keys may be instances of one prototype (the reader gives
+        placements of equal bindings one triangle_material array)."""
+        return id(self.surface), id(self.triangle_material)
+
+
 class _MeshBuilder:
     """Builds scene.Mesh objects, triangulating each distinct surface only once.
 
@@ -129,9 +168,60 @@ class _MeshBuilder:
         # under, the notes of its read).
         # None: a surface read_mesh skipped.
         self._surfaces: dict[tuple, PreparedSurface | None] = {}
+        self._triangle_materials: dict[tuple, np.ndarray] = {}  # (surface, bindings) → (t,) material per triangle
         self._by_opinions: dict[tuple, tuple[PreparedSurface | None, str, list[tuple]]] = {}
 
-    def build(self, placement: GprimPlacement) -> Mesh | None:
+    def build_all(self, placements: list[GprimPlacement]) -> list[Mesh]:
+        """The meshes of `placements`, in their order. A surface placed often enough that
+        copies would cost INSTANCING_SAVES triangles or more, with one material per triangle
+        in every placement and none that emits, is shared: its similarity placements become
+        instances of it (scene.Mesh.prototype); every other placement is a copy in the world."""
+        resolved = [self._resolve(placement) for placement in placements]
+        groups: dict[tuple, list[int]] = {}
+        for index, item in enumerate(resolved):
+            if item is not None and item.instanceable:
+                groups.setdefault(item.sharing_key, []).append(index)
+        prototype_of: dict[int, SharedSurface] = {}  # placement index → the surface it instances
+        shared = 0
+        for members in groups.values():
+            first = resolved[members[0]]
+            triangles = len(first.surface.surface.triangles)
+            if (len(members) - 1) * triangles < INSTANCING_SAVES or self._materials.emit(first.triangle_material):
+                continue
+            # the shared triangles count once against the scene's budget
+            self._context.budget.take_triangles(triangles, f"the {triangles:,} triangles of its surface",
+                                                file=self._context.file, prim=first.path)
+            prototype_of.update(dict.fromkeys(members, shared_surface(first.surface, first.triangle_material, shared)))
+            shared += 1
+        meshes = []
+        for index, item in enumerate(resolved):
+            if item is None:
+                continue
+            mesh = self._instance(item, prototype_of[index]) if index in prototype_of else self._copy(item)
+            if mesh is not None:
+                meshes.append(mesh)
+        if shared:
+            logger.info("%s: %d placements are instances of %d shared surfaces", self._context.file,
+                        len(prototype_of), shared)
+        return meshes
+
+    def _copy(self, item: _Resolved) -> Mesh | None:
+        """The placement as a copy of its surface in the world."""
+        context = self._context
+        local = item.surface.surface
+        # Each copy of a surface's triangles in the world counts.
+        context.budget.take_triangles(len(local.triangles), f"its {len(local.triangles):,} triangles",
+                                      file=context.file, prim=item.path)
+        return place_surface(item.surface, item.world_from_local, context.meters_per_unit, item.triangle_material,
+                             item.name, item.path, context.diagnostics, instance=item.instance)
+
+    def _instance(self, item: _Resolved, shared: SharedSurface) -> Mesh | None:
+        context = self._context
+        return place_instance(shared, item.world_from_local, context.meters_per_unit, item.name, item.path,
+                              context.diagnostics, instance=item.instance)
+
+    def _resolve(self, placement: GprimPlacement) -> _Resolved | None:
+        """The placement's surface, materials and transform (None: read_mesh skipped it)."""
         context = self._context
         prim = placement.prim
         color = display_color(prim, context.time, context.file)
@@ -166,26 +256,20 @@ class _MeshBuilder:
         if surface is None:  # skipped by read_mesh, which said why
             return None
 
-        local = surface.surface
-        # Each placement is a copy of the surface's triangles in the world: counted each time.
-        context.budget.take_triangles(len(local.triangles), f"its {len(local.triangles):,} triangles",
-                                      file=context.file, prim=placement.path)
-        face_material = np.full(local.face_count, mesh_material.index, dtype=INDEX)
-        # Reversed so that, where subsets overlap, the first subset listed wins.
-        for faces, resolved in reversed(subset_materials):
-            faces = faces[(faces >= 0) & (faces < local.face_count)]
-            face_material[faces] = resolved.index
-        triangle_material = face_material[local.triangle_face]
-        return place_surface(
-            surface,
-            world_from_local,
-            context.meters_per_unit,
-            triangle_material,
-            placement.name,
-            placement.path,
-            context.diagnostics,
-            instance=placement.instance,
-        )
+        # One array per distinct (surface, bindings): the placements of a surface (a point
+        # instancer's thousands) share it, and with it a sharing key that is cheap to hash.
+        bindings = (id(surface), mesh_material.index,
+                    tuple((resolved.index, faces.tobytes()) for faces, resolved in subset_materials))
+        if bindings not in self._triangle_materials:
+            local = surface.surface
+            face_material = np.full(local.face_count, mesh_material.index, dtype=INDEX)
+            # Reversed so that, where subsets overlap, the first subset listed wins.
+            for faces, resolved in reversed(subset_materials):
+                faces = faces[(faces >= 0) & (faces < local.face_count)]
+                face_material[faces] = resolved.index
+            self._triangle_materials[bindings] = face_material[local.triangle_face]
+        return _Resolved(surface, self._triangle_materials[bindings], world_from_local, placement.name,
+                         placement.path, placement.instance, shared=posed is None)
 
     def _read_mesh(
         self,

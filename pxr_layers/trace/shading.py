@@ -96,8 +96,7 @@ class MaterialTable:
             constants[index, THIN_WALLED] = float(material.thin_walled)
             constants[index, HAS_NORMAL] = float(isinstance(material.normal, ShaderNode))
             constants[index, NORMAL_UV:NORMAL_UV + 4] = normal_uv_frame(material)
-            emissive[index] = (isinstance(material.emissive_color, ShaderNode)
-                               or max(material.emissive_color) > 0)
+            emissive[index] = material.emits
         program_range[-1] = store_range[-1] = len(compiler.program), len(compiler.stores)
         constants[-1, OPACITY] = 1.0  # light shapes block shadow rays
         # Whether any material lets light through (presence below 1 somewhere).

@@ -88,7 +88,8 @@ class World:
     instance_transform : (i, 3, 4) float32 its placement, own space → world metres
                        (scene.Mesh.world_from_points without the last row)
     instance_rotation : (i, 3, 3) float32 the orthogonal part R of the placement's linear
-                       part s·R (det −1 for a mirror): normals and directions map by R
+                       part s·R (det −1 for a mirror; rotation_and_scale): normals and
+                       directions map by R
     instance_scale   : (i,) float32 its scale s > 0: lengths scale by s, areas s², curvatures
                        and gradients 1/s
     scratch_first    : the first scratch row (rows before it: flat and prototype rows)
@@ -260,8 +261,7 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
     k1, k2, principal_direction = triangle_curvatures(corner_positions, corner_normals)
     gradient_s, gradient_t = uv_gradients(corner_positions, corner_uvs)
     placements = np.array([mesh.world_from_points for mesh, _ in instanced], np.float64).reshape(-1, 4, 4)
-    linear = placements[:, :3, :3]
-    scale = np.cbrt(np.abs(np.linalg.det(linear))) if len(linear) else np.zeros(0)
+    rotation, scale = rotation_and_scale(placements[:, :3, :3])
     low, high = _bounds(vertices, prototypes, [prototype_of[mesh.prototype] for mesh, _ in instanced], placements)
     center = (low + high) / 2
     return World(
@@ -294,7 +294,7 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
         instance_object=np.array([object_index for _, object_index in instanced], INDEX),
         instance_prototype=np.array([prototype_of[mesh.prototype] for mesh, _ in instanced], INDEX),
         instance_transform=np.ascontiguousarray(placements[:, :3], FLOAT),
-        instance_rotation=np.ascontiguousarray(linear / np.maximum(scale, 1e-300)[:, None, None], FLOAT),
+        instance_rotation=np.ascontiguousarray(rotation, FLOAT),
         instance_scale=scale.astype(FLOAT),
         scratch_first=count - scratch_rows,
     )
@@ -310,13 +310,24 @@ def flatten_instances(scene: SceneData) -> SceneData:
                                                    for mesh in scene.meshes))
 
 
+def rotation_and_scale(linear: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The placements' (n, 3, 3) linear parts A ≈ s·R as (R (n, 3, 3) the nearest orthogonal
+    matrix (polar decomposition; det −1 for a mirror), s (n,) = |det A|^(1/3)): USD composes
+    point instances from unnormalised, often half-precision quaternions, a little off a
+    similarity (stage/placement.is_instanceable)."""
+    if not len(linear):
+        return np.zeros((0, 3, 3)), np.zeros(0)
+    left, _, right = np.linalg.svd(linear)
+    return left @ right, np.cbrt(np.abs(np.linalg.det(linear)))
+
+
 def _flattened(mesh: Mesh) -> Mesh:
     placement = np.asarray(mesh.world_from_points, np.float64)
     linear = placement[:3, :3]
     points = (np.asarray(mesh.points, np.float64) @ linear.T + placement[:3, 3]).astype(FLOAT)
     normal_values = None
     if mesh.normal_values is not None:
-        rotation = linear / np.cbrt(abs(np.linalg.det(linear)))
+        rotation = rotation_and_scale(linear[None])[0][0]
         normal_values = (np.asarray(mesh.normal_values, np.float64) @ rotation.T).astype(FLOAT)
     corners = [0, 2, 1] if np.linalg.det(linear) < 0 else [0, 1, 2]
 
