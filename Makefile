@@ -39,6 +39,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_lights.py
 	$(BIN)/python benchmarks/bench_scaling.py
 	$(BIN)/python benchmarks/bench_defaults.py
+	$(BIN)/python benchmarks/bench_instancing.py
 	$(BIN)/python benchmarks/luxtest_table.py || test $$? -eq 2  # 2: no ../shared (the luxtest stages)
 	$(BIN)/python benchmarks/bench_vs_mitsuba.py || test $$? -eq 2  # 2: Mitsuba not installed (optional)
 
