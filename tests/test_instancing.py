@@ -85,6 +85,15 @@ def test_instanced_and_flattened_scenes_render_alike(cornell):
     np.testing.assert_allclose(instanced.first_bounce_norms, flattened.first_bounce_norms, rtol=1e-3, atol=1e-3)
 
 
+def test_instanced_renders_do_not_depend_on_threads_or_batches(cornell):
+    """Placed rows are per thread, but what a row holds is the hit's alone."""
+    scene, spec = cornell
+    settings = dataclasses.replace(SETTINGS, record_paths=False)
+    one = trace_image(scene, spec, settings, threads=1, batch_paths=1024).rgba
+    two = trace_image(scene, spec, settings, threads=2, batch_paths=4096).rgba
+    np.testing.assert_array_equal(one, two)
+
+
 def test_path_classes_name_each_instance_and_carry_its_energy(cornell):
     scene, spec = cornell
     sums = []
