@@ -126,7 +126,7 @@ faster (an instanced hit is placed first, trace/instances.py)."""
 
 @dataclass(frozen=True, eq=False)
 class _Resolved:
-    """A placement before it becomes a Mesh: its surface (shared=False: posed for this prim
+    """A placement before it becomes a Mesh: its surface (posed: skinned for this prim
     alone), per-triangle materials, transform (stage units) and names."""
 
     surface: PreparedSurface
@@ -135,11 +135,11 @@ class _Resolved:
     name: str
     path: str
     instance: int
-    shared: bool
+    posed: bool
 
     @property
     def instanceable(self) -> bool:
-        return self.shared and is_instanceable(self.world_from_local)
+        return not self.posed and is_instanceable(self.world_from_local)
 
     @property
     def sharing_key(self) -> tuple:
@@ -173,8 +173,8 @@ class _MeshBuilder:
 
     def build_all(self, placements: list[GprimPlacement]) -> list[Mesh]:
         """The meshes of `placements`, in their order. A surface placed often enough that
-        copies would cost INSTANCING_SAVES triangles or more, with one material per triangle
-        in every placement and none that emits, is shared: its similarity placements become
+        copies would cost INSTANCING_SAVES triangles or more, bound to the same materials in
+        every placement, none of which emits, is shared: its similarity placements become
         instances of it (scene.Mesh.prototype); every other placement is a copy in the world."""
         resolved = [self._resolve(placement) for placement in placements]
         groups: dict[tuple, list[int]] = {}
@@ -182,7 +182,7 @@ class _MeshBuilder:
             if item is not None and item.instanceable:
                 groups.setdefault(item.sharing_key, []).append(index)
         prototype_of: dict[int, SharedSurface] = {}  # placement index → the surface it instances
-        shared = 0
+        prototypes = 0
         for members in groups.values():
             first = resolved[members[0]]
             triangles = len(first.surface.surface.triangles)
@@ -191,8 +191,8 @@ class _MeshBuilder:
             # the shared triangles count once against the scene's budget
             self._context.budget.take_triangles(triangles, f"the {triangles:,} triangles of its surface",
                                                 file=self._context.file, prim=first.path)
-            prototype_of.update(dict.fromkeys(members, shared_surface(first.surface, first.triangle_material, shared)))
-            shared += 1
+            prototype_of.update(dict.fromkeys(members, shared_surface(first.surface, first.triangle_material, prototypes)))
+            prototypes += 1
         meshes = []
         for index, item in enumerate(resolved):
             if item is None:
@@ -200,9 +200,9 @@ class _MeshBuilder:
             mesh = self._instance(item, prototype_of[index]) if index in prototype_of else self._copy(item)
             if mesh is not None:
                 meshes.append(mesh)
-        if shared:
+        if prototypes:
             logger.info("%s: %d placements are instances of %d shared surfaces", self._context.file,
-                        len(prototype_of), shared)
+                        len(prototype_of), prototypes)
         return meshes
 
     def _copy(self, item: _Resolved) -> Mesh | None:
@@ -269,7 +269,7 @@ class _MeshBuilder:
                 face_material[faces] = resolved.index
             self._triangle_materials[bindings] = face_material[local.triangle_face]
         return _Resolved(surface, self._triangle_materials[bindings], world_from_local, placement.name,
-                         placement.path, placement.instance, shared=posed is None)
+                         placement.path, placement.instance, posed=posed is not None)
 
     def _read_mesh(
         self,

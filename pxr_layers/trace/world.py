@@ -220,8 +220,11 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
                           np.zeros(0, INDEX)), NOT_A_LIGHT, 0))
         objects.append(("", "", -1, -1))
     # each prototype once, as its first placement's geometry (all of them share it)
-    prototype_of = {number: order for order, number in enumerate(dict.fromkeys(m.prototype for m, _ in instanced))}
-    prototypes = list({mesh.prototype: mesh for mesh, _ in reversed(instanced)}.values())[::-1]
+    first_placement: dict[int, Mesh] = {}
+    for mesh, _ in instanced:
+        first_placement.setdefault(mesh.prototype, mesh)
+    prototypes = list(first_placement.values())
+    prototype_of = {number: order for order, number in enumerate(first_placement)}
     pieces = [piece for piece, _, _ in flat] + prototypes
 
     flat_count = sum(len(piece.triangles) for piece, _, _ in flat)
