@@ -14,14 +14,15 @@ path index on, in its default merged mode, previews on.
 2. In process: one ``render_frame`` per N (after a warm-up frame that loads the kernels), split
    by timing its stages: opening the stage and planning the frame, preparing it (scene, Embree,
    tables), ``trace_pixels`` (the parallel part), and each serial section around it (data AOVs,
-   closing the index, reopening it for delivery, the EXR, the previews, the rest). The frame
+   closing the index, opening it for delivery, the EXR, the previews, the rest). The frame
    goes through render_frame's own extension points (a FrameSource wrapping LocalTrace; the
    assembler's film and index writer wrapped on their instances); only the EXR and preview
-   writers (in ``layers.deliver``'s namespace) and the reopening of the index (``PathIndex`` in
-   ``jobs.frame``'s) are wrapped in a module, for the frame's duration. Inside trace_pixels the
-   main thread takes in every batch (film sums; the index writer's class merge and its flushes:
-   sort, zstd, write) while the workers trace: that intake overlaps the tracing but bounds it,
-   since one thread does it all.
+   writers (in ``layers.deliver``'s namespace) are wrapped in a module, for the frame's
+   duration. Inside trace_pixels the main thread takes in every batch (film sums; the index
+   writer's class merge, handing full buffers to the writer's thread) while the workers trace:
+   that intake overlaps the tracing but bounds it, since one thread does it all. The writer's
+   own thread flushes those buffers (sort, zstd, write) meanwhile; what it has not done when
+   tracing ends, the index's close waits for.
    s = the share of the frame outside trace_pixels at N = 1; printed beside the measured
    speed-ups: Amdahl's 1/(s + (1-s)/N) for N = 2, 4, ... 64, the same bounded by the intake
    (1/(s + max((1-s)/N, a)), a = the intake's share of the frame), and Amdahl for the whole
@@ -62,11 +63,11 @@ OPEN = "open stage, plan frame"
 PREPARE = "prepare: scene, Embree, tables"
 TRACE = "trace_pixels (parallel)"
 FILM_ADD = "film sums"
-INDEX_ADD = "index add (class merge + flushes)"
+INDEX_ADD = "index add (class merge, hand-over)"
 INDEX_FLUSH = "flushes: sort, zstd, write"
 DATA = "data AOVs, Cryptomatte names"
-INDEX_CLOSE = "index close: last flush, footer, fsync"
-INDEX_OPEN = "index reopened for delivery (PathIndex)"
+INDEX_CLOSE = "index close: rest of the flushes, footer, fsync"
+INDEX_OPEN = "index opened for delivery (writer's footer)"
 EXR = "EXR"
 PREVIEWS = "previews (PNG, contact sheet)"
 REST = "rest: checks, render id, files into place"
@@ -114,7 +115,8 @@ def cli_scaling(cli, threads_list, resolution, spp: int, max_depth: int, repeats
 
 class Stopwatch:
     """Wall seconds per stage of one frame, summed over calls; a stage's calls may nest others
-    (their time is in both). Every timed call runs on render_frame's thread."""
+    (their time is in both). Every timed call runs on render_frame's thread but the index
+    flushes, on the writer's thread (one stage per thread: the sums never race)."""
 
     def __init__(self):
         self.seconds: dict[str, float] = defaultdict(float)
@@ -168,8 +170,9 @@ class TimedTrace:
         writer = assembler.writer
         if writer is not None:
             writer.add = watch.timed(writer.add, INDEX_ADD)
-            writer._flush = watch.timed(writer._flush, INDEX_FLUSH)
+            writer._flush = watch.timed(writer._flush, INDEX_FLUSH)  # looked up by the writer's thread per flush
             writer.close = watch.timed(writer.close, INDEX_CLOSE)
+            writer.opened = watch.timed(writer.opened, INDEX_OPEN)
         with Load() as self.load:
             self.local.trace(add)
         watch.seconds[TRACE] += self.load.wall
@@ -203,7 +206,6 @@ class FrameTiming:
 
 
 def timed_frame(resolution, spp: int, max_depth: int, threads: int, out: Path, label: str) -> FrameTiming:
-    import pxr_layers.jobs.frame as frame_module
     import pxr_layers.layers.deliver as deliver_module
     from pxr_layers.jobs.frame import plan_frame, render_frame
     from pxr_layers.request import RenderRequest
@@ -212,8 +214,7 @@ def timed_frame(resolution, spp: int, max_depth: int, threads: int, out: Path, l
     request = RenderRequest(stage=Path(embedded("cornell.usda")), resolution=tuple(resolution), spp=spp,
                             max_depth=max_depth)
     watch = Stopwatch()
-    with (Load() as load, timed_functions(watch, deliver_module, {"write_multipart": EXR, "write_previews": PREVIEWS}),
-          timed_functions(watch, frame_module, {"PathIndex": INDEX_OPEN})):
+    with Load() as load, timed_functions(watch, deliver_module, {"write_multipart": EXR, "write_previews": PREVIEWS}):
         # what render_frame does itself without a plan, split out to be timed
         with watch.stage(OPEN):
             shot = open_request(request)
@@ -244,10 +245,11 @@ def frame_scaling(threads_list, resolution, spp: int, max_depth: int, repeats: i
                 best[threads] = frame
     one = best[1]
     print(f"\n  one frame at 1 thread, {one.described}: {one.wall:.2f} s")
-    for stage, indent in ((OPEN, 0), (PREPARE, 0), (TRACE, 0), (FILM_ADD, 1), (INDEX_ADD, 1), (INDEX_FLUSH, 2),
+    for stage, indent in ((OPEN, 0), (PREPARE, 0), (TRACE, 0), (FILM_ADD, 1), (INDEX_ADD, 1), (INDEX_FLUSH, 1),
                           (DATA, 0), (INDEX_CLOSE, 0), (INDEX_OPEN, 0), (EXR, 0), (PREVIEWS, 0), (REST, 0)):
         seconds = one.flush_in_trace if stage == INDEX_FLUSH else one.seconds.get(stage, 0.0)
-        kind = "parallel" if stage == TRACE else "main thread, overlapped" if indent else "serial"
+        kind = ("parallel" if stage == TRACE else "writer thread, overlapped" if stage == INDEX_FLUSH
+                else "main thread, overlapped" if indent else "serial")
         print(f"    {'  ' * indent}{stage:<{44 - 2 * indent}s} {seconds:7.3f} s {seconds / one.wall:6.1%}  {kind}")
     for threads, frame in best.items():
         row(f"render_frame {threads} thread(s), index",

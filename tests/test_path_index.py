@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import struct
 import subprocess
+import threading
 
 import numpy as np
 import pytest
@@ -192,6 +193,7 @@ def test_an_interrupted_render_leaves_no_index(stage, tmp_path):
         render_frame(request, output=folder, threads=2)
     assert len(seen) == 1
     assert not list(folder.iterdir())  # neither the index, its temporary, nor a product
+    assert not [thread for thread in threading.enumerate() if thread.name == "pxl-index-writer"]
 
 
 def test_cli_render_writes_the_index_and_info_reads_it(tmp_path, shipped_scene):

@@ -250,10 +250,11 @@ def frame_data(plan: FramePlan, integrator, threads: int | None = None) -> dict:
 
 
 class FrameAssembler:
-    """Receives a frame's batches in path order; then writes the index and delivers.
+    """Receives a frame's batches in path order (the index writer's own thread writes them as
+    they come); then closes the index and delivers.
 
-    Use as a context manager: an exception (or Ctrl-C) before :meth:`deliver` removes the
-    index's temporary file and leaves no output behind.
+    Use as a context manager: an exception (or Ctrl-C) before :meth:`deliver` stops the
+    writer's thread, removes the index's temporary file and leaves no output behind.
     """
 
     def __init__(self, plan: FramePlan):
@@ -312,7 +313,8 @@ class FrameAssembler:
             index = None
             if self.writer is not None:
                 self.writer.manifest["render_id"] = render_id
-                index = PathIndex(self.writer.close(vocabulary), shown_as=plan.index_path)
+                self.writer.close(vocabulary)
+                index = self.writer.opened()  # its tables from the footer in memory, not parsed again
             check_beauty(rgba, index, plan.stage)
             delivered = deliver(index, plan.recipe, rgba, plan.outputs, data=data, metadata=metadata,
                                 previews=plan.request.previews, nuke_scripts=plan.request.nuke_scripts,

@@ -149,14 +149,34 @@ class PathIndex:
     def __init__(self, path: str | os.PathLike, *, shown_as: str | os.PathLike | None = None):
         """shown_as: the file's name in messages, when it is read under another (a render
         reads its index under its temporary name, before the frame's files are put in place)."""
-        self.path = Path(path)
-        self.shown_as = Path(shown_as) if shown_as is not None else self.path
+        self._named(path, shown_as)
         regular_input(self.path, "path index", PathIndexError, name=self.shown_as)  # a FIFO would block the open
         footer = self._footer_bytes()
         try:
             self._load(self._footer_tables(footer))
         except _Malformed as error:
             raise self._error(f"corrupted footer: {error}") from None
+
+    @classmethod
+    def from_footer(cls, path: str | os.PathLike, tables: dict, footer_offset: int, size: int, *,
+                    shown_as: str | os.PathLike | None = None) -> PathIndex:
+        """The index at `path` whose footer is already in memory: `tables`, its JSON object
+        as parsed, at byte `footer_offset` of the file of `size` bytes (its writer's own,
+        ``PathIndexWriter.opened``). Its tables are built and checked as for a file read
+        from disk; only reading, checking and parsing the header, trailer and footer is
+        skipped."""
+        index = cls.__new__(cls)
+        index._named(path, shown_as)
+        index.size, index._footer_offset = size, footer_offset
+        try:
+            index._load(tables)
+        except _Malformed as error:  # a bug of the writer's
+            raise index._error(f"corrupted footer: {error}") from None
+        return index
+
+    def _named(self, path: str | os.PathLike, shown_as: str | os.PathLike | None) -> None:
+        self.path = Path(path)
+        self.shown_as = Path(shown_as) if shown_as is not None else self.path
 
     def _footer_bytes(self) -> bytes:
         """The footer, after checking the header, trailer and footer checksum; sets size

@@ -66,15 +66,22 @@ class ClassTrie:
 def class_sequences(parent: np.ndarray, event: np.ndarray, nodes: np.ndarray) -> list[tuple[int, ...]]:
     """The event ids from the first event after the camera to each of `nodes` of the trie
     (parent, event)."""
-    chains = []
-    current = np.asarray(nodes, np.int64)
-    while (current > 0).any():  # one level of all chains at a time
-        chains.append(np.where(current > 0, event[current], -1))
+    return [tuple(e for e in row if e >= 0) for row in class_events(parent, event, nodes).tolist()]
+
+
+def class_events(parent: np.ndarray, event: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+    """(n, longest) int64: the event ids after the camera of each of `nodes` of the trie
+    (parent, event), first to last, then −1 (:func:`class_sequences` as one array)."""
+    upward, current = [], np.asarray(nodes, np.int64)
+    while (current > 0).any():  # one level of all chains at a time, from the last event up
+        upward.append(np.where(current > 0, event[current], -1))
         current = np.where(current > 0, parent[np.maximum(current, 0)], 0)
-    if not chains:
-        return [() for _ in range(len(current))]
-    table = np.stack(chains[::-1], axis=1)  # (nodes, depth), left-padded with −1
-    return [tuple(e for e in row if e >= 0) for row in table.tolist()]
+    if not upward:
+        return np.full((len(current), 0), -1, np.int64)
+    last_first = np.stack(upward, axis=1)
+    lengths = (last_first >= 0).sum(axis=1)
+    position = lengths[:, None] - 1 - np.arange(last_first.shape[1])  # column c holds the (length - 1 - c)-th up
+    return np.where(position >= 0, np.take_along_axis(last_first, np.maximum(position, 0), axis=1), -1)
 
 
 @kernel
