@@ -32,7 +32,7 @@ mitsuba, or without a usable LLVM, it prints one line saying what to install and
    counts blocks beyond 4 standard errors (estimated from the pixels of the block, which
    overestimates the noise), which noise alone should almost never reach.
 3. Prints the times and the speed ratio pxr-layers / Mitsuba = T_mitsuba / T_ours for the
-   no-index render (target ≥ 0.6, moonshot ≥ 1).
+   no-index render (target ≥ 0.8, moonshot ≥ 1), and what the index adds (target ≤ 25 %).
 
 Exits 0 whether or not targets are met (it is a measurement; each says met or MISSED), 1
 when a render fails, 2 when Mitsuba is not available.
@@ -85,8 +85,9 @@ import numpy as np
 
 from pxr_layers.cores import available_cores  # the standard library only: the parent stays light
 
-TARGET_RATIO = 0.6
+TARGET_RATIO = 0.8  # issue 35
 MOONSHOT_RATIO = 1.0
+TARGET_INDEX_OVERHEAD = 0.25  # issue 35: the index costs at most a quarter more than a render without it
 TARGET_MEAN = 0.01
 TARGET_BLOCK = 0.05
 BLOCK = 8
@@ -443,6 +444,9 @@ def main() -> int:
         print(f"speed     : pxr-layers / Mitsuba = T_mitsuba / T_ours (no index) = {ratio:.3f}  "
               f"(target >= {TARGET_RATIO}: {verdict(ratio >= TARGET_RATIO)}; moonshot >= {MOONSHOT_RATIO:g}: "
               f"{verdict(ratio >= MOONSHOT_RATIO)}); with the index {best['Mitsuba'] / best['pxr-layers (index)']:.3f}")
+        overhead = best["pxr-layers (index)"] / best["pxr-layers (no index)"] - 1
+        print(f"index     : the index costs {overhead:+.1%} of the render without it  "
+              f"(target <= {TARGET_INDEX_OVERHEAD:.0%}: {verdict(overhead <= TARGET_INDEX_OVERHEAD)})")
 
         ours_exr = out / "ours" / "cornell.exr"
         if not ours_exr.exists():
