@@ -92,12 +92,12 @@ def _subjects(world: World) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     """
     flat = len(world.triangles)
     rows = len(world.triangle_object)
-    materials = [np.unique(world.triangle_material[first:first + len(triangles)])
-                 for first, triangles in zip(world.prototype_first.tolist(), world.prototype_triangles)]
+    materials = []  # each prototype's distinct materials, sorted
     subject_rank = np.zeros(rows, np.int64)
-    for first, triangles, distinct in zip(world.prototype_first.tolist(), world.prototype_triangles, materials):
-        own = slice(first, first + len(triangles))
-        subject_rank[own] = np.searchsorted(distinct, world.triangle_material[own])
+    for first, triangles in zip(world.prototype_first.tolist(), world.prototype_triangles):
+        own = world.triangle_material[first:first + len(triangles)]
+        materials.append(np.unique(own))
+        subject_rank[first:first + len(triangles)] = np.searchsorted(materials[-1], own)
     per_instance = np.array([len(materials[prototype]) for prototype in world.instance_prototype.tolist()], np.int64)
     objects = np.concatenate([world.triangle_object[:flat], np.repeat(world.instance_object, per_instance)])
     pair_materials = np.concatenate([world.triangle_material[:flat],
