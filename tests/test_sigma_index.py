@@ -85,3 +85,20 @@ def test_an_index_of_norms_refuses_a_query_on_sigma(shipped_scene, tmp_path):
     assert refused.returncode == 1 and len(refused.stderr.strip().splitlines()) == 1, refused.stderr
     assert "--index-covariance sigma" in refused.stderr and "Traceback" not in refused.stderr
     assert not (tmp_path / "layers.exr").exists()
+
+
+def test_a_batch_without_contributions_merges_to_no_records():
+    """A batch of pixels that see nothing (sky-less background rows of the Cornell box at
+    256², 64 spp) has no record: its merged Σ codes are empty, shaped as any batch's."""
+    from pxr_layers.trace.merge import merged
+    from pxr_layers.trace.recorder import Contributions
+
+    slots = 5
+    empty = Contributions(pixel=np.zeros(0, np.int64), sample=np.zeros(0, np.int32), rgb=np.zeros((0, 3), np.float32),
+                          path_class=np.zeros(0, np.int64), norms=np.zeros((0, slots, 3), np.float16),
+                          class_nodes=np.zeros(0, np.int64), trie_parent=np.full(1, -1, np.int64),
+                          trie_event=np.zeros(1, np.int64), sigma=np.zeros((0, slots, 10), np.float32))
+    result = merged(empty, 0, 1024)
+    assert result.sigma_codes.shape == (0, slots, 10) and result.norm_codes.shape == (0, slots, 3)
+    assert len(result.pixel) == 0 and result.contributions == 0
+

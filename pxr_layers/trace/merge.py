@@ -75,7 +75,7 @@ def merged(records: Contributions, first_pixel: int, pixel_count: int) -> Merged
         pixel=records.pixel[chosen], count=merged_count[:groups][order], rgb=sums[:groups][order].astype(np.float32),
         path_class=records.path_class[chosen], norm_codes=key[:, :3 * slots].reshape(groups, slots, 3),
         sigma_codes=None if sigma_codes is None else
-        np.ascontiguousarray(key[:, 3 * slots:]).view(np.int16).reshape(groups, slots, -1),
+        np.ascontiguousarray(key[:, 3 * slots:]).view(np.int16).reshape(groups, *sigma.shape[1:]),
         class_nodes=records.class_nodes, trie_parent=records.trie_parent, trie_event=records.trie_event,
         contributions=count)
 
