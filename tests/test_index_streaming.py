@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 from tracing import index_writer
 
-from pxr_layers.errors import OutputError
 from pxr_layers.jobs.frame import render_frame
 from pxr_layers.paths import format as fmt
 from pxr_layers.paths.events import path_text
