@@ -303,8 +303,7 @@ class RayCaster:
             add_triangles(scene, world.vertices, world.triangles)
         scene.commit()
         self._scene = scene
-        self._instance_first_row = np.ascontiguousarray(world.prototype_first[world.instance_prototype]
-                                                        if len(world.instance_prototype) else np.zeros(0), np.int64)
+        self._instance_first_row = np.ascontiguousarray(world.prototype_first[world.instance_prototype], np.int64)
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray):
         """Closest hits.

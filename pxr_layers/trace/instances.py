@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import queue
 from contextlib import contextmanager
-from typing import Iterator, NamedTuple
+from collections.abc import Iterator
+from typing import NamedTuple
 
 import numpy as np
 
@@ -38,10 +39,10 @@ REGIONS × lanes × 0.4 kB a slot)."""
 
 class RowTables(NamedTuple):
     """Every per-row table a stage reads at a hit (what a placed row must hold): the
-    GeometryArrays (triangle-major), the World's component-major tables, and the frame's
-    tables built from them. subject: (rows,) int64 the event subject (render.prepare);
-    curvature: (rows,) float32 C, or (0,) without covariance; link_group: (rows,) int32, or
-    (0,) without light linking."""
+    GeometryArrays (triangle-major), the World's component-major tables (the fields named
+    as the World's attributes, :meth:`of`), and the frame's tables built from them. subject:
+    (rows,) int64 the event subject (render.prepare); curvature: (rows,) float32 C, or (0,)
+    without covariance; link_group: (rows,) int32, or (0,) without light linking."""
 
     geometry: GeometryArrays
     geometric_normal: np.ndarray
@@ -59,6 +60,14 @@ class RowTables(NamedTuple):
     curvature: np.ndarray
     link_group: np.ndarray
 
+    @classmethod
+    def of(cls, world: World, geometry: GeometryArrays, subject: np.ndarray, curvature: np.ndarray,
+           link_group: np.ndarray) -> RowTables:
+        """The tables of `world` (each field that is not an argument here is the World's
+        attribute of its name)."""
+        frame = {"geometry": geometry, "subject": subject, "curvature": curvature, "link_group": link_group}
+        return cls(**frame, **{name: getattr(world, name) for name in cls._fields if name not in frame})
+
 
 class InstanceTables(NamedTuple):
     """Per instance (i,): transform (i, 3, 4) float32, rotation (i, 3, 3) float32, scale (i,)
@@ -74,6 +83,14 @@ class InstanceTables(NamedTuple):
     subject_first: np.ndarray
     link_group: np.ndarray
     subject_rank: np.ndarray
+
+    @classmethod
+    def of(cls, world: World, subject_first: np.ndarray, subject_rank: np.ndarray,
+           object_link_group: np.ndarray) -> InstanceTables:
+        """The instances of `world`; object_link_group (objects,) int32, (0,) without linking."""
+        link_group = object_link_group[world.instance_object] if len(object_link_group) else object_link_group
+        return cls(world.instance_transform, world.instance_rotation, world.instance_scale, world.instance_object,
+                   subject_first, link_group.astype(np.int32), subject_rank)
 
 
 class InstanceRows:

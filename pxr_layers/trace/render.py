@@ -60,15 +60,9 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
     pairs, triangle_subject, subject_first, subject_rank = _subjects(world)
     instance_rows = None
     if instanced:
-        rows = RowTables(geometry, world.geometric_normal, world.corner_positions, world.corner_normals,
-                         world.corner_uvs, world.corner_primvars, world.curvature_k1, world.curvature_k2,
-                         world.principal_direction, world.gradient_s, world.gradient_t, world.triangle_object,
-                         triangle_subject, bounce_norms.curvature if bounce_norms else np.zeros(0, FLOAT),
-                         lights.arrays.link_group)
-        link_group = (lights.object_link_group[world.instance_object] if len(lights.arrays.link_group)
-                      else np.zeros(0, np.int32))
-        instances = InstanceTables(world.instance_transform, world.instance_rotation, world.instance_scale,
-                                   world.instance_object, subject_first, link_group.astype(np.int32), subject_rank)
+        rows = RowTables.of(world, geometry, triangle_subject,
+                            bounce_norms.curvature if bounce_norms else np.zeros(0, FLOAT), lights.arrays.link_group)
+        instances = InstanceTables.of(world, subject_first, subject_rank, lights.object_link_group)
         instance_rows = InstanceRows(world, rows, instances, lanes, slots)
     vocabulary = EventVocabulary(
         surface_objects=tuple(pairs[:, 0].tolist()), surface_materials=tuple(pairs[:, 1].tolist()),
