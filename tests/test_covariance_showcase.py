@@ -29,7 +29,7 @@ from pxr_layers.trace.bounce_norms import (
 from pxr_layers.trace.integrator import TraceSettings
 
 RESOLUTION = (96, 96)
-SETTINGS = TraceSettings(spp=4, max_depth=4, seed=3, norm_bounces=5, record_paths=True)
+SETTINGS = TraceSettings(spp=4, max_depth=4, seed=3, norm_bounces=5, record_paths=True, first_bounce_norms=True)
 SPHERE_CURVATURE = 1 / 0.4  # 1/m
 STRIPE_AMPLITUDE = 0.3 / 0.5  # relative amplitude a of 0.5 + 0.3 sin(...)
 
@@ -82,7 +82,8 @@ def render_showcase(stage, folder):
     """render_frame with SETTINGS: its result and the first events of its index."""
     request = RenderRequest(stage=stage, resolution=RESOLUTION, spp=SETTINGS.spp, max_depth=SETTINGS.max_depth,
                             seed=SETTINGS.seed, norm_bounces=SETTINGS.norm_bounces, index_mode="records",
-                            index_covariance="norms", previews=False)
+                            index_covariance="norms", previews=False,
+                            debug_covariance=True)  # the first-bounce norm pictures
     result = render_frame(request, output=folder, threads=2)
     assert result.plan.trace == SETTINGS
     return result, indexed_first_events(PathIndex(result.index_path), result.vocabulary)

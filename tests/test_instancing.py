@@ -24,7 +24,7 @@ from pxr_layers.trace.world import build_world, flatten_instances
 from tracing import trace_image
 
 RESOLUTION = (48, 48)
-SETTINGS = TraceSettings(spp=8, max_depth=4, norm_bounces=2, record_paths=True)
+SETTINGS = TraceSettings(spp=8, max_depth=4, norm_bounces=2, record_paths=True, first_bounce_norms=True)
 
 
 def turned(angle: float, scale: float, offset, mirror: bool = False) -> np.ndarray:
@@ -149,7 +149,7 @@ def test_light_links_follow_each_instance(cornell):
     linked = scene.meshes.index(next(mesh for mesh in scene.meshes if mesh.name == "tallBox1"))
     lights = tuple(dataclasses.replace(light, light_link=(linked,)) for light in scene.lights)
     scene = dataclasses.replace(scene, lights=lights)
-    direct = dataclasses.replace(SETTINGS, max_depth=1, record_paths=False, norm_bounces=0)
+    direct = dataclasses.replace(SETTINGS, max_depth=1, record_paths=False, norm_bounces=0, first_bounce_norms=False)
     instanced = trace_image(scene, spec, direct, threads=2).rgba
     flattened = trace_image(flatten_instances(scene), spec, direct, threads=2).rgba
     assert np.mean(np.abs(instanced - flattened)[..., :3].max(axis=-1) < 1e-4) > 0.98

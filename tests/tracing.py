@@ -50,7 +50,7 @@ def trace_image(scene: SceneData, spec: RenderSpec, settings: TraceSettings, *,
         spec = dataclasses.replace(spec, resolution=tuple(resolution))
     integrator = prepare(scene, spec, settings)
     width, height = spec.resolution
-    film = Film(width * height, settings.spp, settings.norm_bounces > 0)
+    film = Film(width * height, settings.spp, settings.first_bounce_norms)
     batches: list[BatchResult] = []
 
     def add(batch: BatchResult) -> None:

@@ -68,7 +68,7 @@ def info_lines(index: PathIndex, top: int, verified: int | None = None) -> list[
         + (", and each event's whole 4×4 Σ" if manifest["covariance"] == "sigma" else "")),
         f"records      {records:,}" + (f" (merged from {manifest['contributions']:,} contributions)"
                                            if manifest["mode"] == "merged" else ""),
-        f"classes      {len(index.classes):,}",
+        f"classes      {index.class_count:,}",
         f"labels       {len(index.labels):,}",
         (f"size         {index.size:,} bytes ({index.size / max(records, 1):.2f} bytes per record, "
         f"{_per_pixel(index)}{len(index.chunks)} chunks)"),

@@ -139,6 +139,7 @@ def _fingerprint(plan: FramePlan) -> str:
         "auto_camera": plan.request.auto_camera,
         "spp": trace.spp, "max_depth": trace.max_depth, "seed": trace.seed, "norm_bounces": trace.norm_bounces,
         "record": trace.record_paths, "merge": trace.merge_records, "sigma": trace.record_sigma,
+        "first_bounce_norms": trace.first_bounce_norms,
         "clamp_indirect": trace.clamp_indirect,
     }, sort_keys=True)
 

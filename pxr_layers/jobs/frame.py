@@ -159,6 +159,7 @@ def plan_frame(
     trace = TraceSettings(spp=request.spp, max_depth=request.max_depth, seed=request.seed, norm_bounces=norm_bounces,
                           record_paths=record, merge_records=record and index_mode == "merged",
                           record_sigma=record and sigma and norm_bounces > 0, first_hits=bool(crypto_sources),
+                          first_bounce_norms=request.debug_covariance,
                           clamp_indirect=request.clamp_indirect)
     metadata = {
         "version": __version__,
@@ -260,7 +261,7 @@ class FrameAssembler:
     def __init__(self, plan: FramePlan):
         self.plan = plan
         width, height = plan.resolution
-        self.film = Film(width * height, plan.trace.spp, plan.trace.norm_bounces > 0)
+        self.film = Film(width * height, plan.trace.spp, plan.trace.first_bounce_norms)
         self.writer = (PathIndexWriter(plan.index_path, plan.manifest, plan.trace.norm_bounces,
                                        mode="merged" if plan.trace.merge_records else "records",
                                        sigma=plan.trace.record_sigma) if plan.trace.record_paths else None)
@@ -486,7 +487,8 @@ class FrameResult:
     delivered  : every product written (EXR, previews, Nuke script), in the recipe's order
     rgba       : (h, w, 4) float32, the beauty as written (linear radiance; A = coverage)
     first_bounce_norms : (h, w, 3) float32 mean C (1/m), T (cycles/m), R (cycles/rad) of
-                 the first bounce (NaN where no sample scatters), or None without norms
+                 the first bounce (NaN where no sample scatters), or None unless the request's
+                 ``debug_covariance``
     data       : the data AOVs and Cryptomattes (name → image or ranks) the products hold
     vocabulary : the frame's event names (paths.events.EventVocabulary)
     object_paths : the prim path of each object, indexed by primId

@@ -99,7 +99,7 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     automata = _automata(expressions)
     warnings = warn_unknown_labels(automata, index)
     names = list(expressions)
-    class_count = len(index.classes)
+    class_count = index.class_count
     always = np.zeros((len(names), class_count), bool)
     # Conditional classes whose outcomes are the same function of the same atoms share one
     # group: its mask is evaluated once per chunk over all their records.

@@ -14,6 +14,7 @@ records and summed rgb of each class what the footer says.
 from __future__ import annotations
 
 import collections
+import functools
 import itertools
 import json
 import math
@@ -240,9 +241,8 @@ class PathIndex:
                 or class_rgb.dtype.kind not in "iuf":
             raise _Malformed(f"class_records and class_rgb do not give counts and rgb for its "
                              f"{len(class_events)} classes")
-        self.classes: tuple[PathClass, ...] = tuple(  # from the JSON lists, checked above (3x faster than tolist)
-            PathClass(index, tuple(events), records, tuple(rgb), self.events)
-            for index, (events, records, rgb) in enumerate(zip(class_events, records_listed, rgb_listed)))
+        self.class_count: int = len(class_events)
+        self._class_lists = (class_events, records_listed, rgb_listed)  # checked above; PathClasses when asked
         # (classes,) bool, the class's summed rgb is finite. Such a class has finite records
         # only: a record that is not is damage (a render with NaN contributions has NaN sums,
         # and is read as it is).
@@ -257,8 +257,15 @@ class PathIndex:
         if not manifest["records"] == total == sum(chunk["records"] for chunk in self.chunks):
             raise _Malformed(f"the manifest says {manifest['records']} records, its classes {total}, its chunks "
                              f"{sum(chunk['records'] for chunk in self.chunks)}")
-        if manifest["classes"] != len(self.classes):
-            raise _Malformed(f"the manifest says {manifest['classes']} classes, its table holds {len(self.classes)}")
+        if manifest["classes"] != self.class_count:
+            raise _Malformed(f"the manifest says {manifest['classes']} classes, its table holds {self.class_count}")
+
+    @functools.cached_property
+    def classes(self) -> tuple[PathClass, ...]:
+        """Every path class, by id. Built when first asked for, from the footer's lists
+        (3x faster than from arrays): a render that extracts no layer never needs them."""
+        return tuple(PathClass(index, tuple(events), records, tuple(rgb), self.events)
+                     for index, (events, records, rgb) in enumerate(zip(*self._class_lists)))
 
     def _event(self, entry) -> Event:
         if type(entry) is not list or len(entry) not in (3, 4):
@@ -320,7 +327,7 @@ class PathIndex:
                     raise _Malformed(f"chunk {number}'s {key!r} is not a whole number >= 0")
             if chunk["sums_bytes"] > chunk["bytes"]:
                 raise _Malformed(f"chunk {number}'s first frame is longer than the chunk")
-            _id_lists([_typed(chunk, "classes", list, f"chunk {number}'s ")], len(self.classes),
+            _id_lists([_typed(chunk, "classes", list, f"chunk {number}'s ")], self.class_count,
                       f"chunk {number}'s classes")
             if chunk["records"] * self._record_bytes > MAX_CHUNK_BYTES:
                 raise _Malformed(f"chunk {number} holds {chunk['records']} records, more than MAX_CHUNK_BYTES "
@@ -391,7 +398,7 @@ class PathIndex:
         """(classes,) bool lookup table of `classes` (ids), or None for all."""
         if classes is None:
             return None
-        wanted = np.zeros(len(self.classes), bool)
+        wanted = np.zeros(self.class_count, bool)
         wanted[np.fromiter(classes, np.int64)] = True
         return wanted
 
@@ -422,7 +429,7 @@ class PathIndex:
         the footer says; returns the number of chunks. Raises PathIndexError naming the file
         and the first bad chunk's number and byte offset (for a class whose counts or sums
         are wrong, the chunks holding it). Progress (records) on stderr when `show_progress`."""
-        classes = len(self.classes)
+        classes = self.class_count
         counts = np.zeros(classes, np.int64)
         sums, magnitudes = np.zeros((classes, 3)), np.zeros((classes, 3))  # float64 sums of rgb and |rgb|
         progress = Progress(self.record_count, "verify", enabled=show_progress)

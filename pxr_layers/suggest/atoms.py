@@ -159,7 +159,7 @@ def _frame_atoms(index: PathIndex, covariance: bool, threads: int) -> _FrameAtom
                 atoms[key] = atoms[key] + tile_rgb
             else:
                 atoms[key] = tile_rgb
-    log.debug("%s: %d atoms from %d classes", index.path.name, len(atoms), len(index.classes))
+    log.debug("%s: %d atoms from %d classes", index.path.name, len(atoms), index.class_count)
     return _FrameAtoms(atoms, names, labels)
 
 

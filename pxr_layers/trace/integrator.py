@@ -63,6 +63,8 @@ class TraceSettings:
     record_paths : keep every contribution with its path class and norms (the path index).
     merge_records : hand them on merged (``merge.MergedContributions``), as a merged index keeps them.
     record_sigma : with them, each event's whole 4×4 Σ (``Contributions.sigma``, trace/sigma.py).
+    first_bounce_norms : sum, per pixel, the first bounce's norms (``BatchResult.first_bounce_norms``,
+                 the --debug-covariance pictures); needs norm_bounces > 0.
     first_hits : count, per pixel, the camera samples whose first visible hit is each surface
                  subject (``BatchResult.first_hits``): what the Cryptomattes are made of.
     clamp_indirect : the largest channel an indirect contribution may have (stages/film.py,
@@ -77,8 +79,13 @@ class TraceSettings:
     record_paths: bool = False
     merge_records: bool = False
     record_sigma: bool = False
+    first_bounce_norms: bool = False
     first_hits: bool = False
     clamp_indirect: float = NO_CLAMP
+
+    def __post_init__(self) -> None:
+        if self.first_bounce_norms and self.norm_bounces <= 0:
+            raise ValueError("TraceSettings: first_bounce_norms needs norm_bounces > 0 (covariance traced)")
 
 
 @dataclass
@@ -89,7 +96,7 @@ class BatchResult:
     alpha : (k,) float64 count of camera rays that hit geometry
     first_bounce_norms : (k, 3) float64 sums of the first bounce's C, T, R over the
             samples whose first event scatters, and first_bounce_count (k,) of them
-            (None without covariance)
+            (None unless settings.first_bounce_norms)
     records : every contribution, merged if settings.merge_records (None unless settings.record_paths)
     first_hits : the samples' first visible hits by surface subject (None unless settings.first_hits)
     rays  : rays cast (camera + bounce + shadow), for throughput figures
@@ -134,9 +141,10 @@ class Integrator:
 
     def observers(self, first_pixel: int, pixel_count: int, paths: int
                   ) -> tuple[BatchFilm, FirstBounceNorms | None, PathRecorder | None]:
-        """A batch's observers: its film, the first-bounce norms with covariance, the
-        recorder with an index."""
-        first_bounce = FirstBounceNorms(first_pixel, pixel_count) if self.bounce_norms else None
+        """A batch's observers: its film, the first-bounce norms if asked for, the recorder
+        with an index."""
+        first_bounce = (FirstBounceNorms(first_pixel, pixel_count)
+                        if self.bounce_norms and self.settings.first_bounce_norms else None)
         sigma = (SigmaInputs(self.world, self.lights, self.bounce_norms, self.pixel_angle)
                  if self.settings.record_sigma and self.bounce_norms else None)
         recorder = (PathRecorder(self.vocabulary, self.triangle_subject,

@@ -193,7 +193,7 @@ class Session:
         objects = sorted({event.name for event in index.events if event.type in "RTO" and event.name})
         materials = sorted({material.rsplit("/", 1)[-1] for _, material in self._event_paths} - {""})
         return {"file": index.path.name, "spp": index.manifest["spp"], "records": index.record_count,
-                "classes": len(index.classes), "bounces": index.norm_slots, "has_sigma": index.has_sigma,
+                "classes": index.class_count, "bounces": index.norm_slots, "has_sigma": index.has_sigma,
                 "labels": sorted(index.labels), "lights": lights, "objects": objects, "materials": materials,
                 "norm_bins": {"min": NormBins.LOWEST, "max": NormBins.LOWEST * NormBins.WIDTH ** (NormBins.CODES - 2),
                               "per_octave": NormBins.BINS_PER_OCTAVE}}
