@@ -2,6 +2,7 @@
 
     python benchmarks/bench_vs_mitsuba.py [--resolution 256 256] [--spp 64] [--max-depth 8]
                                           [--threads N] [--repeat 1] [--keep DIR]
+                                          [--lens F_STOP FOCUS_DISTANCE]
 
 Set-up (Mitsuba is a benchmark-only dependency, not one of pxr-layers'):
 
@@ -32,7 +33,9 @@ mitsuba, or without a usable LLVM, it prints one line saying what to install and
    counts blocks beyond 4 standard errors (estimated from the pixels of the block, which
    overestimates the noise), which noise alone should almost never reach.
 3. Prints the times and the speed ratio pxr-layers / Mitsuba = T_mitsuba / T_ours for the
-   no-index render (target ≥ 0.8, moonshot ≥ 1), and what the index adds (target ≤ 25 %).
+   no-index render (target ≥ 0.8, moonshot ≥ 1), and what the index adds (target ≤ 25 %);
+   with ``--lens``, also what depth of field adds to our no-index render of the same
+   frame through a pinhole (target ≤ 20 %).
 
 Exits 0 whether or not targets are met (it is a measurement; each says met or MISSED), 1
 when a render fails, 2 when Mitsuba is not available.
@@ -51,7 +54,10 @@ How the Mitsuba scene matches ours:
   pxr-layers light absorbs what hits it. Only rect lights are mapped;
 * camera: ``perspective`` at the camera's position, looking along its −Z with its +Y up,
   horizontal field of view 2·atan(aperture/2/focalLength) after the aspect-ratio conform
-  policy, clipping range as authored; ``hdrfilm`` with a ``box`` filter (pxr-layers puts
+  policy, clipping range as authored; with ``--lens`` (depth of field: the camera's fStop
+  and focusDistance, in millimetres, the stage's unit, overridden by a layer over the
+  Cornell stage that both read) a ``thinlens`` of the same aperture radius
+  (focalLength / 10 / (2·fStop) scene units: the schema's tenths) and focus distance; ``hdrfilm`` with a ``box`` filter (pxr-layers puts
   one uniformly jittered sample in the pixel) and the ``independent`` sampler, seed 0;
 * integrator: ``path``, max_depth = ours + 1 (Mitsuba counts the camera segment:
   1 = emitters seen directly, 2 = direct light; ours counts scattering events,
@@ -88,6 +94,7 @@ from pxr_layers.cores import available_cores  # the standard library only: the p
 TARGET_RATIO = 0.8  # issue 35
 MOONSHOT_RATIO = 1.0
 TARGET_INDEX_OVERHEAD = 0.25  # issue 35: the index costs at most a quarter more than a render without it
+TARGET_LENS_OVERHEAD = 0.20  # issue 36: depth of field costs at most a fifth more than the pinhole frame
 TARGET_MEAN = 0.01
 TARGET_BLOCK = 0.05
 BLOCK = 8
@@ -110,6 +117,31 @@ LLVM_DIRS = ("/usr/lib/x86_64-linux-gnu", "/lib/x86_64-linux-gnu", "/usr/lib64",
 
 def cornell_path() -> str:
     return str(resources.files("pxr_layers.render").joinpath("cornell.usda"))
+
+
+def lens_stage(folder: Path, f_stop: float, focus_distance: float) -> str:
+    """A stage over the Cornell box whose camera has a lens (its metadata restated: a
+    stage's units and up axis are its root layer's)."""
+    path = folder / "cornell_lens.usda"
+    path.write_text(f"""#usda 1.0
+(
+    subLayers = [@{cornell_path()}@]
+    metersPerUnit = 0.001
+    upAxis = "Y"
+    renderSettingsPrimPath = "/Render/Settings"
+    startTimeCode = 1
+    endTimeCode = 1
+)
+over "World"
+{{
+    over "Camera"
+    {{
+        float fStop = {f_stop}
+        float focusDistance = {focus_distance}
+    }}
+}}
+""")
+    return str(path)
 
 
 def default_threads() -> int:
@@ -219,23 +251,25 @@ def _rect_light_corners(light) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _sensor(mi, spec, spp: int) -> dict:
-    """A perspective sensor that sees what pxr_layers.trace.camera.PinholeCamera sees."""
+    """A perspective sensor that sees what pxr_layers.trace.camera.ThinLensCamera sees."""
     camera = spec.camera
     if camera.projection != "perspective":
         raise SystemExit(f"bench_vs_mitsuba: {camera.projection} cameras are not mapped")
     if camera.horizontal_aperture_offset or camera.vertical_aperture_offset:
         raise SystemExit("bench_vs_mitsuba: aperture offsets are not mapped")
-    from pxr_layers.trace.camera import PinholeCamera
+    from pxr_layers.trace.camera import ThinLensCamera
 
     width, height = spec.resolution
-    pinhole = PinholeCamera.from_spec(spec)  # the film window after the conform policy
-    if abs((pinhole.half_width / pinhole.half_height) / (width / height) - 1) > 1e-6:
+    traced = ThinLensCamera.from_spec(spec)  # the film window after the conform policy
+    if abs((traced.half_width / traced.half_height) / (width / height) - 1) > 1e-6:
         raise SystemExit("bench_vs_mitsuba: non-square pixels (pixelAspectRatio, adjustPixelAspectRatio) "
                          "are not mapped")
-    axes, origin = pinhole.world_from_camera, pinhole.position
-    fov_x = np.degrees(2 * np.arctan(pinhole.half_width))
+    axes, origin = traced.world_from_camera, traced.position
+    fov_x = np.degrees(2 * np.arctan(traced.half_width))
+    lens = {"aperture_radius": traced.lens_radius, "focus_distance": traced.focus_distance}
     return {
-        "type": "perspective",
+        "type": "thinlens" if traced.lens_radius > 0 else "perspective",
+        **(lens if traced.lens_radius > 0 else {}),
         "fov": float(fov_x),
         "fov_axis": "x",
         "near_clip": float(camera.clipping[0]),
@@ -262,7 +296,7 @@ def mitsuba_child(args) -> int:
     from pxr_layers.stage import load_stage
 
     imported = time.perf_counter()
-    scene, spec = load_stage(cornell_path())
+    scene, spec = load_stage(args.stage or cornell_path())
     spec = dataclasses.replace(spec, resolution=tuple(args.resolution))
     read = time.perf_counter()
 
@@ -393,7 +427,10 @@ def main() -> int:
     parser.add_argument("--threads", type=int, default=default_threads())
     parser.add_argument("--repeat", type=int, default=1, help="renders of each, keeping the fastest")
     parser.add_argument("--keep", metavar="DIR", help="write the images to DIR (default: a temporary folder)")
+    parser.add_argument("--lens", type=float, nargs=2, metavar=("F_STOP", "FOCUS_DISTANCE"),
+                        help="depth of field: the camera's fStop and focusDistance (mm), e.g. 0.1 1000")
     parser.add_argument("--mitsuba-child", metavar="EXR", help=argparse.SUPPRESS)
+    parser.add_argument("--stage", help=argparse.SUPPRESS)  # the child's stage
     args = parser.parse_args()
     if args.mitsuba_child:
         return mitsuba_child(args)
@@ -404,20 +441,28 @@ def main() -> int:
     mitsuba_env, mitsuba_version = found
 
     width, height = args.resolution
-    stage = cornell_path()
     with tempfile.TemporaryDirectory(prefix="bench_vs_mitsuba-") as scratch:
         out = Path(args.keep or scratch)
-        common = [sys.executable, "-m", "pxr_layers.cli.main", "render", "-q", stage, "--resolution", str(width),
-                  str(height), "--spp", str(args.spp), "--max-depth", str(args.max_depth), "--no-previews",
-                  "--threads", str(args.threads)]
+        out.mkdir(parents=True, exist_ok=True)
+        stage = lens_stage(out, *args.lens) if args.lens else cornell_path()
+        def ours(rendered: str) -> list[str]:
+            return [sys.executable, "-m", "pxr_layers.cli.main", "render", "-q", rendered, "--resolution", str(width),
+                    str(height), "--spp", str(args.spp), "--max-depth", str(args.max_depth), "--no-previews",
+                    "--threads", str(args.threads)]
+
+        common = ours(stage)
         runs = {
             "pxr-layers (no index)": (common + ["--no-index", "-o", str(out / "ours")], dict(os.environ)),
             "pxr-layers (index)": (common + ["-o", str(out / "ours-index")], dict(os.environ)),
             "Mitsuba": ([sys.executable, str(Path(__file__).resolve()), "--mitsuba-child", str(out / "mitsuba.exr"),
                          "--resolution", str(width), str(height), "--spp", str(args.spp), "--max-depth",
-                         str(args.max_depth), "--threads", str(args.threads)], mitsuba_env),
+                         str(args.max_depth), "--threads", str(args.threads), "--stage", stage], mitsuba_env),
         }
-        print(f"scene     : cornell.usda (metres), {width}x{height}, {args.spp} spp, max depth {args.max_depth} "
+        if args.lens:  # the same frame through a pinhole: what the lens costs
+            runs["pxr-layers (no index, pinhole)"] = (
+                ours(cornell_path()) + ["--no-index", "-o", str(out / "pinhole")], dict(os.environ))
+        lens = f", lens f/{args.lens[0]:g} focused at {args.lens[1]:g} mm" if args.lens else ""
+        print(f"scene     : {Path(stage).name} (metres){lens}, {width}x{height}, {args.spp} spp, max depth {args.max_depth} "
               f"(Mitsuba path: max_depth {args.max_depth + 1}, rr_depth {ROULETTE_DEPTH}), {args.threads} threads")
         print(f"mitsuba   : {mitsuba_version}")
         print(f"timing    : whole-process wall time of each child, fastest of {args.repeat}, interleaved")
@@ -447,8 +492,12 @@ def main() -> int:
         overhead = best["pxr-layers (index)"] / best["pxr-layers (no index)"] - 1
         print(f"index     : the index costs {overhead:+.1%} of the render without it  "
               f"(target <= {TARGET_INDEX_OVERHEAD:.0%}: {verdict(overhead <= TARGET_INDEX_OVERHEAD)})")
+        if args.lens:
+            lens_cost = best["pxr-layers (no index)"] / best["pxr-layers (no index, pinhole)"] - 1
+            print(f"lens      : depth of field costs {lens_cost:+.1%} of the same frame through a pinhole (no index)  "
+                  f"(target <= {TARGET_LENS_OVERHEAD:.0%}: {verdict(lens_cost <= TARGET_LENS_OVERHEAD)})")
 
-        ours_exr = out / "ours" / "cornell.exr"
+        ours_exr = out / "ours" / "cornell.exr"  # the Cornell recipe's product
         if not ours_exr.exists():
             written = sorted((out / "ours").glob("*.exr"))
             if not written:

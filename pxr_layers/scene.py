@@ -268,8 +268,11 @@ class Camera:
     world_from_camera : (4, 4) float64, camera looks along its local −Z with +Y up,
                         translation in metres (any scale removed)
     focal_length, *_aperture, *_aperture_offset : in the same (authored) unit, only their
-                        ratios matter for a pinhole
+                        ratios matter for the field of view
     clipping          : (near, far) in metres
+    lens_radius       : the thin lens's aperture radius in metres, focalLength / (2 · fStop)
+                        (0: a pinhole, everything sharp; UsdGeom's fStop fallback)
+    focus_distance    : metres from the lens to the plane in focus (> 0 with a lens)
     """
 
     name: str
@@ -282,6 +285,8 @@ class Camera:
     horizontal_aperture_offset: float = 0.0
     vertical_aperture_offset: float = 0.0
     clipping: tuple[float, float] = (0.01, 1.0e6)
+    lens_radius: float = 0.0
+    focus_distance: float = 0.0
 
 
 DEFAULT_INCLUDED_PURPOSES = ("default", "render")
@@ -309,6 +314,8 @@ class RenderSpec:
     material_binding_purposes : binding purposes, strongest first ("" = allPurpose)
     frame                     : the time code asked for; None = the stage's start (NaN in
                                 SceneData.frame when the stage has none: the earliest sample)
+    depth_of_field            : whether the camera's lens blurs what is out of focus (the
+                                settings' disableDepthOfField turns it off)
     recipe                    : the recipe the frame delivers
     """
 
@@ -320,6 +327,7 @@ class RenderSpec:
     included_purposes: tuple[str, ...] = DEFAULT_INCLUDED_PURPOSES
     material_binding_purposes: tuple[str, ...] = DEFAULT_BINDING_PURPOSES
     frame: float | None = None
+    depth_of_field: bool = True
     recipe: Recipe | None = None
 
 

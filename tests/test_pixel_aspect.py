@@ -24,7 +24,7 @@ from pxr_layers.recipe.model import CONFORM_POLICIES, Layer, Product, Recipe
 from pxr_layers.scene import Camera, RenderSpec
 from pxr_layers.stage import load_recipe, load_stage
 from pxr_layers.stage.recipe_writer import write_recipe
-from pxr_layers.trace.camera import PinholeCamera
+from pxr_layers.trace.camera import ThinLensCamera
 
 FAST = ["--spp", "4", "--max-depth", "1", "--quiet", "--no-previews", "--no-index"]
 VARS = {"color": "color3f", "depth": "float"}
@@ -224,7 +224,7 @@ def test_adjust_pixel_aspect_ratio_resolves_to_the_pixels_that_cover_the_apertur
                 camera="float horizontalAperture = 20\n        float verticalAperture = 10")
     _, spec = load_stage(write_shot(tmp_path, text))
     assert spec.pixel_aspect_ratio == 2.0  # aperture 2:1 on a square image: the authored 7 is disregarded
-    pinhole = PinholeCamera.from_spec(spec)  # both apertures kept
+    pinhole = ThinLensCamera.from_spec(spec)  # both apertures kept
     assert pinhole.half_width / pinhole.half_height == pytest.approx(2.0)
 
 
@@ -233,13 +233,13 @@ def test_camera_refuses_a_spec_it_cannot_project():
     for spec in (RenderSpec(camera, pixel_aspect_ratio=0.0), RenderSpec(camera, pixel_aspect_ratio=math.nan),
                  RenderSpec(camera, aspect_ratio_conform_policy="stretch")):
         with pytest.raises(RenderSettingsError):
-            PinholeCamera.from_spec(spec)
+            ThinLensCamera.from_spec(spec)
 
 
 def test_the_camera_window_is_the_image_aspect_of_non_square_pixels():
     camera = Camera("cam", "/cam", np.eye(4), horizontal_aperture=36.0, vertical_aperture=24.0)
     for policy in ("expandAperture", "cropAperture", "adjustApertureWidth", "adjustApertureHeight"):
-        pinhole = PinholeCamera.from_spec(RenderSpec(camera, resolution=(30, 20), pixel_aspect_ratio=2.0,
+        pinhole = ThinLensCamera.from_spec(RenderSpec(camera, resolution=(30, 20), pixel_aspect_ratio=2.0,
                                                      aspect_ratio_conform_policy=policy))
         assert pinhole.half_width / pinhole.half_height == pytest.approx(30 * 2.0 / 20), policy
 

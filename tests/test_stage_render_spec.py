@@ -193,7 +193,7 @@ def test_included_purposes_of_the_settings_select_what_renders(tmp_path):
 @pytest.mark.parametrize("resolution", [(64, 48), (48, 64), (96, 24)])
 @pytest.mark.parametrize("view", AUTO_CAMERA_VIEWS)
 def test_a_stage_without_camera_is_framed_tightly_at_the_render_aspect(tmp_path, up_axis, resolution, view):
-    from pxr_layers.trace.camera import PinholeCamera
+    from pxr_layers.trace.camera import ThinLensCamera
 
     stage = new_stage(tmp_path, meters_per_unit=0.01)
     UsdGeom.SetStageUpAxis(stage, up_axis)
@@ -204,7 +204,7 @@ def test_a_stage_without_camera_is_framed_tightly_at_the_render_aspect(tmp_path,
     request = RenderRequest("x", resolution=resolution, auto_camera=view)
     scene, spec = load_stage(stage.GetRootLayer().realPath, request=request)
     assert spec.camera.path == "/pxrLayers/autoCamera"
-    camera = PinholeCamera.from_spec(spec)
+    camera = ThinLensCamera.from_spec(spec)
     assert camera.half_width / camera.half_height == pytest.approx(resolution[0] / resolution[1])  # no conform crop
     centre = np.array([3.0, -1.0, 0.5])
     corners = centre + np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
@@ -236,7 +236,7 @@ def test_a_flat_subject_is_seen_from_above_not_edge_on(tmp_path, up_axis):
     """A ground with decals seen from the front would be a line of pixels: the automatic
     camera looks at a flat subject from AUTO_CAMERA_FLAT_ELEVATION above; a tall one stays front."""
     from pxr_layers.stage.defaults import AUTO_CAMERA_FLAT_ELEVATION
-    from pxr_layers.trace.camera import PinholeCamera
+    from pxr_layers.trace.camera import ThinLensCamera
 
     up = np.array([0, 0, 1.0]) if up_axis == "Z" else np.array([0, 1.0, 0])
     elevations = {}
@@ -248,7 +248,7 @@ def test_a_flat_subject_is_seen_from_above_not_edge_on(tmp_path, up_axis):
         cube.AddScaleOp().Set(Gf.Vec3d(*(np.ones(3) + (height - 1) * up)))
         stage.GetRootLayer().Save()
         _, spec = load_stage(stage.GetRootLayer().realPath, request=RenderRequest("x", resolution=(32, 32)))
-        camera = PinholeCamera.from_spec(spec)
+        camera = ThinLensCamera.from_spec(spec)
         eye = camera.position / np.linalg.norm(camera.position)  # the subject sits at the origin
         elevations[name] = np.degrees(np.arcsin(eye @ up))
     assert elevations == pytest.approx({"ground": AUTO_CAMERA_FLAT_ELEVATION, "wall": 0.0}, abs=1e-6)

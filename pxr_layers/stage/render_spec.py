@@ -16,8 +16,10 @@ from .transforms import column_matrix, rigid_in_metres, transform_errors_name
 
 def settings_fields(settings: UsdRender.Settings | None, time: Usd.TimeCode) -> dict[str, object]:
     """RenderSpec fields from the settings: the purposes of gprims that render and of
-    material bindings (the defaults without settings). The products' view (camera,
-    resolution, pixel aspect, conform policy) comes from the recipe (``Recipe.shared_view``)."""
+    material bindings (the defaults without settings), and whether depth of field is on
+    (``disableDepthOfField``, the settings' own: every product of a frame shares one trace).
+    The products' view (camera, resolution, pixel aspect, conform policy) comes from the
+    recipe (``Recipe.shared_view``)."""
     if settings is None:
         return {"included_purposes": DEFAULT_INCLUDED_PURPOSES, "material_binding_purposes": DEFAULT_BINDING_PURPOSES}
     purposes = settings.GetIncludedPurposesAttr().Get(time)
@@ -25,6 +27,7 @@ def settings_fields(settings: UsdRender.Settings | None, time: Usd.TimeCode) -> 
         "settings_path": str(settings.GetPath()),
         "included_purposes": DEFAULT_INCLUDED_PURPOSES if purposes is None else tuple(str(p) for p in purposes),
         "material_binding_purposes": _binding_purposes(settings, time),
+        "depth_of_field": not settings.GetDisableDepthOfFieldAttr().Get(time),
     }
 
 
@@ -55,8 +58,13 @@ def read_camera(context: ReadContext, prim: Usd.Prim) -> Camera:
 
     Raises StageError naming the prim and attribute for what would give a black or NaN
     image: a focal length or aperture that is not a positive finite number, a clipping
-    range that is not 0 <= near < far, a value of another type than the schema's (values.py),
-    a world transform that is not finite.
+    range that is not 0 <= near < far, a negative or infinite fStop, a value of another type
+    than the schema's (values.py), a world transform that is not finite.
+
+    The lens (UsdGeomCamera): fStop 0 is a pinhole; above, a thin lens of aperture diameter
+    focalLength / fStop (focalLength in tenths of a scene unit) focused at focusDistance
+    (scene units). An fStop without a positive focusDistance has nothing to focus on: a
+    warning, and a pinhole.
     """
     time = context.time
     camera = UsdGeom.Camera(prim)
@@ -98,6 +106,14 @@ def read_camera(context: ReadContext, prim: Usd.Prim) -> Camera:
     # An orthographic view has no lens: only its apertures size it.
     focal_length = (number(camera.GetFocalLengthAttr()) if projection == "orthographic"
                     else positive(camera.GetFocalLengthAttr()))
+    f_stop, focus = finite(camera.GetFStopAttr()), finite(camera.GetFocusDistanceAttr())
+    if f_stop < 0:
+        raise StageError(f"fStop is {f_stop:g}: it must be 0 (no depth of field) or more", file=context.file, prim=path)
+    if f_stop > 0 and not focus > 0:
+        context.diagnostics.warn(f"{context.file}: camera {path}: fStop {f_stop:g} but focusDistance {focus:g}: "
+                                 "no depth of field (a lens needs a positive focus distance)")
+        f_stop = 0.0
+    lens_radius = focal_length / 10 / (2 * f_stop) * context.meters_per_unit if f_stop > 0 else 0.0
     return Camera(
         name=prim.GetName(),
         path=path,
@@ -109,4 +125,6 @@ def read_camera(context: ReadContext, prim: Usd.Prim) -> Camera:
         horizontal_aperture_offset=finite(camera.GetHorizontalApertureOffsetAttr()),
         vertical_aperture_offset=finite(camera.GetVerticalApertureOffsetAttr()),
         clipping=(near * context.meters_per_unit, far * context.meters_per_unit),
+        lens_radius=lens_radius,
+        focus_distance=focus * context.meters_per_unit if lens_radius > 0 else 0.0,
     )

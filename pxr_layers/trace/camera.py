@@ -1,5 +1,5 @@
-"""A UsdGeom pinhole camera with UsdRender's aperture conform policies (its rays are cast by
-stages/camera.py)."""
+"""A UsdGeom camera, a thin lens (a pinhole without depth of field), with UsdRender's
+aperture conform policies (its rays are cast by stages/camera.py)."""
 
 from __future__ import annotations
 
@@ -17,13 +17,24 @@ logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class PinholeCamera:
-    """Maps film positions to world rays.
+class ThinLensCamera:
+    """Maps film positions and lens positions to world rays.
 
-    position          : (3,) metres
+    position          : (3,) metres, the lens's centre
     world_from_camera : (3, 3) rotation (camera looks along −Z, +Y up)
     half_width, half_height : the film window at unit distance (tangents of half the FOV)
     offset_x, offset_y      : window centre at unit distance (aperture offsets)
+    t_max             : the far clipping distance, metres
+    lens_radius       : metres; 0 is a pinhole (no depth of field)
+    focus_distance    : metres along −Z to the plane in focus (what the film window, scaled
+                        by it, shows sharp)
+
+    The thin lens as pbrt's (Pharr et al., "Physically Based Rendering", 4th ed., 5.2.3):
+    the pinhole's ray through a film position meets the plane in focus at one point; every
+    ray from the lens disc toward that point makes the pixel. A point at distance d images
+    to a disc of radius lens_radius · |d − focus_distance| / (d · focus_distance) at unit
+    distance: the circle of confusion, as a real lens of that focal length and f-number
+    focused there gives (the field of view being the pinhole's, focused at infinity).
     """
 
     position: np.ndarray
@@ -33,14 +44,17 @@ class PinholeCamera:
     offset_x: float
     offset_y: float
     t_max: float
+    lens_radius: float = 0.0
+    focus_distance: float = 0.0
 
     @classmethod
-    def from_spec(cls, spec: RenderSpec) -> PinholeCamera:
+    def from_spec(cls, spec: RenderSpec) -> ThinLensCamera:
         """The camera of ``spec``: a pixel is ``spec.pixel_aspect_ratio`` times as wide as it
         is tall, so the image aspect is width × pixel_aspect_ratio / height, and the
         aperture is fitted to it by ``spec.aspect_ratio_conform_policy`` (UsdRender's
-        rules). Raises RenderSettingsError for a projection other than perspective, a pixel
-        aspect ratio that is not a positive number or an unknown policy."""
+        rules). Its lens is the camera's unless ``spec.depth_of_field`` is off. Raises
+        RenderSettingsError for a projection other than perspective, a pixel aspect ratio
+        that is not a positive number or an unknown policy."""
         camera = spec.camera
         if camera.projection != "perspective":
             raise RenderSettingsError(f"camera {camera.path}: {camera.projection} projection is not supported yet")
@@ -76,4 +90,6 @@ class PinholeCamera:
             offset_x=camera.horizontal_aperture_offset / focal,
             offset_y=camera.vertical_aperture_offset / focal,
             t_max=float(camera.clipping[1]),
+            lens_radius=camera.lens_radius if spec.depth_of_field else 0.0,
+            focus_distance=camera.focus_distance,
         )

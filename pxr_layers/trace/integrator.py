@@ -31,7 +31,7 @@ from ..request import DEFAULT_MAX_DEPTH, DEFAULT_SEED, DEFAULT_SPP, NO_CLAMP
 from ..paths import events
 from . import rng
 from .bounce_norms import BounceNorms
-from .camera import PinholeCamera
+from .camera import ThinLensCamera
 from .embree import RayCaster
 from .instances import SHADOW, InstanceRows, Slot
 from .lights import LightSampler
@@ -116,7 +116,7 @@ class Integrator:
     """Everything a batch needs, shared read-only between threads."""
 
     def __init__(self, world: World, geometry: GeometryArrays, materials: MaterialTable, lights: LightSampler,
-                 camera: PinholeCamera, resolution: tuple[int, int], settings: TraceSettings, frame: float,
+                 camera: ThinLensCamera, resolution: tuple[int, int], settings: TraceSettings, frame: float,
                  caster: RayCaster, vocabulary: events.EventVocabulary, triangle_subject: np.ndarray,
                  bounce_norms: BounceNorms | None = None, instance_rows: InstanceRows | None = None):
         self.world = world

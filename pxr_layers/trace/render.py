@@ -17,7 +17,7 @@ from ..request import check_work
 from ..paths.events import EventVocabulary
 from ..scene import FLOAT, RenderSpec, SceneData
 from .bounce_norms import BounceNorms
-from .camera import PinholeCamera
+from .camera import ThinLensCamera
 from .embree import RayCaster
 from .instances import MAX_SLOTS, InstanceRows, InstanceTables, RowTables, rows_needed
 from .integrator import BatchResult, Integrator, TraceSettings
@@ -55,7 +55,7 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
     lights = LightSampler(scene, world, materials, geometry)
     if lights.darkness:
         log.warning("%s: %s", scene.stage_path, lights.darkness)
-    camera = PinholeCamera.from_spec(spec)
+    camera = ThinLensCamera.from_spec(spec)
     bounce_norms = BounceNorms(scene, world) if settings.norm_bounces > 0 else None
     pairs, triangle_subject, subject_first, subject_rank = _subjects(world)
     instance_rows = None

@@ -7,15 +7,17 @@ import math
 import numpy as np
 
 from .. import rng
-from ..camera import PinholeCamera
+from ..camera import ThinLensCamera
 from ...compiled import kernel
 from .queues import PathQueue
 
 
-def camera_rays(camera: PinholeCamera, frame_key: np.uint64, resolution: tuple[int, int], spp: int,
+def camera_rays(camera: ThinLensCamera, frame_key: np.uint64, resolution: tuple[int, int], spp: int,
                 first_path: int, stop_path: int, jitter: bool = True) -> PathQueue:
     """The PathQueue of paths [first_path, stop_path): unit throughput, rays through the
-    film at each pixel's jittered position (its centre without `jitter`)."""
+    film at each pixel's jittered position (its centre without `jitter`), from a point of
+    the lens drawn uniformly on its disc (radii stratified over a pixel's samples; its
+    centre without `jitter`: data passes are sharp) toward where the pinhole's ray meets the plane in focus (camera.py)."""
     count = stop_path - first_path
     width, height = resolution
     queue = PathQueue(
@@ -30,13 +32,15 @@ def camera_rays(camera: PinholeCamera, frame_key: np.uint64, resolution: tuple[i
         row=np.full(count, -1, np.int64))
     _camera_kernel(first_path, spp, width, height, frame_key, np.asarray(camera.world_from_camera, np.float64),
                    np.asarray(camera.position, np.float64), camera.half_width, camera.half_height, camera.offset_x,
-                   camera.offset_y, jitter, queue.pixel, queue.sample, queue.key, queue.origin, queue.direction)
+                   camera.offset_y, camera.lens_radius if jitter else 0.0, camera.focus_distance, jitter, queue.pixel,
+                   queue.sample, queue.key, queue.origin, queue.direction)
     return queue
 
 
 @kernel
 def _camera_kernel(first_path, spp, width, height, frame_key, rotation, position, half_width, half_height,
-                   offset_x, offset_y, jitter, pixel_out, sample_out, key_out, origin_out, direction_out):
+                   offset_x, offset_y, lens_radius, focus_distance, jitter, pixel_out, sample_out, key_out, origin_out,
+                   direction_out):
     for lane in range(len(pixel_out)):
         path = first_path + lane
         pixel = path // spp
@@ -48,10 +52,21 @@ def _camera_kernel(first_path, spp, width, height, frame_key, rotation, position
         film_y = ((pixel // width) + jy) / height
         x = (2.0 * film_x - 1.0) * half_width + offset_x
         y = (1.0 - 2.0 * film_y) * half_height + offset_y
-        wx = rotation[0, 0] * x + rotation[0, 1] * y - rotation[0, 2]
-        wy = rotation[1, 0] * x + rotation[1, 1] * y - rotation[1, 2]
-        wz = rotation[2, 0] * x + rotation[2, 1] * y - rotation[2, 2]
+        z = -1.0
+        lens_x = lens_y = 0.0
+        if lens_radius > 0:
+            # toward the pinhole ray's point on the plane in focus, (x, y, −1)·focus_distance
+            # the radius stratified over the pixel's samples (its squared mean, the blur's
+            # spread, is then nearly exact), the angle independent of it
+            radius = lens_radius * math.sqrt(rng.stratified(frame_key, pixel, sample, spp, rng.LENS))
+            angle = 2.0 * math.pi * rng.uniform(key, rng.LENS + 1)
+            lens_x, lens_y = radius * math.cos(angle), radius * math.sin(angle)
+            x, y, z = x * focus_distance - lens_x, y * focus_distance - lens_y, -focus_distance
+        wx = rotation[0, 0] * x + rotation[0, 1] * y + rotation[0, 2] * z
+        wy = rotation[1, 0] * x + rotation[1, 1] * y + rotation[1, 2] * z
+        wz = rotation[2, 0] * x + rotation[2, 1] * y + rotation[2, 2] * z
         scale = 1.0 / math.sqrt(wx * wx + wy * wy + wz * wz)
         pixel_out[lane], sample_out[lane], key_out[lane] = pixel, sample, key
-        origin_out[lane, 0], origin_out[lane, 1], origin_out[lane, 2] = position[0], position[1], position[2]
+        for axis in range(3):
+            origin_out[lane, axis] = position[axis] + rotation[axis, 0] * lens_x + rotation[axis, 1] * lens_y
         direction_out[lane, 0], direction_out[lane, 1], direction_out[lane, 2] = wx * scale, wy * scale, wz * scale
