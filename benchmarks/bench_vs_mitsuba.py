@@ -479,9 +479,10 @@ def main() -> int:
                 print(f"  repeat {repeat + 1}: " + ", ".join(f"{name} {times[name]:.2f} s" for name in runs))
 
         print()
-        print(f"  {'renderer':<24}{'seconds':>9}")
+        column = max(map(len, runs)) + 2
+        print(f"  {'renderer':<{column}}{'seconds':>9}")
         for name in runs:
-            print(f"  {name:<24}{best[name]:>9.2f}")
+            print(f"  {name:<{column}}{best[name]:>9.2f}")
         print(f"  (Mitsuba child: imports {phases['imports']:.2f} s, load_stage {phases['stage']:.2f} s, scene "
               f"{phases['scene']:.2f} s, render {phases['render']:.2f} s, EXR {phases['write']:.2f} s; "
               f"{phases['triangles']} triangles)")
