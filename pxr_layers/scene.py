@@ -273,6 +273,10 @@ class Camera:
     lens_radius       : the thin lens's aperture radius in metres, focalLength / (2 · fStop)
                         (0: a pinhole, everything sharp; UsdGeom's fStop fallback)
     focus_distance    : metres from the lens to the plane in focus (> 0 with a lens)
+    motion_times      : (k,) float64 the times, in frames relative to the frame rendered, from
+                        shutter:open to shutter:close, at which the camera moves (its transform's
+                        own samples between them); empty: it stands still over the shutter
+    motion_transforms : (k, 4, 4) float64 world_from_camera at each of them (rigid, metres)
     """
 
     name: str
@@ -287,6 +291,8 @@ class Camera:
     clipping: tuple[float, float] = (0.01, 1.0e6)
     lens_radius: float = 0.0
     focus_distance: float = 0.0
+    motion_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    motion_transforms: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))
 
 
 DEFAULT_INCLUDED_PURPOSES = ("default", "render")
@@ -316,6 +322,8 @@ class RenderSpec:
                                 SceneData.frame when the stage has none: the earliest sample)
     depth_of_field            : whether the camera's lens blurs what is out of focus (the
                                 settings' disableDepthOfField turns it off)
+    motion_blur               : whether the shutter stays open (the settings'
+                                disableMotionBlur or instantaneousShutter close it)
     recipe                    : the recipe the frame delivers
     """
 
@@ -328,6 +336,7 @@ class RenderSpec:
     material_binding_purposes: tuple[str, ...] = DEFAULT_BINDING_PURPOSES
     frame: float | None = None
     depth_of_field: bool = True
+    motion_blur: bool = True
     recipe: Recipe | None = None
 
 

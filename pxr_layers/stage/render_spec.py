@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import math
 
-from pxr import Sdf, Usd, UsdGeom, UsdRender
+import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdRender
 
 from pxr_layers.errors import StageError
 from pxr_layers.scene import DEFAULT_BINDING_PURPOSES, DEFAULT_INCLUDED_PURPOSES, Camera
@@ -17,7 +18,8 @@ from .transforms import column_matrix, rigid_in_metres, transform_errors_name
 def settings_fields(settings: UsdRender.Settings | None, time: Usd.TimeCode) -> dict[str, object]:
     """RenderSpec fields from the settings: the purposes of gprims that render and of
     material bindings (the defaults without settings), and whether depth of field is on
-    (``disableDepthOfField``, the settings' own: every product of a frame shares one trace).
+    (``disableDepthOfField``, the settings' own: every product of a frame shares one trace)
+    and motion blur (``disableMotionBlur``, ``instantaneousShutter``).
     The products' view (camera, resolution, pixel aspect, conform policy) comes from the
     recipe (``Recipe.shared_view``)."""
     if settings is None:
@@ -28,6 +30,8 @@ def settings_fields(settings: UsdRender.Settings | None, time: Usd.TimeCode) -> 
         "included_purposes": DEFAULT_INCLUDED_PURPOSES if purposes is None else tuple(str(p) for p in purposes),
         "material_binding_purposes": _binding_purposes(settings, time),
         "depth_of_field": not settings.GetDisableDepthOfFieldAttr().Get(time),
+        "motion_blur": not (settings.GetDisableMotionBlurAttr().Get(time)
+                            or settings.GetInstantaneousShutterAttr().Get(time)),
     }
 
 
@@ -58,13 +62,18 @@ def read_camera(context: ReadContext, prim: Usd.Prim) -> Camera:
 
     Raises StageError naming the prim and attribute for what would give a black or NaN
     image: a focal length or aperture that is not a positive finite number, a clipping
-    range that is not 0 <= near < far, a negative or infinite fStop, a value of another type
-    than the schema's (values.py), a world transform that is not finite.
+    range that is not 0 <= near < far, a negative or infinite fStop, a shutter that closes
+    before it opens, a value of another type than the schema's (values.py), a world
+    transform that is not finite.
 
     The lens (UsdGeomCamera): fStop 0 is a pinhole; above, a thin lens of aperture diameter
     focalLength / fStop (focalLength in tenths of a scene unit) focused at focusDistance
     (scene units). An fStop without a positive focusDistance has nothing to focus on: a
     warning, and a pinhole.
+
+    The shutter (shutter:open, shutter:close, frames relative to the frame rendered): the
+    camera's world transform at both ends and at every sample its xformOps (its own and its
+    ancestors') author between them (:func:`camera_motion`).
     """
     time = context.time
     camera = UsdGeom.Camera(prim)
@@ -114,6 +123,12 @@ def read_camera(context: ReadContext, prim: Usd.Prim) -> Camera:
                                  "no depth of field (a lens needs a positive focus distance)")
         f_stop = 0.0
     lens_radius = focal_length / 10 / (2 * f_stop) * context.meters_per_unit if f_stop > 0 else 0.0
+    shutter = finite(camera.GetShutterOpenAttr()), finite(camera.GetShutterCloseAttr())
+    if shutter[1] < shutter[0]:
+        raise StageError(f"shutter:close ({shutter[1]:g}) is before shutter:open ({shutter[0]:g})",
+                         file=context.file, prim=path)
+    with transform_errors_name(prim, context.file):
+        motion_times, motion_transforms = camera_motion(context, prim, shutter)
     return Camera(
         name=prim.GetName(),
         path=path,
@@ -127,4 +142,41 @@ def read_camera(context: ReadContext, prim: Usd.Prim) -> Camera:
         clipping=(near * context.meters_per_unit, far * context.meters_per_unit),
         lens_radius=lens_radius,
         focus_distance=focus * context.meters_per_unit if lens_radius > 0 else 0.0,
+        motion_times=motion_times,
+        motion_transforms=motion_transforms,
     )
+
+
+MAX_MOTION_SAMPLES = 64
+"""The most camera transforms kept over a shutter (evenly chosen from its authored samples):
+a camera keyed on every subframe still costs a bounded table."""
+
+
+def camera_motion(context: ReadContext, prim: Usd.Prim, shutter: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """The camera's motion over `shutter` (frames relative to the context's time): times (k,)
+    float64 relative to the frame, ascending, from shutter:open to shutter:close, and its
+    rigid world transforms (k, 4, 4) in metres there; both empty when the shutter is an
+    instant, the stage has no time, or the camera stands still over it."""
+    still = np.zeros(0), np.zeros((0, 4, 4))
+    if shutter[1] <= shutter[0] or context.time.IsDefault():
+        return still
+    frame = context.time.GetValue()
+    interval = Gf.Interval(frame + shutter[0], frame + shutter[1])
+    times = {interval.GetMin(), interval.GetMax()}
+    ancestor = prim
+    while ancestor and not ancestor.IsPseudoRoot():
+        xformable = UsdGeom.Xformable(ancestor)
+        if xformable:
+            times.update(xformable.GetTimeSamplesInInterval(interval))
+        ancestor = ancestor.GetParent()
+    ordered = sorted(times)
+    if len(ordered) > MAX_MOTION_SAMPLES:
+        ordered = [ordered[round(i)] for i in np.linspace(0, len(ordered) - 1, MAX_MOTION_SAMPLES)]
+    world = (column_matrix(UsdGeom.XformCache(Usd.TimeCode(t)).GetLocalToWorldTransform(prim)) for t in ordered)
+    transforms = np.stack([rigid_in_metres(matrix, context.meters_per_unit) for matrix in world])
+    if not np.isfinite(transforms).all():
+        raise StageError("the camera's world transform over the shutter is not finite", file=context.file,
+                         prim=str(prim.GetPath()))
+    if np.allclose(transforms, transforms[0], rtol=0, atol=1e-12):
+        return still
+    return np.asarray(ordered) - frame, transforms

@@ -27,6 +27,7 @@ CAMERA_DIMENSIONS = 2  # film jitter x, y
 STEP_DIMENSIONS = 9  # per bounce: lobe, direction ×2, light pick, light position ×3, roulette, presence
 LOBE, DIRECTION, LIGHT_PICK, LIGHT_POSITION, ROULETTE, PRESENCE = 0, 1, 3, 4, 7, 8  # offsets within a step
 LENS = 1 << 32  # lens position ×2: past every bounce's dimensions, so a pinhole render keeps its numbers
+TIME = LENS + 2  # the camera sample's time in the shutter
 
 
 @inline
