@@ -65,9 +65,9 @@ class ThinLensCamera:
         is tall, so the image aspect is width × pixel_aspect_ratio / height, and the
         aperture is fitted to it by ``spec.aspect_ratio_conform_policy`` (UsdRender's
         rules). Its lens is the camera's unless ``spec.depth_of_field`` is off, its motion
-        over the shutter unless ``spec.motion_blur`` is. Raises
-        RenderSettingsError for a projection other than perspective, a pixel aspect ratio
-        that is not a positive number or an unknown policy."""
+        over the shutter unless ``spec.motion_blur`` is. Raises RenderSettingsError for a
+        projection other than perspective, a pixel aspect ratio that is not a positive
+        number or an unknown policy."""
         camera = spec.camera
         if camera.projection != "perspective":
             raise RenderSettingsError(f"camera {camera.path}: {camera.projection} projection is not supported yet")

@@ -63,9 +63,10 @@ def _camera_kernel(first_path, spp, width, height, frame_key, pose, motion_times
         z = -1.0
         lens_x = lens_y = 0.0
         if lens_radius > 0:
-            # toward the pinhole ray's point on the plane in focus, (x, y, −1)·focus_distance
-            # the radius stratified over the pixel's samples (its squared mean, the blur's
-            # spread, is then nearly exact), the angle independent of it
+            # toward the pinhole ray's point on the plane in focus, (x, y, −1)·focus_distance,
+            # from a lens point whose radius is stratified over the pixel's samples (the
+            # blur's spread, its mean squared radius, is then nearly exact) and whose angle
+            # is independent of it
             radius = lens_radius * math.sqrt(rng.stratified(frame_key, pixel, sample, spp, rng.LENS))
             angle = 2.0 * math.pi * rng.uniform(key, rng.LENS + 1)
             lens_x, lens_y = radius * math.cos(angle), radius * math.sin(angle)
