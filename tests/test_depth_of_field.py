@@ -17,17 +17,16 @@ import math
 import numpy as np
 import pytest
 
-from pxr_layers.jobs.frame import render_frame
-from pxr_layers.request import RenderRequest
 from pxr_layers.stage import load_stage
+
+from camera_scenes import GLOW, beauty, quad
 
 RESOLUTION = 96
 APERTURE = 36.0  # tenths of a scene unit (mm on this centimetre stage), square
 FOCAL = 50.0
 
 
-def stage(tmp_path, *, distance: float, f_stop: float = 0.0, focus: float = 0.0, disable: bool = False,
-          extra: str = "") -> str:
+def stage(tmp_path, *, distance: float, f_stop: float = 0.0, focus: float = 0.0, disable: bool = False) -> str:
     """A centimetre stage: an emissive square `distance` cm down the camera's −Z, 4 % of
     the distance wide (5 pixels: its own blur, which the pinhole's moment removes)."""
     half = 0.02 * distance
@@ -36,7 +35,7 @@ def stage(tmp_path, *, distance: float, f_stop: float = 0.0, focus: float = 0.0,
     {{
         rel camera = </World/Camera>
         int2 resolution = ({RESOLUTION}, {RESOLUTION})
-        uniform bool disableDepthOfField = {"true" if disable else "false"}
+        uniform bool disableDepthOfField = true
     }}""" if disable else ""
     text = f"""#usda 1.0
 (
@@ -46,29 +45,7 @@ def stage(tmp_path, *, distance: float, f_stop: float = 0.0, focus: float = 0.0,
     {'renderSettingsPrimPath = "/World/Settings"' if disable else ""}
 )
 def Xform "World"
-{{
-    def Scope "Looks"
-    {{
-        def Material "glow"
-        {{
-            token outputs:surface.connect = </World/Looks/glow/Surface.outputs:surface>
-            def Shader "Surface"
-            {{
-                uniform token info:id = "UsdPreviewSurface"
-                color3f inputs:diffuseColor = (0, 0, 0)
-                color3f inputs:emissiveColor = (1, 1, 1)
-                token outputs:surface
-            }}
-        }}
-    }}
-    def Mesh "square" (prepend apiSchemas = ["MaterialBindingAPI"])
-    {{
-        int[] faceVertexCounts = [4]
-        int[] faceVertexIndices = [0, 1, 2, 3]
-        point3f[] points = [(-{half}, -{half}, -{distance}), ({half}, -{half}, -{distance}),
-                            ({half}, {half}, -{distance}), (-{half}, {half}, -{distance})]
-        rel material:binding = </World/Looks/glow>
-    }}
+{{{GLOW}{quad("square", half, half, distance)}
     def Camera "Camera"
     {{
         float focalLength = {FOCAL}
@@ -77,7 +54,7 @@ def Xform "World"
         float fStop = {f_stop}
         float focusDistance = {focus}
         float2 clippingRange = (0.1, 100000)
-    }}{settings}{extra}
+    }}{settings}
 }}
 """
     path = tmp_path / f"lens_{distance}_{f_stop}_{focus}_{disable}.usda"
@@ -86,10 +63,7 @@ def Xform "World"
 
 
 def render(path, spp: int = 64) -> np.ndarray:
-    """The beauty's luminance-free sum of channels (h, w) float64."""
-    request = RenderRequest(stage=path, resolution=(RESOLUTION, RESOLUTION), spp=spp, max_depth=0, norm_bounces=0,
-                            keep_index=False, previews=False, default_lights=False)
-    return render_frame(request, output=path.parent).rgba[..., :3].sum(axis=2).astype(np.float64)
+    return beauty(path, RESOLUTION, spp)
 
 
 def second_moment(image: np.ndarray) -> float:

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 from pxr_layers.errors import StageError
-from pxr_layers.jobs.frame import render_frame
-from pxr_layers.request import RenderRequest
 from pxr_layers.stage import load_stage
+
+from camera_scenes import GLOW, beauty, quad
 
 RESOLUTION = 96
 APERTURE, FOCAL = 36.0, 50.0  # tenths of a centimetre: a 50 mm lens, 36 mm square gate
@@ -40,28 +40,7 @@ def stage(tmp_path, *, slide: float = 0.0, turn: float = 0.0, shutter=(0.0, 1.0)
     {'renderSettingsPrimPath = "/World/Settings"' if settings else ""}
 )
 def Xform "World"
-{{
-    def Scope "Looks"
-    {{
-        def Material "glow"
-        {{
-            token outputs:surface.connect = </World/Looks/glow/Surface.outputs:surface>
-            def Shader "Surface"
-            {{
-                uniform token info:id = "UsdPreviewSurface"
-                color3f inputs:diffuseColor = (0, 0, 0)
-                color3f inputs:emissiveColor = (1, 1, 1)
-                token outputs:surface
-            }}
-        }}
-    }}
-    def Mesh "strip" (prepend apiSchemas = ["MaterialBindingAPI"])
-    {{
-        int[] faceVertexCounts = [4]
-        int[] faceVertexIndices = [0, 1, 2, 3]
-        point3f[] points = [(-2, -20, -{DISTANCE}), (2, -20, -{DISTANCE}), (2, 20, -{DISTANCE}), (-2, 20, -{DISTANCE})]
-        rel material:binding = </World/Looks/glow>
-    }}
+{{{GLOW}{quad("strip", 2, 20, DISTANCE)}
     def Camera "Camera"
     {{
         float focalLength = {FOCAL}
@@ -83,10 +62,8 @@ def Xform "World"
 
 
 def render(path, spp: int = 64) -> np.ndarray:
-    """The beauty's mean of channels (h, w) float64 at frame 1."""
-    request = RenderRequest(stage=path, resolution=(RESOLUTION, RESOLUTION), spp=spp, max_depth=0, norm_bounces=0,
-                            keep_index=False, previews=False, default_lights=False)
-    return render_frame(request, 1.0, output=path.parent).rgba[..., :3].mean(axis=2).astype(np.float64)
+    """The beauty (h, w) at frame 1."""
+    return beauty(path, RESOLUTION, spp, 1.0)
 
 
 def profile(image: np.ndarray) -> np.ndarray:
@@ -120,12 +97,15 @@ def test_a_turning_camera_moves_light_without_making_any(tmp_path):
     assert moving[centre - 3:centre + 3].mean() == pytest.approx(4 / 12, rel=0.03)
 
 
-@pytest.mark.parametrize("settings", ["uniform bool disableMotionBlur = true", "uniform bool instantaneousShutter = true"])
-def test_settings_that_close_the_shutter_render_the_frame_still(tmp_path, settings):
-    block = f'def RenderSettings "Settings"\n    {{\n        rel camera = </World/Camera>\n        {settings}\n    }}'
-    still = render(stage(tmp_path, settings='def RenderSettings "Settings"\n    {\n        rel camera = </World/Camera>\n    }'),
-                   spp=4)
-    closed = render(stage(tmp_path, slide=12.0, settings=block), spp=4)
+def render_settings(attribute: str = "") -> str:
+    """A RenderSettings prim /World/Settings of the camera, with `attribute` authored."""
+    return f'def RenderSettings "Settings"\n    {{\n        rel camera = </World/Camera>\n        {attribute}\n    }}'
+
+
+@pytest.mark.parametrize("closing", ["uniform bool disableMotionBlur = true", "uniform bool instantaneousShutter = true"])
+def test_settings_that_close_the_shutter_render_the_frame_still(tmp_path, closing):
+    still = render(stage(tmp_path, settings=render_settings()), spp=4)
+    closed = render(stage(tmp_path, slide=12.0, settings=render_settings(closing)), spp=4)
     np.testing.assert_array_equal(closed, still)
 
 
