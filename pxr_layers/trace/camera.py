@@ -34,9 +34,9 @@ class ThinLensCamera:
                         each on the same side as the one before (the short way round)
     motion_positions  : (k, 3) float64 metres
 
-    Motion: each camera sample opens at a time drawn uniformly over the shutter, and the
-    camera's pose there is interpolated between the two known poses around it (positions
-    linearly, rotations by slerp): the camera's motion blur.
+    Motion: each camera sample opens at a time drawn over the shutter (uniform, stratified
+    over a pixel's samples), and the camera's pose there is interpolated between the two
+    known poses around it (positions linearly, rotations by slerp): the camera's motion blur.
 
     The thin lens as pbrt's (Pharr et al., "Physically Based Rendering", 4th ed., 5.2.3):
     the pinhole's ray through a film position meets the plane in focus at one point; every

@@ -75,6 +75,24 @@ def stratified(key, pixel, sample, spp, dimension):
     return np.float32(min((sample + offset) / spp, 1.0 - 2.0**-24))
 
 
+@inline
+def van_der_corput(key, pixel, sample, dimension):
+    """A float32 in [0, 1) for `dimension` of a pixel's sample `sample`: the sample's number
+    with its bits mirrored about the binary point (van der Corput's sequence), shifted by one
+    random offset per pixel, modulo 1. Its first 2^k samples fall one in each of 2^k strata,
+    and paired with :func:`stratified` (sample i in stratum i) they make a Hammersley set: two
+    choices stratified together without the diagonal that pairing stratum i with stratum i
+    would draw. Unbiased over a pixel's samples, as stratified is."""
+    mirrored, weight, number = 0.0, 0.5, sample
+    while number > 0:
+        if number & 1:
+            mirrored += weight
+        number >>= 1
+        weight *= 0.5
+    value = mirrored + uniform(path_key(key, pixel, np.uint64(0xFFFFFFFF)), dimension)
+    return np.float32(min(value - 1.0 if value >= 1.0 else value, 1.0 - 2.0**-24))
+
+
 def step_dimension(step: int) -> int:
     """The first dimension of bounce `step` (after the camera's)."""
     return CAMERA_DIMENSIONS + step * STEP_DIMENSIONS

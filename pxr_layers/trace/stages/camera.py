@@ -18,8 +18,8 @@ def camera_rays(camera: ThinLensCamera, frame_key: np.uint64, resolution: tuple[
     film at each pixel's jittered position (its centre without `jitter`), from a point of
     the lens drawn uniformly on its disc (radii stratified over a pixel's samples; its
     centre without `jitter`: data passes are sharp) toward where the pinhole's ray meets
-    the plane in focus, the camera posed at a time drawn uniformly over the shutter (the
-    shutter's middle without `jitter`) (camera.py)."""
+    the plane in focus, the camera posed at a time drawn over the shutter (stratified with the
+    lens radius, rng.van_der_corput; the shutter's middle without `jitter`) (camera.py)."""
     count = stop_path - first_path
     width, height = resolution
     queue = PathQueue(
@@ -52,8 +52,9 @@ def _camera_kernel(first_path, spp, width, height, frame_key, pose, motion_times
         sample = path % spp
         key = rng.path_key(frame_key, pixel, sample)
         if len(motion_times) > 1:
-            _pose_at(rng.uniform(key, rng.TIME) if jitter else 0.5, motion_times, motion_rotations, motion_positions,
-                     pose)
+            # the time stratified over the pixel's samples, and jointly with the lens radius
+            time = rng.van_der_corput(frame_key, pixel, sample, rng.TIME) if jitter else 0.5
+            _pose_at(time, motion_times, motion_rotations, motion_positions, pose)
         jx = rng.uniform(key, 0) if jitter else 0.5
         jy = rng.uniform(key, 1) if jitter else 0.5
         film_x = ((pixel % width) + jx) / width
