@@ -42,6 +42,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_instancing.py
 	$(BIN)/python benchmarks/luxtest_table.py || test $$? -eq 2  # 2: no ../shared (the luxtest stages)
 	$(BIN)/python benchmarks/bench_vs_mitsuba.py || test $$? -eq 2  # 2: Mitsuba not installed (optional)
+	$(BIN)/python benchmarks/bench_vs_mitsuba.py --lens 0.1 1100 || test $$? -eq 2  # depth of field, the same
 
 clean:
 	rm -rf $(VENV) demo build *.egg-info
