@@ -17,6 +17,7 @@ import math
 import numpy as np
 import pytest
 
+from pxr_layers.errors import StageError
 from pxr_layers.stage import load_stage
 
 from camera_scenes import GLOW, beauty, quad
@@ -120,8 +121,13 @@ def test_an_f_stop_without_a_focus_distance_is_a_pinhole_with_a_warning(tmp_path
 
 
 def test_a_negative_f_stop_is_refused_naming_the_camera(tmp_path):
-    from pxr_layers.errors import StageError
-
     with pytest.raises(StageError, match="fStop is -1.*0 .no depth of field. or more") as error:
         load_stage(stage(tmp_path, distance=100.0, f_stop=-1.0, focus=300.0))
+    assert "/World/Camera" in str(error.value)
+
+
+@pytest.mark.parametrize("f_stop, focus, attribute", [("nan", 300.0, "fStop"), (2.0, "inf", "focusDistance")])
+def test_a_lens_that_is_not_a_number_is_refused_naming_it(tmp_path, f_stop, focus, attribute):
+    with pytest.raises(StageError, match=f"{attribute} is .*: it must be a finite number") as error:
+        load_stage(stage(tmp_path, distance=100.0, f_stop=f_stop, focus=focus))
     assert "/World/Camera" in str(error.value)
