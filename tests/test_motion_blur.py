@@ -121,3 +121,9 @@ def test_a_shutter_that_closes_before_it_opens_is_refused(tmp_path):
     with pytest.raises(StageError, match=r"shutter:close \(0\) is before shutter:open \(0.5\)") as error:
         load_stage(stage(tmp_path, slide=12.0, shutter=(0.5, 0.0)), frame=1.0)
     assert "/World/Camera" in str(error.value)
+
+
+def test_a_shutter_that_is_not_a_number_is_refused_naming_it(tmp_path):
+    with pytest.raises(StageError, match="shutter:open is nan: it must be a finite number") as error:
+        load_stage(stage(tmp_path, slide=12.0, shutter=("nan", 1.0)), frame=1.0)
+    assert "/World/Camera" in str(error.value)
