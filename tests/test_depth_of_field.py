@@ -131,3 +131,16 @@ def test_a_lens_that_is_not_a_number_is_refused_naming_it(tmp_path, f_stop, focu
     with pytest.raises(StageError, match=f"{attribute} is .*: it must be a finite number") as error:
         load_stage(stage(tmp_path, distance=100.0, f_stop=f_stop, focus=focus))
     assert "/World/Camera" in str(error.value)
+
+
+def test_the_ray_cone_widens_by_the_lens_defocus_away_from_the_focus():
+    """The footprint that filters textures (and sets T): a pinhole's pixel cone, plus the
+    width 2R·|1 − t/F| of the bundle of lens rays that meet on the plane in focus."""
+    from pxr_layers.trace.sigma import RayCone
+
+    pixel, radius, focus = 1e-3, 0.01, 2.0
+    travelled, cos_out = np.array([0.0, 1.0, 2.0, 4.0], np.float32), np.ones(4, np.float32)
+    pinhole = RayCone(pixel).footprint(travelled, cos_out)
+    lens = RayCone(pixel, radius, focus).footprint(travelled, cos_out)
+    np.testing.assert_allclose(pinhole, pixel * travelled, rtol=1e-6)
+    np.testing.assert_allclose(lens - pinhole, [2 * radius, radius, 0.0, 2 * radius], rtol=1e-5, atol=1e-9)

@@ -36,10 +36,9 @@ from .embree import RayCaster
 from .instances import SHADOW, InstanceRows, Slot
 from .lights import LightSampler
 from .merge import MergedContributions, merged
-from .sigma import ray_cone_footprint
 from .recorder import Contributions, FirstBounceNorms, PathRecorder
 from .shading import MaterialTable
-from .sigma import SigmaInputs
+from .sigma import RayCone, SigmaInputs
 from .stages.queues import MAX_PASS_THROUGH
 from .stages.camera import camera_rays
 from .stages.emission import emission
@@ -136,8 +135,10 @@ class Integrator:
         self.epsilon = float(np.float32(1e-5 * (world.radius + np.linalg.norm(world.center)) + 1e-7))
         # the lights whose shapes camera rays pass (light shapes only: points and lines have none)
         self.hidden_lights = ~lights.arrays.camera_visible
-        # ray cone of a camera ray: radians per pixel (the film window's width over its pixels)
-        self.pixel_angle = np.float32(2 * camera.half_width / self.width)
+        # the ray cone of a camera sample: radians per pixel (the film window's width over its
+        # pixels) and the lens's defocus
+        self.ray_cone = RayCone(float(np.float32(2 * camera.half_width / self.width)), camera.lens_radius,
+                                camera.focus_distance)
 
     def observers(self, first_pixel: int, pixel_count: int, paths: int
                   ) -> tuple[BatchFilm, FirstBounceNorms | None, PathRecorder | None]:
@@ -145,7 +146,7 @@ class Integrator:
         with an index."""
         first_bounce = (FirstBounceNorms(first_pixel, pixel_count)
                         if self.bounce_norms and self.settings.first_bounce_norms else None)
-        sigma = (SigmaInputs(self.world, self.lights, self.bounce_norms, self.pixel_angle)
+        sigma = (SigmaInputs(self.world, self.lights, self.bounce_norms, self.ray_cone)
                  if self.settings.record_sigma and self.bounce_norms else None)
         recorder = (PathRecorder(self.vocabulary, self.triangle_subject,
                                  self.settings.norm_bounces if self.bounce_norms else 0, paths, sigma)
@@ -211,7 +212,7 @@ class Integrator:
                                self.key, spp)
             film.add_coverage(queue, hit & unscattered & ~surfaces.cut, hits.triangle)
             if wants_norms and self.bounce_norms:
-                footprint = ray_cone_footprint(queue.travelled, surfaces.wo[:, 2], self.pixel_angle)
+                footprint = self.ray_cone.footprint(queue.travelled, surfaces.wo[:, 2])
                 self.bounce_norms.texture(surfaces, footprint)
 
             if lights.has_lights:

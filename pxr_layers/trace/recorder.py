@@ -126,7 +126,7 @@ class PathRecorder(Observer):
             # _record_lit's order: visible entries, then their lobes with light; a row per record
             entry, _ = np.nonzero(shadows.visible[:, None] & (shadows.radiance != 0).any(axis=2))
             lanes = shadows.lane[entry]
-            self.vertices.add(first_row, lanes, queue.travelled, surfaces, sigma_rows.REFLECT, self.sigma.pixel_angle)
+            self.vertices.add(first_row, lanes, queue.travelled, surfaces, sigma_rows.REFLECT, self.sigma.ray_cone)
             self.light_ends.add(first_record, shadows.light[entry], shadows.triangle[entry],
                                 -shadows.direction[entry], shadow_distance(shadows.t_max[entry]))
 
@@ -144,7 +144,7 @@ class PathRecorder(Observer):
             lanes = np.flatnonzero(passes | scattering.scattered)
             kind = np.where(passes[lanes], sigma_rows.PASS,
                             np.where(scattering.transmit[lanes], sigma_rows.TRANSMIT, sigma_rows.REFLECT))
-            self.vertices.add(first_row, lanes, queue.travelled, surfaces, kind, self.sigma.pixel_angle)
+            self.vertices.add(first_row, lanes, queue.travelled, surfaces, kind, self.sigma.ray_cone)
 
     def result(self) -> Contributions:
         """The batch's contributions; norms already as the index stores them (float16)."""

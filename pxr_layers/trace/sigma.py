@@ -103,19 +103,36 @@ _PLANAR_TOLERANCE = 1e-4
 class SigmaInputs:
     """What the recorder needs of the frame to compute Σ (shared read-only by threads).
 
-    pixel_angle : radians per pixel of the camera's ray cone (Integrator.pixel_angle)."""
+    ray_cone : the camera's ray cone (Integrator.ray_cone)."""
 
     world: World
     lights: LightSampler
     bounce_norms: BounceNorms
+    ray_cone: RayCone
+
+
+@dataclass(frozen=True)
+class RayCone:
+    """How wide a camera sample's ray bundle is at a distance t travelled along its path: a
+    pixel's angle times t, plus a lens's defocus, the width 2·lens_radius·|1 − t/focus| of
+    the cone of rays through the lens that converge on the plane in focus (0 for a pinhole).
+
+    pixel_angle : radians per pixel (the film window's width over its pixels)
+    lens_radius, focus_distance : metres (ThinLensCamera's)
+    """
+
     pixel_angle: float
+    lens_radius: float = 0.0
+    focus_distance: float = 0.0
 
-
-def ray_cone_footprint(travelled: np.ndarray, cos_out: np.ndarray, pixel_angle) -> np.ndarray:
-    """The footprint (n,) float32 metres the texture is looked up with, for T
-    (Integrator.trace) and for Σ's texture block alike: the distance travelled times the
-    pixel angle over max(|cos θo|, 0.05)."""
-    return travelled * pixel_angle / np.maximum(np.abs(cos_out), 0.05)
+    def footprint(self, travelled: np.ndarray, cos_out: np.ndarray) -> np.ndarray:
+        """The footprint (n,) float32 metres the texture is looked up with, for T
+        (Integrator.trace) and for Σ's texture block alike: the bundle's width at
+        `travelled` (n,) over max(|cos θo|, 0.05)."""
+        width = travelled * np.float32(self.pixel_angle)
+        if self.lens_radius > 0:
+            width = width + np.float32(2 * self.lens_radius) * np.abs(1 - travelled / np.float32(self.focus_distance))
+        return width / np.maximum(np.abs(cos_out), 0.05)
 
 
 class SigmaVertices:
@@ -133,7 +150,7 @@ class SigmaVertices:
             self.triangle = _grown(self.triangle, capacity)
 
     def add(self, first_row: int, lanes: np.ndarray, travelled: np.ndarray, surfaces, kind: np.ndarray,
-            pixel_angle) -> None:
+            ray_cone: RayCone) -> None:
         """Rows first_row, first_row + 1, ... for the SurfaceQueue lanes `lanes` (k,), in order;
         travelled (n,) the PathQueue's; kind (k,) PASS / REFLECT / TRANSMIT."""
         stop = first_row + len(lanes)
@@ -142,7 +159,7 @@ class SigmaVertices:
         frame = surfaces.frame[lanes]  # (k, 3, 3) rows tangent, bitangent, normal
         wo = surfaces.wo[lanes]
         rows[:, TRAVELLED] = travelled[lanes]
-        rows[:, FOOTPRINT] = ray_cone_footprint(travelled[lanes], wo[:, 2], pixel_angle)
+        rows[:, FOOTPRINT] = ray_cone.footprint(travelled[lanes], wo[:, 2])
         rows[:, TOWARD_EYE:TOWARD_EYE + 3] = np.einsum("ki,kij->kj", wo, frame)
         rows[:, NORMAL:NORMAL + 3] = frame[:, 2]
         rows[:, ST:ST + 2] = surfaces.st[lanes]
