@@ -10,8 +10,8 @@ These are the norms of the covariance operators each bounce applies (COVARIANCE.
   uv transform (UsdTransform2d, MaterialX place2d/tiledimage), measured per tile and mip level
   (``covariance.texture_spectrum``), mapped from texture units to metres by the uv
   Jacobian of the triangle in the shading frame. Untextured materials give 0. The mip
-  level follows a ray cone: the camera's pixel angle times the distance the path has
-  travelled, divided by the cosine at the hit.
+  level follows the camera sample's ray cone (``sigma.RayCone``): the pixel angle times the
+  distance the path has travelled, plus a lens's defocus width, divided by the cosine at the hit.
 * R = √λmax(B), cycles/rad: the bandwidth of the lobe the bounce took. Diffuse 0, GGX
   lobes 1/(2πα) with α = roughness². Singular lobes (perfect mirror, smooth glass) get
   the value of the sharpest GGX lobe the renderer evaluates, 1/(2π·SINGULAR_ALPHA) ≈
