@@ -129,6 +129,13 @@ class Mesh:
     world_from_points : with a prototype, (4, 4) float64, column convention: the placement,
                         own space → world metres; a similarity (rotation, mirror, uniform
                         scale, translation). None without one.
+    motion_points     : for a mesh that moves over the camera's shutter (prototype −1 only),
+                        (k, v, 3) float32 its points in world metres at k ≥ 2 evenly spaced
+                        times from shutter:open (0) to shutter:close (k − 1), every moving
+                        mesh of a scene at the same k (SceneData's motion steps); None: it
+                        stands still (points is where it is at the frame's time either way)
+    motion_normals    : (k, n, 3) float32 normal_values at those times; None without
+                        motion_points or without normal_values
 
     The placements of one surface share their read-only triangles, normal_indices and uvs
     arrays; only points and normal_values are their own (all of them, when instanced).
@@ -146,6 +153,8 @@ class Mesh:
     primvars: Mapping[str, np.ndarray] = field(default_factory=dict)
     prototype: int = -1
     world_from_points: np.ndarray | None = None
+    motion_points: np.ndarray | None = None
+    motion_normals: np.ndarray | None = None
 
     @property
     def normals(self) -> np.ndarray | None:
@@ -277,6 +286,8 @@ class Camera:
                         shutter:open to shutter:close, at which the camera moves (its transform's
                         own samples between them); empty: it stands still over the shutter
     motion_transforms : (k, 4, 4) float64 world_from_camera at each of them (rigid, metres)
+    shutter           : (shutter:open, shutter:close) in frames relative to the frame rendered,
+                        open ≤ close (an instant when equal): when objects move too
     """
 
     name: str
@@ -293,6 +304,7 @@ class Camera:
     focus_distance: float = 0.0
     motion_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
     motion_transforms: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))
+    shutter: tuple[float, float] = (0.0, 0.0)
 
 
 DEFAULT_INCLUDED_PURPOSES = ("default", "render")

@@ -18,7 +18,9 @@ from pxr_layers.trace.embree import MISS, RayCaster
 
 
 NO_INSTANCES = {"prototype_vertices": (), "prototype_triangles": (), "prototype_first": np.zeros(0, np.int64),
-                "instance_prototype": np.zeros(0, np.int32), "instance_transform": np.zeros((0, 3, 4), np.float32)}
+                "instance_prototype": np.zeros(0, np.int32), "instance_transform": np.zeros((0, 3, 4), np.float32),
+                "moving_vertices": np.zeros((0, 0, 3), np.float32), "moving_triangles": np.zeros((0, 3), np.int32),
+                "moving_first": 0}
 
 
 def world_of(vertices, triangles):
@@ -168,7 +170,7 @@ def closest_hits_of(scene, origins, directions, rayhit, out):
     for lane in range(len(origins)):
         prim, geom, inst, u, v, t = embree.cast_closest(
             scene, origins[lane, 0], origins[lane, 1], origins[lane, 2], directions[lane, 0], directions[lane, 1],
-            directions[lane, 2], np.float32(0), np.float32(1e30), rayhit)
+            directions[lane, 2], np.float32(0), np.float32(1e30), np.float32(0), rayhit)
         out[lane, 0], out[lane, 1], out[lane, 2], out[lane, 3], out[lane, 4], out[lane, 5] = prim, geom, inst, u, v, t
 
 
@@ -244,7 +246,9 @@ def test_a_fresh_process_runs_the_disk_cached_kernels(tmp_path):
                                 triangles=np.array([[0, 1, 2]], np.int32), triangle_count=1, prototype_vertices=(),
                                 prototype_triangles=(), prototype_first=np.zeros(0, np.int64),
                                 instance_prototype=np.zeros(0, np.int32),
-                                instance_transform=np.zeros((0, 3, 4), np.float32))
+                                instance_transform=np.zeros((0, 3, 4), np.float32),
+                        moving_vertices=np.zeros((0, 0, 3), np.float32), moving_triangles=np.zeros((0, 3), np.int32),
+                        moving_first=0)
         caster = embree.RayCaster(world)
         origins = np.array([[0.2, 0.3, 0], [2, 2, 0]], np.float32)
         directions = np.array([[0, 0, 1], [0, 0, 1]], np.float32)
@@ -274,3 +278,25 @@ def test_a_closed_caster_refuses_queries():
     origins, directions = rays(([0.2, 0.3, 0], [0, 0, 1]))
     with pytest.raises(RuntimeError, match="after close"):
         caster.intersect(origins, directions, np.ones(1, np.float32))
+
+
+def test_a_moving_mesh_is_where_its_time_steps_put_it_at_each_ray_time():
+    # one triangle in z = 1 over x in [0, 1] at the shutter's open, [2, 3] at its close
+    # (three steps: the middle one at [1, 2]), after one still triangle's row
+    triangle = np.array([[0, 0, 1], [1, 0, 1], [0, 1, 1]], np.float32)
+    world = SimpleNamespace(**{**vars(world_of([[5, 5, 5], [6, 5, 5], [5, 6, 5]], [[0, 1, 2]])),
+                               "moving_vertices": np.stack([triangle + [shift, 0, 0] for shift in (0, 1, 2)]),
+                               "moving_triangles": np.array([[0, 1, 2]], np.int32), "moving_first": 1})
+    world.triangle_count = 2
+    caster = RayCaster(world)
+    origins = np.array([[0.25, 0.25, 0], [1.25, 0.25, 0], [1.25, 0.25, 0], [2.25, 0.25, 0], [0.25, 0.25, 0]], np.float32)
+    directions = np.tile(np.float32([0, 0, 1]), (5, 1))
+    time = np.array([0, 0.5, 0.25, 1, 1], np.float32)
+    triangle_hit, instance, u, _, t = caster.intersect(origins, directions, np.full(5, 10, np.float32), time)
+    # at time 0.25 the triangle spans [0.5, 1.5]: x = 1.25 is inside it (u = 0.75)
+    np.testing.assert_array_equal(triangle_hit, [1, 1, 1, 1, MISS])
+    np.testing.assert_array_equal(instance, [embree.MOVING] * 4 + [MISS])
+    np.testing.assert_allclose(u[:4], [0.25, 0.25, 0.75, 0.25], atol=1e-6)
+    np.testing.assert_allclose(t[:4], 1.0)
+    np.testing.assert_array_equal(caster.occluded(origins, directions, np.full(5, 10, np.float32), time),
+                                  [True] * 4 + [False])

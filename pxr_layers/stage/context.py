@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from pxr import Usd, UsdGeom
 
@@ -10,6 +11,9 @@ from pxr_layers.scene import DEFAULT_INCLUDED_PURPOSES
 
 from .budgets import SceneBudget
 from .diagnostics import Diagnostics
+
+if TYPE_CHECKING:
+    from .motion import Shutter
 
 
 @dataclass
@@ -20,6 +24,8 @@ class ReadContext:
     file              : the path given to load_stage, for error messages
     rendered_purposes : gprim purposes that render (RenderSettings includedPurposes)
     budget            : what the read has taken of the scene's budgets (budgets.py)
+    shutter           : the render camera's shutter when things may move over it (motion.py);
+                        None: everything is read at ``time`` alone
     """
 
     stage: Usd.Stage
@@ -31,3 +37,4 @@ class ReadContext:
     file: str
     rendered_purposes: tuple[str, ...] = DEFAULT_INCLUDED_PURPOSES
     budget: SceneBudget = field(default_factory=SceneBudget)
+    shutter: Shutter | None = None

@@ -9,6 +9,7 @@ the scene's refined triangles fit request.MAX_SUBDIVISION_TRIANGLES (one warning
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 from collections import Counter
@@ -17,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from pxr import Usd, UsdGeom, UsdShade
 
+from pxr_layers.errors import StageError
 from pxr_layers.request import MAX_SUBDIVISION_TRIANGLES
 from pxr_layers.scene import INDEX, Mesh, SceneData
 
@@ -28,6 +30,7 @@ from .draw_modes import author_draw_mode_cards
 from .implicit import tessellate
 from .lights import read_lights
 from .materials import MaterialLibrary, ResolvedMaterial, display_color
+from .motion import GprimMotion
 from .placement import (
     PreparedSurface,
     SharedSurface,
@@ -126,9 +129,13 @@ faster (an instanced hit is placed first, trace/instances.py)."""
 
 @dataclass(frozen=True, eq=False)
 class _Resolved:
-    """A placement before it becomes a Mesh: its surface (posed: skinned for this prim
-    alone), per-triangle materials, transform (stage units) and names."""
+    """A placement before it becomes a Mesh: its prim, surface (posed: skinned for this prim
+    alone) and the primvars it was read with, per-triangle materials, transform (stage units)
+    and names."""
 
+    prim: Usd.Prim
+    uv_primvar: str
+    primvars: tuple[str, ...]
     surface: PreparedSurface
     triangle_material: np.ndarray
     world_from_local: np.ndarray
@@ -175,11 +182,15 @@ class _MeshBuilder:
         """The meshes of `placements`, in their order. A surface placed often enough that
         copies would cost INSTANCING_SAVES triangles or more, bound to the same materials in
         every placement, none of which emits, is shared: its similarity placements become
-        instances of it (scene.Mesh.prototype); every other placement is a copy in the world."""
+        instances of it (scene.Mesh.prototype); every other placement is a copy in the world,
+        and one that moves over the shutter carries its motion (scene.Mesh.motion_points)."""
         resolved = [self._resolve(placement) for placement in placements]
+        motion = GprimMotion(self._context) if self._context.shutter is not None else None
+        steps = [self._motion_steps(motion, item) for item in resolved]
+        step_count = max(steps, default=1)
         groups: dict[tuple, list[int]] = {}
         for index, item in enumerate(resolved):
-            if item is not None and item.instanceable:
+            if item is not None and item.instanceable and steps[index] == 1:
                 groups.setdefault(item.sharing_key, []).append(index)
         prototype_of: dict[int, SharedSurface] = {}  # placement index → the surface it instances
         prototypes = 0
@@ -198,12 +209,62 @@ class _MeshBuilder:
             if item is None:
                 continue
             mesh = self._instance(item, prototype_of[index]) if index in prototype_of else self._copy(item)
+            if mesh is not None and steps[index] > 1:
+                mesh = self._moving(motion, item, mesh, step_count)
             if mesh is not None:
                 meshes.append(mesh)
         if prototypes:
             logger.info("%s: %d placements are instances of %d shared surfaces", self._context.file,
                         len(prototype_of), prototypes)
         return meshes
+
+    def _motion_steps(self, motion: GprimMotion | None, item: _Resolved | None) -> int:
+        """The time steps the placement needs over the shutter (motion.py): 1 when it stands
+        still, or when its motion is not read: point instances, skinned meshes and emissive
+        surfaces stay where they are at the frame's time (a note names the last two)."""
+        if motion is None or item is None or item.instance >= 0:
+            return 1
+        steps = motion.steps(item.prim)
+        unread = ("skinned meshes" if item.posed
+                  else "emissive surfaces" if self._materials.emit(item.triangle_material) else None)
+        if steps > 1 and unread:
+            self._context.diagnostics.note(
+                "unread-motion", "gprims rendered where they are at the frame's time, without motion blur "
+                "(skinned meshes and emissive surfaces do not move over the shutter yet): {prims}", item.path)
+            return 1
+        return steps
+
+    def _moving(self, motion: GprimMotion, item: _Resolved, mesh: Mesh, step_count: int) -> Mesh:
+        """`mesh` with its points (and normals) at `step_count` times over the shutter. A
+        deforming mesh is read again at each (its points, or points moved by its velocities);
+        its topology must stay the mesh's, or StageError names the prim."""
+        context = self._context
+        times = context.shutter.times(step_count)
+        surfaces = [item.surface] * step_count
+        if motion.deforms(item.prim):
+            changed = motion.topology_change(item.prim)
+            if changed:
+                raise StageError(f"{changed}: motion blur interpolates one mesh", file=context.file, prim=item.path)
+            surfaces = []
+            for points in motion.points_at(item.prim, times):
+                local = read_mesh(item.prim, context.time, item.uv_primvar, Diagnostics(), context.file,
+                                  subdiv_level=self._levels.level(item.prim), points=points, primvars=item.primvars)
+                if local is None or not np.array_equal(local.triangles, item.surface.surface.triangles):
+                    raise StageError("its points over the shutter give another mesh than at the frame: motion blur "
+                                     "interpolates one mesh", file=context.file, prim=item.path)
+                surfaces.append(prepare_surface(local))
+        placed = [place_surface(surface, motion.world_from_local(item.prim, time), context.meters_per_unit,
+                                item.triangle_material, item.name, item.path, Diagnostics(), instance=item.instance)
+                  for surface, time in zip(surfaces, times)]
+        if any(step is None or len(step.points) != len(placed[0].points) for step in placed):
+            raise StageError("its placed points over the shutter are out of reach or change in number",
+                             file=context.file, prim=item.path)
+        base = placed[0] if surfaces[0] is not item.surface else mesh
+        same_normals = all(step.normal_values is not None and np.array_equal(step.normal_indices, base.normal_indices)
+                           and len(step.normal_values) == len(placed[0].normal_values) for step in placed)
+        return dataclasses.replace(
+            base, motion_points=np.stack([step.points for step in placed]),
+            motion_normals=np.stack([step.normal_values for step in placed]) if same_normals else None)
 
     def _copy(self, item: _Resolved) -> Mesh | None:
         """The placement as a copy of its surface in the world."""
@@ -268,7 +329,8 @@ class _MeshBuilder:
                 faces = faces[(faces >= 0) & (faces < local.face_count)]
                 face_material[faces] = resolved.index
             self._triangle_materials[bindings] = face_material[local.triangle_face]
-        return _Resolved(surface, self._triangle_materials[bindings], world_from_local, placement.name,
+        return _Resolved(prim, uv_primvar, primvars, surface, self._triangle_materials[bindings], world_from_local,
+                         placement.name,
                          placement.path, placement.instance, posed=posed is not None)
 
     def _read_mesh(

@@ -144,6 +144,7 @@ def read_camera(context: ReadContext, prim: Usd.Prim) -> Camera:
         focus_distance=focus * context.meters_per_unit if lens_radius > 0 else 0.0,
         motion_times=motion_times,
         motion_transforms=motion_transforms,
+        shutter=shutter,
     )
 
 

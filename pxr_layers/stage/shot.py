@@ -31,6 +31,7 @@ from .defaults import (AUTO_CAMERA_PATH, aim_default_lights, define_auto_camera,
 from .diagnostics import Diagnostics
 from .lights import is_supported_light
 from .opening import compose_stage, resolve_time, trapped_usd_diagnostics
+from .motion import Shutter
 from .reader import read_scene
 from .recipe_reader import find_settings, read_recipe
 from .render_spec import camera_prim, read_camera, settings_fields
@@ -139,6 +140,7 @@ class Shot:
             time, frame_value = resolve_time(self.stage, spec.frame)
             diagnostics = Diagnostics()
             context = self._context(time, spec.included_purposes, diagnostics)
+            context.shutter = Shutter.of(time, spec.camera.shutter, spec.motion_blur)
             return read_scene(context, frame_value, spec.material_binding_purposes, footprint, subdiv_level,
                               self.warnings)
 

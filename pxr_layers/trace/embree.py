@@ -33,6 +33,9 @@ from .world import World
 MISS = -1
 """Triangle, geometry or instance id of no hit: Embree's RTC_INVALID_GEOMETRY_ID,
 (unsigned) -1, read as int32."""
+MOVING = -2
+"""The instance RayCaster.intersect reports for a hit on a moving row (World.moving_first):
+not an instance, but a row to place at the ray's time like one (trace/instances.py)."""
 
 # Enum values (rtcore_common.h, rtcore_device.h, rtcore_scene.h, rtcore_buffer.h,
 # rtcore_geometry.h).
@@ -96,6 +99,7 @@ def _load_api(path: Path) -> ctypes.CDLL:
         "rtcReleaseScene": (None, [handle]),
         "rtcNewGeometry": (handle, [handle, c_int]),
         "rtcSetSharedGeometryBuffer": (None, [handle, c_int, c_uint, c_int, handle, c_size, c_size, c_size]),
+        "rtcSetGeometryTimeStepCount": (None, [handle, c_uint]),
         "rtcSetGeometryInstancedScene": (None, [handle, handle]),
         "rtcSetGeometryTransform": (None, [handle, c_uint, c_int, handle]),
         "rtcCommitGeometry": (None, [handle]),
@@ -167,21 +171,29 @@ class Scene:
 def add_triangles(scene: Scene, vertices: np.ndarray, triangles: np.ndarray) -> int:
     """Attach a triangle mesh to `scene` (before its commit); returns its geometry id.
 
-    vertices  : (v, 3) float metres (copied: Embree reads 16 bytes at each vertex, so the
-                shared copy has one row more than the mesh)
+    vertices  : (v, 3) float metres, or (k, v, 3) at k ≥ 2 evenly spaced times over the
+                shutter (a motion-blurred mesh: Embree interpolates linearly between them at
+                each ray's time) (copied: Embree reads 16 bytes at each vertex, so the shared
+                copy has one row more than the mesh)
     triangles : (t, 3) integer vertex indices, counter-clockwise front
     """
     vertices, triangles = np.asarray(vertices), np.asarray(triangles)
-    if vertices.ndim != 2 or vertices.shape[1] != 3 or triangles.ndim != 2 or triangles.shape[1] != 3:
-        raise ValueError(f"triangles need vertices (v, 3) and indices (t, 3), not {vertices.shape} and {triangles.shape}")
-    if triangles.size and (triangles.min() < 0 or triangles.max() >= len(vertices)):
-        raise ValueError(f"triangle indices outside the {len(vertices)} vertices")
-    padded = np.zeros((len(vertices) + 1, 3), np.float32)
-    padded[:-1] = vertices
+    steps = vertices.reshape(-1, *vertices.shape[-2:]) if vertices.ndim == 3 else vertices[None]
+    if steps.shape[-1] != 3 or vertices.ndim not in (2, 3) or triangles.ndim != 2 or triangles.shape[1] != 3:
+        raise ValueError(f"triangles need vertices (v, 3) or (k, v, 3) and indices (t, 3), not {vertices.shape} "
+                         f"and {triangles.shape}")
+    count = steps.shape[1]
+    if triangles.size and (triangles.min() < 0 or triangles.max() >= count):
+        raise ValueError(f"triangle indices outside the {count} vertices")
+    padded = np.zeros((len(steps), count + 1, 3), np.float32)
+    padded[:, :-1] = steps
     indices = np.ascontiguousarray(triangles, np.uint32)
     geometry = _api.rtcNewGeometry(scene.device.handle, RTC_GEOMETRY_TYPE_TRIANGLE)
-    _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, padded.ctypes.data,
-                                    0, padded.strides[0], len(vertices))
+    if len(steps) > 1:
+        _api.rtcSetGeometryTimeStepCount(geometry, len(steps))
+    for step in range(len(steps)):
+        _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, step, RTC_FORMAT_FLOAT3,
+                                        padded[step].ctypes.data, 0, padded.strides[1], count)
     _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, indices.ctypes.data,
                                     0, indices.strides[0], len(indices))
     return _attach(scene, geometry, (padded, indices), "adding triangles")
@@ -220,23 +232,24 @@ def rayhit_scratch() -> np.ndarray:
 
 
 @inline
-def _set_ray(rayhit, ox, oy, oz, dx, dy, dz, tnear, tfar):
+def _set_ray(rayhit, ox, oy, oz, dx, dy, dz, tnear, tfar, time):
     ray = rayhit[0]
     ray.org_x, ray.org_y, ray.org_z, ray.tnear = ox, oy, oz, tnear
-    ray.dir_x, ray.dir_y, ray.dir_z, ray.time = dx, dy, dz, 0.0
+    ray.dir_x, ray.dir_y, ray.dir_z, ray.time = dx, dy, dz, time
     ray.tfar, ray.mask, ray.id, ray.flags = tfar, -1, 0, 0
 
 
 @inline
-def cast_closest(scene, ox, oy, oz, dx, dy, dz, tnear, tfar, rayhit):
-    """The closest hit along o + t d, tnear ≤ t ≤ tfar (d need not be unit; t in its units).
+def cast_closest(scene, ox, oy, oz, dx, dy, dz, tnear, tfar, time, rayhit):
+    """The closest hit along o + t d, tnear ≤ t ≤ tfar (d need not be unit; t in its units),
+    at `time`, a shutter fraction in [0, 1] (where moving geometry is).
 
     scene  : a committed Scene's handle (int)
     rayhit : rayhit_scratch() of the calling thread
     Returns (primID, geomID, instID int32, MISS for none; u, v float32 barycentrics,
     p = (1 − u − v) p0 + u p1 + v p2, 0 on a miss; t float32, tfar on a miss).
     """
-    _set_ray(rayhit, ox, oy, oz, dx, dy, dz, tnear, tfar)
+    _set_ray(rayhit, ox, oy, oz, dx, dy, dz, tnear, tfar, time)
     hit = rayhit[0]
     hit.u, hit.v, hit.primID, hit.geomID, hit.instID = 0.0, 0.0, MISS, MISS, MISS
     _rtc_intersect1(scene, rayhit.ctypes.data, 0)
@@ -244,49 +257,57 @@ def cast_closest(scene, ox, oy, oz, dx, dy, dz, tnear, tfar, rayhit):
 
 
 @inline
-def cast_any(scene, ox, oy, oz, dx, dy, dz, tnear, tfar, rayhit):
+def cast_any(scene, ox, oy, oz, dx, dy, dz, tnear, tfar, time, rayhit):
     """Whether anything lies along o + t d, tnear ≤ t ≤ tfar (arguments as cast_closest)."""
-    _set_ray(rayhit, ox, oy, oz, dx, dy, dz, tnear, tfar)
+    _set_ray(rayhit, ox, oy, oz, dx, dy, dz, tnear, tfar, time)
     _rtc_occluded1(scene, rayhit.ctypes.data, 0)
     return rayhit[0].tfar < 0.0  # Embree marks an occluded ray with tfar = −inf
 
 
 @kernel
-def intersect_kernel(scene, origins, directions, t_max, rayhit, instance_first_row, triangle_out, instance_out, u_out,
-                     v_out, t_out):
-    """cast_closest over a batch: origins, directions (n, 3) float32, t_max (n,) float32;
-    instance_first_row (i,) int64 the first World row of each instance's prototype. Writes
-    triangle_out (n,) int32 the World row hit (MISS for none): a top-level hit's primID, an
-    instanced hit's prototype row; instance_out (n,) int32 the instance (MISS: none);
-    u_out, v_out, t_out (n,) float32."""
+def intersect_kernel(scene, origins, directions, t_max, time, rayhit, instance_first_row, moving_geometry,
+                     moving_first, triangle_out, instance_out, u_out, v_out, t_out):
+    """cast_closest over a batch: origins, directions (n, 3) float32, t_max, time (n,) float32;
+    instance_first_row (i,) int64 the first World row of each instance's prototype;
+    moving_geometry the top-level geometry id of the moving rows (MISS: none), moving_first
+    their first World row. Writes triangle_out (n,) int32 the World row hit (MISS for none):
+    a flat hit's primID, an instanced hit's prototype row, a moving hit's row; instance_out
+    (n,) int32 the instance (MISS: none; MOVING: a moving row); u_out, v_out, t_out (n,)
+    float32."""
     for lane in range(len(t_max)):
-        prim, _, instance, u, v, t = cast_closest(scene, origins[lane, 0], origins[lane, 1], origins[lane, 2],
-                                                  directions[lane, 0], directions[lane, 1], directions[lane, 2],
-                                                  0.0, t_max[lane], rayhit)
-        if prim != MISS and instance != MISS:
-            prim += instance_first_row[instance]
+        prim, geometry, instance, u, v, t = cast_closest(
+            scene, origins[lane, 0], origins[lane, 1], origins[lane, 2], directions[lane, 0], directions[lane, 1],
+            directions[lane, 2], 0.0, t_max[lane], time[lane], rayhit)
+        if prim != MISS:
+            if instance != MISS:
+                prim += instance_first_row[instance]
+            elif geometry == moving_geometry:
+                prim += moving_first
+                instance = MOVING
         triangle_out[lane], instance_out[lane], u_out[lane], v_out[lane], t_out[lane] = prim, instance, u, v, t
 
 
 @kernel
-def occluded_kernel(scene, origins, directions, t_max, rayhit, occluded_out):
+def occluded_kernel(scene, origins, directions, t_max, time, rayhit, occluded_out):
     """cast_any over a batch (arguments as intersect_kernel); writes occluded_out (n,) bool."""
     for lane in range(len(t_max)):
         occluded_out[lane] = cast_any(scene, origins[lane, 0], origins[lane, 1], origins[lane, 2],
                                       directions[lane, 0], directions[lane, 1], directions[lane, 2],
-                                      0.0, t_max[lane], rayhit)
+                                      0.0, t_max[lane], time[lane], rayhit)
 
 
 class RayCaster:
     """Closest-hit and any-hit queries against a World (committed here, before any thread
-    queries it): a top-level Embree scene of the flat rows as one mesh and an instance per
-    World instance (geometry id = instance number, so a hit's instID is it) of one child
-    scene per prototype. Calls from several threads at once are safe; each releases the GIL."""
+    queries it): a top-level Embree scene of an instance per World instance (geometry id =
+    instance number, so a hit's instID is it) of one child scene per prototype, the flat rows
+    as one mesh and the moving rows as one motion-blurred mesh of World.motion_steps time
+    steps. Calls from several threads at once are safe; each releases the GIL."""
 
     def __init__(self, world: World):
         # A world without triangles (a dome alone) has no Embree scene: every ray misses.
         self._scene = None
         self._closed = False
+        self._moving_geometry, self._moving_first = MISS, world.moving_first
         if not world.triangle_count:
             return
         device = Device()
@@ -301,19 +322,23 @@ class RayCaster:
             add_instance(scene, prototypes[prototype], transform)
         if len(world.triangles):
             add_triangles(scene, world.vertices, world.triangles)
+        if len(world.moving_triangles):
+            self._moving_geometry = add_triangles(scene, world.moving_vertices, world.moving_triangles)
         scene.commit()
         self._scene = scene
         self._instance_first_row = np.ascontiguousarray(world.prototype_first[world.instance_prototype], np.int64)
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray):
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray, time: np.ndarray | None = None):
         """Closest hits.
 
         origins, directions : (n, 3) float32 (directions need not be unit; t is in their units)
         t_max               : (n,) float32
+        time                : (n,) float32 shutter fractions in [0, 1] (None: 0), where moving
+                              rows are met
         Returns (triangle (n,) int32 the World row hit, MISS for none (through an instance:
         its prototype's row); instance (n,) int32 the World instance hit through, MISS for
-        none; u (n,), v (n,), t (n,) float32). u and v are Embree's barycentrics:
-        p = (1 - u - v) p0 + u p1 + v p2; a miss has u = v = 0 and t = t_max.
+        none, MOVING for a moving row; u (n,), v (n,), t (n,) float32). u and v are Embree's
+        barycentrics: p = (1 - u - v) p0 + u p1 + v p2; a miss has u = v = 0 and t = t_max.
         """
         self._check_open()
         n = len(t_max)
@@ -321,16 +346,18 @@ class RayCaster:
         u, v, t = np.zeros(n, FLOAT), np.zeros(n, FLOAT), np.array(t_max, FLOAT)
         if self._scene is not None and n:
             intersect_kernel(self._scene.handle, _rows(origins), _rows(directions), np.ascontiguousarray(t_max, FLOAT),
-                             rayhit_scratch(), self._instance_first_row, triangle, instance, u, v, t)
+                             _times(time, n), rayhit_scratch(), self._instance_first_row, self._moving_geometry,
+                             self._moving_first, triangle, instance, u, v, t)
         return triangle, instance, u, v, t
 
-    def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray) -> np.ndarray:
-        """Any hit with t < t_max for origins, directions (n, 3): (n,) bool."""
+    def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray,
+                 time: np.ndarray | None = None) -> np.ndarray:
+        """Any hit with t < t_max for origins, directions (n, 3) at `time` (as intersect): (n,) bool."""
         self._check_open()
         blocked = np.zeros(len(t_max), bool)
         if self._scene is not None and len(t_max):
             occluded_kernel(self._scene.handle, _rows(origins), _rows(directions), np.ascontiguousarray(t_max, FLOAT),
-                            rayhit_scratch(), blocked)
+                            _times(time, len(t_max)), rayhit_scratch(), blocked)
         return blocked
 
     def close(self) -> None:
@@ -348,3 +375,7 @@ class RayCaster:
 
 def _rows(vectors: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(vectors, FLOAT)
+
+
+def _times(time: np.ndarray | None, count: int) -> np.ndarray:
+    return np.zeros(count, FLOAT) if time is None else np.ascontiguousarray(time, FLOAT)

@@ -1,5 +1,5 @@
-"""Hits through Embree instances, placed in scratch rows that every stage reads as it reads
-a flat row.
+"""Hits through Embree instances and hits on moving rows, placed in scratch rows that every
+stage reads as it reads a flat row.
 
 A ray that hits a surface through an instance reports the prototype's row, in the
 prototype's own space, and the instance (embree.RayCaster.intersect). The stages read a
@@ -8,8 +8,12 @@ hit through per-row tables: the World's, its GeometryArrays, and the tables buil
 *placed*: its prototype row is written into a scratch row, transformed by the instance's
 placement s·R + t (positions by it, normals and directions by R, areas ×s², curvatures and
 texture gradients ÷s; the subject and link group are the instance's own), and the hit names
-that row from then on. Downstream, nothing tells it from a flat row, and a scene without
-instances pays nothing.
+that row from then on. A hit on a moving row (World.moving_first on; instance
+embree.MOVING) is placed alike from the row's tables at the two time steps around the
+ray's time, interpolated as Embree interpolates its vertices (linearly: positions, hence
+the geometric normal and area, exactly; shading normals, curvatures and texture gradients
+interpolated and renormalised). Downstream, nothing tells it from a flat row, and a scene
+without instances or motion pays nothing.
 
 The scratch rows are per tracing thread and per use: a :class:`Slot` (one per thread at a
 time, :meth:`InstanceRows.slot`) holds REGIONS regions of ``lanes`` rows, and lane j of a
@@ -20,6 +24,7 @@ bounce, because the row of a path's previous vertex is read again at the next bo
 
 from __future__ import annotations
 
+import math
 import queue
 from contextlib import contextmanager
 from collections.abc import Iterator
@@ -27,8 +32,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..compiled import kernel
-from .world import GeometryArrays, World
+from ..compiled import inline, kernel
+from .embree import MOVING
+from .world import GeometryArrays, MovingSteps, World
 
 PATH_EVEN, PATH_ODD, SHADOW = range(3)
 REGIONS = 3
@@ -74,7 +80,8 @@ class InstanceTables(NamedTuple):
     float32 (World.instance_*), object (i,) int32, subject_first (i,) int64 its first event
     subject, link_group (i,) int32 ((0,) without light linking); per row, subject_rank (rows,)
     int64: a prototype row's material among its prototype's distinct materials (the
-    instance's subjects are subject_first + rank)."""
+    instance's subjects are subject_first + rank); moving: the World's moving rows at each
+    time step, moving_first their first row."""
 
     transform: np.ndarray
     rotation: np.ndarray
@@ -83,6 +90,8 @@ class InstanceTables(NamedTuple):
     subject_first: np.ndarray
     link_group: np.ndarray
     subject_rank: np.ndarray
+    moving: MovingSteps
+    moving_first: int
 
     @classmethod
     def of(cls, world: World, subject_first: np.ndarray, subject_rank: np.ndarray,
@@ -90,7 +99,8 @@ class InstanceTables(NamedTuple):
         """The instances of `world`; object_link_group (objects,) int32, (0,) without linking."""
         link_group = object_link_group[world.instance_object] if len(object_link_group) else object_link_group
         return cls(world.instance_transform, world.instance_rotation, world.instance_scale, world.instance_object,
-                   subject_first, link_group.astype(np.int32), subject_rank)
+                   subject_first, link_group.astype(np.int32), subject_rank,
+                   world.moving_steps or MovingSteps.empty(), world.moving_first)
 
 
 class InstanceRows:
@@ -144,28 +154,35 @@ class Region:
     def __init__(self, owner: InstanceRows, first: int):
         self._owner, self.first = owner, first
 
-    def place(self, triangle: np.ndarray, instance: np.ndarray, lanes: np.ndarray | None = None) -> None:
-        """Place the instanced hits among `triangle` (n,) int32 (World rows, changed in place
-        to their scratch rows) with `instance` (n,) int32 (−1: not instanced); entry j is
-        lane ``lanes[j]`` (int64; None: lane j)."""
+    def place(self, triangle: np.ndarray, instance: np.ndarray, time: np.ndarray,
+              lanes: np.ndarray | None = None) -> None:
+        """Place the instanced and moving hits among `triangle` (n,) int32 (World rows,
+        changed in place to their scratch rows) with `instance` (n,) int32 (−1: neither;
+        embree.MOVING: a moving row) at `time` (n,) float32 (shutter fractions, the rays'); entry
+        j is lane ``lanes[j]`` (int64; None: lane j)."""
         owner = self._owner
         if lanes is None:
             lanes = np.arange(len(triangle), dtype=np.int64)
         if len(lanes) and int(lanes.max()) >= owner.lanes:
             raise ValueError(f"a query of lane {int(lanes.max())} places hits in regions of {owner.lanes} rows")
-        _place_kernel(owner.rows, owner.instances, triangle, instance, lanes, self.first)
+        _place_kernel(owner.rows, owner.instances, triangle, instance, np.ascontiguousarray(time, np.float32), lanes,
+                      self.first)
 
 
 @kernel
-def _place_kernel(rows, instances, triangle, instance, lanes, first):
+def _place_kernel(rows, instances, triangle, instance, time, lanes, first):
     geometry = rows.geometry
     has_curvature, has_links = len(rows.curvature) > 0, len(rows.link_group) > 0
     for entry in range(len(triangle)):
         k = instance[entry]
         source = triangle[entry]
-        if k < 0 or source < 0:
+        if source < 0 or (k < 0 and k != MOVING):
             continue
         row = first + lanes[entry]
+        if k == MOVING:
+            _place_moving(rows, instances, source, row, time[entry])
+            triangle[entry] = row
+            continue
         transform, rotation, scale = instances.transform[k], instances.rotation[k], instances.scale[k]
         for corner in range(3):
             for axis in range(3):
@@ -208,3 +225,65 @@ def _place_kernel(rows, instances, triangle, instance, lanes, first):
         if has_links:
             rows.link_group[row] = instances.link_group[k]
         triangle[entry] = row
+
+
+@inline
+def _place_moving(rows, instances, source, row, time):
+    """Write moving row `source` at `time` (a shutter fraction) into scratch row `row`."""
+    geometry, steps = rows.geometry, instances.moving
+    local = source - instances.moving_first
+    last = steps.area.shape[0] - 1
+    position = min(max(time, 0.0), 1.0) * last
+    step = min(int(position), last - 1)
+    b = position - step
+    a = 1.0 - b
+    for corner in range(3):
+        length = 0.0
+        for axis in range(3):
+            value = a * steps.corner_positions[step, local, corner, axis] + b * steps.corner_positions[step + 1, local, corner, axis]
+            geometry.corner_positions[row, corner, axis] = value
+            rows.corner_positions[corner, axis, row] = value
+            normal = a * steps.corner_normals[step, local, corner, axis] + b * steps.corner_normals[step + 1, local, corner, axis]
+            geometry.corner_normals[row, corner, axis] = normal
+            length += normal * normal
+        scale = 1.0 / math.sqrt(length) if length > 0 else 0.0
+        for axis in range(3):
+            geometry.corner_normals[row, corner, axis] *= scale
+            rows.corner_normals[corner, axis, row] = geometry.corner_normals[row, corner, axis]
+        for axis in range(2):
+            geometry.corner_uvs[row, corner, axis] = geometry.corner_uvs[source, corner, axis]
+            rows.corner_uvs[corner, axis, row] = geometry.corner_uvs[source, corner, axis]
+        for column in range(geometry.corner_primvars.shape[2]):
+            geometry.corner_primvars[row, corner, column] = geometry.corner_primvars[source, corner, column]
+            rows.corner_primvars[corner, column, row] = geometry.corner_primvars[source, corner, column]
+    # The geometric normal and area of the interpolated corners: the triangle Embree hit.
+    p = geometry.corner_positions[row]
+    ex, ey, ez = p[1, 0] - p[0, 0], p[1, 1] - p[0, 1], p[1, 2] - p[0, 2]
+    fx, fy, fz = p[2, 0] - p[0, 0], p[2, 1] - p[0, 1], p[2, 2] - p[0, 2]
+    nx, ny, nz = ey * fz - ez * fy, ez * fx - ex * fz, ex * fy - ey * fx
+    double_area = math.sqrt(nx * nx + ny * ny + nz * nz)
+    inverse = 1.0 / double_area if double_area > 0 else 0.0
+    geometry.area[row] = 0.5 * double_area
+    for axis, value in ((0, nx), (1, ny), (2, nz)):
+        geometry.geometric_normal[row, axis] = value * inverse
+        rows.geometric_normal[axis, row] = value * inverse
+    length = 0.0
+    for axis in range(3):
+        principal = a * steps.principal_direction[step, local, axis] + b * steps.principal_direction[step + 1, local, axis]
+        rows.principal_direction[axis, row] = principal
+        length += principal * principal
+        rows.gradient_s[axis, row] = a * steps.gradient_s[step, local, axis] + b * steps.gradient_s[step + 1, local, axis]
+        rows.gradient_t[axis, row] = a * steps.gradient_t[step, local, axis] + b * steps.gradient_t[step + 1, local, axis]
+    scale = 1.0 / math.sqrt(length) if length > 0 else 0.0
+    for axis in range(3):
+        rows.principal_direction[axis, row] *= scale
+    geometry.triangle_material[row] = geometry.triangle_material[source]
+    geometry.triangle_light[row] = -1
+    rows.curvature_k1[row] = a * steps.curvature_k1[step, local] + b * steps.curvature_k1[step + 1, local]
+    rows.curvature_k2[row] = a * steps.curvature_k2[step, local] + b * steps.curvature_k2[step + 1, local]
+    rows.triangle_object[row] = rows.triangle_object[source]
+    rows.subject[row] = rows.subject[source]
+    if len(rows.curvature) > 0:
+        rows.curvature[row] = rows.curvature[source]
+    if len(rows.link_group) > 0:
+        rows.link_group[row] = rows.link_group[source]

@@ -218,7 +218,7 @@ class Integrator:
             if lights.has_lights:
                 shadows = light_samples(queue, surfaces, step, self.epsilon, geometry, materials, light_arrays)
                 rays += len(shadows)
-                cast_shadows(self.caster, shadows, geometry, materials, light_arrays, self.materials.see_through,
+                cast_shadows(self.caster, shadows, queue.time, geometry, materials, light_arrays, self.materials.see_through,
                              self.epsilon, None if slot is None else slot.region(SHADOW))
                 clamp_lit(queue, shadows, settings.clamp_indirect)
                 for observer in observers:

@@ -46,10 +46,10 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
         # (instances.py) has been written over: the whole Σ is recorded on flat rows.
         log.info("%s: instanced surfaces flattened, since the index keeps each event's whole Σ", scene.stage_path)
         scene = flatten_instances(scene)
-    instanced = any(mesh.prototype >= 0 for mesh in scene.meshes)
+    placing = any(mesh.prototype >= 0 or mesh.motion_points is not None for mesh in scene.meshes)
     # the most lanes one query places: a batch's paths (trace_pixels), a row of data passes
     lanes, slots = max(DEFAULT_BATCH_PATHS, width), min(available_cores(), MAX_SLOTS)
-    world = build_world(scene, rows_needed(lanes, slots) if instanced else 0)
+    world = build_world(scene, rows_needed(lanes, slots) if placing else 0)
     geometry = geometry_arrays(world)
     materials = MaterialTable(scene, world.primvar_columns)
     lights = LightSampler(scene, world, materials, geometry)
@@ -59,7 +59,7 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
     bounce_norms = BounceNorms(scene, world) if settings.norm_bounces > 0 else None
     pairs, triangle_subject, subject_first, subject_rank = _subjects(world)
     instance_rows = None
-    if instanced:
+    if world.needs_placing:
         rows = RowTables.of(world, geometry, triangle_subject,
                             bounce_norms.curvature if bounce_norms else np.zeros(0, FLOAT), lights.arrays.link_group)
         instances = InstanceTables.of(world, subject_first, subject_rank, lights.object_link_group)
@@ -84,7 +84,7 @@ def _subjects(world: World) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     subject_rank (rows,) int64 a prototype row's material among its prototype's distinct
     materials (instances.InstanceTables: an instance's pairs are consecutive, one object).
     """
-    flat = len(world.triangles)
+    flat = world.own_rows
     rows = len(world.triangle_object)
     materials = []  # each prototype's distinct materials, sorted
     subject_rank = np.zeros(rows, np.int64)

@@ -7,6 +7,11 @@ The tables' rows, in this order:
   hits real geometry and the same triangles are sampled for next-event estimation. Light
   triangles are wound so that their geometric normal points the way the light emits.
   Embree's top-level scene holds them as one mesh: a hit's primID is its row.
+* the moving rows: meshes that move over the shutter (scene.Mesh.motion_points), at the
+  frame's time. Embree's top-level scene holds them as one more mesh, motion-blurred over
+  ``motion_steps`` time steps; a hit at a ray's time is shaded from a scratch row holding
+  the row between the two steps around that time (trace/instances.py, from
+  ``moving_steps``). Like the flat rows, each is its object's own.
 * the prototype rows: each instanced surface (scene.Mesh.prototype) once, in its own space.
   Its placements are Embree instances of one child scene; rays never hit these rows as
   such (trace/instances.py: a hit through instance k on prototype row r is shaded from a
@@ -92,7 +97,13 @@ class World:
                        directions map by R
     instance_scale   : (i,) float32 its scale s > 0: lengths scale by s, areas s², curvatures
                        and gradients 1/s
-    scratch_first    : the first scratch row (rows before it: flat and prototype rows)
+    moving_vertices  : (k, v, 3) float32 the moving rows' vertices at k = motion_steps ≥ 2
+                       evenly spaced times over the shutter (its open at 0, its close at k − 1);
+                       (0, 0, 3) without moving rows
+    moving_triangles : (m, 3) int32 the moving rows' triangles, indices into them
+    moving_first     : the first moving row (= len(triangles): the flat rows come first)
+    moving_steps     : MovingSteps, the moving rows' tables at each time step
+    scratch_first    : the first scratch row (rows before it: flat, moving and prototype rows)
     """
 
     vertices: np.ndarray
@@ -126,17 +137,56 @@ class World:
     instance_transform: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 4), FLOAT))
     instance_rotation: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3), FLOAT))
     instance_scale: np.ndarray = field(default_factory=lambda: np.zeros(0, FLOAT))
+    moving_vertices: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3), FLOAT))
+    moving_triangles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), INDEX))
+    moving_first: int = 0
+    moving_steps: MovingSteps | None = None
     scratch_first: int = -1
 
     @property
     def triangle_count(self) -> int:
-        """Rows a ray can hit: the flat rows and every instanced prototype row (scratch rows
-        are not geometry of their own)."""
-        return len(self.triangles) + sum(len(triangles) for triangles in self.prototype_triangles)
+        """Rows a ray can hit: the flat and moving rows and every instanced prototype row
+        (scratch rows are not geometry of their own)."""
+        return (len(self.triangles) + len(self.moving_triangles)
+                + sum(len(triangles) for triangles in self.prototype_triangles))
 
     @property
-    def has_instances(self) -> bool:
-        return len(self.instance_object) > 0
+    def own_rows(self) -> int:
+        """The rows each of which is one object's own (flat and moving: the rows before the
+        prototypes')."""
+        return len(self.triangles) + len(self.moving_triangles)
+
+    @property
+    def needs_placing(self) -> bool:
+        """Whether some hits are shaded from scratch rows (instances.py): hits through
+        instances and hits on moving rows."""
+        return len(self.instance_object) > 0 or len(self.moving_triangles) > 0
+
+
+class MovingSteps(NamedTuple):
+    """The moving rows' tables at each of the k time steps over the shutter, triangle-major
+    (m moving rows, local row r is World row moving_first + r), in World units.
+
+    corner_positions, corner_normals : (k, m, 3 corners, 3) float32
+    geometric_normal, principal_direction, gradient_s, gradient_t : (k, m, 3) float32
+    area, curvature_k1, curvature_k2 : (k, m) float32
+    """
+
+    corner_positions: np.ndarray
+    corner_normals: np.ndarray
+    geometric_normal: np.ndarray
+    principal_direction: np.ndarray
+    gradient_s: np.ndarray
+    gradient_t: np.ndarray
+    area: np.ndarray
+    curvature_k1: np.ndarray
+    curvature_k2: np.ndarray
+
+    @classmethod
+    def empty(cls) -> MovingSteps:
+        vectors, scalars = np.zeros((2, 0, 3), FLOAT), np.zeros((2, 0), FLOAT)
+        corners = np.zeros((2, 0, 3, 3), FLOAT)
+        return cls(corners, corners, vectors, vectors, vectors, vectors, scalars, scalars, scalars)
 
 
 class GeometryArrays(NamedTuple):
@@ -196,13 +246,16 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
     objects: list[tuple[str, str, int, int]] = []
     flat: list[tuple[Mesh, int, int]] = []  # (mesh or light shape, its light or NOT_A_LIGHT, object)
     instanced: list[tuple[Mesh, int]] = []  # (placement of a shared surface, object)
+    moving: list[tuple[Mesh, int]] = []  # (a mesh that moves over the shutter, object)
     for index, mesh in enumerate(scene.meshes):
         if not len(mesh.triangles):
             continue
-        if mesh.prototype < 0:
-            flat.append((mesh, NOT_A_LIGHT, len(objects)))
-        else:
+        if mesh.prototype >= 0:
             instanced.append((mesh, len(objects)))
+        elif mesh.motion_points is not None:
+            moving.append((mesh, len(objects)))
+        else:
+            flat.append((mesh, NOT_A_LIGHT, len(objects)))
         objects.append((mesh.name, mesh.path, mesh.instance, index))
     for light_index, light in enumerate(scene.lights):
         shape = light_shape(light)
@@ -225,7 +278,7 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
         first_placement.setdefault(mesh.prototype, mesh)
     prototypes = list(first_placement.values())
     prototype_of = {number: order for order, number in enumerate(first_placement)}
-    pieces = [piece for piece, _, _ in flat] + prototypes
+    pieces = [piece for piece, _, _ in flat] + [mesh for mesh, _ in moving] + prototypes
 
     flat_count = sum(len(piece.triangles) for piece, _, _ in flat)
     count = sum(len(piece.triangles) for piece in pieces) + scratch_rows
@@ -254,6 +307,9 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
         _fill_rows(piece, row, *tables)
         vertex_offset += len(points)
         row += len(piece.triangles)
+    moving_vertices, moving_triangles, moving_steps = _moving_rows(moving, row, triangle_object, triangle_material,
+                                                                   tables)
+    row += len(moving_triangles)
     prototype_first = np.zeros(len(prototypes), np.int64)
     for order, piece in enumerate(prototypes):
         prototype_first[order] = row
@@ -265,7 +321,7 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
     gradient_s, gradient_t = uv_gradients(corner_positions, corner_uvs)
     placements = np.array([mesh.world_from_points for mesh, _ in instanced], np.float64).reshape(-1, 4, 4)
     rotation, scale = rotation_and_scale(placements[:, :3, :3])
-    low, high = _bounds(vertices, prototypes, [prototype_of[mesh.prototype] for mesh, _ in instanced], placements)
+    low, high = _bounds(np.concatenate([vertices, moving_vertices.reshape(-1, 3)]), prototypes, [prototype_of[mesh.prototype] for mesh, _ in instanced], placements)
     center = (low + high) / 2
     return World(
         vertices=vertices,
@@ -299,8 +355,55 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
         instance_transform=np.ascontiguousarray(placements[:, :3], FLOAT),
         instance_rotation=np.ascontiguousarray(rotation, FLOAT),
         instance_scale=scale.astype(FLOAT),
+        moving_vertices=moving_vertices,
+        moving_triangles=moving_triangles,
+        moving_first=flat_count,
+        moving_steps=moving_steps,
         scratch_first=count - scratch_rows,
     )
+
+
+def _moving_rows(moving: list[tuple[Mesh, int]], first_row: int, triangle_object: np.ndarray,
+                 triangle_material: np.ndarray, tables: tuple) -> tuple[np.ndarray, np.ndarray, MovingSteps]:
+    """Write the moving meshes' rows (at the frame's time) from `first_row` on; returns their
+    vertices (k, v, 3) and triangles (m, 3) for Embree and their tables at each time step."""
+    if not moving:
+        return np.zeros((0, 0, 3), FLOAT), np.zeros((0, 3), INDEX), MovingSteps.empty()
+    steps = {len(mesh.motion_points) for mesh, _ in moving}
+    if len(steps) != 1 or min(steps) < 2:
+        raise ValueError(f"moving meshes need one count of time steps, 2 or more, not {sorted(steps)}")
+    step_count = steps.pop()
+    vertices = np.concatenate([mesh.motion_points for mesh, _ in moving], axis=1).astype(FLOAT)
+    offsets = np.cumsum([0] + [mesh.motion_points.shape[1] for mesh, _ in moving])
+    triangles = np.concatenate([mesh.triangles + offset for (mesh, _), offset in zip(moving, offsets)]).astype(INDEX)
+    row = first_row
+    for mesh, object_index in moving:
+        own = slice(row, row + len(mesh.triangles))
+        triangle_object[own], triangle_material[own] = object_index, mesh.triangle_material
+        _fill_rows(mesh, row, *tables)
+        row += len(mesh.triangles)
+    count, columns = len(triangles), tables[-1]
+    per_step: list[list[np.ndarray]] = [[] for _ in MovingSteps._fields]
+    for step in range(step_count):
+        geometric_normal, area = np.zeros((3, count), FLOAT), np.zeros(count, FLOAT)
+        positions, normals = np.zeros((3, 3, count), FLOAT), np.zeros((3, 3, count), FLOAT)
+        uvs = np.zeros((3, 2, count), FLOAT)
+        primvars = np.zeros((3, tables[5].shape[1], count), FLOAT)
+        start = 0
+        for mesh, _ in moving:
+            posed = dataclasses.replace(mesh, points=mesh.motion_points[step],
+                                        normal_values=None if mesh.motion_normals is None else mesh.motion_normals[step])
+            _fill_rows(posed, start, geometric_normal, area, positions, normals, uvs, primvars, columns)
+            start += len(mesh.triangles)
+        k1, k2, principal = triangle_curvatures(positions, normals)
+        gradient_s, gradient_t = uv_gradients(positions, uvs)
+        tables_at_step = {"corner_positions": positions, "corner_normals": normals,
+                          "geometric_normal": geometric_normal, "principal_direction": principal,
+                          "gradient_s": gradient_s, "gradient_t": gradient_t, "area": area, "curvature_k1": k1,
+                          "curvature_k2": k2}
+        for field_index, name in enumerate(MovingSteps._fields):
+            per_step[field_index].append(np.moveaxis(tables_at_step[name], -1, 0))
+    return vertices, triangles, MovingSteps(*(np.ascontiguousarray(np.stack(tables), FLOAT) for tables in per_step))
 
 
 def flatten_instances(scene: SceneData) -> SceneData:

@@ -18,8 +18,9 @@ def camera_rays(camera: ThinLensCamera, frame_key: np.uint64, resolution: tuple[
     film at each pixel's jittered position (its centre without `jitter`), from a point of
     the lens drawn uniformly on its disc (radii stratified over a pixel's samples; its
     centre without `jitter`: data passes are sharp) toward where the pinhole's ray meets
-    the plane in focus, the camera posed at a time drawn over the shutter (stratified with the
-    lens radius, rng.van_der_corput; the shutter's middle without `jitter`) (camera.py)."""
+    the plane in focus, the camera posed at the path's time, drawn over the shutter (stratified
+    with the lens radius, rng.van_der_corput; the shutter's middle without `jitter`), which
+    every later ray of the path keeps (moving geometry) (camera.py)."""
     count = stop_path - first_path
     width, height = resolution
     queue = PathQueue(
@@ -31,29 +32,29 @@ def camera_rays(camera: ThinLensCamera, frame_key: np.uint64, resolution: tuple[
         vertex_travelled=np.zeros(count, np.float32),
         origin=np.empty((count, 3), np.float32), direction=np.empty((count, 3), np.float32),
         t_max=np.full(count, camera.t_max, np.float32), node=np.zeros(count, np.int64),
-        row=np.full(count, -1, np.int64))
+        row=np.full(count, -1, np.int64), time=np.empty(count, np.float32))
     pose = np.empty((4, 3))  # the kernel's working pose: world_from_camera's rows, then the position
     pose[:3], pose[3] = camera.world_from_camera, camera.position
     _camera_kernel(first_path, spp, width, height, frame_key, pose, camera.motion_times, camera.motion_rotations,
                    camera.motion_positions, camera.half_width, camera.half_height, camera.offset_x,
                    camera.offset_y, camera.lens_radius if jitter else 0.0, camera.focus_distance, jitter, queue.pixel,
-                   queue.sample, queue.key, queue.origin, queue.direction)
+                   queue.sample, queue.key, queue.origin, queue.direction, queue.time)
     return queue
 
 
 @kernel
 def _camera_kernel(first_path, spp, width, height, frame_key, pose, motion_times, motion_rotations, motion_positions,
                    half_width, half_height, offset_x, offset_y, lens_radius, focus_distance, jitter, pixel_out,
-                   sample_out, key_out, origin_out, direction_out):
+                   sample_out, key_out, origin_out, direction_out, time_out):
     rotation, position = pose[:3], pose[3]
     for lane in range(len(pixel_out)):
         path = first_path + lane
         pixel = path // spp
         sample = path % spp
         key = rng.path_key(frame_key, pixel, sample)
+        # the time stratified over the pixel's samples, and jointly with the lens radius
+        time = rng.van_der_corput(frame_key, pixel, sample, rng.TIME) if jitter else 0.5
         if len(motion_times) > 1:
-            # the time stratified over the pixel's samples, and jointly with the lens radius
-            time = rng.van_der_corput(frame_key, pixel, sample, rng.TIME) if jitter else 0.5
             _pose_at(time, motion_times, motion_rotations, motion_positions, pose)
         jx = rng.uniform(key, 0) if jitter else 0.5
         jy = rng.uniform(key, 1) if jitter else 0.5
@@ -76,7 +77,7 @@ def _camera_kernel(first_path, spp, width, height, frame_key, pose, motion_times
         wy = rotation[1, 0] * x + rotation[1, 1] * y + rotation[1, 2] * z
         wz = rotation[2, 0] * x + rotation[2, 1] * y + rotation[2, 2] * z
         scale = 1.0 / math.sqrt(wx * wx + wy * wy + wz * wz)
-        pixel_out[lane], sample_out[lane], key_out[lane] = pixel, sample, key
+        pixel_out[lane], sample_out[lane], key_out[lane], time_out[lane] = pixel, sample, key, time
         for axis in range(3):
             origin_out[lane, axis] = position[axis] + rotation[axis, 0] * lens_x + rotation[axis, 1] * lens_y
         direction_out[lane, 0], direction_out[lane, 1], direction_out[lane, 2] = wx * scale, wy * scale, wz * scale

@@ -46,29 +46,33 @@ def light_samples(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: 
     return trimmed(shadows, count)
 
 
-def cast_shadows(caster: RayCaster, shadows: ShadowQueue, geometry: GeometryArrays, materials: MaterialArrays,
-                 lights: LightArrays, see_through: bool, epsilon: float, region: Region | None = None) -> None:
+def cast_shadows(caster: RayCaster, shadows: ShadowQueue, time: np.ndarray, geometry: GeometryArrays,
+                 materials: MaterialArrays, lights: LightArrays, see_through: bool, epsilon: float,
+                 region: Region | None = None) -> None:
     """Set ``shadows.visible``: which shadow rays reach their light. With `see_through`
     materials in the scene, or lights whose shadows only some geometry casts, a blocked ray
     is followed through the surfaces it crosses (up to MAX_PASS_THROUGH of them): geometry
     outside the light's shadow link and cut-outs pass it whole, a partly present surface
     (opacity without threshold) passes a fraction 1 − opacity, which scales its radiance —
     the expected value of the camera paths' random choice, without its noise. The surfaces
-    crossed through instances are placed in `region`'s rows (instances.py)."""
+    crossed through instances or on moving rows are placed in `region`'s rows (instances.py).
+    time: (paths,) float32 the shutter fraction of each path (PathQueue.time): its shadow
+    rays meet moving geometry where it is then."""
     if not len(shadows):
         return
-    blocked = caster.occluded(shadows.origin, shadows.direction, shadows.t_max)
+    time = time[shadows.lane]
+    blocked = caster.occluded(shadows.origin, shadows.direction, shadows.t_max, time)
     shadows.visible = ~blocked
     if not (see_through or lights.sampled_only.any()) or not blocked.any():
         return
     lanes = np.flatnonzero(blocked)
-    origin, direction = shadows.origin[lanes], shadows.direction[lanes]
+    origin, direction, time = shadows.origin[lanes], shadows.direction[lanes], time[lanes]
     t_left = shadows.t_max[lanes].copy()
     transmittance = np.ones(len(lanes), np.float32)
     for _ in range(MAX_PASS_THROUGH):
-        triangle, instance, u, v, t = caster.intersect(origin, direction, t_left)
+        triangle, instance, u, v, t = caster.intersect(origin, direction, t_left, time)
         if region is not None:
-            region.place(triangle, instance)
+            region.place(triangle, instance, time)
         crossed = triangle < 0
         shadows.visible[lanes[crossed]] = True
         shadows.radiance[lanes[crossed]] *= transmittance[crossed, None, None]
@@ -80,6 +84,7 @@ def cast_shadows(caster: RayCaster, shadows: ShadowQueue, geometry: GeometryArra
             return
         step = t[going] + np.float32(epsilon)
         lanes, direction, transmittance = lanes[going], direction[going], transmittance[going] * fraction[going]
+        time = time[going]
         origin = origin[going] + direction * step[:, None]
         t_left = t_left[going] - step
 

@@ -42,6 +42,8 @@ class PathQueue(_Queue):
     origin, direction (n, 3) float32 (directions unit); t_max (n,) float32 metres
     node (n,) int64 the path's class so far, row (n,) int64 its last event's norms row:
     the PathRecorder's columns (0 and −1 when nothing is recorded)
+    time (n,) float32 the path's time, a fraction of the shutter in [0, 1]: where the
+    camera and moving geometry are for every ray of the path
     """
 
     pixel: np.ndarray
@@ -60,6 +62,7 @@ class PathQueue(_Queue):
     t_max: np.ndarray
     node: np.ndarray
     row: np.ndarray
+    time: np.ndarray
 
 
 @dataclass
