@@ -136,6 +136,9 @@ class Mesh:
                         stands still (points is where it is at the frame's time either way)
     motion_normals    : (k, n, 3) float32 normal_values at those times; None without
                         motion_points or without normal_values
+    motion_world_from_points : for a placement of a prototype that moves over the shutter,
+                        (k, 4, 4) float64 its placements (similarities, metres) at those k
+                        times; None: it stands still
 
     The placements of one surface share their read-only triangles, normal_indices and uvs
     arrays; only points and normal_values are their own (all of them, when instanced).
@@ -155,6 +158,7 @@ class Mesh:
     world_from_points: np.ndarray | None = None
     motion_points: np.ndarray | None = None
     motion_normals: np.ndarray | None = None
+    motion_world_from_points: np.ndarray | None = None
 
     @property
     def normals(self) -> np.ndarray | None:

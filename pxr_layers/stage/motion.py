@@ -3,8 +3,12 @@ time steps the tracer interpolates between.
 
 A gprim moves when its world transform (any xformOp of it or an ancestor) or its points
 (time samples, or ``velocities`` and ``accelerations`` in scene units per second, with the
-stage's timeCodesPerSecond: UsdGeomPointBased's rules, through ComputePointsAtTimes) differ
-over [shutter:open, shutter:close]. Embree interpolates a moving mesh linearly between k
+stage's timeCodesPerSecond, moving the time sample they go with: UsdGeomPointBased's rules,
+through ComputePointsAtTimes; a note names velocities beside unsampled points) differ
+over [shutter:open, shutter:close]; a point instance, when its instance's transform does
+(positions, orientations, scales and their samples, ``velocities``, ``accelerations`` and
+``angularVelocities``: UsdGeomPointInstancer.ComputeInstanceTransformsAtTimes) or a top-level
+instancer's own world transform. Embree interpolates a moving mesh linearly between k
 evenly spaced time steps, one count for the whole scene (scene.Mesh.motion_points): the
 most any moving gprim needs, which is its authored samples within the shutter, at least 3
 with accelerations, and enough that no step turns it by more than MAX_STEP_ROTATION (a
@@ -20,7 +24,8 @@ import numpy as np
 from pxr import Gf, Usd, UsdGeom
 
 from .context import ReadContext
-from .transforms import column_matrix, nearest_rotation
+from .transforms import column_matrix
+from .walk import InstancerLink
 
 MAX_MOTION_STEPS = 16
 MAX_STEP_ROTATION = math.radians(10.0)
@@ -56,33 +61,49 @@ class GprimMotion:
         self._shutter = context.shutter
         self._interval = Gf.Interval(self._shutter.open, self._shutter.close)
         self._xform_caches: dict[float, UsdGeom.XformCache] = {}
+        self._instancers: dict[tuple, np.ndarray | None] = {}  # (instancer path, top level) → steps
+        self._deforms: dict[str, bool] = {}  # gprim path → deforms
+        self._instance_transforms: dict[tuple, np.ndarray | None] = {}  # (path, times) → (T, n, 4, 4)
 
-    def steps(self, prim: Usd.Prim) -> int:
-        """The time steps `prim` needs over the shutter: 1 when it stands still."""
-        transform_times = self._transform_times(prim)
-        transforms = [self.world_from_local(prim, time) for time in transform_times]
-        moves = not all(np.allclose(matrix, transforms[0], rtol=0, atol=1e-12) for matrix in transforms)
-        steps = len(transform_times) if moves else 1
-        if moves:
-            turned = sum(_rotation_angle(a[:3, :3], b[:3, :3]) for a, b in zip(transforms, transforms[1:]))
-            steps = max(steps, math.ceil(turned / MAX_STEP_ROTATION) + 1)
-        deforming = self.deforms(prim)
-        if deforming:
+    def steps(self, prim: Usd.Prim, placement: InstancerLink | None = None, instance: int = -1) -> int:
+        """The time steps a gprim needs over the shutter, placed by its own world transform or
+        as point instance `instance` of `placement`: 1 when it stands still."""
+        if placement is None:
+            times = self._transform_times(prim)
+            steps = _steps(np.stack([self.world_from_local(prim, time) for time in times])[:, None])[0]
+        else:
+            per_instance = self._instancer_steps(placement)
+            steps = per_instance[instance] if per_instance is not None else 1
+        if self.deforms(prim):
             point_based = UsdGeom.PointBased(prim)
             samples = {self._shutter.open, self._shutter.close,
                        *point_based.GetPointsAttr().GetTimeSamplesInInterval(self._interval)}
             steps = max(steps, len(samples), 3 if point_based.GetAccelerationsAttr().HasAuthoredValue() else 2)
-        return min(steps, MAX_MOTION_STEPS)
+        return min(int(steps), MAX_MOTION_STEPS)
+
+    def placements(self, prim: Usd.Prim, placement: InstancerLink | None, instance: int,
+                   times: np.ndarray) -> np.ndarray:
+        """(k, 4, 4) float64 column convention, stage units: the gprim's world_from_local at
+        each time code of `times` (as :meth:`steps` places it)."""
+        if placement is None:
+            return np.stack([self.world_from_local(prim, time) for time in times])
+        transforms = self._transforms_of(placement.prim, tuple(times))[:, instance]
+        return self._instancer_worlds(placement, times) @ transforms @ placement.proto_from_prim
 
     def deforms(self, prim: Usd.Prim) -> bool:
         """Whether `prim`'s points change over the shutter (samples or velocities)."""
-        if not prim.IsA(UsdGeom.PointBased):
-            return False
-        point_based = UsdGeom.PointBased(prim)
+        key = str(prim.GetPath())
+        if key not in self._deforms:
+            self._deforms[key] = prim.IsA(UsdGeom.PointBased) and self._points_move(UsdGeom.PointBased(prim))
+        return self._deforms[key]
+
+    def _points_move(self, point_based: UsdGeom.PointBased) -> bool:
+        points = point_based.GetPointsAttr()
         velocities = point_based.GetVelocitiesAttr().Get(self._context.time)
         if velocities is not None and len(velocities) and np.any(np.asarray(velocities)):
-            return True
-        points = point_based.GetPointsAttr()
+            if points.GetNumTimeSamples():
+                return True
+            self._note_unsampled(point_based.GetPrim())
         if not points.ValueMightBeTimeVarying():
             return False
         times = [self._shutter.open, *points.GetTimeSamplesInInterval(self._interval), self._shutter.close]
@@ -115,23 +136,9 @@ class GprimMotion:
     def points_at(self, prim: Usd.Prim, times: np.ndarray) -> list[np.ndarray]:
         """`prim`'s points (v, 3) float64, stage units, its own space, at each time code of
         `times`: interpolated between samples, or moved by velocities and accelerations from
-        the sample at or before the frame (UsdGeomPointBased.ComputePointsAtTimes). USD
-        applies velocities to time-sampled points only; velocities beside points that have no
-        samples move them from the frame's time too, as renderers do with such data."""
-        point_based = UsdGeom.PointBased(prim)
-        computed = [np.asarray(points, np.float64)
-                    for points in point_based.ComputePointsAtTimes([Usd.TimeCode(t) for t in times], self._context.time)]
-        if point_based.GetPointsAttr().GetNumTimeSamples() == 0:
-            points = np.asarray(point_based.GetPointsAttr().Get(self._context.time), np.float64)
-            velocities = point_based.GetVelocitiesAttr().Get(self._context.time)
-            if velocities is not None and len(velocities) == len(points):
-                accelerations = point_based.GetAccelerationsAttr().Get(self._context.time)
-                accelerations = (np.asarray(accelerations, np.float64)
-                                 if accelerations is not None and len(accelerations) == len(points) else 0.0)
-                seconds = (np.asarray(times) - self._context.time.GetValue()) / prim.GetStage().GetTimeCodesPerSecond()
-                computed = [points + np.asarray(velocities, np.float64) * s + 0.5 * accelerations * s * s
-                            for s in seconds]
-        return computed
+        the sample at or before the frame (UsdGeomPointBased.ComputePointsAtTimes)."""
+        computed = UsdGeom.PointBased(prim).ComputePointsAtTimes([Usd.TimeCode(t) for t in times], self._context.time)
+        return [np.asarray(points, np.float64) for points in computed]
 
     def world_from_local(self, prim: Usd.Prim, time: float) -> np.ndarray:
         """(4, 4) float64 column convention, stage units: `prim`'s world transform at `time`."""
@@ -139,6 +146,58 @@ class GprimMotion:
         if cache is None:
             cache = self._xform_caches[time] = UsdGeom.XformCache(Usd.TimeCode(time))
         return column_matrix(cache.GetLocalToWorldTransform(prim))
+
+    def _instancer_steps(self, placement: InstancerLink) -> np.ndarray | None:
+        """(n,) int the steps each instance of the instancer needs (1: still), from its
+        transforms at the shutter's ends and at every sample of its arrays between; None
+        when USD cannot compute them (the walk composed the frame's from the arrays)."""
+        # a nested instancer's placement is the same at every time: it changes no instance's steps
+        key = (str(placement.prim.GetPath()), placement.world_from_instancer is None)
+        if key not in self._instancers:
+            instancer = UsdGeom.PointInstancer(placement.prim)
+            if not instancer.GetPositionsAttr().GetNumTimeSamples() and (
+                    instancer.GetVelocitiesAttr().HasAuthoredValue() or instancer.GetAngularVelocitiesAttr().HasAuthoredValue()):
+                self._note_unsampled(placement.prim)
+            times = set(self._transform_times(placement.prim) if placement.world_from_instancer is None else ())
+            times |= {self._shutter.open, self._shutter.close}
+            for attribute in (instancer.GetPositionsAttr(), instancer.GetOrientationsAttr(),
+                              instancer.GetOrientationsfAttr(), instancer.GetScalesAttr(),
+                              instancer.GetVelocitiesAttr(), instancer.GetAngularVelocitiesAttr()):
+                times.update(attribute.GetTimeSamplesInInterval(self._interval))
+            times = sorted(times)
+            transforms = self._transforms_of(placement.prim, tuple(times))
+            if transforms is None:
+                self._instancers[key] = None
+            else:
+                worlds = self._instancer_worlds(placement, np.asarray(times))
+                steps = _steps(worlds[:, None] @ transforms)
+                if instancer.GetAccelerationsAttr().HasAuthoredValue():
+                    steps = np.where(steps > 1, np.maximum(steps, 3), 1)
+                self._instancers[key] = steps
+        return self._instancers[key]
+
+    def _note_unsampled(self, prim: Usd.Prim) -> None:
+        self._context.diagnostics.note(
+            "unsampled-velocities", "velocities ignored beside points or positions without time samples (USD moves "
+            "a sample by its velocities, UsdGeomPointBased and UsdGeomPointInstancer): {prims}", str(prim.GetPath()))
+
+    def _instancer_worlds(self, placement: InstancerLink, times: np.ndarray) -> np.ndarray:
+        if placement.world_from_instancer is not None:
+            return np.repeat(placement.world_from_instancer[None], len(times), 0)
+        return np.stack([self.world_from_local(placement.prim, time) for time in times])
+
+    def _transforms_of(self, prim: Usd.Prim, times: tuple[float, ...]) -> np.ndarray | None:
+        """(T, n, 4, 4) column convention: the instancer's instancer_from_instance at each time
+        (the prototype root's transform included); None when USD cannot compute them."""
+        key = (str(prim.GetPath()), times)
+        if key not in self._instance_transforms:
+            computed = UsdGeom.PointInstancer(prim).ComputeInstanceTransformsAtTimes(
+                [Usd.TimeCode(t) for t in times], self._context.time, UsdGeom.PointInstancer.IncludeProtoXform,
+                UsdGeom.PointInstancer.IgnoreMask)
+            arrays = [np.asarray(transforms, np.float64) for transforms in computed]
+            usable = len(arrays) == len(times) and len({a.shape for a in arrays}) == 1 and arrays[0].ndim == 3
+            self._instance_transforms[key] = np.stack(arrays).transpose(0, 1, 3, 2) if usable else None
+        return self._instance_transforms[key]
 
     def _transform_times(self, prim: Usd.Prim) -> list[float]:
         """The shutter's ends and every transform sample of `prim` and its ancestors between."""
@@ -152,7 +211,15 @@ class GprimMotion:
         return sorted(times)
 
 
-def _rotation_angle(a: np.ndarray, b: np.ndarray) -> float:
-    """The angle in radians of the rotation between the orthogonal parts of linear maps a and b."""
-    relative = nearest_rotation(b) @ nearest_rotation(a).T
-    return math.acos(float(np.clip((np.trace(relative) - 1) / 2, -1.0, 1.0)))
+def _steps(transforms: np.ndarray) -> np.ndarray:
+    """(n,) int the steps each of n placements needs, from its transforms (T, n, 4, 4) at T
+    times over the shutter: 1 when they are all equal, else the T times, and more when it
+    turns by more than MAX_STEP_ROTATION a step."""
+    moving = ~np.all(np.isclose(transforms, transforms[:1], rtol=0, atol=1e-12), axis=(0, 2, 3))
+    linear = transforms[..., :3, :3]
+    scale = np.cbrt(np.abs(np.linalg.det(linear)))[..., None, None]
+    rotation = linear / np.where(scale > 0, scale, 1.0)  # a similarity's rotation (a shear's, nearly)
+    relative = rotation[1:] @ np.swapaxes(rotation[:-1], -1, -2)
+    turned = np.arccos(np.clip((np.trace(relative, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)).sum(axis=0)
+    needed = np.maximum(len(transforms), np.ceil(turned / MAX_STEP_ROTATION).astype(int) + 1)
+    return np.where(moving, needed, 1)

@@ -55,7 +55,7 @@ from .surfaces import (
 from .transforms import column_matrix, to_metres
 from .textures import TextureLibrary
 from .values import integer_array
-from .walk import GprimPlacement, walk_stage
+from .walk import GprimPlacement, InstancerLink, walk_stage
 
 logger = logging.getLogger(__name__)
 
@@ -136,6 +136,7 @@ class _Resolved:
     prim: Usd.Prim
     uv_primvar: str
     primvars: tuple[str, ...]
+    instancer: InstancerLink | None
     surface: PreparedSurface
     triangle_material: np.ndarray
     world_from_local: np.ndarray
@@ -190,7 +191,8 @@ class _MeshBuilder:
         step_count = max(steps, default=1)
         groups: dict[tuple, list[int]] = {}
         for index, item in enumerate(resolved):
-            if item is not None and item.instanceable and steps[index] == 1:
+            # a moving placement shares its surface when only its transform moves
+            if item is not None and item.instanceable and (steps[index] == 1 or not motion.deforms(item.prim)):
                 groups.setdefault(item.sharing_key, []).append(index)
         prototype_of: dict[int, SharedSurface] = {}  # placement index → the surface it instances
         prototypes = 0
@@ -208,9 +210,13 @@ class _MeshBuilder:
         for index, item in enumerate(resolved):
             if item is None:
                 continue
-            mesh = self._instance(item, prototype_of[index]) if index in prototype_of else self._copy(item)
-            if mesh is not None and steps[index] > 1:
-                mesh = self._moving(motion, item, mesh, step_count)
+            mesh = None
+            if index in prototype_of:
+                mesh = self._instance(item, prototype_of[index], motion, step_count if steps[index] > 1 else 1)
+            if mesh is None:
+                mesh = self._copy(item)
+                if mesh is not None and steps[index] > 1:
+                    mesh = self._moving(motion, item, mesh, step_count)
             if mesh is not None:
                 meshes.append(mesh)
         if prototypes:
@@ -220,11 +226,11 @@ class _MeshBuilder:
 
     def _motion_steps(self, motion: GprimMotion | None, item: _Resolved | None) -> int:
         """The time steps the placement needs over the shutter (motion.py): 1 when it stands
-        still, or when its motion is not read: point instances, skinned meshes and emissive
-        surfaces stay where they are at the frame's time (a note names the last two)."""
-        if motion is None or item is None or item.instance >= 0:
+        still, or when its motion is not read: skinned meshes and emissive surfaces stay where
+        they are at the frame's time (a note names them)."""
+        if motion is None or item is None:
             return 1
-        steps = motion.steps(item.prim)
+        steps = motion.steps(item.prim, item.instancer, item.instance)
         unread = ("skinned meshes" if item.posed
                   else "emissive surfaces" if self._materials.emit(item.triangle_material) else None)
         if steps > 1 and unread:
@@ -253,9 +259,10 @@ class _MeshBuilder:
                     raise StageError("its points over the shutter give another mesh than at the frame: motion blur "
                                      "interpolates one mesh", file=context.file, prim=item.path)
                 surfaces.append(prepare_surface(local))
-        placed = [place_surface(surface, motion.world_from_local(item.prim, time), context.meters_per_unit,
-                                item.triangle_material, item.name, item.path, Diagnostics(), instance=item.instance)
-                  for surface, time in zip(surfaces, times)]
+        placements = motion.placements(item.prim, item.instancer, item.instance, times)
+        placed = [place_surface(surface, world_from_local, context.meters_per_unit, item.triangle_material, item.name,
+                                item.path, Diagnostics(), instance=item.instance)
+                  for surface, world_from_local in zip(surfaces, placements)]
         if any(step is None or len(step.points) != len(placed[0].points) for step in placed):
             raise StageError("its placed points over the shutter are out of reach or change in number",
                              file=context.file, prim=item.path)
@@ -276,10 +283,23 @@ class _MeshBuilder:
         return place_surface(item.surface, item.world_from_local, context.meters_per_unit, item.triangle_material,
                              item.name, item.path, context.diagnostics, instance=item.instance)
 
-    def _instance(self, item: _Resolved, shared: SharedSurface) -> Mesh | None:
+    def _instance(self, item: _Resolved, shared: SharedSurface, motion: GprimMotion | None,
+                  step_count: int) -> Mesh | None:
+        """The placement as an instance of `shared`, moving over `step_count` time steps when
+        more than 1; None when it moves through placements other than similarities (it is
+        then a copy of its own)."""
         context = self._context
-        return place_instance(shared, item.world_from_local, context.meters_per_unit, item.name, item.path,
+        motion_placements = None
+        if step_count > 1:
+            placements = motion.placements(item.prim, item.instancer, item.instance, context.shutter.times(step_count))
+            if not all(is_instanceable(placement) for placement in placements):
+                return None
+            motion_placements = np.stack([to_metres(placement, context.meters_per_unit) for placement in placements])
+        mesh = place_instance(shared, item.world_from_local, context.meters_per_unit, item.name, item.path,
                               context.diagnostics, instance=item.instance)
+        if mesh is None or motion_placements is None:
+            return mesh
+        return dataclasses.replace(mesh, motion_world_from_points=motion_placements)
 
     def _resolve(self, placement: GprimPlacement) -> _Resolved | None:
         """The placement's surface, materials and transform (None: read_mesh skipped it)."""
@@ -329,9 +349,8 @@ class _MeshBuilder:
                 faces = faces[(faces >= 0) & (faces < local.face_count)]
                 face_material[faces] = resolved.index
             self._triangle_materials[bindings] = face_material[local.triangle_face]
-        return _Resolved(prim, uv_primvar, primvars, surface, self._triangle_materials[bindings], world_from_local,
-                         placement.name,
-                         placement.path, placement.instance, posed=posed is not None)
+        return _Resolved(prim, uv_primvar, primvars, placement.instancer, surface, self._triangle_materials[bindings],
+                         world_from_local, placement.name, placement.path, placement.instance, posed=posed is not None)
 
     def _read_mesh(
         self,

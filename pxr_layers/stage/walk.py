@@ -69,6 +69,8 @@ class GprimPlacement:
     instance         : that N as data (Mesh.instance), of the innermost instancer when
                        instancers nest; -1 for a gprim that is not point-instanced
                        (native instances included)
+    instancer        : how a point instance is placed (its motion is read from it), None
+                       for a gprim that is not point-instanced
     """
 
     prim: Usd.Prim
@@ -76,6 +78,25 @@ class GprimPlacement:
     path: str
     name: str
     instance: int = -1
+    instancer: InstancerLink | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class InstancerLink:
+    """A point instance's placement, world_from_local = world_from_instancer ·
+    instancer_from_instance · proto_from_prim (column convention, stage units).
+
+    prim                 : the innermost UsdGeom.PointInstancer
+    world_from_instancer : (4, 4) at the frame for an instancer nested in another's
+                           prototype (it is placed by an instance: it stands still over the
+                           shutter); None for a top-level instancer, whose own world
+                           transform is read at any time
+    proto_from_prim      : (4, 4) the gprim relative to its prototype's root
+    """
+
+    prim: Usd.Prim
+    world_from_instancer: np.ndarray | None
+    proto_from_prim: np.ndarray
 
 
 @dataclass
@@ -332,9 +353,8 @@ def _expand_instancer(
             if item.is_instancer:
                 _expand_instancer(context, item.prim, world, path, depth + 1, contents)
             else:
-                contents.gprims.append(
-                    GprimPlacement(item.prim, world, path, item.prim.GetName(), instance)
-                )
+                link = InstancerLink(prim, world_from_instancer if depth else None, item.proto_from_prim)
+                contents.gprims.append(GprimPlacement(item.prim, world, path, item.prim.GetName(), instance, link))
 
 
 def _instance_transforms(

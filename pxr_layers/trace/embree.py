@@ -203,14 +203,20 @@ def add_instance(scene: Scene, child: Scene, transform: np.ndarray) -> int:
     """Attach an instance of the committed scene `child` to `scene` (before its commit);
     returns its geometry id, which hits through it report as their instance id.
 
-    transform : (3, 4) float32, child space to `scene` space: p' = transform[:, :3] p + transform[:, 3]
+    transform : (3, 4) float32, child space to `scene` space: p' = transform[:, :3] p + transform[:, 3];
+                or (k, 3, 4), k ≥ 2, at evenly spaced times over the shutter (a moving
+                instance: Embree interpolates the matrices linearly at each ray's time)
     """
     matrix = np.ascontiguousarray(transform, np.float32)
-    if matrix.shape != (3, 4):
-        raise ValueError(f"an instance transform is (3, 4), not {matrix.shape}")
+    steps = matrix.reshape(-1, *matrix.shape[-2:])
+    if matrix.shape[-2:] != (3, 4) or matrix.ndim not in (2, 3):
+        raise ValueError(f"an instance transform is (3, 4) or (k, 3, 4), not {matrix.shape}")
     geometry = _api.rtcNewGeometry(scene.device.handle, RTC_GEOMETRY_TYPE_INSTANCE)
     _api.rtcSetGeometryInstancedScene(geometry, child.handle)
-    _api.rtcSetGeometryTransform(geometry, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, matrix.ctypes.data)  # copied
+    if len(steps) > 1:
+        _api.rtcSetGeometryTimeStepCount(geometry, len(steps))
+    for step in range(len(steps)):
+        _api.rtcSetGeometryTransform(geometry, step, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, steps[step].ctypes.data)  # copied
     return _attach(scene, geometry, (child,), "adding an instance")
 
 
@@ -318,8 +324,10 @@ class RayCaster:
             add_triangles(child, vertices, triangles)
             child.commit()
             prototypes.append(child)
-        for prototype, transform in zip(world.instance_prototype.tolist(), world.instance_transform):
-            add_instance(scene, prototypes[prototype], transform)
+        for instance, (prototype, transform) in enumerate(zip(world.instance_prototype.tolist(),
+                                                              world.instance_transform)):
+            moving = world.instance_motion_index[instance]
+            add_instance(scene, prototypes[prototype], transform if moving < 0 else world.instance_motion[moving])
         if len(world.triangles):
             add_triangles(scene, world.vertices, world.triangles)
         if len(world.moving_triangles):

@@ -32,7 +32,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..compiled import inline, kernel
+from ..compiled import inline, kernel, scratch
 from .embree import MOVING
 from .world import GeometryArrays, MovingSteps, World
 
@@ -80,8 +80,9 @@ class InstanceTables(NamedTuple):
     float32 (World.instance_*), object (i,) int32, subject_first (i,) int64 its first event
     subject, link_group (i,) int32 ((0,) without light linking); per row, subject_rank (rows,)
     int64: a prototype row's material among its prototype's distinct materials (the
-    instance's subjects are subject_first + rank); moving: the World's moving rows at each
-    time step, moving_first their first row."""
+    instance's subjects are subject_first + rank); motion_index (i,) int32 and motion (m, k,
+    3, 4) float32: the moving instances' placements at each time step (World.instance_motion*);
+    moving: the World's moving rows at each time step, moving_first their first row."""
 
     transform: np.ndarray
     rotation: np.ndarray
@@ -90,6 +91,8 @@ class InstanceTables(NamedTuple):
     subject_first: np.ndarray
     link_group: np.ndarray
     subject_rank: np.ndarray
+    motion_index: np.ndarray
+    motion: np.ndarray
     moving: MovingSteps
     moving_first: int
 
@@ -99,8 +102,8 @@ class InstanceTables(NamedTuple):
         """The instances of `world`; object_link_group (objects,) int32, (0,) without linking."""
         link_group = object_link_group[world.instance_object] if len(object_link_group) else object_link_group
         return cls(world.instance_transform, world.instance_rotation, world.instance_scale, world.instance_object,
-                   subject_first, link_group.astype(np.int32), subject_rank,
-                   world.moving_steps or MovingSteps.empty(), world.moving_first)
+                   subject_first, link_group.astype(np.int32), subject_rank, world.instance_motion_index,
+                   world.instance_motion, world.moving_steps or MovingSteps.empty(), world.moving_first)
 
 
 class InstanceRows:
@@ -166,11 +169,13 @@ class Region:
         if len(lanes) and int(lanes.max()) >= owner.lanes:
             raise ValueError(f"a query of lane {int(lanes.max())} places hits in regions of {owner.lanes} rows")
         _place_kernel(owner.rows, owner.instances, triangle, instance, np.ascontiguousarray(time, np.float32), lanes,
-                      self.first)
+                      self.first, scratch(3, 4), scratch(3, 3))
 
 
 @kernel
-def _place_kernel(rows, instances, triangle, instance, time, lanes, first):
+def _place_kernel(rows, instances, triangle, instance, time, lanes, first, transform, rotation):
+    """transform (3, 4), rotation (3, 3): float64 scratch, the instance's placement at the
+    ray's time (its own when it stands still)."""
     geometry = rows.geometry
     has_curvature, has_links = len(rows.curvature) > 0, len(rows.link_group) > 0
     for entry in range(len(triangle)):
@@ -183,7 +188,15 @@ def _place_kernel(rows, instances, triangle, instance, time, lanes, first):
             _place_moving(rows, instances, source, row, time[entry])
             triangle[entry] = row
             continue
-        transform, rotation, scale = instances.transform[k], instances.rotation[k], instances.scale[k]
+        if instances.motion_index[k] >= 0:
+            scale = _placement_at(instances.motion[instances.motion_index[k]], time[entry], transform, rotation)
+        else:
+            scale = instances.scale[k]
+            for axis in range(3):
+                for column in range(3):
+                    transform[axis, column] = instances.transform[k, axis, column]
+                    rotation[axis, column] = instances.rotation[k, axis, column]
+                transform[axis, 3] = instances.transform[k, axis, 3]
         for corner in range(3):
             for axis in range(3):
                 position = transform[axis, 3]
@@ -225,6 +238,29 @@ def _place_kernel(rows, instances, triangle, instance, time, lanes, first):
         if has_links:
             rows.link_group[row] = instances.link_group[k]
         triangle[entry] = row
+
+
+@inline
+def _placement_at(steps, time, transform, rotation):
+    """Write into transform (3, 4) the placement at `time` (a shutter fraction) between the
+    (k, 3, 4) `steps` around it, linearly as Embree interpolates them, and into rotation
+    (3, 3) its linear part over its scale s = |det|^(1/3), which it returns."""
+    last = steps.shape[0] - 1
+    position = min(max(time, 0.0), 1.0) * last
+    step = min(int(position), last - 1)
+    b = position - step
+    for axis in range(3):
+        for column in range(4):
+            transform[axis, column] = (1.0 - b) * steps[step, axis, column] + b * steps[step + 1, axis, column]
+    determinant = (transform[0, 0] * (transform[1, 1] * transform[2, 2] - transform[1, 2] * transform[2, 1])
+                   - transform[0, 1] * (transform[1, 0] * transform[2, 2] - transform[1, 2] * transform[2, 0])
+                   + transform[0, 2] * (transform[1, 0] * transform[2, 1] - transform[1, 1] * transform[2, 0]))
+    scale = abs(determinant) ** (1.0 / 3.0)
+    inverse = 1.0 / scale if scale > 0 else 0.0
+    for axis in range(3):
+        for column in range(3):
+            rotation[axis, column] = transform[axis, column] * inverse
+    return scale
 
 
 @inline

@@ -264,9 +264,10 @@ class EmitterTable:
         n = len(light)
         sigma, x_axis = np.zeros((n, 4, 4)), np.zeros((3, n))
         surface = light < 0
-        kind = np.where(surface, SQUARE, self.kind[np.where(surface, 0, light)])
-        area = np.where(surface, self.object_area[world.triangle_object[np.maximum(triangle, 0)]],
-                        self.area[np.maximum(light, 0)])
+        # an emissive surface's record is a square of its object's area (a stage may have no light)
+        kind = np.full(n, SQUARE, self.kind.dtype)
+        area = self.object_area[world.triangle_object[np.maximum(triangle, 0)]]
+        kind[~surface], area[~surface] = self.kind[light[~surface]], self.area[light[~surface]]
         for code in np.unique(kind):
             lanes = np.flatnonzero(kind == code)
             toward = direction[:, lanes]

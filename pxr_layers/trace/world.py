@@ -97,6 +97,10 @@ class World:
                        directions map by R
     instance_scale   : (i,) float32 its scale s > 0: lengths scale by s, areas s², curvatures
                        and gradients 1/s
+    instance_motion_index : (i,) int32 the instance's row of instance_motion, −1 for one that
+                       stands still over the shutter
+    instance_motion  : (m, k, 3, 4) float32 each moving instance's placement at the k time
+                       steps over the shutter (as instance_transform; the moving rows' k)
     moving_vertices  : (k, v, 3) float32 the moving rows' vertices at k = motion_steps ≥ 2
                        evenly spaced times over the shutter (its open at 0, its close at k − 1);
                        (0, 0, 3) without moving rows
@@ -137,6 +141,8 @@ class World:
     instance_transform: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 4), FLOAT))
     instance_rotation: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3), FLOAT))
     instance_scale: np.ndarray = field(default_factory=lambda: np.zeros(0, FLOAT))
+    instance_motion_index: np.ndarray = field(default_factory=lambda: np.zeros(0, INDEX))
+    instance_motion: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 3, 4), FLOAT))
     moving_vertices: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3), FLOAT))
     moving_triangles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), INDEX))
     moving_first: int = 0
@@ -321,7 +327,18 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
     gradient_s, gradient_t = uv_gradients(corner_positions, corner_uvs)
     placements = np.array([mesh.world_from_points for mesh, _ in instanced], np.float64).reshape(-1, 4, 4)
     rotation, scale = rotation_and_scale(placements[:, :3, :3])
-    low, high = _bounds(np.concatenate([vertices, moving_vertices.reshape(-1, 3)]), prototypes, [prototype_of[mesh.prototype] for mesh, _ in instanced], placements)
+    instance_prototype = [prototype_of[mesh.prototype] for mesh, _ in instanced]
+    motions = [(number, mesh.motion_world_from_points) for number, (mesh, _) in enumerate(instanced)
+               if mesh.motion_world_from_points is not None]
+    if len({len(motion) for _, motion in motions} | ({len(moving_vertices)} if len(moving_triangles) else set())) > 1:
+        raise ValueError("moving meshes and instances need one count of time steps")
+    instance_motion_index = np.full(len(instanced), -1, INDEX)
+    instance_motion_index[[number for number, _ in motions]] = np.arange(len(motions))
+    instance_motion = (np.stack([motion for _, motion in motions]) if motions else np.zeros((0, 2, 4, 4)))
+    swept = [instance_prototype[number] for number, motion in motions for _ in motion]  # every step's box too
+    low, high = _bounds(np.concatenate([vertices, moving_vertices.reshape(-1, 3)]), prototypes,
+                        instance_prototype + swept,
+                        np.concatenate([placements, instance_motion.reshape(-1, 4, 4)]))
     center = (low + high) / 2
     return World(
         vertices=vertices,
@@ -351,10 +368,12 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
         prototype_triangles=tuple(np.ascontiguousarray(piece.triangles, INDEX) for piece in prototypes),
         prototype_first=prototype_first,
         instance_object=np.array([object_index for _, object_index in instanced], INDEX),
-        instance_prototype=np.array([prototype_of[mesh.prototype] for mesh, _ in instanced], INDEX),
+        instance_prototype=np.array(instance_prototype, INDEX),
         instance_transform=np.ascontiguousarray(placements[:, :3], FLOAT),
         instance_rotation=np.ascontiguousarray(rotation, FLOAT),
         instance_scale=scale.astype(FLOAT),
+        instance_motion_index=instance_motion_index,
+        instance_motion=np.ascontiguousarray(instance_motion[:, :, :3], FLOAT),
         moving_vertices=moving_vertices,
         moving_triangles=moving_triangles,
         moving_first=flat_count,
@@ -428,14 +447,24 @@ def rotation_and_scale(linear: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _flattened(mesh: Mesh) -> Mesh:
-    placement = np.asarray(mesh.world_from_points, np.float64)
-    linear = placement[:3, :3]
-    points = (np.asarray(mesh.points, np.float64) @ linear.T + placement[:3, 3]).astype(FLOAT)
-    normal_values = None
-    if mesh.normal_values is not None:
+    """`mesh`'s placement as a flat mesh (a moving instance: a moving mesh, its points and
+    normals placed at each time step)."""
+
+    def placed(placement: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        linear = placement[:3, :3]
+        points = (np.asarray(mesh.points, np.float64) @ linear.T + placement[:3, 3]).astype(FLOAT)
+        if mesh.normal_values is None:
+            return points, None
         rotation = rotation_and_scale(linear[None])[0][0]
-        normal_values = (np.asarray(mesh.normal_values, np.float64) @ rotation.T).astype(FLOAT)
-    corners = [0, 2, 1] if np.linalg.det(linear) < 0 else [0, 1, 2]
+        return points, (np.asarray(mesh.normal_values, np.float64) @ rotation.T).astype(FLOAT)
+
+    points, normal_values = placed(np.asarray(mesh.world_from_points, np.float64))
+    motion_points = motion_normals = None
+    if mesh.motion_world_from_points is not None:
+        steps = [placed(placement) for placement in np.asarray(mesh.motion_world_from_points, np.float64)]
+        motion_points = np.stack([step_points for step_points, _ in steps])
+        motion_normals = None if normal_values is None else np.stack([normals for _, normals in steps])
+    corners = [0, 2, 1] if np.linalg.det(np.asarray(mesh.world_from_points)[:3, :3]) < 0 else [0, 1, 2]
 
     def wound(per_corner):
         return None if per_corner is None else np.ascontiguousarray(np.asarray(per_corner)[:, corners])
@@ -443,7 +472,8 @@ def _flattened(mesh: Mesh) -> Mesh:
     return dataclasses.replace(mesh, points=points, triangles=wound(mesh.triangles), normal_values=normal_values,
                                normal_indices=wound(mesh.normal_indices), uvs=wound(mesh.uvs),
                                primvars={name: wound(values) for name, values in mesh.primvars.items()},
-                               prototype=-1, world_from_points=None)
+                               prototype=-1, world_from_points=None, motion_points=motion_points,
+                               motion_normals=motion_normals, motion_world_from_points=None)
 
 
 def _fill_rows(piece: Mesh, first_row: int, geometric_normal, area, corner_positions, corner_normals, corner_uvs,
