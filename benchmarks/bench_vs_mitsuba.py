@@ -2,7 +2,7 @@
 
     python benchmarks/bench_vs_mitsuba.py [--resolution 256 256] [--spp 64] [--max-depth 8]
                                           [--threads N] [--repeat 1] [--keep DIR]
-                                          [--lens F_STOP FOCUS_DISTANCE]
+                                          [--lens F_STOP FOCUS_DISTANCE] [--curves]
 
 Set-up (Mitsuba is a benchmark-only dependency, not one of pxr-layers'):
 
@@ -35,7 +35,9 @@ mitsuba, or without a usable LLVM, it prints one line saying what to install and
 3. Prints the times and the speed ratio pxr-layers / Mitsuba = T_mitsuba / T_ours for the
    no-index render (target ≥ 0.8, moonshot ≥ 1), and what the index adds (target ≤ 25 %);
    with ``--lens``, also what depth of field adds to our no-index render of the same
-   frame through a pinhole (target ≤ 20 %).
+   frame through a pinhole (target ≤ 20 %). ``--curves`` renders the box with a lawn of 400
+   straight hairs on its floor instead (a linear BasisCurves: Embree's round linear curves
+   for us, Mitsuba's ``linearcurve`` from the same control points and radii).
 
 Exits 0 whether or not targets are met (it is a measurement; each says met or MISSED), 1
 when a render fails, 2 when Mitsuba is not available.
@@ -141,6 +143,57 @@ over "World"
     }}
 }}
 """)
+    return str(path)
+
+
+def curves_stage(folder: Path) -> str:
+    """A stage over the Cornell box with a lawn of 20 × 20 straight hairs on its floor (a
+    linear BasisCurves of the white material, 4 mm wide, 120 mm tall, leaning)."""
+    rng = np.random.default_rng(3)
+    roots = np.stack(np.meshgrid(np.linspace(60, 500, 20), np.linspace(40, 500, 20)), -1).reshape(-1, 2)
+    roots += rng.uniform(-8, 8, roots.shape)
+    lean = rng.uniform(-30, 30, roots.shape)
+    points = ", ".join(f"({x:.1f}, 0, {z:.1f}), ({x + dx:.1f}, 120, {z + dz:.1f})"
+                       for (x, z), (dx, dz) in zip(roots, lean))
+    path = folder / "cornell_curves.usda"
+    path.write_text(f"""#usda 1.0
+(
+    subLayers = [@{cornell_path()}@]
+    metersPerUnit = 0.001
+    upAxis = "Y"
+    startTimeCode = 1
+    endTimeCode = 1
+)
+over "World"
+{{
+    over "Geometry"
+    {{
+        def BasisCurves "lawn" (prepend apiSchemas = ["MaterialBindingAPI"])
+        {{
+            uniform token type = "linear"
+            int[] curveVertexCounts = [{", ".join(["2"] * len(roots))}]
+            point3f[] points = [{points}]
+            float[] widths = [4]
+            rel material:binding = </World/Materials/white>
+        }}
+    }}
+}}
+""")
+    return str(path)
+
+
+def _curve_file(strands, folder: Path) -> str:
+    """Mitsuba's curve file of scene.Strands (one "x y z radius" line per control point, a
+    blank line between curves): the curves are the runs of consecutive segments."""
+    path = folder / f"{strands.name}.txt"
+    segments = strands.segments.tolist()
+    lines, start = [], segments[0]
+    for previous, segment in zip(segments, segments[1:] + [None]):
+        if segment != previous + 1:
+            lines += [" ".join(f"{value:.7g}" for value in vertex)
+                      for vertex in strands.vertices[start:previous + strands.span + 1]] + [""]
+            start = segment
+    path.write_text("\n".join(lines))
     return str(path)
 
 
@@ -321,6 +374,13 @@ def mitsuba_child(args) -> int:
                 faces = np.arange(len(points)).reshape(-1, 3)
             name = f"mesh{number}_{material}"
             objects[name] = _mitsuba_mesh(mi, name, points, faces, bsdfs[material], normals=normals)
+    for number, strands in enumerate(scene.strands):
+        kinds = {"linear": "linearcurve", "bspline": "bsplinecurve"}
+        if strands.shape not in kinds:
+            raise SystemExit(f"bench_vs_mitsuba: {strands.shape} strands ({strands.path}) are not mapped")
+        objects[f"strands{number}"] = mi.load_dict({"type": kinds[strands.shape],
+                                                    "filename": _curve_file(strands, Path(args.mitsuba_child).parent),
+                                                    "bsdf": bsdfs[strands.material]})
     for number, light in enumerate(scene.lights):
         if light.kind != "rect":
             raise SystemExit(f"bench_vs_mitsuba: light {light.path} ({light.kind}) is not mapped to Mitsuba")
@@ -429,6 +489,8 @@ def main() -> int:
     parser.add_argument("--keep", metavar="DIR", help="write the images to DIR (default: a temporary folder)")
     parser.add_argument("--lens", type=float, nargs=2, metavar=("F_STOP", "FOCUS_DISTANCE"),
                         help="depth of field: the camera's fStop and focusDistance (mm), e.g. 0.1 1000")
+    parser.add_argument("--curves", action="store_true",
+                        help="a lawn of 400 hairs (linear BasisCurves) on the Cornell floor: Mitsuba's linearcurve")
     parser.add_argument("--mitsuba-child", metavar="EXR", help=argparse.SUPPRESS)
     parser.add_argument("--stage", help=argparse.SUPPRESS)  # the child's stage
     args = parser.parse_args()
@@ -444,7 +506,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="bench_vs_mitsuba-") as scratch:
         out = Path(args.keep or scratch)
         out.mkdir(parents=True, exist_ok=True)
-        stage = lens_stage(out, *args.lens) if args.lens else cornell_path()
+        stage = lens_stage(out, *args.lens) if args.lens else curves_stage(out) if args.curves else cornell_path()
         def ours(rendered: str) -> list[str]:
             return [sys.executable, "-m", "pxr_layers.cli.main", "render", "-q", rendered, "--resolution", str(width),
                     str(height), "--spp", str(args.spp), "--max-depth", str(args.max_depth), "--no-previews",

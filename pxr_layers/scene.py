@@ -168,6 +168,36 @@ class Mesh:
         return np.take(self.normal_values, self.normal_indices, axis=0)
 
 
+StrandShape = Literal["linear", "bezier", "bspline", "catmullRom", "sphere"]
+
+
+@dataclass(frozen=True)
+class Strands:
+    """A BasisCurves or Points prim as Embree draws it, world metres: round tubes swept along
+    its curves (a sphere at every point of the curve, of its radius there), or spheres.
+
+    shape    : the curves' basis ("linear", or cubic "bezier", "bspline", "catmullRom"), or
+               "sphere" for points
+    vertices : (v, 4) float32 control points x, y, z and radius (metres), each curve's in
+               order (periodic and pinned curves with their wrapped or phantom vertices)
+    segments : (s,) int32 the first vertex of each segment, which reads 2 vertices (linear)
+               or 4 (cubic); for points, every vertex (one sphere each)
+    material : index into SceneData.materials
+    """
+
+    name: str
+    path: str
+    shape: StrandShape
+    vertices: np.ndarray
+    segments: np.ndarray
+    material: int
+
+    @property
+    def span(self) -> int:
+        """Vertices from a segment's first to its last: 0 for a sphere, 1 linear, 3 cubic."""
+        return {"sphere": 0, "linear": 1}.get(self.shape, 3)
+
+
 LightKind = Literal["rect", "disk", "sphere", "cylinder", "distant", "dome", "point", "line"]
 
 
@@ -366,6 +396,7 @@ class SceneData:
     materials: tuple[Material, ...]
     lights: tuple[Light, ...]
     textures: tuple[TextureImage, ...] = ()
+    strands: tuple[Strands, ...] = ()
     meters_per_unit: float = 1.0
     up_axis: Literal["Y", "Z"] = "Y"
     warnings: tuple[str, ...] = field(default=())

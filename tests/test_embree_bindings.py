@@ -20,7 +20,7 @@ from pxr_layers.trace.embree import MISS, RayCaster
 NO_INSTANCES = {"prototype_vertices": (), "prototype_triangles": (), "prototype_first": np.zeros(0, np.int64),
                 "instance_prototype": np.zeros(0, np.int32), "instance_transform": np.zeros((0, 3, 4), np.float32),
                 "moving_vertices": np.zeros((0, 0, 3), np.float32), "moving_triangles": np.zeros((0, 3), np.int32),
-                "moving_first": 0}
+                "moving_first": 0, "strand_shapes": (), "strand_first": 0, "strands": None}
 
 
 def world_of(vertices, triangles):
@@ -248,7 +248,7 @@ def test_a_fresh_process_runs_the_disk_cached_kernels(tmp_path):
                                 instance_prototype=np.zeros(0, np.int32),
                                 instance_transform=np.zeros((0, 3, 4), np.float32),
                         moving_vertices=np.zeros((0, 0, 3), np.float32), moving_triangles=np.zeros((0, 3), np.int32),
-                        moving_first=0)
+                        moving_first=0, strand_shapes=(), strand_first=0, strands=None)
         caster = embree.RayCaster(world)
         origins = np.array([[0.2, 0.3, 0], [2, 2, 0]], np.float32)
         directions = np.array([[0, 0, 1], [0, 0, 1]], np.float32)

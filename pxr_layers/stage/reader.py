@@ -20,7 +20,7 @@ from pxr import Usd, UsdGeom, UsdShade
 
 from pxr_layers.errors import StageError
 from pxr_layers.request import MAX_SUBDIVISION_TRIANGLES
-from pxr_layers.scene import INDEX, Mesh, SceneData
+from pxr_layers.scene import INDEX, Mesh, SceneData, Strands
 
 from .budgets import fit_subdivision_levels
 from .context import ReadContext
@@ -41,6 +41,7 @@ from .placement import (
     shared_surface,
 )
 from .skinning import SkinnedPoser
+from .strands import read_strands
 from .subdivision import PixelFootprint
 from .surfaces import (
     LocalSurface,
@@ -95,8 +96,9 @@ def read_scene(
     levels = _SubdivisionLevels(context, contents.gprims, footprint, subdiv_level)
     builder = _MeshBuilder(context, materials, levels)
     meshes = builder.build_all(contents.gprims)
+    strands = _read_strands(context, materials, contents.strands)
     lights = read_lights(context, contents.lights, textures, [mesh.path for mesh in meshes])
-    if not meshes:
+    if not meshes and not strands:
         diagnostics.warn(f"{file} has no geometry that renders: the image holds its lights alone")
     logger.info(
         "%s: %d meshes, %d triangles, %d materials, %d lights, %d textures",
@@ -112,6 +114,7 @@ def read_scene(
         stage_path=os.path.abspath(file),
         frame=frame_value,
         meshes=tuple(meshes),
+        strands=tuple(strands),
         materials=tuple(materials.materials),
         lights=tuple(lights),
         textures=tuple(textures.images),
@@ -119,6 +122,24 @@ def read_scene(
         up_axis=context.up_axis,
         warnings=(*earlier_warnings, *diagnostics.finish()),
     )
+
+
+def _read_strands(context: ReadContext, materials: MaterialLibrary, placements: list[GprimPlacement]) -> list[Strands]:
+    """The BasisCurves and Points of the walk (strands.py), each with its bound material;
+    emissive ones are skipped with a note (their light would not be sampled)."""
+    found = []
+    for placement in placements:
+        prim = placement.prim
+        material = materials.resolve(materials.bound_material(prim), display_color(prim, context.time, context.file))
+        if materials.materials[material.index].emits:
+            context.diagnostics.note("emissive-strands", "emissive curves and points skipped (not rendered yet): {prims}",
+                                     placement.path)
+            continue
+        strands = read_strands(context, prim, placement.world_from_local, placement.path, placement.name,
+                               material.index)
+        if strands is not None:
+            found.append(strands)
+    return found
 
 
 INSTANCING_SAVES = 1 << 16

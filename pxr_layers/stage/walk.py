@@ -102,6 +102,7 @@ class InstancerLink:
 @dataclass
 class StageContents:
     gprims: list[GprimPlacement] = field(default_factory=list)
+    strands: list[GprimPlacement] = field(default_factory=list)  # BasisCurves and Points
     lights: list[Usd.Prim] = field(default_factory=list)
 
 
@@ -140,6 +141,12 @@ def walk_stage(context: ReadContext) -> StageContents:
                 contents.gprims.append(
                     GprimPlacement(prim, world, str(prim.GetPath()), prim.GetName())
                 )
+        elif prim.IsA(UsdGeom.BasisCurves) or prim.IsA(UsdGeom.Points):
+            iterator.PruneChildren()
+            world = _finite_world_transform(context, prim)
+            if world is not None:
+                context.budget.take_meshes(1, "one more gprim", file=context.file, prim=str(prim.GetPath()))
+                contents.strands.append(GprimPlacement(prim, world, str(prim.GetPath()), prim.GetName()))
         elif is_supported_light(prim):
             # A dome's children can only be portals (reported below); other lights stop here.
             if not (prim.IsA(UsdLux.DomeLight) or prim.IsA(UsdLux.DomeLight_1)):

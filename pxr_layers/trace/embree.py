@@ -36,6 +36,9 @@ MISS = -1
 MOVING = -2
 """The instance RayCaster.intersect reports for a hit on a moving row (World.moving_first):
 not an instance, but a row to place at the ray's time like one (trace/instances.py)."""
+STRAND = -3
+"""A hit on segment (or point) k of a strand reports instance STRAND − k and the strand's row
+(World.strand_first on): placed from the hit point and Embree's normal (trace/instances.py)."""
 
 # Enum values (rtcore_common.h, rtcore_device.h, rtcore_scene.h, rtcore_buffer.h,
 # rtcore_geometry.h).
@@ -43,9 +46,14 @@ RTC_SCENE_FLAG_ROBUST = 1 << 2
 RTC_BUILD_QUALITY_MEDIUM = 1
 RTC_GEOMETRY_TYPE_TRIANGLE = 0
 RTC_GEOMETRY_TYPE_INSTANCE = 121
+STRAND_GEOMETRY_TYPES = {"linear": 16, "bezier": 24, "bspline": 32, "catmullRom": 58, "sphere": 50}
+"""scene.Strands shapes as Embree geometry: ROUND_LINEAR, ROUND_BEZIER, ROUND_BSPLINE,
+ROUND_CATMULL_ROM curves (tubes swept by a sphere of the radius there), SPHERE_POINT."""
 RTC_BUFFER_TYPE_INDEX = 0
 RTC_BUFFER_TYPE_VERTEX = 1
+RTC_FORMAT_UINT = 0x5001
 RTC_FORMAT_UINT3 = 0x5003
+RTC_FORMAT_FLOAT4 = 0x9004
 RTC_FORMAT_FLOAT3 = 0x9003
 RTC_FORMAT_FLOAT3X4_ROW_MAJOR = 0x9134
 
@@ -199,6 +207,23 @@ def add_triangles(scene: Scene, vertices: np.ndarray, triangles: np.ndarray) -> 
     return _attach(scene, geometry, (padded, indices), "adding triangles")
 
 
+def add_strands(scene: Scene, shape: str, vertices: np.ndarray, segments: np.ndarray) -> int:
+    """Attach curves or points (scene.Strands) to `scene` (before its commit); returns the
+    geometry id. vertices (v, 4) x, y, z, radius, metres; segments (s,) each segment's first
+    vertex (ignored for points: one sphere per vertex)."""
+    shared = np.ascontiguousarray(vertices, np.float32)
+    geometry = _api.rtcNewGeometry(scene.device.handle, STRAND_GEOMETRY_TYPES[shape])
+    _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4, shared.ctypes.data, 0,
+                                    shared.strides[0], len(shared))
+    kept = (shared,)
+    if shape != "sphere":
+        indices = np.ascontiguousarray(segments, np.uint32)
+        _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT, indices.ctypes.data, 0,
+                                        indices.strides[0], len(indices))
+        kept = (shared, indices)
+    return _attach(scene, geometry, kept, f"adding {shape} strands")
+
+
 def add_instance(scene: Scene, child: Scene, transform: np.ndarray) -> int:
     """Attach an instance of the committed scene `child` to `scene` (before its commit);
     returns its geometry id, which hits through it report as their instance id.
@@ -272,14 +297,18 @@ def cast_any(scene, ox, oy, oz, dx, dy, dz, tnear, tfar, time, rayhit):
 
 @kernel
 def intersect_kernel(scene, origins, directions, t_max, time, rayhit, instance_first_row, moving_geometry,
-                     moving_first, triangle_out, instance_out, u_out, v_out, t_out):
+                     moving_first, strand_geometry, strand_count, strand_first, triangle_out, instance_out, u_out,
+                     v_out, t_out, normal_out):
     """cast_closest over a batch: origins, directions (n, 3) float32, t_max, time (n,) float32;
     instance_first_row (i,) int64 the first World row of each instance's prototype;
     moving_geometry the top-level geometry id of the moving rows (MISS: none), moving_first
-    their first World row. Writes triangle_out (n,) int32 the World row hit (MISS for none):
-    a flat hit's primID, an instanced hit's prototype row, a moving hit's row; instance_out
-    (n,) int32 the instance (MISS: none; MOVING: a moving row); u_out, v_out, t_out (n,)
-    float32."""
+    their first World row; strand_geometry the first of strand_count consecutive strand
+    geometry ids, strand_first the first strand row. Writes triangle_out (n,) int32 the World
+    row hit (MISS for none): a flat hit's primID, an instanced hit's prototype row, a moving
+    hit's row, a strand's row; instance_out (n,) int32 the instance (MISS: none; MOVING: a
+    moving row; STRAND − k: segment k of a strand); u_out, v_out, t_out (n,) float32;
+    normal_out (n, 3) float32 Embree's geometric normal (unnormalised), or (0, 3): not wanted."""
+    wants_normal = len(normal_out) > 0
     for lane in range(len(t_max)):
         prim, geometry, instance, u, v, t = cast_closest(
             scene, origins[lane, 0], origins[lane, 1], origins[lane, 2], directions[lane, 0], directions[lane, 1],
@@ -290,7 +319,13 @@ def intersect_kernel(scene, origins, directions, t_max, time, rayhit, instance_f
             elif geometry == moving_geometry:
                 prim += moving_first
                 instance = MOVING
+            elif strand_geometry <= geometry < strand_geometry + strand_count:
+                instance = STRAND - prim
+                prim = strand_first + geometry - strand_geometry
         triangle_out[lane], instance_out[lane], u_out[lane], v_out[lane], t_out[lane] = prim, instance, u, v, t
+        if wants_normal:
+            hit = rayhit[0]
+            normal_out[lane, 0], normal_out[lane, 1], normal_out[lane, 2] = hit.Ng_x, hit.Ng_y, hit.Ng_z
 
 
 @kernel
@@ -314,6 +349,8 @@ class RayCaster:
         self._scene = None
         self._closed = False
         self._moving_geometry, self._moving_first = MISS, world.moving_first
+        self._strand_geometry, self._strand_count = MISS, len(world.strand_shapes)
+        self._strand_first = world.strand_first
         if not world.triangle_count:
             return
         device = Device()
@@ -332,17 +369,35 @@ class RayCaster:
             add_triangles(scene, world.vertices, world.triangles)
         if len(world.moving_triangles):
             self._moving_geometry = add_triangles(scene, world.moving_vertices, world.moving_triangles)
+        strands = world.strands
+        for number, shape in enumerate(world.strand_shapes):
+            first_vertex = strands.vertex_first[number]
+            stop_vertex = strands.vertex_first[number + 1] if number + 1 < len(world.strand_shapes) else len(strands.vertices)
+            stop_segment = (strands.segment_first[number + 1] if number + 1 < len(world.strand_shapes)
+                            else len(strands.segments))
+            geometry = add_strands(scene, shape, strands.vertices[first_vertex:stop_vertex],
+                                   strands.segments[strands.segment_first[number]:stop_segment] - first_vertex)
+            if number == 0:
+                self._strand_geometry = geometry
         scene.commit()
         self._scene = scene
         self._instance_first_row = np.ascontiguousarray(world.prototype_first[world.instance_prototype], np.int64)
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray, time: np.ndarray | None = None):
+    @property
+    def has_strands(self) -> bool:
+        """Whether some hits are on strands, whose placing needs their normals (intersect)."""
+        return self._strand_count > 0
+
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray, time: np.ndarray | None = None,
+                  normal: np.ndarray | None = None):
         """Closest hits.
 
         origins, directions : (n, 3) float32 (directions need not be unit; t is in their units)
         t_max               : (n,) float32
         time                : (n,) float32 shutter fractions in [0, 1] (None: 0), where moving
                               rows are met
+        normal              : (n, 3) float32 written with each hit's geometric normal
+                              (Embree's, unnormalised), or None
         Returns (triangle (n,) int32 the World row hit, MISS for none (through an instance:
         its prototype's row); instance (n,) int32 the World instance hit through, MISS for
         none, MOVING for a moving row; u (n,), v (n,), t (n,) float32). u and v are Embree's
@@ -355,7 +410,8 @@ class RayCaster:
         if self._scene is not None and n:
             intersect_kernel(self._scene.handle, _rows(origins), _rows(directions), np.ascontiguousarray(t_max, FLOAT),
                              _times(time, n), rayhit_scratch(), self._instance_first_row, self._moving_geometry,
-                             self._moving_first, triangle, instance, u, v, t)
+                             self._moving_first, self._strand_geometry, self._strand_count, self._strand_first,
+                             triangle, instance, u, v, t, np.zeros((0, 3), FLOAT) if normal is None else normal)
         return triangle, instance, u, v, t
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray,

@@ -12,8 +12,13 @@ that row from then on. A hit on a moving row (World.moving_first on; instance
 embree.MOVING) is placed alike from the row's tables at the two time steps around the
 ray's time, interpolated as Embree interpolates its vertices (linearly: positions, hence
 the geometric normal and area, exactly; shading normals, curvatures and texture gradients
-interpolated and renormalised). Downstream, nothing tells it from a flat row, and a scene
-without instances or motion pays nothing.
+interpolated and renormalised). A hit on a strand (a curve's tube or a point's sphere;
+instance embree.STRAND − segment) is placed as a small triangle in the tangent plane at the
+hit point, which is its centroid (the hit's barycentrics become 1/3, 1/3), facing Embree's
+normal there: its shading normal that normal, its curvatures a tube's (1/r around, 0 along
+the segment's chord) or a sphere's (1/r both ways), its texture coordinates the hit's (u,
+v). Downstream, nothing tells it from a flat row, and a scene without instances, motion or
+strands pays nothing.
 
 The scratch rows are per tracing thread and per use: a :class:`Slot` (one per thread at a
 time, :meth:`InstanceRows.slot`) holds REGIONS regions of ``lanes`` rows, and lane j of a
@@ -33,8 +38,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..compiled import inline, kernel, scratch
-from .embree import MOVING
-from .world import GeometryArrays, MovingSteps, World
+from .embree import MOVING, STRAND
+from .world import GeometryArrays, MovingSteps, StrandTables, World
 
 PATH_EVEN, PATH_ODD, SHADOW = range(3)
 REGIONS = 3
@@ -82,7 +87,8 @@ class InstanceTables(NamedTuple):
     int64: a prototype row's material among its prototype's distinct materials (the
     instance's subjects are subject_first + rank); motion_index (i,) int32 and motion (m, k,
     3, 4) float32: the moving instances' placements at each time step (World.instance_motion*);
-    moving: the World's moving rows at each time step, moving_first their first row."""
+    moving: the World's moving rows at each time step, moving_first their first row;
+    strands: the World's StrandTables, strand_first the first strand row."""
 
     transform: np.ndarray
     rotation: np.ndarray
@@ -95,6 +101,8 @@ class InstanceTables(NamedTuple):
     motion: np.ndarray
     moving: MovingSteps
     moving_first: int
+    strands: StrandTables
+    strand_first: int
 
     @classmethod
     def of(cls, world: World, subject_first: np.ndarray, subject_rank: np.ndarray,
@@ -103,7 +111,8 @@ class InstanceTables(NamedTuple):
         link_group = object_link_group[world.instance_object] if len(object_link_group) else object_link_group
         return cls(world.instance_transform, world.instance_rotation, world.instance_scale, world.instance_object,
                    subject_first, link_group.astype(np.int32), subject_rank, world.instance_motion_index,
-                   world.instance_motion, world.moving_steps or MovingSteps.empty(), world.moving_first)
+                   world.instance_motion, world.moving_steps or MovingSteps.empty(), world.moving_first,
+                   world.strands or StrandTables.of(()), world.strand_first)
 
 
 class InstanceRows:
@@ -158,22 +167,43 @@ class Region:
         self._owner, self.first = owner, first
 
     def place(self, triangle: np.ndarray, instance: np.ndarray, time: np.ndarray,
-              lanes: np.ndarray | None = None) -> None:
-        """Place the instanced and moving hits among `triangle` (n,) int32 (World rows,
-        changed in place to their scratch rows) with `instance` (n,) int32 (−1: neither;
-        embree.MOVING: a moving row) at `time` (n,) float32 (shutter fractions, the rays'); entry
-        j is lane ``lanes[j]`` (int64; None: lane j)."""
+              lanes: np.ndarray | None = None, strand_hits: StrandHits | None = None) -> None:
+        """Place the instanced, moving and strand hits among `triangle` (n,) int32 (World
+        rows, changed in place to their scratch rows) with `instance` (n,) int32 (−1: none of
+        them; embree.MOVING: a moving row; embree.STRAND − k: a strand) at `time` (n,) float32
+        (shutter fractions, the rays'); entry j is lane ``lanes[j]`` (int64; None: lane j).
+        strand_hits: the rays and hits, which strand hits are placed from (their u, v are
+        set to the placed triangle's); None in a world without strands."""
         owner = self._owner
         if lanes is None:
             lanes = np.arange(len(triangle), dtype=np.int64)
         if len(lanes) and int(lanes.max()) >= owner.lanes:
             raise ValueError(f"a query of lane {int(lanes.max())} places hits in regions of {owner.lanes} rows")
+        hits = strand_hits or StrandHits.none()
         _place_kernel(owner.rows, owner.instances, triangle, instance, np.ascontiguousarray(time, np.float32), lanes,
-                      self.first, scratch(3, 4), scratch(3, 3))
+                      self.first, scratch(3, 4), scratch(3, 3), hits)
+
+
+class StrandHits(NamedTuple):
+    """What a strand hit is placed from, per entry (n,): origin, direction (n, 3) float32 its
+    ray, t (n,) float32 the hit's distance, normal (n, 3) float32 Embree's normal there
+    (RayCaster.intersect), u, v (n,) float32 its parameters (written: 1/3 on strand hits)."""
+
+    origin: np.ndarray
+    direction: np.ndarray
+    t: np.ndarray
+    normal: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+
+    @classmethod
+    def none(cls) -> StrandHits:
+        vectors, scalars = np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
+        return cls(vectors, vectors, scalars, vectors, scalars, scalars)
 
 
 @kernel
-def _place_kernel(rows, instances, triangle, instance, time, lanes, first, transform, rotation):
+def _place_kernel(rows, instances, triangle, instance, time, lanes, first, transform, rotation, hits):
     """transform (3, 4), rotation (3, 3): float64 scratch, the instance's placement at the
     ray's time (its own when it stands still)."""
     geometry = rows.geometry
@@ -181,9 +211,13 @@ def _place_kernel(rows, instances, triangle, instance, time, lanes, first, trans
     for entry in range(len(triangle)):
         k = instance[entry]
         source = triangle[entry]
-        if source < 0 or (k < 0 and k != MOVING):
+        if source < 0 or (k < 0 and k != MOVING and k > STRAND):
             continue
         row = first + lanes[entry]
+        if k <= STRAND:
+            _place_strand(rows, instances, source, STRAND - k, row, hits, entry)
+            triangle[entry] = row
+            continue
         if k == MOVING:
             _place_moving(rows, instances, source, row, time[entry])
             triangle[entry] = row
@@ -238,6 +272,77 @@ def _place_kernel(rows, instances, triangle, instance, time, lanes, first, trans
         if has_links:
             rows.link_group[row] = instances.link_group[k]
         triangle[entry] = row
+
+
+@inline
+def _place_strand(rows, instances, source, segment, row, hits, entry):
+    """Write the hit `entry` of `hits` on segment `segment` of strand row `source` into
+    scratch row `row` (the module docstring)."""
+    geometry, strands = rows.geometry, instances.strands
+    local = source - instances.strand_first
+    span = strands.span[local]
+    first = strands.segments[strands.segment_first[local] + segment]
+    t = hits.t[entry]
+    nx, ny, nz = hits.normal[entry, 0], hits.normal[entry, 1], hits.normal[entry, 2]
+    length = math.sqrt(nx * nx + ny * ny + nz * nz)
+    nx, ny, nz = nx / length, ny / length, nz / length
+    radius = strands.vertices[first, 3]
+    if span > 0:  # a tube: along the segment's chord, the radius at the hit's parameter
+        radius += hits.u[entry] * (strands.vertices[first + span, 3] - radius)
+        ax = strands.vertices[first + span, 0] - strands.vertices[first, 0]
+        ay = strands.vertices[first + span, 1] - strands.vertices[first, 1]
+        az = strands.vertices[first + span, 2] - strands.vertices[first, 2]
+    else:
+        ax, ay, az = (1.0, 0.0, 0.0) if abs(nx) < 0.9 else (0.0, 1.0, 0.0)
+    along = ax * nx + ay * ny + az * nz  # the tangent: the chord without its normal part
+    ax, ay, az = ax - along * nx, ay - along * ny, az - along * nz
+    length = math.sqrt(ax * ax + ay * ay + az * az)
+    if length == 0.0:
+        ax, ay, az = (1.0, 0.0, 0.0) if abs(nx) < 0.9 else (0.0, 1.0, 0.0)
+        along = ax * nx + ay * ny + az * nz
+        ax, ay, az = ax - along * nx, ay - along * ny, az - along * nz
+        length = math.sqrt(ax * ax + ay * ay + az * az)
+    ax, ay, az = ax / length, ay / length, az / length
+    bx, by, bz = ny * az - nz * ay, nz * ax - nx * az, nx * ay - ny * ax  # around the tube: n × a
+    size = 0.01 * radius if radius > 0 else 1e-6
+    for corner in range(3):
+        angle = 2.0 * math.pi * corner / 3.0  # counter-clockwise about n: a, then b (b = n × a)
+        ca, cb = size * math.cos(angle), size * math.sin(angle)
+        for axis in range(3):
+            value = (hits.origin[entry, axis] + t * hits.direction[entry, axis]
+                     + ca * (ax, ay, az)[axis] + cb * (bx, by, bz)[axis])
+            geometry.corner_positions[row, corner, axis] = value
+            rows.corner_positions[corner, axis, row] = value
+            normal = (nx, ny, nz)[axis]
+            geometry.corner_normals[row, corner, axis] = normal
+            rows.corner_normals[corner, axis, row] = normal
+        for axis in range(2):
+            value = (hits.u[entry], hits.v[entry])[axis]
+            geometry.corner_uvs[row, corner, axis] = value
+            rows.corner_uvs[corner, axis, row] = value
+        for column in range(geometry.corner_primvars.shape[2]):
+            geometry.corner_primvars[row, corner, column] = 0.0
+            rows.corner_primvars[corner, column, row] = 0.0
+    for axis in range(3):
+        normal = (nx, ny, nz)[axis]
+        geometry.geometric_normal[row, axis] = normal
+        rows.geometric_normal[axis, row] = normal
+        rows.principal_direction[axis, row] = (bx, by, bz)[axis]
+        rows.gradient_s[axis, row] = 0.0
+        rows.gradient_t[axis, row] = 0.0
+    geometry.area[row] = 0.75 * math.sqrt(3.0) * size * size
+    geometry.triangle_material[row] = geometry.triangle_material[source]
+    geometry.triangle_light[row] = -1
+    curvature = 1.0 / radius if radius > 0 else 0.0
+    rows.curvature_k1[row] = curvature
+    rows.curvature_k2[row] = curvature if span == 0 else 0.0
+    rows.triangle_object[row] = rows.triangle_object[source]
+    rows.subject[row] = rows.subject[source]
+    if len(rows.curvature) > 0:
+        rows.curvature[row] = curvature  # C = max(|k1|, |k2|) (bounce_norms.py)
+    if len(rows.link_group) > 0:
+        rows.link_group[row] = rows.link_group[source]
+    hits.u[entry] = hits.v[entry] = 1.0 / 3.0
 
 
 @inline

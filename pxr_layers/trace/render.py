@@ -46,7 +46,7 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
         # (instances.py) has been written over: the whole Σ is recorded on flat rows.
         log.info("%s: instanced surfaces flattened, since the index keeps each event's whole Σ", scene.stage_path)
         scene = flatten_instances(scene)
-    placing = any(mesh.prototype >= 0 or mesh.motion_points is not None for mesh in scene.meshes)
+    placing = bool(scene.strands) or any(mesh.prototype >= 0 or mesh.motion_points is not None for mesh in scene.meshes)
     # the most lanes one query places: a batch's paths (trace_pixels), a row of data passes
     lanes, slots = max(DEFAULT_BATCH_PATHS, width), min(available_cores(), MAX_SLOTS)
     world = build_world(scene, rows_needed(lanes, slots) if placing else 0)

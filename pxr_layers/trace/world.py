@@ -12,6 +12,10 @@ The tables' rows, in this order:
   ``motion_steps`` time steps; a hit at a ray's time is shaded from a scratch row holding
   the row between the two steps around that time (trace/instances.py, from
   ``moving_steps``). Like the flat rows, each is its object's own.
+* the strand rows: one per scene.Strands (curves, points), holding its object and material
+  only. Embree draws each as curve or point geometry; a hit on it is shaded from a scratch
+  row holding a small triangle in the tube's or sphere's tangent plane at the hit point, whose
+  centroid the hit is (trace/instances.py).
 * the prototype rows: each instanced surface (scene.Mesh.prototype) once, in its own space.
   Its placements are Embree instances of one child scene; rays never hit these rows as
   such (trace/instances.py: a hit through instance k on prototype row r is shaded from a
@@ -81,7 +85,7 @@ class World:
                        number N of a point-instanced mesh (scene.Mesh.instance), -1 for
                        other meshes and for lights
     object_mesh      : (objects,) int32 per object: its index in SceneData.meshes, -1 for
-                       light shapes
+                       strands and light shapes
     center, radius   : bounding sphere of the world-space geometry, instances placed (metres)
 
     vertices, triangles : the flat rows' geometry, what Embree's top-level scene holds
@@ -107,7 +111,10 @@ class World:
     moving_triangles : (m, 3) int32 the moving rows' triangles, indices into them
     moving_first     : the first moving row (= len(triangles): the flat rows come first)
     moving_steps     : MovingSteps, the moving rows' tables at each time step
-    scratch_first    : the first scratch row (rows before it: flat, moving and prototype rows)
+    strand_first     : the first strand row (after the moving rows)
+    strands          : StrandTables of the n strands (scene.SceneData.strands), their rows in order
+    strand_shapes    : (n,) their scene.Strands.shape
+    scratch_first    : the first scratch row (rows before it: flat, moving, strand and prototype rows)
     """
 
     vertices: np.ndarray
@@ -147,26 +154,58 @@ class World:
     moving_triangles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), INDEX))
     moving_first: int = 0
     moving_steps: MovingSteps | None = None
+    strand_first: int = 0
+    strands: StrandTables | None = None
+    strand_shapes: tuple[str, ...] = ()
     scratch_first: int = -1
 
     @property
     def triangle_count(self) -> int:
-        """Rows a ray can hit: the flat and moving rows and every instanced prototype row
-        (scratch rows are not geometry of their own)."""
-        return (len(self.triangles) + len(self.moving_triangles)
+        """Rows a ray can hit: the flat, moving and strand rows and every instanced prototype
+        row (scratch rows are not geometry of their own)."""
+        return (len(self.triangles) + len(self.moving_triangles) + len(self.strand_shapes)
                 + sum(len(triangles) for triangles in self.prototype_triangles))
 
     @property
     def own_rows(self) -> int:
-        """The rows each of which is one object's own (flat and moving: the rows before the
-        prototypes')."""
-        return len(self.triangles) + len(self.moving_triangles)
+        """The rows each of which is one object's own (flat, moving and strand rows: the rows
+        before the prototypes')."""
+        return len(self.triangles) + len(self.moving_triangles) + len(self.strand_shapes)
 
     @property
     def needs_placing(self) -> bool:
         """Whether some hits are shaded from scratch rows (instances.py): hits through
-        instances and hits on moving rows."""
-        return len(self.instance_object) > 0 or len(self.moving_triangles) > 0
+        instances, on moving rows and on strands."""
+        return len(self.instance_object) > 0 or len(self.moving_triangles) > 0 or len(self.strand_shapes) > 0
+
+
+class StrandTables(NamedTuple):
+    """The strands (curves, points) of a World, n of them, their vertices and segments
+    concatenated.
+
+    vertices      : (v, 4) float32 x, y, z, radius, metres (scene.Strands.vertices)
+    segments      : (s,) int32 each segment's first vertex, an index into vertices
+    segment_first : (n,) int64 each strand's first segment
+    vertex_first  : (n,) int64 each strand's first vertex
+    span          : (n,) int32 vertices from a segment's first to its last (scene.Strands.span)
+    """
+
+    vertices: np.ndarray
+    segments: np.ndarray
+    segment_first: np.ndarray
+    vertex_first: np.ndarray
+    span: np.ndarray
+
+    @classmethod
+    def of(cls, strands) -> StrandTables:
+        vertex_counts = np.array([len(s.vertices) for s in strands], np.int64)
+        segment_counts = np.array([len(s.segments) for s in strands], np.int64)
+        vertex_first = np.concatenate([[0], np.cumsum(vertex_counts)[:-1]]).astype(np.int64)
+        return cls(np.concatenate([s.vertices for s in strands] or [np.zeros((0, 4))]).astype(FLOAT),
+                   np.concatenate([s.segments + first for s, first in zip(strands, vertex_first)]
+                                  or [np.zeros(0)]).astype(INDEX),
+                   np.concatenate([[0], np.cumsum(segment_counts)[:-1]]).astype(np.int64), vertex_first,
+                   np.array([s.span for s in strands], np.int32))
 
 
 class MovingSteps(NamedTuple):
@@ -248,7 +287,7 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
     The per-triangle tables are filled chunk by chunk (CHUNK_TRIANGLES): temporaries the size
     of the whole scene would cost more in fresh pages than in arithmetic.
     """
-    # objects (name, path, instance, mesh index) in order: the meshes, then the light shapes
+    # objects (name, path, instance, mesh index) in order: the meshes, the strands, then the light shapes
     objects: list[tuple[str, str, int, int]] = []
     flat: list[tuple[Mesh, int, int]] = []  # (mesh or light shape, its light or NOT_A_LIGHT, object)
     instanced: list[tuple[Mesh, int]] = []  # (placement of a shared surface, object)
@@ -263,6 +302,10 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
         else:
             flat.append((mesh, NOT_A_LIGHT, len(objects)))
         objects.append((mesh.name, mesh.path, mesh.instance, index))
+    strand_objects = []
+    for strands in scene.strands:
+        strand_objects.append(len(objects))
+        objects.append((strands.name, strands.path, -1, -1))
     for light_index, light in enumerate(scene.lights):
         shape = light_shape(light)
         if shape is not None:
@@ -287,7 +330,7 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
     pieces = [piece for piece, _, _ in flat] + [mesh for mesh, _ in moving] + prototypes
 
     flat_count = sum(len(piece.triangles) for piece, _, _ in flat)
-    count = sum(len(piece.triangles) for piece in pieces) + scratch_rows
+    count = sum(len(piece.triangles) for piece in pieces) + len(scene.strands) + scratch_rows
     geometric_normal = np.zeros((3, count), FLOAT)
     area = np.zeros(count, FLOAT)
     corner_positions = np.zeros((3, 3, count), FLOAT)
@@ -316,6 +359,10 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
     moving_vertices, moving_triangles, moving_steps = _moving_rows(moving, row, triangle_object, triangle_material,
                                                                    tables)
     row += len(moving_triangles)
+    strand_first = row
+    for strands, object_index in zip(scene.strands, strand_objects):
+        triangle_object[row], triangle_material[row] = object_index, strands.material
+        row += 1
     prototype_first = np.zeros(len(prototypes), np.int64)
     for order, piece in enumerate(prototypes):
         prototype_first[order] = row
@@ -336,7 +383,9 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
     instance_motion_index[[number for number, _ in motions]] = np.arange(len(motions))
     instance_motion = (np.stack([motion for _, motion in motions]) if motions else np.zeros((0, 2, 4, 4)))
     swept = [instance_prototype[number] for number, motion in motions for _ in motion]  # every step's box too
-    low, high = _bounds(np.concatenate([vertices, moving_vertices.reshape(-1, 3)]), prototypes,
+    strand_tables = StrandTables.of(scene.strands)
+    swollen = [strand_tables.vertices[:, :3] + sign * strand_tables.vertices[:, 3:] for sign in (-1, 1)]
+    low, high = _bounds(np.concatenate([vertices, moving_vertices.reshape(-1, 3), *swollen]).astype(FLOAT), prototypes,
                         instance_prototype + swept,
                         np.concatenate([placements, instance_motion.reshape(-1, 4, 4)]))
     center = (low + high) / 2
@@ -378,6 +427,9 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
         moving_triangles=moving_triangles,
         moving_first=flat_count,
         moving_steps=moving_steps,
+        strand_first=strand_first,
+        strands=strand_tables,
+        strand_shapes=tuple(strands.shape for strands in scene.strands),
         scratch_first=count - scratch_rows,
     )
 

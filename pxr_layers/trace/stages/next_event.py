@@ -15,6 +15,7 @@ from ..light_kernels import LightArrays
 from ..shading import MaterialArrays
 from ..vectors import normalized, to_local
 from ..world import GeometryArrays
+from .intersect import closest_placed
 from .queues import MAX_PASS_THROUGH, T_INFINITY, PathQueue, ShadowQueue, SurfaceQueue, trimmed
 
 SHADOW_SPAN = 1 - 1e-4  # a shadow ray's t_max over the span between its offset ends: stops short of the light
@@ -70,9 +71,7 @@ def cast_shadows(caster: RayCaster, shadows: ShadowQueue, time: np.ndarray, geom
     t_left = shadows.t_max[lanes].copy()
     transmittance = np.ones(len(lanes), np.float32)
     for _ in range(MAX_PASS_THROUGH):
-        triangle, instance, u, v, t = caster.intersect(origin, direction, t_left, time)
-        if region is not None:
-            region.place(triangle, instance, time)
+        triangle, u, v, t = closest_placed(caster, region, origin, direction, t_left, time)
         crossed = triangle < 0
         shadows.visible[lanes[crossed]] = True
         shadows.radiance[lanes[crossed]] *= transmittance[crossed, None, None]
