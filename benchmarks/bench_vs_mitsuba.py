@@ -405,7 +405,7 @@ def mitsuba_child(args) -> int:
     written = time.perf_counter()
     print(json.dumps({"imports": imported - start, "stage": read - imported, "scene": built - read,
                       "render": rendered - built, "write": written - rendered,
-                      "triangles": sum(int(m.face_count()) for m in objects.values())}))
+                      "triangles": sum(int(m.face_count()) for m in objects.values() if hasattr(m, "face_count"))}))
     return 0
 
 

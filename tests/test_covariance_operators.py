@@ -212,6 +212,24 @@ def test_case4_curved_mirror_at_normal_incidence(impl, k):
     np.testing.assert_allclose(impl.scatter(impl.distant_emitter(alpha), vertex), sigma, rtol=1e-12)
 
 
+@pytest.mark.parametrize("k", [25.0, -25.0])
+def test_case4_a_tube_mirror_curves_one_axis(impl, k):
+    """A hair's tube (curvature k = 1/r around it, 0 along it): case 4's closed form across
+    the tube, a flat mirror's along it."""
+    alpha = 0.05
+    sigma = impl.project(impl.distant_emitter(alpha), 1.0)
+    sigma = impl.reverse(sigma)
+    sigma = impl.curvature(sigma, k, 0.0, +1.0)
+    sigma = impl.mirror(sigma)
+    sigma = impl.brdf(sigma, np.inf, np.inf)
+    sigma = impl.curvature(sigma, k, 0.0, -1.0)
+    sigma = impl.inverse_project(sigma, 1.0)
+    sigma_u2 = 1.0 / (FOUR_PI_SQUARED * alpha**2)
+    np.testing.assert_allclose(pair_block(sigma, XU), sigma_u2 * np.array([[4 * k * k, 2 * k], [2 * k, 1.0]]),
+                               rtol=1e-12)
+    np.testing.assert_allclose(pair_block(sigma, YV), sigma_u2 * np.array([[0.0, 0.0], [0.0, 1.0]]), atol=1e-9)
+
+
 def test_case5_thin_lens_returns_the_emitter(impl):
     emitted = impl.emitter(0.05)
     imaged = impl.travel(impl.lens(impl.travel(emitted, 1.0), 0.5), 1.0)

@@ -169,6 +169,24 @@ def test_strands_are_objects_the_index_names(tmp_path):
     assert np.all(hair <= result.rgba[..., :3] + 1e-6)  # a part of the beauty
 
 
+@pytest.mark.parametrize("prim, radius", [
+    ('def Points "ball"\n    {\n        point3f[] points = [(0, 0, -100)]\n        float[] widths = [40]\n    }', 0.2),
+    (curves("ball", "linear", "bezier", "nonperiodic", [2], [(-20, 0), (20, 0)], "float[] widths = [8]", black=False),
+     0.04),
+])
+def test_strand_hits_carry_the_curvature_of_their_sphere_or_tube(tmp_path, prim, radius):
+    """The index's curvature norm C at a point's sphere, or a curve's tube, is 1/r: every path
+    that starts on it meets the condition C ≈ 1/r (within the index's quantisation)."""
+    request = RenderRequest(stage=stage(tmp_path, prim, "curvature", light="sky"), resolution=(32, 32), spp=4,
+                            max_depth=1, previews=False, default_lights=False)
+    index = PathIndex(render_frame(request, output=tmp_path).index_path)
+    low, high = 0.9 / radius, 1.1 / radius
+    layers = extract(index, {"all": "C<R.'ball'>.*",
+                             "curved": f"C<R.'ball'>C(|S_C| > {low:g} and |S_C| < {high:g}).*"}).layers
+    assert layers["all"].sum() > 0
+    np.testing.assert_allclose(layers["curved"], layers["all"], rtol=1e-6)
+
+
 @pytest.mark.parametrize("attributes, message", [
     ('int[] curveVertexCounts = [3]\n        point3f[] points = [(0, 0, 0), (1, 0, 0)]',
      "curveVertexCounts add up to 3 vertices but points has 2"),
