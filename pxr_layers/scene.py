@@ -183,6 +183,9 @@ class Strands:
     segments : (s,) int32 the first vertex of each segment, which reads 2 vertices (linear)
                or 4 (cubic); for points, every vertex (one sphere each)
     material : index into SceneData.materials
+    normals  : (v, 3) float32 unit normals at the vertices of curves drawn as flat ribbons
+               facing them (cubic shapes only: linear ribbons are given as bezier); None:
+               round tubes
     """
 
     name: str
@@ -191,6 +194,7 @@ class Strands:
     vertices: np.ndarray
     segments: np.ndarray
     material: int
+    normals: np.ndarray | None = None
 
     @property
     def span(self) -> int:

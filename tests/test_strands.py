@@ -125,6 +125,19 @@ def test_straight_curves_cover_n_w_l(tmp_path, shape):
     assert fraction == pytest.approx(expected / VIEW ** 2, rel=0.03)
 
 
+@pytest.mark.parametrize("facing, expected", [("(0, 0, 1)", WIDTH * 4 * LENGTH), ("(0, 1, 0)", 0.0)])
+@pytest.mark.parametrize("kind", ["linear", "catmullRom"])
+def test_curves_with_normals_are_flat_ribbons_facing_them(tmp_path, facing, expected, kind):
+    """A ribbon 4 cm wide facing the camera covers w·L; turned edge-on (its normal across the
+    view), next to nothing."""
+    half = LENGTH / 2
+    points = [(-half, 0), (half, 0)] if kind == "linear" else [(-half, 0), (-10, 0), (10, 0), (half, 0)]
+    prim = curves("ribbon", "linear" if kind == "linear" else "cubic", "catmullRom", "pinned", [len(points)], points,
+                  f"float[] widths = [{4 * WIDTH}]\n        normal3f[] normals = [{facing}] (interpolation = \"constant\")")
+    fraction = occluded(stage(tmp_path, prim, f"ribbon_{kind}_{facing[4]}"))
+    assert fraction == pytest.approx(expected / VIEW ** 2, abs=0.02 * 4 * WIDTH * LENGTH / VIEW ** 2)
+
+
 def test_points_cover_n_pi_w2_over_4(tmp_path):
     centres = [(-8, -8), (8, -8), (0, 0), (-8, 8), (8, 8)]
     listed = ", ".join(f"({x}, {y}, {-DISTANCE})" for x, y in centres)

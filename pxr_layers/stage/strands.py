@@ -5,8 +5,9 @@ Curves: ``type`` linear or cubic, cubic ``basis`` bezier, bspline or catmullRom,
 nonperiodic, periodic (the curve closes on its first vertices) or pinned (a phantom
 vertex 2·P0 − P1 before each curve and its mirror after it, so a catmullRom curve starts
 and ends at its end points); ``widths`` (diameters) constant, uniform (one per curve),
-varying (one per segment end, spread over the vertices) or vertex; ``normals`` (flat
-ribbons) are not drawn as ribbons yet: such curves render as round tubes, with a note.
+varying (one per segment end, spread over the vertices) or vertex; with ``normals`` (of any
+interpolation), flat ribbons facing them (a linear ribbon becomes the bezier of the same
+straight segments, Embree's normal-oriented curves being cubic).
 Points: ``widths`` constant or vertex. Missing widths draw 1 scene unit wide (Storm's
 fallback), with a note. A placement's scale (uniform: |det|^(1/3)) scales the widths.
 
@@ -24,6 +25,7 @@ from pxr_layers.errors import StageError
 from pxr_layers.scene import FLOAT, INDEX, Strands
 
 from .context import ReadContext
+from .transforms import normal_matrix
 
 CUBIC_BASES = {"bezier": "bezier", "bspline": "bspline", "catmullRom": "catmullRom"}
 DEFAULT_WIDTH = 1.0  # scene units, when none is authored (Storm draws such curves and points so)
@@ -47,6 +49,7 @@ def read_strands(context: ReadContext, prim: Usd.Prim, world_from_local: np.ndar
     if not len(points):
         return None
     interpolation = UsdGeom.Primvar(widths_attribute).GetInterpolation() if len(widths) > 1 else "constant"
+    normals = None
     if prim.IsA(UsdGeom.Points):
         shape = "sphere"
         radii = _per_vertex(widths, interpolation, len(points), None, path, file) / 2
@@ -54,10 +57,19 @@ def read_strands(context: ReadContext, prim: Usd.Prim, world_from_local: np.ndar
         segments = np.arange(len(points), dtype=INDEX)
     else:
         curves = UsdGeom.BasisCurves(prim)
-        if curves.GetNormalsAttr().HasAuthoredValue():
-            context.diagnostics.note("curve-ribbons", "curves with normals drawn as round tubes (flat ribbons are not "
-                                     "drawn yet): {prims}", path)
-        shape, vertices, segments = _curves(curves, points, widths, interpolation, time, file, path)
+        normals_attribute = curves.GetNormalsAttr()
+        if normals_attribute.HasAuthoredValue():
+            normals = _array(normals_attribute, time, file, path, 3)
+            counts = _array(curves.GetCurveVertexCountsAttr(), time, file, path, 1)[:, 0].astype(np.int64)
+            normals = np.column_stack([_per_vertex(normals[:, axis], curves.GetNormalsInterpolation(), len(points),
+                                                   counts, path, file, "normals") for axis in range(3)])
+            vertices = np.column_stack([points, normals])  # carried through the curves' wrapping
+        shape, vertices, segments = _curves(curves, points if normals is None else vertices, widths, interpolation,
+                                            time, file, path)
+        if normals is not None:
+            vertices, normals = vertices[:, [0, 1, 2, 6]], vertices[:, 3:6]
+            if shape == "linear":
+                shape, vertices, normals, segments = "bezier", *_as_bezier(vertices, normals, segments)
     linear = world_from_local[:3, :3]
     scale = abs(float(np.linalg.det(linear))) ** (1 / 3) * context.meters_per_unit
     placed = np.empty((len(vertices), 4), np.float64)
@@ -65,8 +77,27 @@ def read_strands(context: ReadContext, prim: Usd.Prim, world_from_local: np.ndar
     placed[:, 3] = vertices[:, 3] * scale
     if not np.isfinite(placed).all():
         raise StageError("its points are not finite where they are placed", file=file, prim=path)
+    if normals is not None:
+        normals = normals @ normal_matrix(linear).T
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+        if not np.all(length > 0):
+            raise StageError("normals holds a zero vector: a ribbon faces its normals", file=file, prim=path)
+        normals = (normals / length).astype(FLOAT)
     return Strands(name=name, path=path, shape=shape, vertices=placed.astype(FLOAT), segments=segments,
-                   material=material)
+                   material=material, normals=normals)
+
+
+def _as_bezier(vertices: np.ndarray, normals: np.ndarray, segments: np.ndarray):
+    """Linear segments (vertices (v, 4), normals (v, 3), segments (s,)) as the cubic bezier
+    segments of the same straight lines: (vertices (3s + ..., 4), normals, segments)."""
+    starts, ends = segments, segments + 1
+    steps = np.array([0.0, 1 / 3, 2 / 3])[None, :, None]
+    cubic = vertices[starts, None] + steps * (vertices[ends] - vertices[starts])[:, None]  # (s, 3, 4)
+    faced = normals[starts, None] + steps * (normals[ends] - normals[starts])[:, None]
+    # each segment its own 4 vertices (its end repeated as the next one's start: simple, and exact)
+    cubic = np.concatenate([cubic, vertices[ends, None]], axis=1).reshape(-1, 4)
+    faced = np.concatenate([faced, normals[ends, None]], axis=1).reshape(-1, 3)
+    return cubic, faced, (4 * np.arange(len(segments))).astype(INDEX)
 
 
 def _curves(curves: UsdGeom.BasisCurves, points: np.ndarray, widths: np.ndarray, interpolation: str,
@@ -115,8 +146,9 @@ def _curves(curves: UsdGeom.BasisCurves, points: np.ndarray, widths: np.ndarray,
 
 
 def _per_vertex(widths: np.ndarray, interpolation: str, count: int, curve_counts: np.ndarray | None, path: str,
-                file: str) -> np.ndarray:
-    """(count,) float64 widths at every vertex from widths of any interpolation."""
+                file: str, name: str = "widths") -> np.ndarray:
+    """(count,) float64 values of `name` (widths, or a normals component) at every vertex, from
+    values of any interpolation."""
     if len(widths) == 1 or interpolation == "constant":
         return np.full(count, widths[0], np.float64)
     if len(widths) == count:  # vertex (or varying on linear curves, which is the same)
@@ -131,7 +163,7 @@ def _per_vertex(widths: np.ndarray, interpolation: str, count: int, curve_counts
                 spread.append(np.interp(np.linspace(0, 1, n), np.linspace(0, 1, own), widths[first:first + own]))
                 first += own
             return np.concatenate(spread)
-    raise StageError(f"widths has {len(widths)} values ({interpolation}), which match none of its "
+    raise StageError(f"{name} has {len(widths)} values ({interpolation}), which match none of its "
                      f"{count} vertices", file=file, prim=path)
 
 

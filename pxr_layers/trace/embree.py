@@ -49,6 +49,9 @@ RTC_GEOMETRY_TYPE_INSTANCE = 121
 STRAND_GEOMETRY_TYPES = {"linear": 16, "bezier": 24, "bspline": 32, "catmullRom": 58, "sphere": 50}
 """scene.Strands shapes as Embree geometry: ROUND_LINEAR, ROUND_BEZIER, ROUND_BSPLINE,
 ROUND_CATMULL_ROM curves (tubes swept by a sphere of the radius there), SPHERE_POINT."""
+RIBBON_GEOMETRY_TYPES = {"bezier": 26, "bspline": 34, "catmullRom": 60}
+"""Cubic shapes with normals as NORMAL_ORIENTED curves: flat ribbons facing the normals."""
+RTC_BUFFER_TYPE_NORMAL = 3
 RTC_BUFFER_TYPE_INDEX = 0
 RTC_BUFFER_TYPE_VERTEX = 1
 RTC_FORMAT_UINT = 0x5001
@@ -207,20 +210,29 @@ def add_triangles(scene: Scene, vertices: np.ndarray, triangles: np.ndarray) -> 
     return _attach(scene, geometry, (padded, indices), "adding triangles")
 
 
-def add_strands(scene: Scene, shape: str, vertices: np.ndarray, segments: np.ndarray) -> int:
+def add_strands(scene: Scene, shape: str, vertices: np.ndarray, segments: np.ndarray,
+                normals: np.ndarray | None = None) -> int:
     """Attach curves or points (scene.Strands) to `scene` (before its commit); returns the
     geometry id. vertices (v, 4) x, y, z, radius, metres; segments (s,) each segment's first
-    vertex (ignored for points: one sphere per vertex)."""
+    vertex (ignored for points: one sphere per vertex); normals (v, 3): a cubic shape's
+    ribbons face them (None: round tubes)."""
     shared = np.ascontiguousarray(vertices, np.float32)
-    geometry = _api.rtcNewGeometry(scene.device.handle, STRAND_GEOMETRY_TYPES[shape])
+    kind = STRAND_GEOMETRY_TYPES[shape] if normals is None else RIBBON_GEOMETRY_TYPES[shape]
+    geometry = _api.rtcNewGeometry(scene.device.handle, kind)
     _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4, shared.ctypes.data, 0,
                                     shared.strides[0], len(shared))
     kept = (shared,)
+    if normals is not None:
+        facing = np.zeros((len(shared) + 1, 3), np.float32)  # one row more: Embree reads 16 bytes a vertex
+        facing[:-1] = normals
+        _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_NORMAL, 0, RTC_FORMAT_FLOAT3, facing.ctypes.data, 0,
+                                        facing.strides[0], len(shared))
+        kept = (shared, facing)
     if shape != "sphere":
         indices = np.ascontiguousarray(segments, np.uint32)
         _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT, indices.ctypes.data, 0,
                                         indices.strides[0], len(indices))
-        kept = (shared, indices)
+        kept = (*kept, indices)
     return _attach(scene, geometry, kept, f"adding {shape} strands")
 
 
@@ -376,7 +388,8 @@ class RayCaster:
             stop_segment = (strands.segment_first[number + 1] if number + 1 < len(world.strand_shapes)
                             else len(strands.segments))
             geometry = add_strands(scene, shape, strands.vertices[first_vertex:stop_vertex],
-                                   strands.segments[strands.segment_first[number]:stop_segment] - first_vertex)
+                                   strands.segments[strands.segment_first[number]:stop_segment] - first_vertex,
+                                   strands.normals[first_vertex:stop_vertex] if strands.ribbon[number] else None)
             if number == 0:
                 self._strand_geometry = geometry
         scene.commit()

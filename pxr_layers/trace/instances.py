@@ -16,7 +16,7 @@ interpolated and renormalised). A hit on a strand (a curve's tube or a point's s
 instance embree.STRAND − segment) is placed as a small triangle in the tangent plane at the
 hit point, which is its centroid (the hit's barycentrics become 1/3, 1/3), facing Embree's
 normal there: its shading normal that normal, its curvatures a tube's (1/r around, 0 along
-the segment's chord) or a sphere's (1/r both ways), its texture coordinates the hit's (u,
+the segment's chord), a sphere's (1/r both ways) or a flat ribbon's (0), its texture coordinates the hit's (u,
 v). Downstream, nothing tells it from a flat row, and a scene without instances, motion or
 strands pays nothing.
 
@@ -334,6 +334,8 @@ def _place_strand(rows, instances, source, segment, row, hits, entry):
     geometry.triangle_material[row] = geometry.triangle_material[source]
     geometry.triangle_light[row] = -1
     curvature = 1.0 / radius if radius > 0 else 0.0
+    if strands.ribbon[local]:
+        curvature = 0.0  # a flat ribbon
     rows.curvature_k1[row] = curvature
     rows.curvature_k2[row] = curvature if span == 0 else 0.0
     rows.triangle_object[row] = rows.triangle_object[source]

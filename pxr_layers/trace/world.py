@@ -188,6 +188,8 @@ class StrandTables(NamedTuple):
     segment_first : (n,) int64 each strand's first segment
     vertex_first  : (n,) int64 each strand's first vertex
     span          : (n,) int32 vertices from a segment's first to its last (scene.Strands.span)
+    ribbon        : (n,) bool flat ribbons facing their normals (else round tubes or spheres)
+    normals       : (v, 3) float32 the ribbons' normals at their vertices (zero elsewhere)
     """
 
     vertices: np.ndarray
@@ -195,6 +197,8 @@ class StrandTables(NamedTuple):
     segment_first: np.ndarray
     vertex_first: np.ndarray
     span: np.ndarray
+    ribbon: np.ndarray
+    normals: np.ndarray
 
     @classmethod
     def of(cls, strands) -> StrandTables:
@@ -205,7 +209,9 @@ class StrandTables(NamedTuple):
                    np.concatenate([s.segments + first for s, first in zip(strands, vertex_first)]
                                   or [np.zeros(0)]).astype(INDEX),
                    np.concatenate([[0], np.cumsum(segment_counts)[:-1]]).astype(np.int64), vertex_first,
-                   np.array([s.span for s in strands], np.int32))
+                   np.array([s.span for s in strands], np.int32), np.array([s.normals is not None for s in strands]),
+                   np.concatenate([s.normals if s.normals is not None else np.zeros((len(s.vertices), 3))
+                                   for s in strands] or [np.zeros((0, 3))]).astype(FLOAT))
 
 
 class MovingSteps(NamedTuple):
