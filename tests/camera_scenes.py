@@ -26,6 +26,19 @@ GLOW = """
     }"""
 """/World/Looks/glow: emits 1 in every channel, reflects nothing."""
 
+BLACK = """
+    def Material "black"
+    {
+        token outputs:surface.connect = </World/black/Surface.outputs:surface>
+        def Shader "Surface"
+        {
+            uniform token info:id = "UsdPreviewSurface"
+            color3f inputs:diffuseColor = (0, 0, 0)
+            token outputs:surface
+        }
+    }"""
+"""/World/black (a Material directly under /World): reflects and emits nothing."""
+
 
 def quad(name: str, half_width: float, half_height: float, distance: float) -> str:
     """A Mesh /World/`name` bound to /World/Looks/glow: a rectangle `distance` down −Z."""

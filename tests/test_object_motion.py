@@ -22,7 +22,7 @@ from pxr_layers.jobs.frame import render_frame
 from pxr_layers.request import RenderRequest
 from pxr_layers.stage import load_stage, reader
 
-from camera_scenes import GLOW, beauty, quad
+from camera_scenes import BLACK, GLOW, beauty, quad
 
 RESOLUTION = 96
 APERTURE, FOCAL = 36.0, 50.0  # tenths of a centimetre: a 50 mm lens, 36 mm square gate
@@ -109,17 +109,7 @@ def stage(tmp_path, move: str, settings: str = "") -> str:
     {'renderSettingsPrimPath = "/World/Settings"' if settings else ""}
 )
 def Xform "World"
-{{{GLOW}{quad("backdrop", 400, 400, 2 * DISTANCE)}
-    def Material "black"
-    {{
-        token outputs:surface.connect = </World/black/Surface.outputs:surface>
-        def Shader "Surface"
-        {{
-            uniform token info:id = "UsdPreviewSurface"
-            color3f inputs:diffuseColor = (0, 0, 0)
-            token outputs:surface
-        }}
-    }}
+{{{GLOW}{BLACK}{quad("backdrop", 400, 400, 2 * DISTANCE)}
     {strip}
     def Camera "Camera"
     {{

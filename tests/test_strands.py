@@ -20,24 +20,12 @@ from pxr_layers.paths.reader import PathIndex
 from pxr_layers.request import RenderRequest
 from pxr_layers.stage import load_stage
 
-from camera_scenes import GLOW, beauty, quad
+from camera_scenes import BLACK, GLOW, beauty, quad
 
 RESOLUTION = 96
 APERTURE, FOCAL = 36.0, 50.0  # tenths of a centimetre: a 50 mm lens, 36 mm square gate
 DISTANCE = 100.0  # cm from the camera to the strands
 VIEW = APERTURE / FOCAL * DISTANCE  # cm across the view at the strands' distance
-
-BLACK = """
-    def Material "black"
-    {
-        token outputs:surface.connect = </World/black/Surface.outputs:surface>
-        def Shader "Surface"
-        {
-            uniform token info:id = "UsdPreviewSurface"
-            color3f inputs:diffuseColor = (0, 0, 0)
-            token outputs:surface
-        }
-    }"""
 
 
 def stage(tmp_path, strands: str, name: str, light: str = "backdrop") -> str:

@@ -242,12 +242,7 @@ def _place_kernel(rows, instances, triangle, instance, time, lanes, first, trans
                 geometry.corner_normals[row, corner, axis] = normal
                 rows.corner_positions[corner, axis, row] = position
                 rows.corner_normals[corner, axis, row] = normal
-            for axis in range(2):
-                geometry.corner_uvs[row, corner, axis] = geometry.corner_uvs[source, corner, axis]
-                rows.corner_uvs[corner, axis, row] = geometry.corner_uvs[source, corner, axis]
-            for column in range(geometry.corner_primvars.shape[2]):
-                geometry.corner_primvars[row, corner, column] = geometry.corner_primvars[source, corner, column]
-                rows.corner_primvars[corner, column, row] = geometry.corner_primvars[source, corner, column]
+            _copy_corner_values(rows, source, row, corner)
         for axis in range(3):
             normal = principal = along_s = along_t = 0.0
             for column in range(3):
@@ -272,6 +267,18 @@ def _place_kernel(rows, instances, triangle, instance, time, lanes, first, trans
         if has_links:
             rows.link_group[row] = instances.link_group[k]
         triangle[entry] = row
+
+
+@inline
+def _copy_corner_values(rows, source, row, corner):
+    """Copy corner `corner`'s texture coordinates and primvars from row `source` to row `row`."""
+    geometry = rows.geometry
+    for axis in range(2):
+        geometry.corner_uvs[row, corner, axis] = geometry.corner_uvs[source, corner, axis]
+        rows.corner_uvs[corner, axis, row] = geometry.corner_uvs[source, corner, axis]
+    for column in range(geometry.corner_primvars.shape[2]):
+        geometry.corner_primvars[row, corner, column] = geometry.corner_primvars[source, corner, column]
+        rows.corner_primvars[corner, column, row] = geometry.corner_primvars[source, corner, column]
 
 
 @inline
@@ -393,12 +400,7 @@ def _place_moving(rows, instances, source, row, time):
         for axis in range(3):
             geometry.corner_normals[row, corner, axis] *= scale
             rows.corner_normals[corner, axis, row] = geometry.corner_normals[row, corner, axis]
-        for axis in range(2):
-            geometry.corner_uvs[row, corner, axis] = geometry.corner_uvs[source, corner, axis]
-            rows.corner_uvs[corner, axis, row] = geometry.corner_uvs[source, corner, axis]
-        for column in range(geometry.corner_primvars.shape[2]):
-            geometry.corner_primvars[row, corner, column] = geometry.corner_primvars[source, corner, column]
-            rows.corner_primvars[corner, column, row] = geometry.corner_primvars[source, corner, column]
+        _copy_corner_values(rows, source, row, corner)
     # The geometric normal and area of the interpolated corners: the triangle Embree hit.
     p = geometry.corner_positions[row]
     ex, ey, ez = p[1, 0] - p[0, 0], p[1, 1] - p[0, 1], p[1, 2] - p[0, 2]
