@@ -264,8 +264,13 @@ class GeometryArrays(NamedTuple):
 
 
 def geometry_arrays(world: World) -> GeometryArrays:
+    rows = world.scratch_first if world.scratch_first >= 0 else len(world.area)
+
     def triangle_major(table: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray(np.moveaxis(table, -1, 0))
+        # the scratch rows stay zero pages, untouched until a hit is placed in them
+        major = np.zeros((table.shape[-1], *table.shape[:-1]), table.dtype)
+        major[:rows] = np.moveaxis(table[..., :rows], -1, 0)
+        return major
 
     return GeometryArrays(triangle_major(world.corner_positions), triangle_major(world.corner_normals),
                           triangle_major(world.corner_uvs), triangle_major(world.geometric_normal), world.area,
@@ -376,8 +381,14 @@ def build_world(scene: SceneData, scratch_rows: int = 0) -> World:
         _fill_rows(piece, row, *tables)
         row += len(piece.triangles)
 
-    k1, k2, principal_direction = triangle_curvatures(corner_positions, corner_normals)
-    gradient_s, gradient_t = uv_gradients(corner_positions, corner_uvs)
+    # per-row tables of the rows before the scratch rows, which stay zero pages until written
+    real = count - scratch_rows
+    k1, k2, principal_direction = (np.zeros((3, count), FLOAT) if axis else np.zeros(count, FLOAT)
+                                   for axis in (0, 0, 1))
+    gradient_s, gradient_t = np.zeros((3, count), FLOAT), np.zeros((3, count), FLOAT)
+    k1[:real], k2[:real], principal_direction[:, :real] = triangle_curvatures(corner_positions[..., :real],
+                                                                             corner_normals[..., :real])
+    gradient_s[:, :real], gradient_t[:, :real] = uv_gradients(corner_positions[..., :real], corner_uvs[..., :real])
     placements = np.array([mesh.world_from_points for mesh, _ in instanced], np.float64).reshape(-1, 4, 4)
     rotation, scale = rotation_and_scale(placements[:, :3, :3])
     instance_prototype = [prototype_of[mesh.prototype] for mesh, _ in instanced]
