@@ -120,8 +120,7 @@ def main() -> int:
               f"peak {peak:.0f} MB, {seconds:.1f} s: the groom adds {peak - bare_peak:.0f} MB")
     slope = (grooms[1][0] - grooms[0][0]) / (data_mb(sizes[1]) - data_mb(sizes[0]))
     constant = grooms[1][0] - bare_peak - slope * data_mb(sizes[1])
-    print(f"fit       : a groom costs {constant:.0f} MB + {slope:.1f} x its curve data (the constant: the scratch "
-          "rows placed hits are shaded from, trace/instances.py)")
+    print(f"fit       : a groom costs {constant:.0f} MB + {slope:.1f} x its curve data")
     return 0
 
 
