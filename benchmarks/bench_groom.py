@@ -3,7 +3,7 @@ without them, beside the size of the strands' own data.
 
     python benchmarks/bench_groom.py [--strands 100000] [--resolution 256 256] [--spp 4]
 
-Writes a stage of one BasisCurves prim of N cubic B-spline strands (6 control points each,
+Writes a stage (a .usdc crate) of one BasisCurves prim of N cubic B-spline strands (6 control points each,
 widths per vertex) growing from a 20 cm disc on the floor of a centimetre stage under a dome,
 and the same stage without it; renders each (and a groom of N/10 strands) in a child process (``python -m
 pxr_layers.cli.main render``, no index) and reads the child's peak resident memory
@@ -29,7 +29,8 @@ VERTICES = 6
 
 
 def groom_stage(folder: Path, strands: int) -> Path:
-    """The groom's stage (strands = 0: the same stage without the curves)."""
+    """The groom's stage as a binary crate (.usdc, as grooms are delivered; strands = 0: the
+    same stage without the curves)."""
     rng = np.random.default_rng(7)
     body = ""
     if strands:
@@ -49,8 +50,8 @@ def groom_stage(folder: Path, strands: int) -> Path:
         float[] widths = [{", ".join(f"{w:.4f}" for w in widths)}] (interpolation = "vertex")
         color3f[] primvars:displayColor = [(0.35, 0.2, 0.1)]
     }}"""
-    path = folder / f"groom_{strands}.usda"
-    path.write_text(f"""#usda 1.0
+    text = folder / f"groom_{strands}.usda"
+    text.write_text(f"""#usda 1.0
 (
     upAxis = "Y"
     metersPerUnit = 0.01
@@ -77,6 +78,11 @@ def Xform "World"
     }}
 }}
 """)
+    from pxr import Usd
+
+    path = text.with_suffix(".usdc")
+    stage = Usd.Stage.Open(str(text))
+    stage.GetRootLayer().Export(str(path))
     return path
 
 
