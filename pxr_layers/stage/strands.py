@@ -121,6 +121,8 @@ def _curves(curves: UsdGeom.BasisCurves, points: np.ndarray, widths: np.ndarray,
     radii = _per_vertex(widths, interpolation, len(points), counts, path, file) / 2
     step = 3 if shape == "bezier" else 1
     order = 2 if shape == "linear" else 4
+    if wrap == "nonperiodic" or shape in ("linear", "bezier") and wrap == "pinned":
+        return shape, *_open_curves(shape, np.column_stack([points, radii]), counts, order, step, file, path)
     vertices, segments = [], []
     start = emitted = 0
     for curve, count in enumerate(counts.tolist()):
@@ -143,6 +145,22 @@ def _curves(curves: UsdGeom.BasisCurves, points: np.ndarray, widths: np.ndarray,
         vertices.append(own)
         emitted += len(own)
     return shape, np.concatenate(vertices), np.concatenate(segments).astype(INDEX)
+
+
+def _open_curves(shape: str, vertices: np.ndarray, counts: np.ndarray, order: int, step: int, file: str,
+                 path: str) -> tuple[np.ndarray, np.ndarray]:
+    """Nonperiodic curves, every curve's vertices as authored: (vertices, segments (s,) int32),
+    in whole-array steps (a groom's hundred thousand curves need no loop)."""
+    short = (counts < order) | ((counts - 1) % step != 0)
+    if short.any():
+        curve = int(np.flatnonzero(short)[0])
+        raise StageError(f"curve {curve} has {int(counts[curve])} vertices: a {shape} curve needs "
+                         + ("3k + 1" if shape == "bezier" else f"{order} or more"), file=file, prim=path)
+    starts = np.cumsum(counts) - counts
+    per_curve = (counts - order) // step + 1
+    first = np.cumsum(per_curve) - per_curve
+    rank = np.arange(int(per_curve.sum())) - np.repeat(first, per_curve)  # a segment's place in its curve
+    return vertices, (np.repeat(starts, per_curve) + step * rank).astype(INDEX)
 
 
 def _per_vertex(widths: np.ndarray, interpolation: str, count: int, curve_counts: np.ndarray | None, path: str,
