@@ -27,14 +27,14 @@ from pxr_layers.scene import FLOAT, INDEX, Strands
 from .context import ReadContext
 from .transforms import normal_matrix
 
-CUBIC_BASES = {"bezier": "bezier", "bspline": "bspline", "catmullRom": "catmullRom"}
+CUBIC_BASES = ("bezier", "bspline", "catmullRom")
 DEFAULT_WIDTH = 1.0  # scene units, when none is authored (Storm draws such curves and points so)
 
 
 def read_strands(context: ReadContext, prim: Usd.Prim, world_from_local: np.ndarray, path: str, name: str,
                  material: int) -> Strands | None:
     """The Strands of a BasisCurves or Points `prim` placed by `world_from_local` ((4, 4)
-    column convention, stage units); None (with a note) when it draws nothing."""
+    column convention, stage units); None when it has no points."""
     time, file = context.time, context.file
     points = _array(prim.GetAttribute(UsdGeom.Tokens.points), time, file, path, 3)
     widths_attribute = prim.GetAttribute(UsdGeom.Tokens.widths)
