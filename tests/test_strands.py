@@ -126,6 +126,26 @@ def test_curves_with_normals_are_flat_ribbons_facing_them(tmp_path, facing, expe
     assert fraction == pytest.approx(expected / VIEW ** 2, abs=0.02 * 4 * WIDTH * LENGTH / VIEW ** 2)
 
 
+def test_point_instanced_curves_are_a_copy_per_instance(tmp_path):
+    """A tuft (one straight curve) instanced three times covers three times its w·L, each copy
+    an object of its instance's path."""
+    prim = f"""def PointInstancer "tufts"
+    {{
+        rel prototypes = </World/tufts/Prototypes/tuft>
+        int[] protoIndices = [0, 0, 0]
+        point3f[] positions = [(0, -10, {-DISTANCE}), (0, 0, {-DISTANCE}), (0, 10, {-DISTANCE})]
+        def Scope "Prototypes"
+        {{
+            {curves("tuft", "linear", "bezier", "nonperiodic", [2], [(-LENGTH / 2, 0), (LENGTH / 2, 0)],
+                    f"float[] widths = [{WIDTH}]").replace(str(-DISTANCE), "0")}
+        }}
+    }}"""
+    path = stage(tmp_path, prim, "tufts")
+    scene, _ = load_stage(path)
+    assert [strands.path for strands in scene.strands] == [f"/World/tufts/instance_{n}/tuft" for n in range(3)]
+    assert occluded(path) == pytest.approx(3 * WIDTH * LENGTH / VIEW ** 2, rel=0.03)
+
+
 def test_points_cover_n_pi_w2_over_4(tmp_path):
     centres = [(-8, -8), (8, -8), (0, 0), (-8, 8), (8, 8)]
     listed = ", ".join(f"({x}, {y}, {-DISTANCE})" for x, y in centres)

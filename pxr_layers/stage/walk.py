@@ -141,7 +141,7 @@ def walk_stage(context: ReadContext) -> StageContents:
                 contents.gprims.append(
                     GprimPlacement(prim, world, str(prim.GetPath()), prim.GetName())
                 )
-        elif prim.IsA(UsdGeom.BasisCurves) or prim.IsA(UsdGeom.Points):
+        elif _is_strands(prim):
             iterator.PruneChildren()
             world = _finite_world_transform(context, prim)
             if world is not None:
@@ -228,6 +228,11 @@ def _is_replaced_by_draw_mode(
 def _is_gprim(prim: Usd.Prim) -> bool:
     """A gprim the reader triangulates (Mesh, or an implicit shape)."""
     return prim.IsA(UsdGeom.Mesh) or is_implicit(prim)
+
+
+def _is_strands(prim: Usd.Prim) -> bool:
+    """Curves or points, which Embree draws as they are (strands.py)."""
+    return prim.IsA(UsdGeom.BasisCurves) or prim.IsA(UsdGeom.Points)
 
 
 def _has_surface(context: ReadContext, prim: Usd.Prim) -> bool:
@@ -359,6 +364,8 @@ def _expand_instancer(
             path = f"{instancer_path}/instance_{instance}/{item.sub_path}"
             if item.is_instancer:
                 _expand_instancer(context, item.prim, world, path, depth + 1, contents)
+            elif _is_strands(item.prim):  # a copy per instance (they do not move over the shutter)
+                contents.strands.append(GprimPlacement(item.prim, world, path, item.prim.GetName(), instance))
             else:
                 link = InstancerLink(prim, world_from_instancer if depth else None, item.proto_from_prim)
                 contents.gprims.append(GprimPlacement(item.prim, world, path, item.prim.GetName(), instance, link))
@@ -516,7 +523,7 @@ def _rotation_matrices(quaternions: np.ndarray) -> np.ndarray:
 def _prototype_items(
     context: ReadContext, root: Usd.Prim, instancer_path: str
 ) -> list[_PrototypeItem]:
-    """Gprims and nested instancers under one prototype root, relative to it."""
+    """Gprims (strands too) and nested instancers under one prototype root, relative to it."""
     if not root or not root.IsActive():
         return []
     items = []
@@ -529,7 +536,7 @@ def _prototype_items(
             iterator.PruneChildren()
             continue
         is_instancer = prim.IsA(UsdGeom.PointInstancer)
-        if is_instancer or _is_gprim(prim):
+        if is_instancer or _is_gprim(prim) or _is_strands(prim):
             iterator.PruneChildren()
             if not is_instancer and not _has_surface(context, prim):
                 continue
