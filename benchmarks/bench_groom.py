@@ -6,8 +6,8 @@ without them, beside the size of the strands' own data.
 Writes a stage (a .usdc crate) of one BasisCurves prim of N cubic B-spline strands (6 control points each,
 widths per vertex) growing from a 20 cm disc on the floor of a centimetre stage under a dome,
 and the same stage without it; renders each (and a groom of N/10 strands) in a child process (``python -m
-pxr_layers.cli.main render``, no index) and reads the child's peak resident memory
-(``ru_maxrss``). Prints each peak, the curve data as USD holds it (points and widths, float32) and as the
+pxr_layers.cli.main render``, no index) and reads its peak resident memory (``ru_maxrss``,
+through bench_render's measuring child). Prints each peak, the curve data as USD holds it (points and widths, float32) and as the
 tracer holds it (x, y, z, radius float32 and a segment index per segment), and the line
 through the two grooms: a constant plus a multiple of the curve data. Target (issue 36): the
 groom's memory is its curve data plus a constant.
@@ -16,7 +16,6 @@ groom's memory is its curve data plus a constant.
 from __future__ import annotations
 
 import argparse
-import resource
 import subprocess
 import sys
 import tempfile
@@ -24,6 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bench_render import MEASURE_CHILD, cli_command
 
 VERTICES = 6
 
@@ -88,20 +88,15 @@ def Xform "World"
 
 def peak_render(stage: Path, args) -> tuple[float, float]:
     """(peak resident MB, wall seconds) of a child render of `stage`."""
-    command = [sys.executable, "-c", "import resource, runpy, sys; sys.argv = sys.argv[1:]; "
-               "exit_code = 0\ntry:\n    runpy.run_module('pxr_layers.cli.main', run_name='__main__')\n"
-               "except SystemExit as done:\n    exit_code = done.code or 0\n"
-               "print('PEAK', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\nsys.exit(exit_code)",
-               "pxr-layers", "render", "-q", str(stage), "--resolution", *map(str, args.resolution),
-               "--spp", str(args.spp), "--no-index", "--no-previews", "-o", str(stage.with_suffix(".exr"))]
+    command = [*cli_command(), "render", "-q", str(stage), "--resolution", *map(str, args.resolution), "--spp",
+               str(args.spp), "--no-index", "--no-previews", "-o", str(stage.with_suffix(".exr"))]
     start = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True)
+    done = subprocess.run([sys.executable, "-c", MEASURE_CHILD, *command], capture_output=True, text=True)
     seconds = time.perf_counter() - start
     if done.returncode != 0:
-        print(f"bench_groom: the render of {stage.name} failed:\n{(done.stderr or done.stdout)[-2000:]}")
+        print(f"bench_groom: the render of {stage.name} failed:\n{done.stderr[-2000:]}")
         sys.exit(1)
-    peak = next(int(line.split()[1]) for line in done.stdout.splitlines() if line.startswith("PEAK"))
-    return peak / 1024, seconds
+    return int(done.stdout.split()[-1]) / 1024, seconds  # ru_maxrss: KiB on Linux
 
 
 def main() -> int:

@@ -18,37 +18,22 @@ Exits 0 whether or not the target is met (a measurement), 1 when a render fails.
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 import tempfile
-import time
-from importlib import resources
 from pathlib import Path
+
+from bench_render import cli_command, cli_render
+from bench_vs_mitsuba import cornell_overlay
 
 from pxr_layers.cores import available_cores
 
 TARGET_OVERHEAD = 0.20
 
 
-def cornell_path() -> str:
-    return str(resources.files("pxr_layers.render").joinpath("cornell.usda"))
-
-
 def moving_stage(folder: Path, shutter_close: float) -> str:
     """The Cornell box with its tall box and camera keyed over frames 1–2, the camera's shutter
-    open from 0 to `shutter_close` (its metadata restated: a stage's units are its root layer's)."""
-    path = folder / f"cornell_moving_{shutter_close:g}.usda"
-    path.write_text(f"""#usda 1.0
-(
-    subLayers = [@{cornell_path()}@]
-    metersPerUnit = 0.001
-    upAxis = "Y"
-    startTimeCode = 1
-    endTimeCode = 2
-)
-over "World"
-{{
-    over "Geometry"
+    open from 0 to `shutter_close`."""
+    return cornell_overlay(folder / f"cornell_moving_{shutter_close:g}.usda", f"""    over "Geometry"
     {{
         over "tallBox"
         {{
@@ -64,25 +49,7 @@ over "World"
         double shutter:open = 0
         double shutter:close = {shutter_close}
         double3 xformOp:translate.timeSamples = {{1: (278, 273, -800), 2: (278, 273, -760)}}
-    }}
-}}
-""")
-    return str(path)
-
-
-def timed_render(stage: str, out: Path, args, index: bool) -> float:
-    command = [sys.executable, "-m", "pxr_layers.cli.main", "render", "-q", stage, "--frame", "1",
-               "--resolution", *map(str, args.resolution), "--spp", str(args.spp), "--max-depth", str(args.max_depth),
-               "--threads", str(args.threads), "--no-previews", "-o", str(out / "frame.exr")]
-    if not index:
-        command.append("--no-index")
-    start = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True)
-    seconds = time.perf_counter() - start
-    if done.returncode != 0:
-        print(f"bench_motion: a render failed (exit {done.returncode}):\n{(done.stderr or done.stdout)[-2000:]}")
-        sys.exit(1)
-    return seconds
+    }}""", end_time_code=2)
 
 
 def main() -> int:
@@ -93,16 +60,26 @@ def main() -> int:
     parser.add_argument("--threads", type=int, default=available_cores())
     parser.add_argument("--repeat", type=int, default=3, help="renders of each, keeping the fastest")
     args = parser.parse_args()
+    cli = cli_command()
     with tempfile.TemporaryDirectory(prefix="bench_motion_") as folder:
         out = Path(folder)
         stages = {"moving": moving_stage(out, 1.0), "still": moving_stage(out, 0.0)}
-        timed_render(stages["still"], out, args, index=False)  # warm the kernel cache
+
+        def render(stage: str, index: bool) -> float:
+            extra = ["--frame", "1", "--max-depth", str(args.max_depth), "--threads", str(args.threads)]
+            return cli_render(cli, stage, args.resolution, args.spp, out / "frame.exr", *extra,
+                              *([] if index else ["--no-index"]))
+
         best: dict[tuple[str, bool], float] = {}
-        for _ in range(args.repeat):
-            for index in (False, True):
-                for name, stage in stages.items():
-                    seconds = timed_render(stage, out, args, index)
-                    best[name, index] = min(best.get((name, index), float("inf")), seconds)
+        try:
+            render(stages["still"], index=False)  # warm the kernel cache
+            for _ in range(args.repeat):
+                for index in (False, True):
+                    for name, stage in stages.items():
+                        best[name, index] = min(best.get((name, index), float("inf")), render(stage, index))
+        except RuntimeError as error:
+            print(f"bench_motion: a render failed: {error}")
+            return 1
     width, height = args.resolution
     print(f"scene     : Cornell box, tall box and camera moving over the shutter, {width}x{height}, {args.spp} spp, "
           f"max depth {args.max_depth}, {args.threads} threads, best of {args.repeat}")

@@ -121,10 +121,10 @@ def cornell_path() -> str:
     return str(resources.files("pxr_layers.render").joinpath("cornell.usda"))
 
 
-def lens_stage(folder: Path, f_stop: float, focus_distance: float) -> str:
-    """A stage over the Cornell box whose camera has a lens (its metadata restated: a
-    stage's units and up axis are its root layer's)."""
-    path = folder / "cornell_lens.usda"
+def cornell_overlay(path: Path, body: str, end_time_code: int = 1) -> str:
+    """Write at `path` a stage over the Cornell box: `body` (opinions over /World) on top of
+    it, its metadata restated (a stage's units, up axis and render settings are its root
+    layer's), time codes 1 to `end_time_code`. Returns the path."""
     path.write_text(f"""#usda 1.0
 (
     subLayers = [@{cornell_path()}@]
@@ -132,18 +132,23 @@ def lens_stage(folder: Path, f_stop: float, focus_distance: float) -> str:
     upAxis = "Y"
     renderSettingsPrimPath = "/Render/Settings"
     startTimeCode = 1
-    endTimeCode = 1
+    endTimeCode = {end_time_code}
 )
 over "World"
 {{
-    over "Camera"
-    {{
-        float fStop = {f_stop}
-        float focusDistance = {focus_distance}
-    }}
+{body}
 }}
 """)
     return str(path)
+
+
+def lens_stage(folder: Path, f_stop: float, focus_distance: float) -> str:
+    """A stage over the Cornell box whose camera has a lens."""
+    return cornell_overlay(folder / "cornell_lens.usda", f"""    over "Camera"
+    {{
+        float fStop = {f_stop}
+        float focusDistance = {focus_distance}
+    }}""")
 
 
 def curves_stage(folder: Path) -> str:
@@ -155,18 +160,7 @@ def curves_stage(folder: Path) -> str:
     lean = rng.uniform(-30, 30, roots.shape)
     points = ", ".join(f"({x:.1f}, 0, {z:.1f}), ({x + dx:.1f}, 120, {z + dz:.1f})"
                        for (x, z), (dx, dz) in zip(roots, lean))
-    path = folder / "cornell_curves.usda"
-    path.write_text(f"""#usda 1.0
-(
-    subLayers = [@{cornell_path()}@]
-    metersPerUnit = 0.001
-    upAxis = "Y"
-    startTimeCode = 1
-    endTimeCode = 1
-)
-over "World"
-{{
-    over "Geometry"
+    return cornell_overlay(folder / "cornell_curves.usda", f"""    over "Geometry"
     {{
         def BasisCurves "lawn" (prepend apiSchemas = ["MaterialBindingAPI"])
         {{
@@ -176,10 +170,7 @@ over "World"
             float[] widths = [4]
             rel material:binding = </World/Materials/white>
         }}
-    }}
-}}
-""")
-    return str(path)
+    }}""")
 
 
 def _curve_file(strands, folder: Path) -> str:

@@ -69,7 +69,7 @@ class GprimMotion:
         """The time steps a gprim needs over the shutter, placed by its own world transform or
         as point instance `instance` of `placement`: 1 when it stands still."""
         if placement is None:
-            times = self._transform_times(prim)
+            times = transform_times(prim, self._interval)
             steps = _steps(np.stack([self.world_from_local(prim, time) for time in times])[:, None])[0]
         else:
             per_instance = self._instancer_steps(placement)
@@ -158,8 +158,9 @@ class GprimMotion:
             if not instancer.GetPositionsAttr().GetNumTimeSamples() and (
                     instancer.GetVelocitiesAttr().HasAuthoredValue() or instancer.GetAngularVelocitiesAttr().HasAuthoredValue()):
                 self._note_unsampled(placement.prim)
-            times = set(self._transform_times(placement.prim) if placement.world_from_instancer is None else ())
-            times |= {self._shutter.open, self._shutter.close}
+            times = {self._shutter.open, self._shutter.close}
+            if placement.world_from_instancer is None:  # a top-level instancer: its own transform too
+                times.update(transform_times(placement.prim, self._interval))
             for attribute in (instancer.GetPositionsAttr(), instancer.GetOrientationsAttr(),
                               instancer.GetOrientationsfAttr(), instancer.GetScalesAttr(),
                               instancer.GetVelocitiesAttr(), instancer.GetAngularVelocitiesAttr()):
@@ -199,16 +200,19 @@ class GprimMotion:
             self._instance_transforms[key] = np.stack(arrays).transpose(0, 1, 3, 2) if usable else None
         return self._instance_transforms[key]
 
-    def _transform_times(self, prim: Usd.Prim) -> list[float]:
-        """The shutter's ends and every transform sample of `prim` and its ancestors between."""
-        times = {self._shutter.open, self._shutter.close}
-        ancestor = prim
-        while ancestor and not ancestor.IsPseudoRoot():
-            xformable = UsdGeom.Xformable(ancestor)
-            if xformable:
-                times.update(xformable.GetTimeSamplesInInterval(self._interval))
-            ancestor = ancestor.GetParent()
-        return sorted(times)
+
+
+def transform_times(prim: Usd.Prim, interval: Gf.Interval) -> list[float]:
+    """The ends of `interval` (time codes) and every transform sample of `prim` and its
+    ancestors between them, ascending."""
+    times = {interval.GetMin(), interval.GetMax()}
+    ancestor = prim
+    while ancestor and not ancestor.IsPseudoRoot():
+        xformable = UsdGeom.Xformable(ancestor)
+        if xformable:
+            times.update(xformable.GetTimeSamplesInInterval(interval))
+        ancestor = ancestor.GetParent()
+    return sorted(times)
 
 
 def _steps(transforms: np.ndarray) -> np.ndarray:

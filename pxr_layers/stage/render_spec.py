@@ -12,6 +12,7 @@ from pxr_layers.scene import DEFAULT_BINDING_PURPOSES, DEFAULT_INCLUDED_PURPOSES
 
 from . import values
 from .context import ReadContext
+from .motion import transform_times
 from .transforms import column_matrix, rigid_in_metres, transform_errors_name
 
 
@@ -162,15 +163,7 @@ def camera_motion(context: ReadContext, prim: Usd.Prim, shutter: tuple[float, fl
     if shutter[1] <= shutter[0] or context.time.IsDefault():
         return still
     frame = context.time.GetValue()
-    interval = Gf.Interval(frame + shutter[0], frame + shutter[1])
-    times = {interval.GetMin(), interval.GetMax()}
-    ancestor = prim
-    while ancestor and not ancestor.IsPseudoRoot():
-        xformable = UsdGeom.Xformable(ancestor)
-        if xformable:
-            times.update(xformable.GetTimeSamplesInInterval(interval))
-        ancestor = ancestor.GetParent()
-    ordered = sorted(times)
+    ordered = transform_times(prim, Gf.Interval(frame + shutter[0], frame + shutter[1]))
     if len(ordered) > MAX_MOTION_SAMPLES:
         ordered = [ordered[round(i)] for i in np.linspace(0, len(ordered) - 1, MAX_MOTION_SAMPLES)]
     world = (column_matrix(UsdGeom.XformCache(Usd.TimeCode(t)).GetLocalToWorldTransform(prim)) for t in ordered)

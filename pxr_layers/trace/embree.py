@@ -381,17 +381,17 @@ class RayCaster:
             add_triangles(scene, world.vertices, world.triangles)
         if len(world.moving_triangles):
             self._moving_geometry = add_triangles(scene, world.moving_vertices, world.moving_triangles)
-        strands = world.strands
-        for number, shape in enumerate(world.strand_shapes):
-            first_vertex = strands.vertex_first[number]
-            stop_vertex = strands.vertex_first[number + 1] if number + 1 < len(world.strand_shapes) else len(strands.vertices)
-            stop_segment = (strands.segment_first[number + 1] if number + 1 < len(world.strand_shapes)
-                            else len(strands.segments))
-            geometry = add_strands(scene, shape, strands.vertices[first_vertex:stop_vertex],
-                                   strands.segments[strands.segment_first[number]:stop_segment] - first_vertex,
-                                   strands.normals[first_vertex:stop_vertex] if strands.ribbon[number] else None)
-            if number == 0:
-                self._strand_geometry = geometry
+        if world.strand_shapes:
+            strands = world.strands
+            vertex_bounds = np.append(strands.vertex_first, len(strands.vertices))
+            segment_bounds = np.append(strands.segment_first, len(strands.segments))
+            geometries = []  # consecutive ids, as the intersect kernel reads them
+            for number, shape in enumerate(world.strand_shapes):
+                own = slice(vertex_bounds[number], vertex_bounds[number + 1])
+                segments = strands.segments[segment_bounds[number]:segment_bounds[number + 1]] - own.start
+                geometries.append(add_strands(scene, shape, strands.vertices[own], segments,
+                                              strands.normals[own] if strands.ribbon[number] else None))
+            self._strand_geometry = geometries[0]
         scene.commit()
         self._scene = scene
         self._instance_first_row = np.ascontiguousarray(world.prototype_first[world.instance_prototype], np.int64)
