@@ -68,6 +68,11 @@ class Material:
     transmission  the fraction of the non-metallic base that is a smooth dielectric of
                   ``ior`` (refraction, tinted by transmission_color) instead of diffuse;
                   thin_walled: the dielectric is a thin sheet (no bending).
+    hair          a MaterialX chiang_hair_bsdf (trace/hair.py) instead of the surface lobes:
+                  the hair_* fields are its inputs (tint_R, tint_TT, tint_TRT,
+                  roughness_R/TT/TRT as (longitudinal variance v, azimuthal s),
+                  cuticle_angle, absorption_coefficient), with ``ior``; the surface fields
+                  other than opacity and emission are unused.
     """
 
     name: str
@@ -87,6 +92,15 @@ class Material:
     transmission: Scalar = 0.0
     transmission_color: Color = (1.0, 1.0, 1.0)
     thin_walled: bool = False
+    hair: bool = False
+    hair_tint_r: Color = (1.0, 1.0, 1.0)
+    hair_tint_tt: Color = (1.0, 1.0, 1.0)
+    hair_tint_trt: Color = (1.0, 1.0, 1.0)
+    hair_roughness_r: tuple[float, float] = (0.1, 0.1)
+    hair_roughness_tt: tuple[float, float] = (0.05, 0.05)
+    hair_roughness_trt: tuple[float, float] = (0.2, 0.2)
+    hair_cuticle_angle: float = 0.5
+    hair_absorption: Color = (0.0, 0.0, 0.0)
 
     @property
     def emits(self) -> bool:

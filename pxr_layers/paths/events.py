@@ -11,7 +11,7 @@ scattered at or passed through, then the emitter. Each event has a type, a scatt
 lobe the renderer used, and a subject: the (object, material) pair of a surface, or a
 light. Its id packs the four:
 
-    head  = (type · 5 + scatter) · 5 + lobe                    (175 heads)
+    head  = (type · 5 + scatter) · 8 + lobe                    (280 heads)
     event = head · subject_count + subject
     subject ∈ [0, S) surface pairs of ``EventVocabulary``, [S, S + lights) lights
 
@@ -53,17 +53,24 @@ NO_SCATTER = len(SCATTERINGS)
 """The scatter code of NO_SCATTERING."""
 ALL_SCATTERINGS = (NO_SCATTERING, *SCATTERINGS)
 
-LOBE_NAMES = ("diffuse", "specular", "coat", "glass")
-"""The renderer's lobes (trace/bsdf.py); a lobe's id is its index. Events carry their lobe's
-name as a label."""
-LOBE_DIFFUSE, LOBE_SPECULAR, LOBE_COAT, LOBE_GLASS = range(len(LOBE_NAMES))
+LOBE_NAMES = ("diffuse", "specular", "coat", "glass", "R", "TT", "TRT")
+"""The renderer's lobes (trace/bsdf.py, trace/hair.py); a lobe's id is its index. Events carry
+their lobe's name as a label. R, TT and TRT are the hair lobes (MaterialX chiang_hair_bsdf:
+reflection off the fibre, transmission through it, and light reflected inside it, TRT
+holding the higher orders too, as chiang_hair_bsdf's tint_TRT does)."""
+LOBE_DIFFUSE, LOBE_SPECULAR, LOBE_COAT, LOBE_GLASS, LOBE_HAIR_R, LOBE_HAIR_TT, LOBE_HAIR_TRT = range(len(LOBE_NAMES))
 NO_LOBE = len(LOBE_NAMES)
 """The lobe code of events that took no lobe (C, L, O, B, and straight pass-throughs)."""
-LOBE_SCATTERINGS = "DGGS"
+LOBE_SCATTERINGS = "DGGSGGG"
 """The scattering of each lobe, LOBE_NAMES order. A GGX lobe (specular, coat) narrower
 than bsdf.SINGULAR_ALPHA is a perfect mirror and scatters S instead."""
 LOBE_SCATTER = tuple(SCATTERINGS.index(letter) for letter in LOBE_SCATTERINGS)
 """LOBE_SCATTERINGS as scatter codes, for the kernels."""
+LOBE_TYPES = "RRRRRTR"
+"""The event type of a light sample taken through each lobe, LOBE_NAMES order (a sampled
+glass direction is R or T by the side it leaves on)."""
+LOBE_TYPE = tuple(EVENT_TYPES.index(letter) for letter in LOBE_TYPES)
+"""LOBE_TYPES as type codes, for the kernels."""
 
 _SCATTER_CODES = NO_SCATTER + 1
 _LOBE_CODES = NO_LOBE + 1
@@ -92,8 +99,7 @@ class EventVocabulary:
     surface_objects, surface_materials : (S,) the distinct (object, material) pairs of the
         scene's triangles (material −1: none); indices into the name tuples below
     An event carries as labels: for surfaces (R, T, O) the object's prim name and path and
-    the bound material's name and path, plus the lobe name ('diffuse', 'specular',
-    'coat', 'glass'); for lights (L) the light's prim name and path.
+    the bound material's name and path, plus the lobe name (LOBE_NAMES); for lights (L) the light's prim name and path.
     """
 
     surface_objects: tuple[int, ...]

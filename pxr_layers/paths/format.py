@@ -1,4 +1,4 @@
-"""The path index file format (``.pxlidx``), version 2. The writer and the reader share it.
+"""The path index file format (``.pxlidx``), version 3. The writer and the reader share it.
 
 A path index holds the light every path brought to every pixel, with its path class (the
 camera-first sequence of events) and the covariance of its first N events, in one of two
@@ -70,7 +70,7 @@ import numpy as np
 
 from ..lpe.conditions import SIGMA_ENTRY_COUNT  # Σ's upper triangle, in the order conditions read
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 MODES = ("merged", "records")
 """Index modes (module docstring); the first is the default."""
 DEFAULT_MODE = MODES[0]

@@ -15,7 +15,8 @@ These are the norms of the covariance operators each bounce applies (COVARIANCE.
 * R = √λmax(B), cycles/rad: the bandwidth of the lobe the bounce took. Diffuse 0, GGX
   lobes 1/(2πα) with α = roughness². Singular lobes (perfect mirror, smooth glass) get
   the value of the sharpest GGX lobe the renderer evaluates, 1/(2π·SINGULAR_ALPHA) ≈
-  1592, so R is finite and grows monotonically as roughness decreases.
+  1592, so R is finite and grows monotonically as roughness decreases. Hair lobes (R, TT,
+  TRT) 1/(2π√v), v the lobe's longitudinal variance (hair.py).
 
 Straight pass-through (cut-outs) and light events apply no operator: their norms are 0.
 """
@@ -39,8 +40,9 @@ from ..covariance import (
 )
 from ..covariance.texture_spectrum import TextureSpectrum
 from ..scene import FLOAT, SceneData
-from . import bsdf
+from . import bsdf, hair
 from ..compiled import inline, kernel
+from ..paths import events
 from .shading import diffuse_texture
 from .vectors import dot
 from .world import World
@@ -163,9 +165,12 @@ class BounceNorms:
 
 @inline
 def reflectance(lobes, lane, lobe):
-    """R of `lobe` taken at the hit whose lobe row is lobes[lane] (bsdf.py)."""
+    """R of `lobe` taken at the hit whose lobe row is lobes[lane] (bsdf.py); a hair lobe's
+    from its longitudinal width w (hair.py), as a GGX lobe's from α: 1/(2π·w)."""
     if lobe == bsdf.DIFFUSE:
         return 0.0
+    if lobe >= events.LOBE_HAIR_R:
+        return 1.0 / (2.0 * math.pi * hair.lobe_width(lobes[lane], lobe - events.LOBE_HAIR_R))
     alpha = lobes[lane, bsdf.ALPHA] if lobe == bsdf.SPECULAR else lobes[lane, bsdf.COAT_ALPHA]
     if lobe == bsdf.GLASS or alpha < bsdf.SINGULAR_ALPHA:
         return SINGULAR_REFLECTANCE

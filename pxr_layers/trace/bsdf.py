@@ -29,7 +29,9 @@ lobe's albedo estimate) and the path is labelled with the lobe it took, so a
 contribution always belongs to exactly one scattering event type.
 
 A hit's lobes are one row of LOBE_FIELDS float32 values (``prepare`` fills it; columns
-below), so a queue of hits holds them as one (n, LOBE_FIELDS) array.
+below), so a queue of hits holds them as one (n, LOBE_FIELDS) array. A hair material's row
+(hair.py) holds hair.py's columns instead; its FIRST_LOBE column tells the two apart, and
+``evaluate`` and ``sample`` turn to hair.py for it.
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ import numpy as np
 from ..compiled import inline
 from ..paths import events
 from ..paths.events import SCATTER_DIFFUSE, SCATTER_GLOSSY, SCATTER_SINGULAR
-from . import shading
+from . import hair, shading
 from .vectors import luminance_of, normalized
 
 # The lobe ids are paths.events' (events carry them); short names for the kernels below.
@@ -65,7 +67,21 @@ GLASS_RGB = 12  # 3 columns: GLASS_WEIGHT · transmissionColor: refraction
 ETA = 15  # n_inside / n_outside seen from wo's side, for Fresnel
 BEND = 16  # the eta refraction bends by: ETA, or 1 for a thin wall
 PROBABILITY = 17  # 4 columns: lobe selection probabilities (sum to 1, or 0 = absorb)
-LOBE_FIELDS = 21
+FIRST_LOBE = 25  # the id of light-sample slot 0's lobe: DIFFUSE for a surface, LOBE_HAIR_R for hair
+LOBE_FIELDS = 26
+assert hair.FIELDS <= FIRST_LOBE
+
+
+@inline
+def is_hair(row):
+    """Whether a lobe row is a hair material's (hair.py)."""
+    return row[FIRST_LOBE] == events.LOBE_HAIR_R
+
+
+@inline
+def slot_lobe(row, slot):
+    """The lobe id of a light sample's slot `slot` (0–2, ``evaluate``'s f and pdf rows)."""
+    return int(row[FIRST_LOBE]) + slot
 
 
 @inline
@@ -168,14 +184,26 @@ def prepare(lobes, lane, inputs, cos_o, entering, scatters):
     row[BEND] = 1.0 if thin else row[ETA]
     row[PROBABILITY], row[PROBABILITY + 1] = w0 * norm, w1 * norm
     row[PROBABILITY + 2], row[PROBABILITY + 3] = w2 * norm, w3 * norm
+    row[FIRST_LOBE] = DIFFUSE
+
+
+@inline
+def prepare_hair(lobes, lane, inputs, wox, woy, woz, scatters):
+    """hair.prepare, and the row marked as hair's."""
+    hair.prepare(lobes, lane, inputs, wox, woy, woz, scatters)
+    lobes[lane, FIRST_LOBE] = events.LOBE_HAIR_R
 
 
 @inline
 def evaluate(row, wox, woy, woz, wix, wiy, wiz, f, pdf):
-    """The non-singular lobes of `row` for a light direction wi: f[lobe, rgb] for DIFFUSE,
-    SPECULAR, COAT (zero for singular lobes and below the surface) and pdf[lobe], each
+    """The non-singular lobes of `row` for a light direction wi: f[slot, rgb] for DIFFUSE,
+    SPECULAR, COAT (zero for singular lobes and below the surface) and pdf[slot], each
     lobe's effective sampling density (its selection probability times its solid-angle
-    pdf), as the MIS weights need."""
+    pdf), as the MIS weights need. A hair row gives hair.evaluate's R, TT, TRT instead
+    (slot_lobe names them), whose f already holds the cosine."""
+    if is_hair(row):
+        hair.evaluate(row, wox, woy, woz, wix, wiy, wiz, f, pdf)
+        return
     for lobe in range(3):
         pdf[lobe] = 0.0
         f[lobe, 0] = f[lobe, 1] = f[lobe, 2] = 0.0
@@ -225,7 +253,10 @@ def sample(row, wox, woy, woz, u0, u1, u2):
     """Choose a lobe (u0) and a direction (u1, u2). Returns (wi x, y, z local unit;
     weight r, g, b = f·|cos|/pdf, already divided by the lobe probability; pdf, the
     effective solid-angle density, 0 for singular events: no MIS; lobe; scatter code;
-    transmit: the direction crosses the surface; valid: False where the path ends)."""
+    transmit: the direction crosses the surface; valid: False where the path ends).
+    A hair row samples hair.sample."""
+    if is_hair(row):
+        return hair.sample(row, wox, woy, woz, u0, u1, u2)
     p_diffuse, p_specular = row[PROBABILITY + DIFFUSE], row[PROBABILITY + SPECULAR]
     p_coat, p_glass = row[PROBABILITY + COAT], row[PROBABILITY + GLASS]
     total = p_diffuse + p_specular + p_coat + p_glass

@@ -256,6 +256,7 @@ def _place_kernel(rows, instances, triangle, instance, time, lanes, first, trans
             rows.gradient_s[axis, row] = along_s / scale
             rows.gradient_t[axis, row] = along_t / scale
         geometry.area[row] = geometry.area[source] * scale * scale
+        geometry.thickness[row] = geometry.thickness[source] * scale
         geometry.triangle_material[row] = geometry.triangle_material[source]
         geometry.triangle_light[row] = -1
         rows.curvature_k1[row] = rows.curvature_k1[source] / scale
@@ -341,8 +342,10 @@ def _place_strand(rows, instances, source, segment, row, hits, entry):
     geometry.triangle_material[row] = geometry.triangle_material[source]
     geometry.triangle_light[row] = -1
     curvature = 1.0 / radius if radius > 0 else 0.0
+    geometry.thickness[row] = 2.0 * radius
     if strands.ribbon[local]:
         curvature = 0.0  # a flat ribbon
+        geometry.thickness[row] = 0.0
     rows.curvature_k1[row] = curvature
     rows.curvature_k2[row] = curvature if span == 0 else 0.0
     rows.triangle_object[row] = rows.triangle_object[source]
@@ -409,6 +412,7 @@ def _place_moving(rows, instances, source, row, time):
     double_area = math.sqrt(nx * nx + ny * ny + nz * nz)
     inverse = 1.0 / double_area if double_area > 0 else 0.0
     geometry.area[row] = 0.5 * double_area
+    geometry.thickness[row] = 0.0
     for axis, value in ((0, nx), (1, ny), (2, nz)):
         geometry.geometric_normal[row, axis] = value * inverse
         rows.geometric_normal[axis, row] = value * inverse

@@ -28,6 +28,7 @@ from .stages.queues import PathQueue, ShadowQueue, Splats, SurfaceQueue
 from .stages.scatter import Scattering
 from .sigma import (EmitterTable, SigmaInputs, SigmaLightEnds, SigmaVertices, emitter_hit_distance, record_sigma,
                     shadow_distance)
+from . import bsdf
 from . import sigma as sigma_rows
 
 
@@ -233,13 +234,13 @@ def _record_lit(lane, light, triangle, radiance, visible, surface_triangle, lobe
             continue
         path = lane[entry]
         light_event = _emitter_event(triangle_subject, subject_count, light_offset, light[entry], triangle[entry])
-        for lobe in range(3):  # the glossy lobes
-            r, g, b = radiance[entry, lobe, 0], radiance[entry, lobe, 1], radiance[entry, lobe, 2]
+        for slot in range(3):  # the glossy lobes
+            r, g, b = radiance[entry, slot, 0], radiance[entry, slot, 1], radiance[entry, slot, 2]
             if r == 0 and g == 0 and b == 0:
                 continue
-            scatter = events.LOBE_SCATTER[lobe]
-            surface_event = _surface_event(triangle_subject, subject_count, events.REFLECT, scatter, lobe,
-                                           surface_triangle[path])
+            lobe = bsdf.slot_lobe(lobes[path], slot)
+            surface_event = _surface_event(triangle_subject, subject_count, events.LOBE_TYPE[lobe],
+                                           events.LOBE_SCATTER[lobe], lobe, surface_triangle[path])
             child, size = trie_child(keys, children, parent, event, size, node[path], surface_event)
             child, size = trie_child(keys, children, parent, event, size, child, light_event)
             norms_row = row[path]

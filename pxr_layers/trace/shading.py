@@ -40,12 +40,19 @@ NORMAL = 17  # 3 columns: tangent space
 TRANSMISSION, TRANSMISSION_COLOR = 20, 21  # 1 and 3 columns
 THIN_WALLED, HAS_NORMAL = 24, 25
 NORMAL_UV = 26  # 4 columns: ∂(s, t)/∂(u, v) row-major, of the uv the normal map is looked up at
-MATERIAL_FIELDS = 30
+HAIR = 30  # 1: a chiang_hair_bsdf (hair.py reads the columns below and IOR), 0: UsdPreviewSurface
+HAIR_TINT = 31  # 9 columns: tint_R, tint_TT, tint_TRT
+HAIR_ROUGHNESS = 40  # 6 columns: roughness_R, roughness_TT, roughness_TRT (v, s each)
+HAIR_CUTICLE = 46
+HAIR_ABSORPTION = 47  # 3 columns: absorption_coefficient σa
+MATERIAL_FIELDS = 50
 # Material fields a tree may drive: (field, first column, width).
 _INPUTS = (("diffuse_color", DIFFUSE, 3), ("emissive_color", EMISSIVE, 3), ("specular_color", SPECULAR, 3),
            ("roughness", ROUGHNESS, 1), ("metallic", METALLIC, 1), ("opacity", OPACITY, 1),
            ("clearcoat", CLEARCOAT, 1), ("clearcoat_roughness", CLEARCOAT_ROUGHNESS, 1), ("normal", NORMAL, 3),
-           ("transmission", TRANSMISSION, 1), ("transmission_color", TRANSMISSION_COLOR, 3))
+           ("transmission", TRANSMISSION, 1), ("transmission_color", TRANSMISSION_COLOR, 3),
+           ("hair_tint_r", HAIR_TINT, 3), ("hair_tint_tt", HAIR_TINT + 3, 3), ("hair_tint_trt", HAIR_TINT + 6, 3),
+           ("hair_absorption", HAIR_ABSORPTION, 3))
 REGISTERS = 256
 _INSTRUCTION = 8
 
@@ -96,6 +103,10 @@ class MaterialTable:
             constants[index, THIN_WALLED] = float(material.thin_walled)
             constants[index, HAS_NORMAL] = float(isinstance(material.normal, ShaderNode))
             constants[index, NORMAL_UV:NORMAL_UV + 4] = normal_uv_frame(material)
+            constants[index, HAIR] = float(material.hair)
+            constants[index, HAIR_ROUGHNESS:HAIR_ROUGHNESS + 6] = (
+                *material.hair_roughness_r, *material.hair_roughness_tt, *material.hair_roughness_trt)
+            constants[index, HAIR_CUTICLE] = material.hair_cuticle_angle
             emissive[index] = material.emits
         program_range[-1] = store_range[-1] = len(compiler.program), len(compiler.stores)
         constants[-1, OPACITY] = 1.0  # light shapes block shadow rays

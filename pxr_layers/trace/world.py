@@ -251,6 +251,8 @@ class GeometryArrays(NamedTuple):
     corner_primvars  : (t, 3 corners, P) float32, World.corner_primvars triangle-major (columns
                        and presence per World.primvar_columns); (t, 3, 0) when P = 0, so that
                        kernels see the same array type either way
+    thickness        : (t,) float32 metres, how far the object reaches behind a hit along its
+                       normal: a placed strand row's diameter (instances.py), 0 for surfaces
     """
 
     corner_positions: np.ndarray
@@ -261,6 +263,7 @@ class GeometryArrays(NamedTuple):
     triangle_material: np.ndarray
     triangle_light: np.ndarray
     corner_primvars: np.ndarray
+    thickness: np.ndarray
 
 
 def geometry_arrays(world: World) -> GeometryArrays:
@@ -274,7 +277,8 @@ def geometry_arrays(world: World) -> GeometryArrays:
 
     return GeometryArrays(triangle_major(world.corner_positions), triangle_major(world.corner_normals),
                           triangle_major(world.corner_uvs), triangle_major(world.geometric_normal), world.area,
-                          world.triangle_material, world.triangle_light, triangle_major(world.corner_primvars))
+                          world.triangle_material, world.triangle_light, triangle_major(world.corner_primvars),
+                          np.zeros(len(world.area), np.float32))
 
 
 def primvar_columns(meshes) -> dict[str, tuple[int, int]]:

@@ -75,7 +75,8 @@ def is_flat_normal(value: ShaderNode) -> bool:
 
 
 _WRAP = {"periodic": "repeat", "clamp": "clamp", "mirror": "mirror", "constant": "black"}
-SURFACES = {"standard_surface", "open_pbr_surface", "gltf_pbr", "UsdPreviewSurface"}
+SURFACES = {"standard_surface", "open_pbr_surface", "gltf_pbr", "UsdPreviewSurface", "surface"}
+HAIR_BSDF = "chiang_hair_bsdf"
 _CHANNEL_LETTERS = {"x": 0, "y": 1, "z": 2, "w": 3, "r": 0, "g": 1, "b": 2, "a": 3, "0": -1, "1": -2}
 
 
@@ -301,6 +302,54 @@ def _tiledimage(ev, element, out_type, output, frame):
     return _image(ev, element, out_type, output, frame, uv=uv)
 
 
+def _constant_inputs(ev: Evaluator, element, frame: Frame, names: tuple[str, ...]) -> list[tuple[float, ...]]:
+    """Each input's constant value; one that varies over the surface reads its nodedef's
+    default, after a note (the hair helpers are evaluated once per material)."""
+    values = []
+    for name in names:
+        value = ev.input(element, name, frame)
+        if not value.is_constant:
+            ev.note(f"mtlx-varying-{element.getCategory()}", f"MaterialX '{element.getCategory()}' inputs that vary "
+                    "over the surface are not supported; their defaults were used on: {prims}",
+                    f"{element.getName()}.{name}")
+            default = element.getNodeDef().getActiveInput(name)
+            value = ev.port_value(default, Frame(None), default.getType()) or constant(0.0)
+        values.append(value.values)
+    return values
+
+
+def _hair_roughness(ev, element, out_type, output, frame):
+    """chiang_hair_roughness: MaterialX's (v, s) pairs of each lobe (Chiang et al. 2016, eq. 7
+    and its azimuthal fit; TT and TRT scale v by scale²)."""
+    longitudinal, azimuthal, scale_tt, scale_trt = (
+        value[0] for value in _constant_inputs(ev, element, frame, ("longitudinal", "azimuthal", "scale_TT",
+                                                                     "scale_TRT")))
+    lr, ar = min(max(longitudinal, 0.001), 1.0), min(max(azimuthal, 0.001), 1.0)
+    v = (0.726 * lr + 0.812 * lr ** 2 + 3.7 * lr ** 20) ** 2
+    s = 0.265 * ar + 1.194 * ar ** 2 + 5.372 * ar ** 22
+    scale = {"roughness_R": 1.0, "roughness_TT": scale_tt, "roughness_TRT": scale_trt}.get(output, 1.0)
+    return constant(v * scale * scale, s)
+
+
+def _hair_absorption_from_color(ev, element, out_type, output, frame):
+    """chiang_hair_absorption_from_color: σa = (ln c / β(βn))², Chiang et al. 2016, eq. 9."""
+    color, (beta, *_) = _constant_inputs(ev, element, frame, ("color", "azimuthal_roughness"))
+    fit = (5.969 - 0.215 * beta + 2.532 * beta ** 2 - 10.73 * beta ** 3 + 5.574 * beta ** 4
+           + 0.245 * beta ** 5)
+    return constant(*((math.log(min(max(c, 0.001), 1.0)) / fit) ** 2 for c in color[:3]))
+
+
+def _hair_absorption_from_melanin(ev, element, out_type, output, frame):
+    """deon_hair_absorption_from_melanin: σa from melanin concentration and redness (d'Eon
+    et al. 2011; MaterialX's pigment colours, exp(−σ) of theirs)."""
+    (concentration, *_), (redness, *_), eumelanin, pheomelanin = _constant_inputs(
+        ev, element, frame, ("melanin_concentration", "melanin_redness", "eumelanin_color", "pheomelanin_color"))
+    melanin = -math.log(max(1.0 - concentration, 0.0001))
+    return constant(*(max(melanin * (1.0 - redness) * -math.log(max(e, 1e-6))
+                          + melanin * redness * -math.log(max(p, 1e-6)), 0.0)
+                      for e, p in zip(eumelanin[:3], pheomelanin[:3])))
+
+
 HANDLERS: dict[str, Callable] = {
     "constant": _constant_node, "dot": _dot, "mix": _mix, "clamp": _clamp, "dotproduct": _dotproduct,
     "swizzle": _swizzle, "extract": _extract, "separate2": _separate, "separate3": _separate,
@@ -308,7 +357,9 @@ HANDLERS: dict[str, Callable] = {
     "convert": _convert, "ifgreater": _conditional("ifgreater"), "ifgreatereq": _conditional("ifgreatereq"),
     "ifequal": _conditional("ifequal"), "rotate2d": _rotate2d, "texcoord": _texcoord,
     "geompropvalue": _geompropvalue, "geomcolor": _geomcolor, "normalmap": _normalmap, "image": _image,
-    "tiledimage": _tiledimage, "normalize": _unary("normalize"),
+    "tiledimage": _tiledimage, "normalize": _unary("normalize"), "chiang_hair_roughness": _hair_roughness,
+    "chiang_hair_absorption_from_color": _hair_absorption_from_color,
+    "deon_hair_absorption_from_melanin": _hair_absorption_from_melanin,
 }
 """Category → handler(evaluator, element, out_type, output name, frame) -> ShaderNode."""
 for _name in ("add", "subtract", "multiply", "divide", "min", "max", "power", "modulo"):
@@ -349,6 +400,10 @@ def look(evaluator: Evaluator, surface: mx.Node, frame: Frame) -> MaterialXLook 
         fields = _gltf(evaluator, surface, frame)
     elif category == "UsdPreviewSurface":
         fields = _preview(evaluator, surface, frame)
+    elif category == "surface" and _bsdf_node(evaluator, surface, frame) is not None:
+        bsdf, bsdf_frame = _bsdf_node(evaluator, surface, frame)
+        fields = _hair(evaluator, bsdf, bsdf_frame)
+        fields["opacity"] = field_value(evaluator.input(surface, "opacity", frame), 1)
     else:
         evaluator.reader.context.diagnostics.note(
             f"unsupported-node-{category}",
@@ -427,6 +482,52 @@ def _preview(ev: Evaluator, surface, frame) -> dict[str, object]:
             uniform = _uniform(ev, value, spec.usd_name, float(default))
             fields[spec.field] = bool(uniform) if spec.kind == "bool" else uniform
     return fields
+
+
+def _bsdf_node(ev: Evaluator, surface, frame: Frame):
+    """(node, frame) of the chiang_hair_bsdf a ``surface`` node's bsdf input is connected to;
+    None for any other BSDF (the one BSDF node read alone: other BSDF graphs are noted as
+    unsupported by the caller)."""
+    port = surface.getInput("bsdf")
+    source = ev.follow(port, frame) if port is not None else None
+    if source is None or source[0] != "node" or source[1].getCategory() != HAIR_BSDF:
+        return None
+    return source[1], source[3]
+
+
+def _hair(ev: Evaluator, bsdf, frame: Frame) -> dict[str, object]:
+    """Material fields of a chiang_hair_bsdf node (scene.Material.hair; trace/hair.py).
+    Tints and absorption may vary (textures, primvars); ior, roughness and cuticle_angle are
+    one value per material; normal and curve_direction are the fibre's own."""
+    def get(name):
+        return ev.input(bsdf, name, frame)
+
+    def pair(name: str) -> tuple[float, float]:
+        value = get(name)
+        if value.is_constant:
+            return value.values[0], value.values[1]
+        default = getattr(Material, f"hair_{name.lower()}")
+        ev.note(f"mtlx-varying-{name}", f"MaterialX chiang_hair_bsdf '{name}' inputs that vary over the surface "
+                f"are not supported; {default} was used on: {{prims}}")
+        return default
+
+    for name in ("normal", "curve_direction"):
+        port = bsdf.getInput(name)
+        if port is not None and ev.follow(port, frame) is not None:
+            ev.note("mtlx-hair-frame", "chiang_hair_bsdf 'normal' and 'curve_direction' inputs were ignored (a "
+                    "fibre's own normal and tangent are used) on: {prims}", name)
+    return {
+        "hair": True,
+        "hair_tint_r": field_value(get("tint_R"), 3),
+        "hair_tint_tt": field_value(get("tint_TT"), 3),
+        "hair_tint_trt": field_value(get("tint_TRT"), 3),
+        "hair_roughness_r": pair("roughness_R"),
+        "hair_roughness_tt": pair("roughness_TT"),
+        "hair_roughness_trt": pair("roughness_TRT"),
+        "hair_cuticle_angle": _uniform(ev, get("cuticle_angle"), "cuticle_angle", 0.5),
+        "hair_absorption": field_value(get("absorption_coefficient"), 3),
+        "ior": _uniform(ev, get("ior"), "ior", 1.55),
+    }
 
 
 def _uniform(ev: Evaluator, value: ShaderNode, name: str, default: float) -> float:

@@ -39,7 +39,7 @@ def light_samples(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: 
                           radiance=np.empty((n, 3, 3), np.float32), light=np.empty(n, np.int32),
                           triangle=np.empty(n, np.int32), visible=np.zeros(n, bool))
     count = _light_sample_kernel(queue.key, queue.throughput, surfaces.position, surfaces.facing, surfaces.frame,
-                                 surfaces.wo, surfaces.lobes, surfaces.scatters, surfaces.triangle,
+                                 surfaces.wo, surfaces.lobes, surfaces.scatters, surfaces.triangle, surfaces.through,
                                  rng.step_dimension(step), epsilon,
                                  geometry, materials, lights, scratch(3, 3), scratch(3), scratch(3),
                                  scratch(shading.REGISTERS, 4), scratch(shading.MATERIAL_FIELDS), shadows.lane, shadows.origin, shadows.direction,
@@ -107,7 +107,8 @@ def _presence_kernel(triangle, bary_u, bary_v, light, geometry, materials, light
 
 
 @kernel
-def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, scatters, surface_triangle, dimension,
+def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, scatters, surface_triangle, through,
+                         dimension,
                          epsilon, geometry, materials, lights, f, lobe_pdf, radiance, registers, inputs, lane_out,
                          origin_out, direction_out, t_max_out, radiance_out, light_out, triangle_out):
     count = 0
@@ -126,24 +127,27 @@ def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, sc
         dx, dy, dz, distance, r, g, b, pdf, light, triangle = light_kernels.sample(
             lights, geometry, materials, group, px, py, pz, u0, u1, u2, u3, registers, inputs, radiance)
         nx, ny, nz = facing[lane, 0], facing[lane, 1], facing[lane, 2]
-        if not pdf > 0 or dx * nx + dy * ny + dz * nz <= 0 or max(r, g, b) <= 0:
+        side = dx * nx + dy * ny + dz * nz
+        hair = bsdf.is_hair(lobes[lane])  # a fibre is lit from all around (hair.py)
+        if not pdf > 0 or not (side != 0 if hair else side > 0) or max(r, g, b) <= 0:
             continue
         ix, iy, iz = to_local(frame, lane, dx, dy, dz)
         bsdf.evaluate(lobes[lane], wo[lane, 0], wo[lane, 1], wo[lane, 2], ix, iy, iz, f, lobe_pdf)
         if max(f[0, 0], f[0, 1], f[0, 2], f[1, 0], f[1, 1], f[1, 2], f[2, 0], f[2, 1], f[2, 2]) <= 0:
             continue
         delta = math.isinf(pdf)
-        scale = abs(iz) / (1.0 if delta else pdf)
+        scale = (1.0 if hair else abs(iz)) / (1.0 if delta else pdf)
         br, bg, bb = throughput[lane, 0] * r * scale, throughput[lane, 1] * g * scale, throughput[lane, 2] * b * scale
         alone = delta or (light >= 0 and lights.sampled_only[light])  # no BSDF sample finds it: no MIS
-        for lobe in range(3):
-            weight = 1.0 if alone else bsdf.power_heuristic(pdf, lobe_pdf[lobe])
-            weight *= light_kernels.response(lights, light, lobe)
-            radiance_out[count, lobe, 0] = br * f[lobe, 0] * weight
-            radiance_out[count, lobe, 1] = bg * f[lobe, 1] * weight
-            radiance_out[count, lobe, 2] = bb * f[lobe, 2] * weight
+        for slot in range(3):
+            weight = 1.0 if alone else bsdf.power_heuristic(pdf, lobe_pdf[slot])
+            weight *= light_kernels.response(lights, light, bsdf.slot_lobe(lobes[lane], slot))
+            radiance_out[count, slot, 0] = br * f[slot, 0] * weight
+            radiance_out[count, slot, 1] = bg * f[slot, 1] * weight
+            radiance_out[count, slot, 2] = bb * f[slot, 2] * weight
         lane_out[count], light_out[count], triangle_out[count] = lane, light, triangle
-        ox, oy, oz = px + nx * epsilon, py + ny * epsilon, pz + nz * epsilon
+        lift = epsilon if side > 0 else -(through[lane] + epsilon)  # below a fibre: from past it
+        ox, oy, oz = px + nx * lift, py + ny * lift, pz + nz * lift
         origin_out[count, 0], origin_out[count, 1], origin_out[count, 2] = ox, oy, oz
         if math.isfinite(distance):
             qx, qy, qz = px + dx * distance, py + dy * distance, pz + dz * distance

@@ -89,6 +89,8 @@ class SurfaceQueue(_Queue):
     scatters (n,) bool: may scatter (not cut, below max depth)
     triangle (n,) int32; st (n, 2) float32
     curvature, texture (n,) float32 the covariance norms C, T (0 unless asked for)
+    through (n,) float32 metres: GeometryArrays.thickness of the hit (a strand's diameter):
+        where a direction that leaves below the hit starts, past the object (hair)
     """
 
     position: np.ndarray
@@ -102,6 +104,7 @@ class SurfaceQueue(_Queue):
     st: np.ndarray
     curvature: np.ndarray
     texture: np.ndarray
+    through: np.ndarray
 
 
 @dataclass

@@ -33,7 +33,8 @@ def scatter(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: float)
     n = len(queue)
     out = Scattering(np.zeros(n, np.int8), np.zeros(n, np.int8), np.zeros(n, bool), np.zeros(n, bool))
     _scatter_kernel(queue.key, surfaces.position, surfaces.facing, surfaces.frame, surfaces.wo, surfaces.lobes,
-                    surfaces.cut, surfaces.scatters, surfaces.triangle, rng.step_dimension(step), epsilon, queue.origin,
+                    surfaces.cut, surfaces.scatters, surfaces.triangle, surfaces.through, rng.step_dimension(step),
+                    epsilon, queue.origin,
                     queue.direction, queue.throughput, queue.previous_pdf, queue.previous_singular,
                     queue.previous_triangle, queue.previous_lobe, queue.depth, queue.t_max,
                     queue.travelled, queue.vertex_travelled, out.lobe, out.scatter, out.transmit, out.scattered)
@@ -41,7 +42,8 @@ def scatter(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: float)
 
 
 @kernel
-def _scatter_kernel(key, position, facing, frame, wo, lobes, cut, scatters, triangle, dimension, epsilon, origin,
+def _scatter_kernel(key, position, facing, frame, wo, lobes, cut, scatters, triangle, through, dimension, epsilon,
+                    origin,
                     direction, throughput, previous_pdf, previous_singular, previous_triangle, previous_lobe, depth, t_max,
                     travelled, vertex_travelled, lobe_out, scatter_out, transmit_out, scattered_out):
     for lane in range(len(key)):
@@ -68,8 +70,10 @@ def _scatter_kernel(key, position, facing, frame, wo, lobes, cut, scatters, tria
         side = dx * nx + dy * ny + dz * nz
         # A direction on the wrong side of the geometric surface would leave from inside the
         # object: it ends the path. The shading normal was bent (surface.bent_normal) so that
-        # a lobe's centre never falls there; only its tail can.
-        consistent = side < 0 if transmit else side > 0
+        # a lobe's centre never falls there; only its tail can. A fibre scatters all around
+        # (hair.py): what leaves below it starts past it.
+        hair = bsdf.is_hair(lobes[lane])
+        consistent = side != 0 if hair else (side < 0 if transmit else side > 0)
         scattered = valid and consistent
         lobe_out[lane], scatter_out[lane], transmit_out[lane], scattered_out[lane] = lobe, code, transmit, scattered
         throughput[lane, 0] *= wr
@@ -79,6 +83,8 @@ def _scatter_kernel(key, position, facing, frame, wo, lobes, cut, scatters, tria
         previous_singular[lane] = pdf == 0
         previous_triangle[lane], previous_lobe[lane] = triangle[lane], lobe
         offset = -epsilon if transmit else epsilon
+        if hair:
+            offset = epsilon if side > 0 else -(through[lane] + epsilon)
         origin[lane, 0] = position[lane, 0] + nx * offset
         origin[lane, 1] = position[lane, 1] + ny * offset
         origin[lane, 2] = position[lane, 2] + nz * offset

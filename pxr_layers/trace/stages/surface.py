@@ -76,7 +76,8 @@ def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry
     normal (mapped_normal), turned to the viewer's side of the geometric normal with the
     interpolated normal, then bent toward the geometric normal where the mirror reflection
     of the view direction would fall below the surface (bent_normal, module docstring).
-    Paths at `max_depth` get no lobe. curvature: (t,) float32 C per triangle, or (0,) for
+    A hair material's frame is the fibre's instead (x along it, z its normal: hair.py), with
+    neither normal map nor bend. Paths at `max_depth` get no lobe. curvature: (t,) float32 C per triangle, or (0,) for
     none (C = 0). Also adds the hit distance to ``queue.travelled``.
     """
     n = len(queue)
@@ -84,13 +85,14 @@ def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry
         position=np.empty((n, 3), np.float32), facing=np.empty((n, 3), np.float32),
         frame=np.empty((n, 3, 3), np.float32), wo=np.empty((n, 3), np.float32),
         lobes=bsdf.lobe_rows(n), cut=np.empty(n, bool), scatters=np.empty(n, bool), triangle=hits.triangle,
-        st=np.empty((n, 2), np.float32), curvature=np.zeros(n, np.float32), texture=np.zeros(n, np.float32))
+        st=np.empty((n, 2), np.float32), curvature=np.zeros(n, np.float32), texture=np.zeros(n, np.float32),
+        through=np.zeros(n, np.float32))
     _surface_kernel(alive, queue.key, queue.pixel, queue.sample, frame_key, spp if step == 0 or spp < 0 else 0,
                     rng.step_dimension(step) + rng.PRESENCE, hits.triangle, hits.u, hits.v, hits.t,
                     queue.direction, queue.depth, queue.travelled, max_depth, geometry, materials, curvature,
                     scratch(3), scratch(3), scratch(shading.REGISTERS, 4), scratch(shading.MATERIAL_FIELDS),
                     out.position, out.facing, out.frame, out.wo, out.lobes, out.cut, out.scatters, out.st,
-                    out.curvature)
+                    out.curvature, out.through)
     return out
 
 
@@ -133,6 +135,24 @@ def mapped_normal(geometry, triangle, inputs, nx, ny, nz):
 
 
 @inline
+def fibre_direction(geometry, triangle, nx, ny, nz):
+    """The unit direction along a fibre at a hit on `triangle`, perpendicular to the unit
+    normal n: a placed strand row's first corner lies along the curve's tangent from the hit
+    (instances.py); on any other triangle this is the direction toward its first corner, a
+    tangent of no meaning (a hair material on a mesh)."""
+    corners = geometry.corner_positions
+    ax, ay, az = (2.0 * corners[triangle, 0, 0] - corners[triangle, 1, 0] - corners[triangle, 2, 0],
+                  2.0 * corners[triangle, 0, 1] - corners[triangle, 1, 1] - corners[triangle, 2, 1],
+                  2.0 * corners[triangle, 0, 2] - corners[triangle, 1, 2] - corners[triangle, 2, 2])
+    along = ax * nx + ay * ny + az * nz
+    ax, ay, az = ax - along * nx, ay - along * ny, az - along * nz
+    if not ax * ax + ay * ay + az * az > 1e-30:
+        tx, ty, tz, _, _, _ = basis(nx, ny, nz)
+        return tx, ty, tz
+    return normalized(ax, ay, az, 1e-30)
+
+
+@inline
 def bent_normal(nx, ny, nz, gx, gy, gz, wx, wy, wz):
     """The unit shading normal n bent toward the unit geometric normal g (on the viewer's
     side) just enough that the mirror reflection of wo (unit, toward the viewer) about it
@@ -166,7 +186,8 @@ def bent_normal(nx, ny, nz, gx, gy, gz, wx, wy, wz):
 @kernel
 def _surface_kernel(alive, key, pixel, sample, frame_key, spp, presence_dimension, triangle, bary_u, bary_v, t_hit, direction, depth, travelled,
                     max_depth, geometry, materials, curvature, point, normal, registers, inputs, position_out,
-                    facing_out, frame_out, wo_out, lobes_out, cut_out, scatters_out, st_out, curvature_out):
+                    facing_out, frame_out, wo_out, lobes_out, cut_out, scatters_out, st_out, curvature_out,
+                    through_out):
     has_curvature = len(curvature) > 0
     for lane in range(len(triangle)):
         if not alive[lane]:
@@ -199,20 +220,30 @@ def _surface_kernel(alive, key, pixel, sample, frame_key, spp, presence_dimensio
         # The side is the interpolated normal's: a normal map that tilts past the geometric
         # surface is bent back up below, not turned inside out.
         side = 1.0 if nx * gx + ny * gy + nz * gz >= 0 else -1.0
-        if inputs[shading.HAS_NORMAL] > 0:
-            nx, ny, nz = mapped_normal(geometry, tri, inputs, nx, ny, nz)
-        nx, ny, nz = bent_normal(side * nx, side * ny, side * nz, gx, gy, gz, wx, wy, wz)
-        tx, ty, tz, bx, by, bz = basis(nx, ny, nz)
+        hair = inputs[shading.HAIR] > 0
+        if hair:  # a fibre: its own normal, and x along it (hair.py's frame)
+            nx, ny, nz = side * nx, side * ny, side * nz
+            tx, ty, tz = fibre_direction(geometry, tri, nx, ny, nz)
+            bx, by, bz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx  # n × t
+        else:
+            if inputs[shading.HAS_NORMAL] > 0:
+                nx, ny, nz = mapped_normal(geometry, tri, inputs, nx, ny, nz)
+            nx, ny, nz = bent_normal(side * nx, side * ny, side * nz, gx, gy, gz, wx, wy, wz)
+            tx, ty, tz, bx, by, bz = basis(nx, ny, nz)
         frame = frame_out[lane]
         frame[0, 0], frame[0, 1], frame[0, 2] = tx, ty, tz
         frame[1, 0], frame[1, 1], frame[1, 2] = bx, by, bz
         frame[2, 0], frame[2, 1], frame[2, 2] = nx, ny, nz
         ox, oy, oz = tx * wx + ty * wy + tz * wz, bx * wx + by * wy + bz * wz, nx * wx + ny * wy + nz * wz
         wo_out[lane, 0], wo_out[lane, 1], wo_out[lane, 2] = ox, oy, oz
-        bsdf.prepare(lobes_out, lane, inputs, oz, cos_geometric > 0, scatters)
+        if hair:
+            bsdf.prepare_hair(lobes_out, lane, inputs, ox, oy, oz, scatters)
+        else:
+            bsdf.prepare(lobes_out, lane, inputs, oz, cos_geometric > 0, scatters)
         position_out[lane, 0], position_out[lane, 1], position_out[lane, 2] = point[0], point[1], point[2]
         facing_out[lane, 0], facing_out[lane, 1], facing_out[lane, 2] = gx, gy, gz
         cut_out[lane], scatters_out[lane] = cut, scatters
         st_out[lane, 0], st_out[lane, 1] = s, t
+        through_out[lane] = geometry.thickness[tri]
         if has_curvature:
             curvature_out[lane] = curvature[tri]
