@@ -37,7 +37,8 @@ mitsuba, or without a usable LLVM, it prints one line saying what to install and
    with ``--lens``, also what depth of field adds to our no-index render of the same
    frame through a pinhole (target ≤ 20 %). ``--curves`` renders the box with a lawn of 400
    straight hairs on its floor instead (a linear BasisCurves: Embree's round linear curves
-   for us, Mitsuba's ``linearcurve`` from the same control points and radii).
+   for us, Mitsuba's ``linearcurve`` from the same control points and radii); ``--hair``
+   binds a MaterialX chiang_hair_bsdf to that lawn, Mitsuba's ``hair`` BSDF for it.
 
 Exits 0 whether or not targets are met (it is a measurement; each says met or MISSED), 1
 when a render fails, 2 when Mitsuba is not available.
@@ -151,16 +152,52 @@ def lens_stage(folder: Path, f_stop: float, focus_distance: float) -> str:
     }}""")
 
 
-def curves_stage(folder: Path) -> str:
+HAIR_LOOK = """    def Material "hair"
+    {
+        token outputs:mtlx:surface.connect = </World/hair/Surface.outputs:out>
+        def Shader "Surface"
+        {
+            uniform token info:id = "ND_surface"
+            token inputs:bsdf.connect = </World/hair/Fibre.outputs:out>
+            token outputs:out
+        }
+        def Shader "Fibre"
+        {
+            uniform token info:id = "ND_chiang_hair_bsdf"
+            float2 inputs:roughness_R.connect = </World/hair/Roughness.outputs:roughness_R>
+            float2 inputs:roughness_TT.connect = </World/hair/Roughness.outputs:roughness_TT>
+            float2 inputs:roughness_TRT.connect = </World/hair/Roughness.outputs:roughness_TRT>
+            vector3f inputs:absorption_coefficient = (0.2, 0.4, 0.8)
+            token outputs:out
+        }
+        def Shader "Roughness"
+        {
+            uniform token info:id = "ND_chiang_hair_roughness"
+            float inputs:longitudinal = 0.3
+            float inputs:azimuthal = 0.3
+            float2 outputs:roughness_R
+            float2 outputs:roughness_TT
+            float2 outputs:roughness_TRT
+        }
+    }
+"""
+"""/World/hair: a MaterialX chiang_hair_bsdf (longitudinal and azimuthal roughness 0.3, no
+cuticle tilt, σa (0.2, 0.4, 0.8)): Mitsuba's ``hair`` with the same parameters."""
+
+
+def curves_stage(folder: Path, hair: bool = False) -> str:
     """A stage over the Cornell box with a lawn of 20 × 20 straight hairs on its floor (a
-    linear BasisCurves of the white material, 4 mm wide, 120 mm tall, leaning)."""
+    linear BasisCurves of the white material, or of HAIR_LOOK with `hair`, 4 mm wide, 120 mm
+    tall, leaning)."""
     rng = np.random.default_rng(3)
     roots = np.stack(np.meshgrid(np.linspace(60, 500, 20), np.linspace(40, 500, 20)), -1).reshape(-1, 2)
     roots += rng.uniform(-8, 8, roots.shape)
     lean = rng.uniform(-30, 30, roots.shape)
     points = ", ".join(f"({x:.1f}, 0, {z:.1f}), ({x + dx:.1f}, 120, {z + dz:.1f})"
                        for (x, z), (dx, dz) in zip(roots, lean))
-    return cornell_overlay(folder / "cornell_curves.usda", f"""    over "Geometry"
+    look = "/World/hair" if hair else "/World/Materials/white"
+    return cornell_overlay(folder / f"cornell_{'hair' if hair else 'curves'}.usda", f"""{HAIR_LOOK if hair else ""}
+    over "Geometry"
     {{
         def BasisCurves "lawn" (prepend apiSchemas = ["MaterialBindingAPI"])
         {{
@@ -168,7 +205,7 @@ def curves_stage(folder: Path) -> str:
             int[] curveVertexCounts = [{", ".join(["2"] * len(roots))}]
             point3f[] points = [{points}]
             float[] widths = [4]
-            rel material:binding = </World/Materials/white>
+            rel material:binding = <{look}>
         }}
     }}""")
 
@@ -267,6 +304,34 @@ def _plain_lambertian(material) -> str | None:
     return None
 
 
+def _mitsuba_hair(material) -> dict:
+    """Mitsuba's ``hair`` (Chiang et al. 2016, as pbrt-v3's) for a chiang_hair_bsdf made by
+    chiang_hair_roughness: its β_m, β_n recovered from (v, s) by bisection of MaterialX's
+    (and pbrt's) fits, which are increasing."""
+    def inverse(fit, target: float) -> float:
+        low, high = 0.0, 1.0
+        for _ in range(60):
+            middle = 0.5 * (low + high)
+            low, high = (middle, high) if fit(middle) < target else (low, middle)
+        return 0.5 * (low + high)
+
+    def near(pair, expected) -> bool:
+        return all(abs(a - b) <= 1e-6 * abs(b) for a, b in zip(pair, expected))
+
+    v, s = material.hair_roughness_r
+    mapped = (near(material.hair_roughness_tt, (v * 0.25, s)) and near(material.hair_roughness_trt, (v * 4.0, s))
+              and material.hair_cuticle_angle == 0.5
+              and all(getattr(material, f"hair_tint_{lobe}") == (1.0, 1.0, 1.0) for lobe in ("r", "tt", "trt"))
+              and isinstance(material.hair_absorption, tuple))
+    if not mapped:
+        raise SystemExit(f"bench_vs_mitsuba: hair {material.path} is not mapped to Mitsuba (tints, tilt or "
+                         "roughness scales other than chiang_hair_roughness's defaults)")
+    return {"type": "hair", "int_ior": float(material.ior), "scale_tilt": 0.0,
+            "longitudinal_roughness": inverse(lambda b: (0.726 * b + 0.812 * b ** 2 + 3.7 * b ** 20) ** 2, v),
+            "azimuthal_roughness": inverse(lambda b: 0.265 * b + 1.194 * b ** 2 + 5.372 * b ** 22, s),
+            "sigma_a": {"type": "rgb", "value": [float(c) for c in material.hair_absorption]}}
+
+
 def _mitsuba_mesh(mi, name: str, points: np.ndarray, faces: np.ndarray, bsdf, emitter=None, normals=None):
     props = mi.Properties()
     props["bsdf"] = bsdf
@@ -346,6 +411,9 @@ def mitsuba_child(args) -> int:
 
     bsdfs = []
     for material in scene.materials:
+        if material.hair:
+            bsdfs.append(mi.load_dict(_mitsuba_hair(material)))
+            continue
         why = _plain_lambertian(material)
         if why is not None:
             raise SystemExit(f"bench_vs_mitsuba: material {material.path} is not mapped to Mitsuba: {why}")
@@ -482,6 +550,8 @@ def main() -> int:
                         help="depth of field: the camera's fStop and focusDistance (mm), e.g. 0.1 1000")
     parser.add_argument("--curves", action="store_true",
                         help="a lawn of 400 hairs (linear BasisCurves) on the Cornell floor: Mitsuba's linearcurve")
+    parser.add_argument("--hair", action="store_true",
+                        help="--curves with a MaterialX chiang_hair_bsdf on the lawn: Mitsuba's hair BSDF")
     parser.add_argument("--mitsuba-child", metavar="EXR", help=argparse.SUPPRESS)
     parser.add_argument("--stage", help=argparse.SUPPRESS)  # the child's stage
     args = parser.parse_args()
@@ -497,7 +567,8 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="bench_vs_mitsuba-") as scratch:
         out = Path(args.keep or scratch)
         out.mkdir(parents=True, exist_ok=True)
-        stage = lens_stage(out, *args.lens) if args.lens else curves_stage(out) if args.curves else cornell_path()
+        stage = (lens_stage(out, *args.lens) if args.lens else curves_stage(out, hair=args.hair)
+                 if args.curves or args.hair else cornell_path())
         def ours(rendered: str) -> list[str]:
             return [sys.executable, "-m", "pxr_layers.cli.main", "render", "-q", rendered, "--resolution", str(width),
                     str(height), "--spp", str(args.spp), "--max-depth", str(args.max_depth), "--no-previews",
