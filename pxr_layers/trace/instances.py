@@ -15,9 +15,10 @@ the geometric normal and area, exactly; shading normals, curvatures and texture 
 interpolated and renormalised). A hit on a strand (a curve's tube or a point's sphere;
 instance embree.STRAND − segment) is placed as a small triangle in the tangent plane at the
 hit point, which is its centroid (the hit's barycentrics become 1/3, 1/3), facing Embree's
-normal there: its shading normal that normal, its curvatures a tube's (1/r around, 0 along
-the segment's chord), a sphere's (1/r both ways) or a flat ribbon's (0), its texture coordinates the hit's (u,
-v). Downstream, nothing tells it from a flat row, and a scene without instances, motion or
+normal there, its first corner along the curve's tangent (surface.fibre_direction reads
+it): its shading normal that normal, its curvatures a tube's (1/r around, 0 along the
+curve, r the curve's radius at the hit), a sphere's (1/r both ways) or a flat ribbon's (0),
+its texture coordinates the hit's (u, v), its thickness (GeometryArrays) the diameter. Downstream, nothing tells it from a flat row, and a scene without instances, motion or
 strands pays nothing.
 
 The scratch rows are per tracing thread and per use: a :class:`Slot` (one per thread at a
@@ -39,7 +40,7 @@ import numpy as np
 
 from ..compiled import inline, kernel, scratch
 from .embree import MOVING, STRAND
-from .world import GeometryArrays, MovingSteps, StrandTables, World
+from .world import BEZIER, BSPLINE, LINEAR, GeometryArrays, MovingSteps, StrandTables, World
 
 PATH_EVEN, PATH_ODD, SHADOW = range(3)
 REGIONS = 3
@@ -283,6 +284,38 @@ def _copy_corner_values(rows, source, row, corner):
 
 
 @inline
+def _curve_at(vertices, first, basis, u):
+    """(radius, ∂P/∂u x, y, z) of the segment whose control points start at vertices[first]
+    (x, y, z, radius rows) at parameter u ∈ [0, 1], in its basis (world.STRAND_SHAPES codes),
+    as Embree evaluates the curve."""
+    if basis == LINEAR:
+        return (vertices[first, 3] + u * (vertices[first + 1, 3] - vertices[first, 3]),
+                vertices[first + 1, 0] - vertices[first, 0], vertices[first + 1, 1] - vertices[first, 1],
+                vertices[first + 1, 2] - vertices[first, 2])
+    v, uu = 1.0 - u, u * u
+    if basis == BEZIER:
+        w0, w1, w2, w3 = v * v * v, 3.0 * u * v * v, 3.0 * uu * v, uu * u
+        d0, d1, d2, d3 = -3.0 * v * v, 3.0 * v * v - 6.0 * u * v, 6.0 * u * v - 3.0 * uu, 3.0 * uu
+    elif basis == BSPLINE:
+        w0, w1 = v * v * v / 6.0, (3.0 * uu * u - 6.0 * uu + 4.0) / 6.0
+        w2, w3 = (-3.0 * uu * u + 3.0 * uu + 3.0 * u + 1.0) / 6.0, uu * u / 6.0
+        d0, d1, d2, d3 = -0.5 * v * v, 1.5 * uu - 2.0 * u, -1.5 * uu + u + 0.5, 0.5 * uu
+    else:  # catmullRom
+        w0, w1 = 0.5 * (-uu * u + 2.0 * uu - u), 0.5 * (3.0 * uu * u - 5.0 * uu + 2.0)
+        w2, w3 = 0.5 * (-3.0 * uu * u + 4.0 * uu + u), 0.5 * (uu * u - uu)
+        d0, d1 = 0.5 * (-3.0 * uu + 4.0 * u - 1.0), 0.5 * (9.0 * uu - 10.0 * u)
+        d2, d3 = 0.5 * (-9.0 * uu + 8.0 * u + 1.0), 0.5 * (3.0 * uu - 2.0 * u)
+    radius = x = y = z = 0.0
+    for k in range(4):
+        weight, slope = (w0, w1, w2, w3)[k], (d0, d1, d2, d3)[k]
+        radius += weight * vertices[first + k, 3]
+        x += slope * vertices[first + k, 0]
+        y += slope * vertices[first + k, 1]
+        z += slope * vertices[first + k, 2]
+    return radius, x, y, z
+
+
+@inline
 def _place_strand(rows, instances, source, segment, row, hits, entry):
     """Write the hit `entry` of `hits` on segment `segment` of strand row `source` into
     scratch row `row` (the module docstring)."""
@@ -295,14 +328,11 @@ def _place_strand(rows, instances, source, segment, row, hits, entry):
     length = math.sqrt(nx * nx + ny * ny + nz * nz)
     nx, ny, nz = nx / length, ny / length, nz / length
     radius = strands.vertices[first, 3]
-    if span > 0:  # a tube: along the segment's chord, the radius at the hit's parameter
-        radius += hits.u[entry] * (strands.vertices[first + span, 3] - radius)
-        ax = strands.vertices[first + span, 0] - strands.vertices[first, 0]
-        ay = strands.vertices[first + span, 1] - strands.vertices[first, 1]
-        az = strands.vertices[first + span, 2] - strands.vertices[first, 2]
+    if span > 0:  # a tube: the curve's radius and tangent at the hit's parameter
+        radius, ax, ay, az = _curve_at(strands.vertices, first, strands.basis[local], hits.u[entry])
     else:
         ax, ay, az = (1.0, 0.0, 0.0) if abs(nx) < 0.9 else (0.0, 1.0, 0.0)
-    along = ax * nx + ay * ny + az * nz  # the tangent: the chord without its normal part
+    along = ax * nx + ay * ny + az * nz  # the tangent without its normal part
     ax, ay, az = ax - along * nx, ay - along * ny, az - along * nz
     length = math.sqrt(ax * ax + ay * ay + az * az)
     if length == 0.0:

@@ -31,12 +31,12 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import NamedTuple, get_args
 
 import numpy as np
 
 from ..errors import RenderSettingsError
-from ..scene import FLOAT, INDEX, Light, Mesh, SceneData
+from ..scene import FLOAT, INDEX, Light, Mesh, SceneData, StrandShape
 from .curvature import triangle_curvatures
 
 NOT_A_LIGHT = -1
@@ -179,6 +179,11 @@ class World:
         return len(self.instance_object) > 0 or len(self.moving_triangles) > 0 or len(self.strand_shapes) > 0
 
 
+STRAND_SHAPES = get_args(StrandShape)
+"""A strand's basis code is its shape's index here: linear, bezier, bspline, catmullRom, sphere."""
+LINEAR, BEZIER, BSPLINE, CATMULL_ROM, SPHERE = range(len(STRAND_SHAPES))
+
+
 class StrandTables(NamedTuple):
     """The strands (curves, points) of a World, n of them, their vertices and segments
     concatenated.
@@ -188,6 +193,7 @@ class StrandTables(NamedTuple):
     segment_first : (n,) int64 each strand's first segment
     vertex_first  : (n,) int64 each strand's first vertex
     span          : (n,) int32 vertices from a segment's first to its last (scene.Strands.span)
+    basis         : (n,) int32 each strand's shape, an index into STRAND_SHAPES
     ribbon        : (n,) bool flat ribbons facing their normals (else round tubes or spheres)
     normals       : (v, 3) float32 the ribbons' normals at their vertices (zero elsewhere)
     """
@@ -197,6 +203,7 @@ class StrandTables(NamedTuple):
     segment_first: np.ndarray
     vertex_first: np.ndarray
     span: np.ndarray
+    basis: np.ndarray
     ribbon: np.ndarray
     normals: np.ndarray
 
@@ -209,7 +216,9 @@ class StrandTables(NamedTuple):
                    np.concatenate([s.segments + first for s, first in zip(strands, vertex_first)]
                                   or [np.zeros(0)]).astype(INDEX),
                    np.concatenate([[0], np.cumsum(segment_counts)[:-1]]).astype(np.int64), vertex_first,
-                   np.array([s.span for s in strands], np.int32), np.array([s.normals is not None for s in strands]),
+                   np.array([s.span for s in strands], np.int32),
+                   np.array([STRAND_SHAPES.index(s.shape) for s in strands], np.int32),
+                   np.array([s.normals is not None for s in strands]),
                    np.concatenate([s.normals if s.normals is not None else np.zeros((len(s.vertices), 3))
                                    for s in strands] or [np.zeros((0, 3))]).astype(FLOAT))
 
