@@ -6,7 +6,8 @@ the motion keyed at frames 1 and 2, or given by velocities): every sample opens 
 drawn uniformly in the shutter, so the light each image row loses is the strip's box
 convolved with a box of width d, a trapezoid of extent w + d whose plateau is (w/d)·E for
 d > w (E the backdrop's value), and whose integral is the still strip's w·E — whether the
-strip moves by its transform, by its points' samples or by its velocities.
+strip moves by its transform, by its points' samples, by its velocities or by the joint it
+is skinned to.
 """
 
 from __future__ import annotations
@@ -68,6 +69,37 @@ def strip_instancer(velocity: str = "", angular: str = "", sampled: bool = True)
     }}"""
 
 
+IDENTITY = "((1, 0, 0, 0), (0, 1, 0, 0), (0, 0, 1, 0), (0, 0, 0, 1))"
+SKINNED = f"""def SkelRoot "rig"
+    {{
+        def Skeleton "skeleton" (prepend apiSchemas = ["SkelBindingAPI"])
+        {{
+            uniform token[] joints = ["root"]
+            uniform matrix4d[] bindTransforms = [{IDENTITY}]
+            uniform matrix4d[] restTransforms = [{IDENTITY}]
+            rel skel:animationSource = </World/rig/skeleton/slide>
+            def SkelAnimation "slide"
+            {{
+                uniform token[] joints = ["root"]
+                float3[] translations.timeSamples = {{1: [(0, 0, 0)], 2: [({SLIDE}, 0, 0)]}}
+                quatf[] rotations = [(1, 0, 0, 0)]
+                half3[] scales = [(1, 1, 1)]
+            }}
+        }}
+        def Mesh "strip" (prepend apiSchemas = ["SkelBindingAPI", "MaterialBindingAPI"])
+        {{
+            int[] faceVertexCounts = [4]
+            int[] faceVertexIndices = [0, 1, 2, 3]
+            point3f[] points = {strip_points(0)}
+            int[] primvars:skel:jointIndices = [0] (interpolation = "constant"; elementSize = 1)
+            float[] primvars:skel:jointWeights = [1] (interpolation = "constant"; elementSize = 1)
+            matrix4d primvars:skel:geomBindTransform = {IDENTITY}
+            rel skel:skeleton = </World/rig/skeleton>
+            rel material:binding = </World/black>
+        }}
+    }}"""
+"""The strip skinned to one joint that the animation slides by SLIDE from frame 1 to 2."""
+
 MOVES = {
     "still": f"point3f[] points = {strip_points(0)}",
     "transform": f"""point3f[] points = {strip_points(0)}
@@ -91,7 +123,7 @@ MOVES = {
 def stage(tmp_path, move: str, settings: str = "") -> str:
     """A centimetre stage: a black strip 4 cm wide, 40 cm tall, 100 cm down −Z, moving as
     MOVES[move] says, in front of a glowing backdrop 200 cm away."""
-    strip = MOVES[move] if move.startswith("instancer") else f"""def Mesh "strip" (prepend apiSchemas = ["MaterialBindingAPI"])
+    strip = SKINNED if move == "skinned" else MOVES[move] if move.startswith("instancer") else f"""def Mesh "strip" (prepend apiSchemas = ["MaterialBindingAPI"])
     {{
         int[] faceVertexCounts = [4]
         int[] faceVertexIndices = [0, 1, 2, 3]
@@ -135,7 +167,7 @@ def occlusion(path, spp: int = 64) -> np.ndarray:
     return 1.0 - image[middle - 8:middle + 8].mean(axis=0)
 
 
-@pytest.mark.parametrize("move", ["transform", "deformation", "velocity"])
+@pytest.mark.parametrize("move", ["transform", "deformation", "velocity", "skinned"])
 def test_a_moving_strip_blurs_into_its_trapezoid(tmp_path, move):
     width, slide = WIDTH * PIXELS_PER_CM, SLIDE * PIXELS_PER_CM  # 5.3 and 16 pixels
     still = occlusion(stage(tmp_path, "still"))

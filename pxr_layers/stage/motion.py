@@ -65,6 +65,11 @@ class GprimMotion:
         self._deforms: dict[str, bool] = {}  # gprim path → deforms
         self._instance_transforms: dict[tuple, np.ndarray | None] = {}  # (path, times) → (T, n, 4, 4)
 
+    @property
+    def interval(self) -> Gf.Interval:
+        """The shutter, time codes."""
+        return self._interval
+
     def steps(self, prim: Usd.Prim, placement: InstancerLink | None = None, instance: int = -1) -> int:
         """The time steps a gprim needs over the shutter, placed by its own world transform or
         as point instance `instance` of `placement`: 1 when it stands still."""

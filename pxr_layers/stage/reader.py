@@ -30,7 +30,7 @@ from .draw_modes import author_draw_mode_cards
 from .implicit import tessellate
 from .lights import read_lights
 from .materials import MaterialLibrary, ResolvedMaterial, display_color
-from .motion import GprimMotion
+from .motion import MAX_MOTION_STEPS, GprimMotion
 from .placement import (
     PreparedSurface,
     SharedSurface,
@@ -247,17 +247,27 @@ class _MeshBuilder:
 
     def _motion_steps(self, motion: GprimMotion | None, item: _Resolved | None) -> int:
         """The time steps the placement needs over the shutter (motion.py): 1 when it stands
-        still, or when its motion is not read: skinned meshes and emissive surfaces stay where
-        they are at the frame's time (a note names them)."""
+        still, or when its motion is not read: emissive surfaces stay where they are at the
+        frame's time (a note names them). A skinned mesh takes a step per sample of what poses
+        it (SkinnedPoser.motion_times), 1 when its pose is the same at both ends of the
+        shutter and nothing is sampled between them."""
         if motion is None or item is None:
             return 1
-        steps = motion.steps(item.prim, item.instancer, item.instance)
-        unread = ("skinned meshes" if item.posed
-                  else "emissive surfaces" if self._materials.emit(item.triangle_material) else None)
-        if steps > 1 and unread:
+        if item.posed:
+            times = self._poser.motion_times(item.prim, motion.interval)
+            if len(times) > 2:
+                return min(len(times), MAX_MOTION_STEPS)
+            ends = [self._poser.posed(item.prim, time) for time in times]
+            moves = not any(pose is None for pose in ends) and not (
+                np.array_equal(ends[0].points, ends[-1].points)
+                and np.array_equal(ends[0].world_from_points, ends[-1].world_from_points))
+            steps = 2 if moves else 1
+        else:
+            steps = motion.steps(item.prim, item.instancer, item.instance)
+        if steps > 1 and self._materials.emit(item.triangle_material):
             self._context.diagnostics.note(
                 "unread-motion", "gprims rendered where they are at the frame's time, without motion blur "
-                "(skinned meshes and emissive surfaces do not move over the shutter yet): {prims}", item.path)
+                "(emissive surfaces do not move over the shutter yet): {prims}", item.path)
             return 1
         return steps
 
@@ -268,6 +278,8 @@ class _MeshBuilder:
         context = self._context
         times = context.shutter.times(step_count)
         surfaces = [item.surface] * step_count
+        if item.posed:
+            return self._moving_skinned(item, mesh, times)
         if motion.deforms(item.prim):
             changed = motion.topology_change(item.prim)
             if changed:
@@ -284,15 +296,40 @@ class _MeshBuilder:
         placed = [place_surface(surface, world_from_local, context.meters_per_unit, item.triangle_material, item.name,
                                 item.path, Diagnostics(), instance=item.instance)
                   for surface, world_from_local in zip(surfaces, placements)]
+        return self._with_steps(placed[0] if surfaces[0] is not item.surface else mesh, placed, item.path)
+
+    def _with_steps(self, base: Mesh, placed: list[Mesh | None], path: str) -> Mesh:
+        """`base` carrying the points (and normals) of `placed`, the mesh at each time step."""
         if any(step is None or len(step.points) != len(placed[0].points) for step in placed):
             raise StageError("its placed points over the shutter are out of reach or change in number",
-                             file=context.file, prim=item.path)
-        base = placed[0] if surfaces[0] is not item.surface else mesh
+                             file=self._context.file, prim=path)
         same_normals = all(step.normal_values is not None and np.array_equal(step.normal_indices, base.normal_indices)
                            and len(step.normal_values) == len(placed[0].normal_values) for step in placed)
         return dataclasses.replace(
             base, motion_points=np.stack([step.points for step in placed]),
             motion_normals=np.stack([step.normal_values for step in placed]) if same_normals else None)
+
+    def _moving_skinned(self, item: _Resolved, mesh: Mesh, times: np.ndarray) -> Mesh:
+        """`mesh`, a skinned placement, posed at each of `times` (its Skeleton's or its own
+        place in the world at each; a point instance's placement stays the frame's)."""
+        context = self._context
+        poses = [self._poser.posed(item.prim, time) for time in times]
+        at_frame = self._poser.posed(item.prim)
+        if at_frame is None or any(pose is None for pose in poses):
+            raise StageError("its skinning fails at a time over the shutter (see the skinning warnings)",
+                             file=context.file, prim=item.path)
+        placement = item.world_from_local @ np.linalg.inv(at_frame.world_from_points)
+        placed = []
+        for pose in poses:
+            local = read_mesh(item.prim, context.time, item.uv_primvar, Diagnostics(), context.file,
+                              subdiv_level=self._levels.level(item.prim), points=pose.points, primvars=item.primvars)
+            if local is None or not np.array_equal(local.triangles, item.surface.surface.triangles):
+                raise StageError("its posed points over the shutter give another mesh than at the frame: motion "
+                                 "blur interpolates one mesh", file=context.file, prim=item.path)
+            placed.append(place_surface(prepare_surface(local), placement @ pose.world_from_points,
+                                        context.meters_per_unit, item.triangle_material, item.name, item.path,
+                                        Diagnostics(), instance=item.instance))
+        return self._with_steps(mesh, placed, item.path)
 
     def _copy(self, item: _Resolved) -> Mesh | None:
         """The placement as a copy of its surface in the world."""

@@ -23,9 +23,10 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from pxr import Tf, Usd, UsdGeom, UsdSkel, Vt
+from pxr import Gf, Tf, Usd, UsdGeom, UsdSkel, Vt
 
 from .diagnostics import Diagnostics
+from .motion import transform_times
 from .transforms import column_matrix
 
 logger = logging.getLogger(__name__)
@@ -102,15 +103,19 @@ class SkinnedPoser:
         del stage  # nothing to read up front: see the class docstring
         self._time = time
         self._diagnostics = diagnostics
-        self._xform_cache = xform_cache if xform_cache is not None else UsdGeom.XformCache(time)
+        # world transforms per time code: the read's (shared with the caller), and the
+        # shutter's steps of skinned prims that move
+        self._xform_caches = {time: xform_cache if xform_cache is not None else UsdGeom.XformCache(time)}
         self._cache = UsdSkel.Cache()
         self._populated_roots: set[str] = set()
         self._skinned: dict[str, _SkinnedPrim] = {}  # prim path → binding, for populated roots
-        # Skeleton path → its skinning transforms (Vt.Matrix4dArray), None when it cannot pose.
-        self._skinning_transforms: dict[str, Vt.Matrix4dArray | None] = {}
+        # (Skeleton path, time code) → its skinning transforms (Vt.Matrix4dArray), None when
+        # it cannot pose.
+        self._skinning_transforms: dict[tuple[str, float], Vt.Matrix4dArray | None] = {}
 
-    def posed(self, prim: Usd.Prim) -> PosedPoints | None:
-        """The skinned points of ``prim`` at the read's time, or None to use its rest points.
+    def posed(self, prim: Usd.Prim, time: float | None = None) -> PosedPoints | None:
+        """The skinned points of ``prim`` at the read's time (or at time code `time`: a step
+        of its motion over the shutter), or None to use its rest points.
 
         None without a warning for a prim that is not skinned (no enclosing SkelRoot, or no
         Skeleton and joint influences reach it); None after a warning (grouped per kind by
@@ -119,10 +124,11 @@ class SkinnedPoser:
         root = UsdSkel.Root.Find(prim)
         if not root:
             return None  # UsdSkel: bindings outside a SkelRoot have no meaning
+        at = self._time if time is None else Usd.TimeCode(time)
         with Tf.DiagnosticTrap() as trap:
             try:
                 self._populate(root)
-                return self._pose(prim)
+                return self._pose(prim, at)
             except Tf.ErrorException as error:
                 logger.debug("UsdSkel failed on %s: %s", prim.GetPath(), error)
                 self._note_broken(prim, "skel-error")
@@ -146,7 +152,21 @@ class SkinnedPoser:
                 path = str(skinning_query.GetPrim().GetPath())
                 self._skinned[path] = _SkinnedPrim(skinning_query, skeleton)
 
-    def _pose(self, prim: Usd.Prim) -> PosedPoints | None:
+    def motion_times(self, prim: Usd.Prim, interval: Gf.Interval) -> list[float]:
+        """The ends of `interval` (time codes) and every sample between them of what poses a
+        skinned `prim` (posed before): its animation's joint transforms and blend shape
+        weights, the transforms of its Skeleton and of the prim (and their ancestors)."""
+        times = set(transform_times(prim, interval))
+        skinned = self._skinned.get(str(prim.GetPath()))
+        if skinned is not None:
+            times.update(transform_times(skinned.skeleton.GetPrim(), interval))
+            anim_query = self._cache.GetSkelQuery(skinned.skeleton).GetAnimQuery()
+            if anim_query:
+                times.update(anim_query.GetJointTransformTimeSamplesInInterval(interval))
+                times.update(anim_query.GetBlendShapeWeightTimeSamplesInInterval(interval))
+        return sorted(times)
+
+    def _pose(self, prim: Usd.Prim, time: Usd.TimeCode) -> PosedPoints | None:
         path = str(prim.GetPath())
         skinned = self._skinned.get(path)
         if skinned is None:
@@ -157,31 +177,33 @@ class SkinnedPoser:
         if not prim.IsA(UsdGeom.PointBased):
             self._note_broken(prim, "skel-not-points")
             return None
-        transforms = self._transforms_of(skinned.skeleton)
+        transforms = self._transforms_of(skinned.skeleton, time)
         if transforms is None:
             self._note_broken(prim, "skel-skeleton")
             return None
 
-        points = UsdGeom.PointBased(prim).GetPointsAttr().Get(self._time)
+        points = UsdGeom.PointBased(prim).GetPointsAttr().Get(time)
         if points is None or len(points) == 0:
             return None  # nothing to deform; surfaces.py reports an empty mesh its own way
         points = Vt.Vec3fArray(points)  # deformed in place by the calls below
 
         blend_shapes_fit = not query.HasBlendShapes() or self._apply_blend_shapes(
-            prim, query, skinned.skeleton, points
+            prim, query, skinned.skeleton, points, time
         )
         if not blend_shapes_fit:
             self._note_broken(prim, "skel-blend-shapes")
             return None
 
         if query.HasJointInfluences():
-            if not query.ComputeSkinnedPoints(transforms, points, self._time):
+            if not query.ComputeSkinnedPoints(transforms, points, time):
                 self._note_broken(prim, "skel-influences")
                 return None
-            skeleton_prim = skinned.skeleton.GetPrim()
-            world_from_points = self._xform_cache.GetLocalToWorldTransform(skeleton_prim)
+            placed = skinned.skeleton.GetPrim()
         else:
-            world_from_points = self._xform_cache.GetLocalToWorldTransform(prim)
+            placed = prim
+        if time not in self._xform_caches:
+            self._xform_caches[time] = UsdGeom.XformCache(time)
+        world_from_points = self._xform_caches[time].GetLocalToWorldTransform(placed)
 
         posed_points = np.array(points, dtype=np.float64).reshape(-1, 3)
         if not np.isfinite(posed_points).all():
@@ -189,16 +211,16 @@ class SkinnedPoser:
             return None
         return PosedPoints(posed_points, column_matrix(world_from_points))
 
-    def _transforms_of(self, skeleton: UsdSkel.Skeleton) -> Vt.Matrix4dArray | None:
-        """The Skeleton's skinning transforms at the read's time (skeleton space), or None."""
-        key = str(skeleton.GetPath())
+    def _transforms_of(self, skeleton: UsdSkel.Skeleton, time: Usd.TimeCode) -> Vt.Matrix4dArray | None:
+        """The Skeleton's skinning transforms at `time` (skeleton space), or None."""
+        key = (str(skeleton.GetPath()), time.GetValue())
         if key not in self._skinning_transforms:
             transforms = None
             skeleton_query = self._cache.GetSkelQuery(skeleton)
             # The Python binding returns the array even when the computation failed (no bind
             # pose: the transforms then lack the inverse bind), so check what it depends on.
             if skeleton_query and skeleton_query.HasBindPose():
-                computed = skeleton_query.ComputeSkinningTransforms(self._time)
+                computed = skeleton_query.ComputeSkinningTransforms(time)
                 if len(computed) == len(skeleton_query.GetJointOrder()) and len(computed) > 0:
                     transforms = computed
             self._skinning_transforms[key] = transforms
@@ -210,12 +232,14 @@ class SkinnedPoser:
         query: UsdSkel.SkinningQuery,
         skeleton: UsdSkel.Skeleton,
         points: Vt.Vec3fArray,
+        time: Usd.TimeCode,
     ) -> bool:
-        """Offset ``points`` in place by the prim's blend shapes; False when they do not fit."""
+        """Offset ``points`` in place by the prim's blend shapes at `time`; False when they do
+        not fit."""
         anim_query = self._cache.GetSkelQuery(skeleton).GetAnimQuery()
         if not anim_query:
             return True  # no animation, so every weight is 0: the rest shape
-        weights = anim_query.ComputeBlendShapeWeights(self._time)
+        weights = anim_query.ComputeBlendShapeWeights(time)
         if not weights:
             return True
         mapper = query.GetBlendShapeMapper()
