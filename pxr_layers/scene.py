@@ -200,6 +200,9 @@ class Strands:
     normals  : (v, 3) float32 unit normals at the vertices of curves drawn as flat ribbons
                facing them (cubic shapes only: linear ribbons are given as bezier); None:
                round tubes
+    motion_vertices : (k, v, 4) float32 the vertices at k ≥ 2 evenly spaced times over the
+               shutter (Embree interpolates between them at each ray's time), or None for
+               strands that stand still (``vertices`` are the frame's either way)
     """
 
     name: str
@@ -209,6 +212,7 @@ class Strands:
     segments: np.ndarray
     material: int
     normals: np.ndarray | None = None
+    motion_vertices: np.ndarray | None = None
 
     @property
     def span(self) -> int:

@@ -7,7 +7,7 @@ drawn uniformly in the shutter, so the light each image row loses is the strip's
 convolved with a box of width d, a trapezoid of extent w + d whose plateau is (w/d)·E for
 d > w (E the backdrop's value), and whose integral is the still strip's w·E — whether the
 strip moves by its transform, by its points' samples, by its velocities or by the joint it
-is skinned to.
+is skinned to; and a round curve of the strip's width, moved by its transform or its points.
 """
 
 from __future__ import annotations
@@ -100,6 +100,23 @@ SKINNED = f"""def SkelRoot "rig"
     }}"""
 """The strip skinned to one joint that the animation slides by SLIDE from frame 1 to 2."""
 
+def strand(points: str, transform: str = "") -> str:
+    """The strip as a black round curve of its width (a tube, seen side on), through `points`."""
+    return f"""def BasisCurves "strip" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {{
+        uniform token type = "linear"
+        int[] curveVertexCounts = [2]
+        {points}
+        float[] widths = [{WIDTH}]
+        {transform}
+        rel material:binding = </World/black>
+    }}"""
+
+
+def strand_points(shift: float) -> str:
+    return f"[({shift}, -20, {-DISTANCE}), ({shift}, 20, {-DISTANCE})]"
+
+
 MOVES = {
     "still": f"point3f[] points = {strip_points(0)}",
     "transform": f"""point3f[] points = {strip_points(0)}
@@ -115,6 +132,11 @@ MOVES = {
     "instancer-unsampled": strip_instancer(velocity=f"({SLIDE * TIME_CODES_PER_SECOND}, 0, 0)", sampled=False),
     "instancer-velocity": strip_instancer(velocity=f"({SLIDE * TIME_CODES_PER_SECOND}, 0, 0)"),
     "instancer-turning": strip_instancer(angular=f"(0, 0, {90 * TIME_CODES_PER_SECOND})"),
+    "strand-still": strand(f"point3f[] points = {strand_points(0)}"),
+    "strand-transform": strand(f"point3f[] points = {strand_points(0)}",
+                               f"""double3 xformOp:translate.timeSamples = {{1: (0, 0, 0), 2: ({SLIDE}, 0, 0)}}
+        uniform token[] xformOpOrder = ["xformOp:translate"]"""),
+    "strand-deformation": strand(f"point3f[] points.timeSamples = {{1: {strand_points(0)}, 2: {strand_points(SLIDE)}}}"),
     "mismatched": f"""point3f[] points.timeSamples = {{1: {strip_points(0)},
             2: [(0, 0, {-DISTANCE}), (1, 0, {-DISTANCE}), (1, 1, {-DISTANCE}), (0, 1, {-DISTANCE}), (2, 2, {-DISTANCE})]}}""",
 }
@@ -123,7 +145,7 @@ MOVES = {
 def stage(tmp_path, move: str, settings: str = "") -> str:
     """A centimetre stage: a black strip 4 cm wide, 40 cm tall, 100 cm down −Z, moving as
     MOVES[move] says, in front of a glowing backdrop 200 cm away."""
-    strip = SKINNED if move == "skinned" else MOVES[move] if move.startswith("instancer") else f"""def Mesh "strip" (prepend apiSchemas = ["MaterialBindingAPI"])
+    strip = SKINNED if move == "skinned" else MOVES[move] if move.startswith(("instancer", "strand")) else f"""def Mesh "strip" (prepend apiSchemas = ["MaterialBindingAPI"])
     {{
         int[] faceVertexCounts = [4]
         int[] faceVertexIndices = [0, 1, 2, 3]
@@ -167,10 +189,11 @@ def occlusion(path, spp: int = 64) -> np.ndarray:
     return 1.0 - image[middle - 8:middle + 8].mean(axis=0)
 
 
-@pytest.mark.parametrize("move", ["transform", "deformation", "velocity", "skinned"])
+@pytest.mark.parametrize("move", ["transform", "deformation", "velocity", "skinned", "strand-transform",
+                                  "strand-deformation"])
 def test_a_moving_strip_blurs_into_its_trapezoid(tmp_path, move):
     width, slide = WIDTH * PIXELS_PER_CM, SLIDE * PIXELS_PER_CM  # 5.3 and 16 pixels
-    still = occlusion(stage(tmp_path, "still"))
+    still = occlusion(stage(tmp_path, "strand-still" if move.startswith("strand") else "still"))
     moving = occlusion(stage(tmp_path, move))
     assert still.sum() == pytest.approx(width, rel=0.01)
     assert moving.sum() == pytest.approx(still.sum(), rel=0.01)  # the shadow is moved, not made or lost

@@ -126,8 +126,11 @@ def read_scene(
 
 def _read_strands(context: ReadContext, materials: MaterialLibrary, placements: list[GprimPlacement]) -> list[Strands]:
     """The BasisCurves and Points of the walk (strands.py), each with its bound material;
-    emissive ones are skipped with a note (their light would not be sampled)."""
-    found = []
+    emissive ones are skipped with a note (their light would not be sampled). Strands that
+    move over the shutter (as meshes do: motion.py) carry their vertices at k evenly spaced
+    times, one k for them all (Strands.motion_vertices); their curves must keep their counts."""
+    found: list[tuple[GprimPlacement, Strands, int]] = []
+    motion = GprimMotion(context) if context.shutter is not None else None
     for placement in placements:
         prim = placement.prim
         material = materials.resolve(materials.bound_material(prim), display_color(prim, context.time, context.file))
@@ -138,8 +141,27 @@ def _read_strands(context: ReadContext, materials: MaterialLibrary, placements: 
         strands = read_strands(context, prim, placement.world_from_local, placement.path, placement.name,
                                material.index)
         if strands is not None:
-            found.append(strands)
-    return found
+            steps = motion.steps(prim, placement.instancer, placement.instance) if motion is not None else 1
+            found.append((placement, strands, steps))
+    step_count = max((steps for _, _, steps in found), default=1)
+    if step_count == 1:
+        return [strands for _, strands, _ in found]
+    times = context.shutter.times(step_count)
+    moved = []
+    for placement, strands, steps in found:
+        if steps > 1:
+            prim = placement.prim
+            points = motion.points_at(prim, times) if motion.deforms(prim) else [None] * step_count
+            worlds = motion.placements(prim, placement.instancer, placement.instance, times)
+            at_times = [read_strands(context, prim, world, placement.path, placement.name, strands.material, points=p)
+                        for world, p in zip(worlds, points)]
+            if any(step is None or step.vertices.shape != strands.vertices.shape
+                   or not np.array_equal(step.segments, strands.segments) for step in at_times):
+                raise StageError("its curves change in number or length over the shutter: motion blur interpolates "
+                                 "one set of curves", file=context.file, prim=placement.path)
+            strands = dataclasses.replace(strands, motion_vertices=np.stack([step.vertices for step in at_times]))
+        moved.append(strands)
+    return moved
 
 
 INSTANCING_SAVES = 1 << 16

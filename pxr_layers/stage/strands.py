@@ -32,11 +32,13 @@ DEFAULT_WIDTH = 1.0  # scene units, when none is authored (Storm draws such curv
 
 
 def read_strands(context: ReadContext, prim: Usd.Prim, world_from_local: np.ndarray, path: str, name: str,
-                 material: int) -> Strands | None:
+                 material: int, points: np.ndarray | None = None) -> Strands | None:
     """The Strands of a BasisCurves or Points `prim` placed by `world_from_local` ((4, 4)
-    column convention, stage units); None when it has no points."""
+    column convention, stage units); None when it has no points. points: (v, 3) its points
+    at another time than the frame's (a step of its motion), else read."""
     time, file = context.time, context.file
-    points = _array(prim.GetAttribute(UsdGeom.Tokens.points), time, file, path, 3)
+    if points is None:
+        points = _array(prim.GetAttribute(UsdGeom.Tokens.points), time, file, path, 3)
     widths_attribute = prim.GetAttribute(UsdGeom.Tokens.widths)
     widths = _array(widths_attribute, time, file, path, 1)[:, 0] if widths_attribute.HasAuthoredValue() else None
     if widths is not None and (np.any(widths < 0) or not np.isfinite(widths).all()):

@@ -364,11 +364,10 @@ def _expand_instancer(
             path = f"{instancer_path}/instance_{instance}/{item.sub_path}"
             if item.is_instancer:
                 _expand_instancer(context, item.prim, world, path, depth + 1, contents)
-            elif _is_strands(item.prim):  # a copy per instance (they do not move over the shutter)
-                contents.strands.append(GprimPlacement(item.prim, world, path, item.prim.GetName(), instance))
-            else:
+            else:  # strands: a copy per instance
                 link = InstancerLink(prim, world_from_instancer if depth else None, item.proto_from_prim)
-                contents.gprims.append(GprimPlacement(item.prim, world, path, item.prim.GetName(), instance, link))
+                found = contents.strands if _is_strands(item.prim) else contents.gprims
+                found.append(GprimPlacement(item.prim, world, path, item.prim.GetName(), instance, link))
 
 
 def _instance_transforms(

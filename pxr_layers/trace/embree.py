@@ -213,20 +213,27 @@ def add_triangles(scene: Scene, vertices: np.ndarray, triangles: np.ndarray) -> 
 def add_strands(scene: Scene, shape: str, vertices: np.ndarray, segments: np.ndarray,
                 normals: np.ndarray | None = None) -> int:
     """Attach curves or points (scene.Strands) to `scene` (before its commit); returns the
-    geometry id. vertices (v, 4) x, y, z, radius, metres; segments (s,) each segment's first
-    vertex (ignored for points: one sphere per vertex); normals (v, 3): a cubic shape's
-    ribbons face them (None: round tubes)."""
+    geometry id. vertices (v, 4) x, y, z, radius, metres, or (k, v, 4) at k ≥ 2 evenly spaced
+    times over the shutter (a motion-blurred geometry: Embree interpolates at each ray's
+    time); segments (s,) each segment's first vertex (ignored for points: one sphere per
+    vertex); normals (v, 3): a cubic shape's ribbons face them (None: round tubes)."""
     shared = np.ascontiguousarray(vertices, np.float32)
+    steps = shared if shared.ndim == 3 else shared[None]
+    count = steps.shape[1]
     kind = STRAND_GEOMETRY_TYPES[shape] if normals is None else RIBBON_GEOMETRY_TYPES[shape]
     geometry = _api.rtcNewGeometry(scene.device.handle, kind)
-    _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4, shared.ctypes.data, 0,
-                                    shared.strides[0], len(shared))
+    if len(steps) > 1:
+        _api.rtcSetGeometryTimeStepCount(geometry, len(steps))
+    for step in range(len(steps)):
+        _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, step, RTC_FORMAT_FLOAT4,
+                                        steps[step].ctypes.data, 0, steps.strides[1], count)
     kept = (shared,)
     if normals is not None:
-        facing = np.zeros((len(shared) + 1, 3), np.float32)  # one row more: Embree reads 16 bytes a vertex
+        facing = np.zeros((count + 1, 3), np.float32)  # one row more: Embree reads 16 bytes a vertex
         facing[:-1] = normals
-        _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_NORMAL, 0, RTC_FORMAT_FLOAT3, facing.ctypes.data, 0,
-                                        facing.strides[0], len(shared))
+        for step in range(len(steps)):  # a ribbon faces its frame's normals at every step
+            _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_NORMAL, step, RTC_FORMAT_FLOAT3,
+                                            facing.ctypes.data, 0, facing.strides[0], count)
         kept = (shared, facing)
     if shape != "sphere":
         indices = np.ascontiguousarray(segments, np.uint32)
@@ -389,7 +396,10 @@ class RayCaster:
             for number, shape in enumerate(world.strand_shapes):
                 own = slice(vertex_bounds[number], vertex_bounds[number + 1])
                 segments = strands.segments[segment_bounds[number]:segment_bounds[number + 1]] - own.start
-                geometries.append(add_strands(scene, shape, strands.vertices[own], segments,
+                first = strands.motion_first[number]
+                vertices = (strands.vertices[own] if first < 0
+                            else strands.motion[:, first:first + own.stop - own.start])
+                geometries.append(add_strands(scene, shape, vertices, segments,
                                               strands.normals[own] if strands.ribbon[number] else None))
             self._strand_geometry = geometries[0]
         scene.commit()

@@ -182,7 +182,7 @@ class Region:
             raise ValueError(f"a query of lane {int(lanes.max())} places hits in regions of {owner.lanes} rows")
         hits = strand_hits or StrandHits.none()
         _place_kernel(owner.rows, owner.instances, triangle, instance, np.ascontiguousarray(time, np.float32), lanes,
-                      self.first, scratch(3, 4), scratch(3, 3), hits)
+                      self.first, scratch(3, 4), scratch(3, 3), scratch(4, 4), hits)
 
 
 class StrandHits(NamedTuple):
@@ -204,9 +204,10 @@ class StrandHits(NamedTuple):
 
 
 @kernel
-def _place_kernel(rows, instances, triangle, instance, time, lanes, first, transform, rotation, hits):
+def _place_kernel(rows, instances, triangle, instance, time, lanes, first, transform, rotation, control, hits):
     """transform (3, 4), rotation (3, 3): float64 scratch, the instance's placement at the
-    ray's time (its own when it stands still)."""
+    ray's time (its own when it stands still); control (4, 4) float64 scratch, a moving
+    strand segment's control points at the ray's time."""
     geometry = rows.geometry
     has_curvature, has_links = len(rows.curvature) > 0, len(rows.link_group) > 0
     for entry in range(len(triangle)):
@@ -216,7 +217,7 @@ def _place_kernel(rows, instances, triangle, instance, time, lanes, first, trans
             continue
         row = first + lanes[entry]
         if k <= STRAND:
-            _place_strand(rows, instances, source, STRAND - k, row, hits, entry)
+            _place_strand(rows, instances, source, STRAND - k, row, hits, entry, time[entry], control)
             triangle[entry] = row
             continue
         if k == MOVING:
@@ -316,9 +317,11 @@ def _curve_at(vertices, first, basis, u):
 
 
 @inline
-def _place_strand(rows, instances, source, segment, row, hits, entry):
+def _place_strand(rows, instances, source, segment, row, hits, entry, time, control):
     """Write the hit `entry` of `hits` on segment `segment` of strand row `source` into
-    scratch row `row` (the module docstring)."""
+    scratch row `row` (the module docstring); a moving strand as it is at `time` (a shutter
+    fraction), its segment's control points interpolated into `control` (4, 4) as Embree
+    interpolates them."""
     geometry, strands = rows.geometry, instances.strands
     local = source - instances.strand_first
     span = strands.span[local]
@@ -327,9 +330,23 @@ def _place_strand(rows, instances, source, segment, row, hits, entry):
     nx, ny, nz = hits.normal[entry, 0], hits.normal[entry, 1], hits.normal[entry, 2]
     length = math.sqrt(nx * nx + ny * ny + nz * nz)
     nx, ny, nz = nx / length, ny / length, nz / length
-    radius = strands.vertices[first, 3]
+    moving, step, b = strands.motion, 0, 0.0
+    start = strands.motion_first[local]
+    if start >= 0:
+        last = moving.shape[0] - 1
+        position = min(max(time, 0.0), 1.0) * last
+        step = min(int(position), last - 1)
+        b = position - step
+        start += first - strands.vertex_first[local]
+    for k in range(span + 1):
+        for column in range(4):
+            if start >= 0:
+                control[k, column] = (1.0 - b) * moving[step, start + k, column] + b * moving[step + 1, start + k, column]
+            else:
+                control[k, column] = strands.vertices[first + k, column]
+    radius = control[0, 3]
     if span > 0:  # a tube: the curve's radius and tangent at the hit's parameter
-        radius, ax, ay, az = _curve_at(strands.vertices, first, strands.basis[local], hits.u[entry])
+        radius, ax, ay, az = _curve_at(control, 0, strands.basis[local], hits.u[entry])
     else:
         ax, ay, az = (1.0, 0.0, 0.0) if abs(nx) < 0.9 else (0.0, 1.0, 0.0)
     along = ax * nx + ay * ny + az * nz  # the tangent without its normal part

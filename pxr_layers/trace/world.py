@@ -196,6 +196,9 @@ class StrandTables(NamedTuple):
     basis         : (n,) int32 each strand's shape, an index into STRAND_SHAPES
     ribbon        : (n,) bool flat ribbons facing their normals (else round tubes or spheres)
     normals       : (v, 3) float32 the ribbons' normals at their vertices (zero elsewhere)
+    motion        : (k, m, 4) float32 the moving strands' vertices at the k time steps
+                    (scene.Strands.motion_vertices, concatenated); (1, 0, 4) when none moves
+    motion_first  : (n,) int64 each strand's first vertex in ``motion``, −1: it stands still
     """
 
     vertices: np.ndarray
@@ -206,12 +209,19 @@ class StrandTables(NamedTuple):
     basis: np.ndarray
     ribbon: np.ndarray
     normals: np.ndarray
+    motion: np.ndarray
+    motion_first: np.ndarray
 
     @classmethod
     def of(cls, strands) -> StrandTables:
         vertex_counts = np.array([len(s.vertices) for s in strands], np.int64)
         segment_counts = np.array([len(s.segments) for s in strands], np.int64)
         vertex_first = np.concatenate([[0], np.cumsum(vertex_counts)[:-1]]).astype(np.int64)
+        moving = [s.motion_vertices for s in strands if s.motion_vertices is not None]
+        motion = np.concatenate(moving, axis=1).astype(FLOAT) if moving else np.zeros((1, 0, 4), FLOAT)
+        moving_counts = [len(s.vertices) if s.motion_vertices is not None else 0 for s in strands]
+        motion_first = np.where([s.motion_vertices is not None for s in strands],
+                                np.concatenate([[0], np.cumsum(moving_counts)[:-1]]), -1).astype(np.int64)
         return cls(np.concatenate([s.vertices for s in strands] or [np.zeros((0, 4))]).astype(FLOAT),
                    np.concatenate([s.segments + first for s, first in zip(strands, vertex_first)]
                                   or [np.zeros(0)]).astype(INDEX),
@@ -220,7 +230,8 @@ class StrandTables(NamedTuple):
                    np.array([STRAND_SHAPES.index(s.shape) for s in strands], np.int32),
                    np.array([s.normals is not None for s in strands]),
                    np.concatenate([s.normals if s.normals is not None else np.zeros((len(s.vertices), 3))
-                                   for s in strands] or [np.zeros((0, 3))]).astype(FLOAT))
+                                   for s in strands] or [np.zeros((0, 3))]).astype(FLOAT), motion,
+                   motion_first.reshape(len(strands)))
 
 
 class MovingSteps(NamedTuple):
