@@ -44,7 +44,7 @@ from ..compiled import inline
 from ..paths import events
 from ..paths.events import SCATTER_DIFFUSE, SCATTER_GLOSSY, SCATTER_SINGULAR
 from . import hair, shading
-from .vectors import luminance_of, normalized
+from .vectors import fresnel_dielectric, luminance_of, normalized
 
 # The lobe ids are paths.events' (events carry them); short names for the kernels below.
 DIFFUSE, SPECULAR, COAT, GLASS = events.LOBE_DIFFUSE, events.LOBE_SPECULAR, events.LOBE_COAT, events.LOBE_GLASS
@@ -88,19 +88,6 @@ def slot_lobe(row, slot):
 def schlick(f0, f90, cos):
     weight = (1.0 - min(max(cos, 0.0), 1.0)) ** 5
     return f0 + (f90 - f0) * weight
-
-
-@inline
-def fresnel_dielectric(cos_i, eta):
-    """Unpolarised Fresnel reflectance; eta = n_transmitted / n_incident."""
-    cos_i = min(max(cos_i, 0.0), 1.0)
-    sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
-    if sin2_t >= 1.0:
-        return 1.0
-    cos_t = math.sqrt(max(1.0 - sin2_t, 0.0))
-    r_parallel = (eta * cos_i - cos_t) / max(eta * cos_i + cos_t, 1e-12)
-    r_perpendicular = (cos_i - eta * cos_t) / max(cos_i + eta * cos_t, 1e-12)
-    return 0.5 * (r_parallel * r_parallel + r_perpendicular * r_perpendicular)
 
 
 @inline

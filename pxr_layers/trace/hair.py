@@ -48,7 +48,7 @@ import numpy as np
 from ..compiled import inline, kernel
 from ..paths import events
 from . import shading
-from .vectors import luminance_of
+from .vectors import fresnel_dielectric, luminance_of
 
 WEIGHT = 0  # 12 columns: tint_p · A_p (r, g, b) for p = 0, 1, 2, 3
 VARIANCE = 12  # 3 columns: v of R, TT, TRT (p = 3 uses TRT's)
@@ -71,19 +71,6 @@ _LN2 = math.log(2.0)
 @inline
 def _clamp(x, low, high):
     return min(max(x, low), high)
-
-
-@inline
-def _fresnel(cos_i, eta):
-    """Unpolarised dielectric Fresnel reflectance, light arriving from the outside."""
-    cos_i = _clamp(cos_i, 0.0, 1.0)
-    sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
-    if sin2_t >= 1.0:
-        return 1.0
-    cos_t = math.sqrt(max(1.0 - sin2_t, 0.0))
-    parallel = (eta * cos_i - cos_t) / max(eta * cos_i + cos_t, 1e-12)
-    perpendicular = (cos_i - eta * cos_t) / max(cos_i + eta * cos_t, 1e-12)
-    return 0.5 * (parallel * parallel + perpendicular * perpendicular)
 
 
 @inline
@@ -170,7 +157,7 @@ def prepare(lobes, lane, inputs, wox, woy, woz, scatters):
     eta_p = math.sqrt(max(eta * eta - sin_o * sin_o, 0.0)) / max(cos_o, 1e-7)
     sin_gt = _clamp(h / eta_p, -1.0, 1.0)
     cos_gt = math.sqrt(max(1.0 - sin_gt * sin_gt, 0.0))
-    fresnel = _fresnel(cos_o * math.sqrt(max(1.0 - h * h, 0.0)), eta)
+    fresnel = fresnel_dielectric(cos_o * math.sqrt(max(1.0 - h * h, 0.0)), eta)
     path = 2.0 * cos_gt / cos_t
     total = 0.0
     for p in range(ORDERS):

@@ -66,3 +66,17 @@ def to_world(frame, lane, x, y, z):
     return (frame[lane, 0, 0] * x + frame[lane, 1, 0] * y + frame[lane, 2, 0] * z,
             frame[lane, 0, 1] * x + frame[lane, 1, 1] * y + frame[lane, 2, 1] * z,
             frame[lane, 0, 2] * x + frame[lane, 1, 2] * y + frame[lane, 2, 2] * z)
+
+
+@inline
+def fresnel_dielectric(cos_i, eta):
+    """Unpolarised Fresnel reflectance of a dielectric interface for the cosine cos_i of
+    the incident direction; eta = n_transmitted / n_incident (surfaces' glass, hair)."""
+    cos_i = min(max(cos_i, 0.0), 1.0)
+    sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
+    if sin2_t >= 1.0:
+        return 1.0
+    cos_t = math.sqrt(max(1.0 - sin2_t, 0.0))
+    r_parallel = (eta * cos_i - cos_t) / max(eta * cos_i + cos_t, 1e-12)
+    r_perpendicular = (cos_i - eta * cos_t) / max(cos_i + eta * cos_t, 1e-12)
+    return 0.5 * (r_parallel * r_parallel + r_perpendicular * r_perpendicular)

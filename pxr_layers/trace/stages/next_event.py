@@ -108,8 +108,7 @@ def _presence_kernel(triangle, bary_u, bary_v, light, geometry, materials, light
 
 @kernel
 def _light_sample_kernel(key, throughput, position, facing, frame, wo, lobes, scatters, surface_triangle, through,
-                         dimension,
-                         epsilon, geometry, materials, lights, f, lobe_pdf, radiance, registers, inputs, lane_out,
+                         dimension, epsilon, geometry, materials, lights, f, lobe_pdf, radiance, registers, inputs, lane_out,
                          origin_out, direction_out, t_max_out, radiance_out, light_out, triangle_out):
     count = 0
     for lane in range(len(key)):

@@ -34,8 +34,7 @@ def scatter(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: float)
     out = Scattering(np.zeros(n, np.int8), np.zeros(n, np.int8), np.zeros(n, bool), np.zeros(n, bool))
     _scatter_kernel(queue.key, surfaces.position, surfaces.facing, surfaces.frame, surfaces.wo, surfaces.lobes,
                     surfaces.cut, surfaces.scatters, surfaces.triangle, surfaces.through, rng.step_dimension(step),
-                    epsilon, queue.origin,
-                    queue.direction, queue.throughput, queue.previous_pdf, queue.previous_singular,
+                    epsilon, queue.origin, queue.direction, queue.throughput, queue.previous_pdf, queue.previous_singular,
                     queue.previous_triangle, queue.previous_lobe, queue.depth, queue.t_max,
                     queue.travelled, queue.vertex_travelled, out.lobe, out.scatter, out.transmit, out.scattered)
     return out
@@ -43,8 +42,7 @@ def scatter(queue: PathQueue, surfaces: SurfaceQueue, step: int, epsilon: float)
 
 @kernel
 def _scatter_kernel(key, position, facing, frame, wo, lobes, cut, scatters, triangle, through, dimension, epsilon,
-                    origin,
-                    direction, throughput, previous_pdf, previous_singular, previous_triangle, previous_lobe, depth, t_max,
+                    origin, direction, throughput, previous_pdf, previous_singular, previous_triangle, previous_lobe, depth, t_max,
                     travelled, vertex_travelled, lobe_out, scatter_out, transmit_out, scattered_out):
     for lane in range(len(key)):
         t_max[lane] = T_INFINITY

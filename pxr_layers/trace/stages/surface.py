@@ -77,8 +77,9 @@ def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry
     interpolated normal, then bent toward the geometric normal where the mirror reflection
     of the view direction would fall below the surface (bent_normal, module docstring).
     A hair material's frame is the fibre's instead (x along it, z its normal: hair.py), with
-    neither normal map nor bend. Paths at `max_depth` get no lobe. curvature: (t,) float32 C per triangle, or (0,) for
-    none (C = 0). Also adds the hit distance to ``queue.travelled``.
+    neither normal map nor bend. Paths at `max_depth` get no lobe. curvature: (t,) float32 C
+    per triangle, or (0,) for none (C = 0). Also adds the hit distance to
+    ``queue.travelled``.
     """
     n = len(queue)
     out = SurfaceQueue(
