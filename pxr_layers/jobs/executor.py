@@ -140,7 +140,7 @@ def _fingerprint(plan: FramePlan) -> str:
         "spp": trace.spp, "max_depth": trace.max_depth, "seed": trace.seed, "norm_bounces": trace.norm_bounces,
         "record": trace.record_paths, "merge": trace.merge_records, "sigma": trace.record_sigma,
         "first_bounce_norms": trace.first_bounce_norms,
-        "clamp_indirect": trace.clamp_indirect,
+        "clamp_indirect": trace.clamp_indirect, "guides": trace.guides,
     }, sort_keys=True)
 
 

@@ -131,6 +131,12 @@ def plan_frame(
     view_camera, view_resolution = view.camera, view.resolution
     resolution = tuple(request.resolution or view_resolution)
     check_raw_sources(recipe, (*DATA_AOVS, *CRYPTOMATTE_SOURCES), "the renderer does not produce")
+    if request.denoise:
+        from ..layers.denoise import available
+
+        missing = available()
+        if missing:
+            raise RenderSettingsError(f"--denoise: {missing}")
     sources = raw_sources(recipe)
     crypto_sources = tuple(source for source in sources if source in CRYPTOMATTE_SOURCES)
     model_paths: tuple[str, ...] = ()
@@ -160,7 +166,7 @@ def plan_frame(
                           record_paths=record, merge_records=record and index_mode == "merged",
                           record_sigma=record and sigma and norm_bounces > 0, first_hits=bool(crypto_sources),
                           first_bounce_norms=request.debug_covariance,
-                          clamp_indirect=request.clamp_indirect)
+                          clamp_indirect=request.clamp_indirect, guides=request.denoise)
     metadata = {
         "version": __version__,
         "stage": str(stage.resolve()),
@@ -261,7 +267,7 @@ class FrameAssembler:
     def __init__(self, plan: FramePlan):
         self.plan = plan
         width, height = plan.resolution
-        self.film = Film(width * height, plan.trace.spp, plan.trace.first_bounce_norms)
+        self.film = Film(width * height, plan.trace.spp, plan.trace.first_bounce_norms, plan.trace.guides)
         self.writer = (PathIndexWriter(plan.index_path, plan.manifest, plan.trace.norm_bounces,
                                        mode="merged" if plan.trace.merge_records else "records",
                                        sigma=plan.trace.record_sigma) if plan.trace.record_paths else None)
@@ -319,7 +325,7 @@ class FrameAssembler:
             check_beauty(rgba, index, plan.stage)
             delivered = deliver(index, plan.recipe, rgba, plan.outputs, data=data, metadata=metadata,
                                 previews=plan.request.previews, nuke_scripts=plan.request.nuke_scripts,
-                                show_progress=show_progress)
+                                show_progress=show_progress, guides=self.film.guides(*plan.resolution))
             if not plan.request.keep_index:
                 outputs.discard(plan.index_path)
         return delivered
@@ -493,6 +499,8 @@ class FrameResult:
     vocabulary : the frame's event names (paths.events.EventVocabulary)
     object_paths : the prim path of each object, indexed by primId
     rays, seconds : rays cast, and the wall-clock seconds of trace and delivery
+    guides     : the denoiser's (albedo, normal), each (h, w, 3) float32 (trace/guides.py),
+                 or None unless the request's ``denoise``
     """
 
     plan: FramePlan
@@ -504,6 +512,7 @@ class FrameResult:
     object_paths: tuple[str, ...]
     rays: int
     seconds: float
+    guides: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def index_path(self) -> Path | None:
@@ -551,4 +560,5 @@ def render_frame(request: RenderRequest, frame: float | None = None, *, output: 
     seconds = time.perf_counter() - start
     log.info("rendered %d×%d at %d spp in %.1fs (%.2f M rays/s)", *plan.resolution, plan.trace.spp, seconds,
              rays / max(seconds, 1e-9) / 1e6)
-    return FrameResult(plan, delivered, rgba, norms, data, vocabulary, object_paths, rays, seconds)
+    return FrameResult(plan, delivered, rgba, norms, data, vocabulary, object_paths, rays, seconds,
+                       assembler.film.guides(*plan.resolution))

@@ -179,6 +179,7 @@ def deliver(
     previews: bool = True,
     nuke_scripts: bool = False,
     show_progress: bool = False,
+    guides: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[Delivered]:
     """Extract, write and preview every product of ``recipe``.
 
@@ -191,6 +192,9 @@ def deliver(
     metadata: ``pxrLayers/<key>`` attributes on every part (stage, camera, spp, seed...)
     nuke_scripts : also write ``PRODUCT.nk`` beside each EXR (layers.nuke: what
               ``pxr-layers nuke PRODUCT.exr`` writes)
+    guides  : the denoiser's (albedo, normal), each (h, w, 3): also write each product's
+              denoised twin ``PRODUCT.denoised.exr`` (:func:`denoised_path`; layers.denoise),
+              whose stack the previews then show
     """
     data = dict(data or {})
     check_raw_sources(recipe, tuple(data), "this render did not produce")
@@ -208,12 +212,44 @@ def deliver(
             elif not layer.is_beauty:
                 images[layer.name] = data[layer.source_name]
         path = write_multipart(outputs[product.name], beauty, images, product, recipe=recipe, metadata=metadata)
+        if guides is not None:
+            beauty_shown, images = _denoised_twin(product, beauty, images, guides, outputs[product.name], recipe,
+                                                  metadata)
+        else:
+            beauty_shown = beauty
         shown = {name: image for name, image in images.items() if not isinstance(image, Cryptomatte)}
-        shares = energy_shares(beauty, shown, {layer.name: layer for layer in product.layers})
-        written = write_previews(path.parent, path.stem, beauty, shown, product, shares) if previews else {}
+        shares = energy_shares(beauty_shown, shown, {layer.name: layer for layer in product.layers})
+        written = write_previews(path.parent, path.stem, beauty_shown, shown, product, shares) if previews else {}
         script = _nuke_script(outputs[product.name], beauty, images, product) if nuke_scripts else None
         delivered.append(Delivered(product, path, written, shares, script))
     return delivered
+
+
+DENOISED_SUFFIX = ".denoised"
+"""A product's denoised twin: ``X.denoised.exr`` beside ``X.exr``."""
+
+
+def denoised_path(exr: Path) -> Path:
+    """Where the denoised twin of the product ``exr`` goes."""
+    return exr.with_name(exr.stem + DENOISED_SUFFIX + exr.suffix)
+
+
+def _denoised_twin(product: Product, beauty: np.ndarray, images: dict, guides: tuple[np.ndarray, np.ndarray],
+                   exr: Path, recipe: Recipe, metadata: Mapping[str, object] | None) -> tuple[np.ndarray, dict]:
+    """Write the product's denoised twin beside ``exr``: the same parts, channels and
+    headers, the beauty and the colour layers denoised (layers.denoise), data and
+    Cryptomatte layers as they are. Returns its (beauty (h, w, 4), images)."""
+    from .denoise import denoise_stack
+
+    kinds = {layer.name: layer for layer in product.layers}
+    colour = {name: image for name, image in images.items() if not isinstance(image, Cryptomatte)
+              and not kinds[name].is_data}
+    stack = denoise_stack(beauty, colour, *guides)
+    twin_beauty = np.concatenate([stack.beauty, beauty[..., 3:]], axis=-1)
+    twin = {**images, **stack.layers}
+    twin_metadata = {**(metadata or {}), "denoised": f"oidn inputScale={stack.scale:.6g}"}
+    write_multipart(denoised_path(exr), twin_beauty, twin, product, recipe=recipe, metadata=twin_metadata)
+    return twin_beauty, twin
 
 
 def _nuke_script(exr: Path, beauty: np.ndarray, images: Mapping[str, np.ndarray | Cryptomatte],

@@ -36,6 +36,7 @@ from .embree import RayCaster
 from .instances import SHADOW, InstanceRows, Slot
 from .lights import LightSampler
 from .merge import MergedContributions, merged
+from .guides import DenoiseGuides
 from .recorder import Contributions, FirstBounceNorms, PathRecorder
 from .shading import MaterialTable
 from .sigma import RayCone, SigmaInputs
@@ -68,6 +69,8 @@ class TraceSettings:
                  subject (``BatchResult.first_hits``): what the Cryptomattes are made of.
     clamp_indirect : the largest channel an indirect contribution may have (stages/film.py,
                  ``clamp_splats``); NO_CLAMP (0): none is clamped.
+    guides : sum, per pixel, the denoiser's albedo and normal guides (``BatchResult.guides``,
+                 guides.py).
     """
 
     spp: int = DEFAULT_SPP
@@ -81,6 +84,7 @@ class TraceSettings:
     first_bounce_norms: bool = False
     first_hits: bool = False
     clamp_indirect: float = NO_CLAMP
+    guides: bool = False
 
     def __post_init__(self) -> None:
         if self.first_bounce_norms and self.norm_bounces <= 0:
@@ -99,6 +103,8 @@ class BatchResult:
     records : every contribution, merged if settings.merge_records (None unless settings.record_paths)
     first_hits : the samples' first visible hits by surface subject (None unless settings.first_hits)
     rays  : rays cast (camera + bounce + shadow), for throughput figures
+    guides : (k, 6) float64 sums of the denoiser's albedo and normal over the samples
+            (guides.py; None unless settings.guides)
     """
 
     first_pixel: int
@@ -109,6 +115,7 @@ class BatchResult:
     records: Contributions | MergedContributions | None = None
     first_hits: FirstHits | None = None
     rays: int = 0
+    guides: np.ndarray | None = None
 
 
 class Integrator:
@@ -140,10 +147,10 @@ class Integrator:
         self.ray_cone = RayCone(float(np.float32(2 * camera.half_width / self.width)), camera.lens_radius,
                                 camera.focus_distance)
 
-    def observers(self, first_pixel: int, pixel_count: int, paths: int
-                  ) -> tuple[BatchFilm, FirstBounceNorms | None, PathRecorder | None]:
+    def observers(self, first_pixel: int, pixel_count: int, first_path: int, paths: int
+                  ) -> tuple[BatchFilm, FirstBounceNorms | None, PathRecorder | None, DenoiseGuides | None]:
         """A batch's observers: its film, the first-bounce norms if asked for, the recorder
-        with an index."""
+        with an index, the denoiser's guides if asked for."""
         first_bounce = (FirstBounceNorms(first_pixel, pixel_count)
                         if self.bounce_norms and self.settings.first_bounce_norms else None)
         sigma = (SigmaInputs(self.world, self.lights, self.bounce_norms, self.ray_cone)
@@ -152,7 +159,9 @@ class Integrator:
                                  self.settings.norm_bounces if self.bounce_norms else 0, paths, sigma)
                     if self.settings.record_paths else None)
         subjects = (self.triangle_subject, len(self.vocabulary.surface_objects)) if self.settings.first_hits else None
-        return BatchFilm(first_pixel, pixel_count, subjects), first_bounce, recorder
+        guides = (DenoiseGuides(first_pixel, pixel_count, first_path, paths, self.settings.spp)
+                  if self.settings.guides else None)
+        return BatchFilm(first_pixel, pixel_count, subjects), first_bounce, recorder, guides
 
     @contextmanager
     def slot(self) -> Iterator[Slot | None]:
@@ -175,8 +184,9 @@ class Integrator:
         spp = settings.spp
         first_pixel = first_path // spp
         pixel_count = (stop_path - 1) // spp - first_pixel + 1
-        film, first_bounce, recorder = self.observers(first_pixel, pixel_count, stop_path - first_path)
-        observers: list[Observer] = [o for o in (film, first_bounce, recorder) if o is not None]
+        film, first_bounce, recorder, guides = self.observers(first_pixel, pixel_count, first_path,
+                                                              stop_path - first_path)
+        observers: list[Observer] = [o for o in (film, first_bounce, recorder, guides) if o is not None]
         queue = camera_rays(self.camera, self.key, (self.width, self.height), spp, first_path, stop_path)
         rays = 0
 
@@ -233,7 +243,7 @@ class Integrator:
                            None if first_bounce is None else first_bounce.sums,
                            None if first_bounce is None else first_bounce.count,
                            None if recorder is None else self._records(recorder, first_pixel, pixel_count),
-                           film.first_hits(), rays)
+                           film.first_hits(), rays, None if guides is None else guides.sums)
 
     def _records(self, recorder: PathRecorder, first_pixel: int, pixel_count: int):
         records = recorder.result()

@@ -18,6 +18,7 @@ from ..paths.events import EventVocabulary
 from ..scene import FLOAT, RenderSpec, SceneData
 from .bounce_norms import BounceNorms
 from .camera import ThinLensCamera
+from .guides import GUIDE_CHANNELS
 from .embree import RayCaster
 from .instances import MAX_SLOTS, InstanceRows, InstanceTables, RowTables, rows_needed
 from .integrator import BatchResult, Integrator, TraceSettings
@@ -149,9 +150,10 @@ class Film:
     """Whole-image sums, filled batch by batch. Batches cover disjoint pixels, so the sums
     do not depend on the order batches arrive in."""
 
-    def __init__(self, pixels: int, spp: int, norms: bool):
+    def __init__(self, pixels: int, spp: int, norms: bool, guides: bool = False):
         self.spp = spp
         self.rgb = np.zeros((pixels, 3))
+        self.guide_sums = np.zeros((pixels, GUIDE_CHANNELS)) if guides else None
         self.coverage = np.zeros(pixels)
         self.norm_sums = np.zeros((pixels, 3)) if norms else None
         self.norm_counts = np.zeros(pixels) if norms else None
@@ -167,12 +169,22 @@ class Film:
             self.norm_counts[span] += batch.first_bounce_count
         if batch.first_hits is not None:
             self._first_hits.append(batch.first_hits)
+        if self.guide_sums is not None:
+            self.guide_sums[span] += batch.guides
         self.rays += batch.rays
 
     def first_hits(self) -> FirstHits:
         """Every batch's FirstHits (TraceSettings.first_hits), in pixel order whatever order
         the batches came in (they cover disjoint pixel ranges)."""
         return FirstHits.concatenate(sorted(self._first_hits, key=lambda part: part.pixel[:1].tolist()))
+
+    def guides(self, width: int, height: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The denoiser's guides (guides.py), each (h, w, 3) float32: the mean albedo and the
+        mean normal over each pixel's samples; None unless asked for."""
+        if self.guide_sums is None:
+            return None
+        means = (self.guide_sums / self.spp).reshape(height, width, GUIDE_CHANNELS).astype(FLOAT)
+        return means[..., :3].copy(), means[..., 3:].copy()
 
     def images(self, width: int, height: int) -> tuple[np.ndarray, np.ndarray | None]:
         """rgba (h, w, 4) float32 and the mean first-bounce norms (h, w, 3) or None."""
