@@ -1,21 +1,25 @@
-"""Denoised layer stacks that still add up: Intel Open Image Denoise (``pyoidn``, CPU) on the
-beauty and on every colour layer, with the render's albedo and normal guides
-(trace/guides.py), then made exact.
+"""Denoised layer stacks that still add up: Intel Open Image Denoise (``pyoidn``, CPU) on
+every colour layer, with the render's albedo and normal guides (trace/guides.py), and the
+denoised beauty their sum.
 
 * One input scale for the whole stack: OIDN's HDR filter maps radiance to its network's
-  range by an exposure it would estimate per image; each layer then would be denoised as a
+  range by an exposure it would estimate per image, so each layer would be filtered as a
   different picture. The scale is estimated once, from the beauty (:func:`input_scale`,
-  OIDN's own autoexposure rule), and every image of the stack is filtered with it.
-* Exactness: denoising is not linear, so the denoised layers do not add up to the denoised
-  beauty (3–5 % L1 on the Cornell passes at 16 spp). The gap is redistributed over the
-  layers in proportion to their denoised magnitude at each pixel and channel
-  (:func:`redistributed`): a layer that holds no light there receives none, and the layers
-  then add up to the denoised beauty exactly as the raw layers add up to the raw beauty
-  (to float precision: both are a partition of it for a complete stack). The alternative,
-  Octane's "denoised remainder", leaves the layers as the filter made them and adds a part
-  holding the gap; it would change the product's parts, and benchmarks/bench_denoise.py
-  measures that redistribution brings the layers as close to a high-spp reference or closer.
-* Cryptomattes and data layers are never denoised (the caller passes colour layers only).
+  OIDN's own autoexposure rule), and every image is filtered with it.
+* Exactness: denoising is not linear, so separately denoised layers do not add up to the
+  separately denoised beauty (8 % L1 on the Cornell passes at 16 spp). Here the layers stay
+  as the filter made them and the denoised beauty is their sum, plus the denoised rest of
+  the raw beauty when the layers do not cover it all (a stack of some lights only): the
+  layers add up to it by construction, to float precision. The two other ways were
+  measured against a 1024-spp reference (benchmarks/bench_denoise.py): redistributing the
+  gap to a separately denoised beauty over the layers brings them 1.3–1.9× further from the
+  reference (Cornell diffuse indirect at 64²: relMSE 1.0e-3 as filtered, 2.0e-3
+  redistributed); Octane's "denoised remainder" keeps the layers as filtered too, but adds a
+  part holding the gap (8 % of the energy, noise of both signs) and so changes the
+  product's parts; the beauty as the layers' sum is as close to the reference as the
+  separately denoised one (2.8e-3 against 3.0e-3 at 64², 2.15e-3 against 2.06e-3 at 128²).
+* An empty layer stays empty (the filter would leave ~1e-7 in it). Cryptomattes and data
+  layers are never denoised (the caller passes colour layers only).
 
 Every image is (h, w, 3) float32 linear radiance.
 """
@@ -39,10 +43,15 @@ AUTOEXPOSURE_EPSILON = 1e-8
 luminance of 16×16-pixel block means, blocks darker than the epsilon left out."""
 
 
+REST_TOLERANCE = 1e-4
+"""Layers cover the beauty when the rest (beauty − their sum) is nowhere above this share of
+the beauty's mean: a complete stack's rounding."""
+
+
 @dataclass(frozen=True)
 class DenoisedStack:
-    """beauty (h, w, 3) and layers (name → (h, w, 3)) float32, denoised and made exact;
-    scale: the input scale every image was filtered with."""
+    """beauty (h, w, 3) and layers (name → (h, w, 3)) float32, denoised; the beauty their
+    sum (with the denoised rest); scale: the input scale every image was filtered with."""
 
     beauty: np.ndarray
     layers: dict[str, np.ndarray]
@@ -108,41 +117,25 @@ class _Filter:
 
 def denoise_stack(beauty: np.ndarray, layers: Mapping[str, np.ndarray], albedo: np.ndarray,
                   normal: np.ndarray) -> DenoisedStack:
-    """The beauty and `layers` denoised with one input scale (the beauty's) and the guides
-    (albedo, normal: (h, w, 3)), the layers redistributed to add up to the denoised beauty
-    as the raw ones add up to the raw beauty (module docstring)."""
+    """`layers` denoised with one input scale (the beauty's) and the guides (albedo,
+    normal: (h, w, 3)), and the denoised beauty: their sum, plus the denoised rest of the raw
+    beauty where they do not cover it (module docstring)."""
     beauty = np.asarray(beauty[..., :3], np.float32)
     scale = input_scale(beauty)
     run = _Filter(albedo, normal, scale)
     try:
-        denoised_beauty = run(beauty)
-        # an empty layer stays empty (the filter would leave ~1e-7 in it)
-        denoised = {name: run(image) if np.any(image[..., :3]) else np.zeros_like(image[..., :3], np.float32)
-                    for name, image in layers.items()}
+        denoised = {name: _filtered(run, image) for name, image in layers.items()}
+        rest = beauty.astype(np.float64) - sum((np.asarray(image[..., :3], np.float64) for image in layers.values()),
+                                               np.zeros(beauty.shape))
+        covered = np.abs(rest).max() <= REST_TOLERANCE * max(float(np.abs(beauty).mean()), 1e-30)
+        total = sum((image.astype(np.float64) for image in denoised.values()), np.zeros(beauty.shape))
+        if not covered:
+            total += _filtered(run, rest.astype(np.float32))
     finally:
         run.release()
-    return DenoisedStack(denoised_beauty, redistributed(beauty, layers, denoised_beauty, denoised), scale)
+    return DenoisedStack(total.astype(np.float32), denoised, scale)
 
 
-def redistributed(beauty: np.ndarray, layers: Mapping[str, np.ndarray], denoised_beauty: np.ndarray,
-                  denoised: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """The denoised layers plus shares of the gap (denoised beauty − their sum) − (beauty −
-    the raw layers' sum), each layer's share its denoised magnitude over all of theirs at
-    that pixel and channel (where none holds any: its raw magnitude; where no raw layer
-    does either, equal shares): afterwards their sum differs from the denoised beauty
-    exactly as the raw layers' sum from the raw beauty."""
-    if not denoised:
-        return {}
-    names = list(denoised)
-    stack = np.stack([denoised[name] for name in names]).astype(np.float64)
-    raw_gap = np.asarray(beauty[..., :3], np.float64) - sum(np.asarray(layers[name][..., :3], np.float64)
-                                                            for name in names)
-    gap = denoised_beauty.astype(np.float64) - stack.sum(axis=0) - raw_gap
-    share = np.full(stack.shape, 1.0 / len(names))
-    # by the denoised layers' magnitude; where none holds light, by the raw layers'
-    for magnitude in (np.abs(np.stack([np.asarray(layers[name][..., :3], np.float64) for name in names])),
-                      np.abs(stack)):
-        total = magnitude.sum(axis=0)
-        share = np.where(total > 0, magnitude / np.where(total > 0, total, 1.0), share)
-    made = stack + share * gap
-    return {name: made[k].astype(np.float32) for k, name in enumerate(names)}
+def _filtered(run: _Filter, image: np.ndarray) -> np.ndarray:
+    """`image` (h, w, ≥3) denoised; an empty one stays empty."""
+    return run(image) if np.any(image[..., :3]) else np.zeros(image.shape[:2] + (3,), np.float32)
