@@ -10,6 +10,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
+from pxr_layers.cli.main import main
 from pxr_layers.jobs.frame import render_frame
 from pxr_layers.layers.deliver import denoised_path
 from pxr_layers.layers.multipart import read_multipart
@@ -59,9 +60,10 @@ def test_the_twin_has_the_products_parts_channels_and_headers(denoised):
         assert twin_header.keys() == raw_header.keys()
         for key, value in raw_header.items():
             assert str(twin_header[key]) == str(value), key
-        if raw_part.name().startswith("CryptoObject"):
+        if raw_part.name().startswith(("CryptoObject", "denoise")):  # data and guides: as they are
             for name, channel in raw_part.channels.items():
                 np.testing.assert_array_equal(twin_part.channels[name].pixels, channel.pixels)
+    assert {"denoiseAlbedo", "denoiseNormal"} <= {part.name() for part in raw.parts}
     assert raw_path.with_name(raw_path.stem + ".contact.png").exists()
 
 
@@ -74,6 +76,23 @@ def test_the_denoised_stack_adds_up_to_the_denoised_beauty(denoised):
 
 def relative_mse(image: np.ndarray, reference: np.ndarray) -> float:
     return float(np.mean((image - reference) ** 2 / (reference ** 2 + 0.01)))
+
+
+def test_layers_cut_later_are_denoised_with_the_renders_guides(denoised, tmp_path, capsys):
+    """extract --denoise: a new layer and its twin, denoised with the guides kept in the
+    render's EXR; a render without them is refused in one line."""
+    index = denoised.index_path
+    assert main(["extract", str(index), "--layer", "walls=C<RD>.*", "--denoise", "-o", str(tmp_path)]) == 0
+    cut = tmp_path / f"{index.stem}.layers.exr"
+    twin = read_multipart(denoised_path(cut))
+    assert set(twin.colour_layers()) == {"walls"} and np.any(twin.colour_layers()["walls"] > 0)
+    np.testing.assert_allclose(twin.parts["denoiseAlbedo"], denoised.guides[0])
+    plain = render(tmp_path / "plain", spp=2, denoise=False)
+    capsys.readouterr()
+    assert main(["extract", str(plain.index_path), "--layer", "walls=C<RD>.*", "--denoise", "-o",
+                 str(tmp_path / "refused")]) == 1
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "holds no denoising guides" in error[0]
 
 
 EDGE_BOUND_LAYERS = {"emission": 2.5}

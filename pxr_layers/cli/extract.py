@@ -14,6 +14,7 @@ from ..layers.deliver import (
     check_raw_sources,
     cryptomattes_beside,
     deliver,
+    guides_beside,
     index_frame,
     index_inputs,
     index_metadata,
@@ -64,7 +65,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=positive_int, metavar="N",
                         help="threads that read and decode the index's chunks (default: every core this "
                         "process may use); the layers are the same, bit for bit, whatever N is")
-    add_request_flags(parser, ("previews", "nuke_scripts", "cryptomattes"), help={
+    add_request_flags(parser, ("previews", "nuke_scripts", "cryptomattes", "denoise"), help={
+        "denoise": "also write every EXR's denoised twin NAME.denoised.exr (the same parts and channels, colour "
+        "layers denoised, the beauty their sum) with the albedo and normal guides of the render, read from its "
+        "EXR beside the index (render it with --denoise)",
         "cryptomattes": "add the Cryptomatte layers (comma-separated: object, material, asset) to every "
         "EXR, copied from the render's EXR beside the index (render it with --cryptomatte); the index "
         "itself cannot give them exactly"})
@@ -112,9 +116,20 @@ def _cut(index: PathIndex, args: argparse.Namespace) -> int:
     outputs = plan_outputs(recipe, frame, directory, exr)
     metadata = index_metadata(index, directory)
     beauty = beauty_beside(index)
+    if args.denoise:
+        from ..layers.denoise import available
+
+        if available():
+            print(f"pxr-layers extract: error: --denoise: {available()}", file=sys.stderr)
+            return 1
+    guides = guides_beside(index) if args.denoise else None
+    if args.denoise and guides is None:
+        print(f"pxr-layers extract: error: --denoise: the render's EXR beside {index.path.name} holds no denoising "
+              "guides (denoiseAlbedo, denoiseNormal): render it with --denoise", file=sys.stderr)
+        return 1
     with OutputSet():  # every EXR and preview of the command, or none
         delivered = deliver(index, recipe, beauty, outputs, data=copied, metadata=metadata, previews=args.previews,
-                            nuke_scripts=args.nuke_scripts, show_progress=args.show_progress)
+                            nuke_scripts=args.nuke_scripts, show_progress=args.show_progress, guides=guides)
     for product in delivered:
         print(product.exr)
         if product.nuke_script:

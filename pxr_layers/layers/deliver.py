@@ -194,7 +194,7 @@ def deliver(
               ``pxr-layers nuke PRODUCT.exr`` writes)
     guides  : the denoiser's (albedo, normal), each (h, w, 3): also write each product's
               denoised twin ``PRODUCT.denoised.exr`` (:func:`denoised_path`; layers.denoise),
-              whose stack the previews then show
+              whose stack the previews then show; both gain the guides (GUIDE_LAYERS)
     """
     data = dict(data or {})
     check_raw_sources(recipe, tuple(data), "this render did not produce")
@@ -206,6 +206,9 @@ def deliver(
     delivered = []
     for product in recipe.products:
         images = {}
+        if guides is not None:  # the guides are raw parts of the product (and of its twin)
+            product = dataclasses.replace(product, layers=product.layers + GUIDE_LAYERS)
+            data = {**data, **dict(zip(GUIDE_SOURCES, guides))}
         for layer in product.layers:
             if layer.source_type == "lpe":
                 images[layer.name] = extracted[_key(product, layer)]
@@ -224,6 +227,13 @@ def deliver(
         delivered.append(Delivered(product, path, written, shares, script))
     return delivered
 
+
+GUIDE_SOURCES = ("denoiseAlbedo", "denoiseNormal")
+GUIDE_LAYERS = tuple(Layer(name=source, source_type="raw", source_name=source, data_type=kind, preview=False,
+                           group="denoise") for source, kind in zip(GUIDE_SOURCES, ("float3", "normal3f")))
+"""The denoiser's guides (trace/guides.py) as the raw data parts every product of a denoised
+render gains, last: ``denoiseAlbedo.X/Y/Z`` (albedo r, g, b) and ``denoiseNormal.X/Y/Z``;
+``extract --denoise`` reads them back from the render's EXR."""
 
 DENOISED_SUFFIX = ".denoised"
 """A product's denoised twin: ``X.denoised.exr`` beside ``X.exr``."""
@@ -290,6 +300,18 @@ def cryptomattes_beside(index: PathIndex) -> dict[str, Cryptomatte]:
         return {}
     image = read_multipart(beside[0])
     return {image.metadata[name]["source"]: matte for name, matte in image.cryptomattes.items()}
+
+
+def guides_beside(index: PathIndex) -> tuple[np.ndarray, np.ndarray] | None:
+    """The denoiser's guides (albedo, normal), each (h, w, 3), from the render's EXR beside
+    the index (GUIDE_LAYERS: a render with --denoise keeps them); None when it has none."""
+    beside = _render_exr_beside(index, header_only=True)
+    if beside is None:
+        return None
+    parts = read_multipart(beside[0]).parts
+    if not all(source in parts for source in GUIDE_SOURCES):
+        return None
+    return tuple(parts[source] for source in GUIDE_SOURCES)
 
 
 def beauty_beside(index: PathIndex) -> np.ndarray:
