@@ -22,7 +22,8 @@ RED = (0.570068, 0.0430135, 0.0443706)  # the Cornell box's red wall (render/cor
 
 
 def render(tmp_path, spp: int, resolution: int = 48, denoise: bool = True, **options):
-    request = RenderRequest(stage=CORNELL, recipe_layers=(preset("light_passes"),), resolution=(resolution, resolution),
+    options.setdefault("recipe_layers", (preset("light_passes"),))
+    request = RenderRequest(stage=CORNELL, resolution=(resolution, resolution),
                             spp=spp, denoise=denoise, **options)
     return render_frame(request, output=tmp_path)
 
@@ -120,3 +121,23 @@ def test_denoising_lowers_the_error_of_every_noisy_layer(tmp_path):
             checked += 1
             assert after <= before / EDGE_BOUND_LAYERS.get(name, 4.0), (name, before, after)
     assert checked >= 3
+
+
+def test_a_recipe_product_asks_for_its_denoised_twin(tmp_path):
+    """pxrLayers:denoise on the RenderProduct: the twin without --denoise."""
+    layer = tmp_path / "denoised_recipe.usda"
+    layer.write_text('''#usda 1.0
+over "Render"
+{
+    over "LightPasses"
+    {
+        over "passes" (prepend apiSchemas = ["PxrLayersProductAPI"])
+        {
+            uniform bool pxrLayers:denoise = 1
+        }
+    }
+}
+''')
+    result = render(tmp_path, spp=2, denoise=False, recipe_layers=(layer, preset("light_passes")))
+    assert result.plan.recipe.products[0].denoise and result.guides is not None
+    assert denoised_path(result.delivered[0].exr).exists()

@@ -41,7 +41,7 @@ RECIPES = {
                 Layer("flat", source_name="C<R.>@(|S_C| = 0).*", pixel_type="float"),
                 Layer("depth", "raw", "depth", data_type="float", preview=False, group="data")),
         pixel_type="half", compression="dwaa", index=IndexSettings(bounces=8, covariance="sigma", mode="records"),
-        view="Un-tone-mapped", contact_sheet=False),)),
+        view="Un-tone-mapped", contact_sheet=False, denoise=True),)),
     "colour settings": Recipe(products=(product(
         ocio_config="ocio://cg-config-v2.2.0_aces-v1.3_ocio-v2.4", display="Display P3 - Display",
         rendering_space="lin_srgb"),)),

@@ -109,6 +109,7 @@ def test_python_constants_equal_the_schema():
     assert fallback(schema.PRODUCT_API, "pxrLayers:ocio:view") == product.view
     assert fallback(schema.PRODUCT_API, "pxrLayers:ocio:renderingSpace") == product.rendering_space
     assert fallback(schema.PRODUCT_API, "pxrLayers:contactSheet") is product.contact_sheet
+    assert fallback(schema.PRODUCT_API, "pxrLayers:denoise") is product.denoise
     assert fallback(schema.PRODUCT_API, "pxrLayers:perLight") == product.per_light
     assert fallback(schema.LIGHT_API, "pxrLayers:lightGroup") == ""
 

@@ -106,6 +106,8 @@ def _cut(index: PathIndex, args: argparse.Namespace) -> int:
                     settings_path=loaded.settings_path if loaded else "", file=loaded.file if loaded else "")
     if args.cryptomattes:
         recipe = recipe.with_cryptomattes(args.cryptomattes)
+    if args.denoise:
+        recipe = recipe.with_denoise()
     copied = cryptomattes_beside(index) if any(layer.is_cryptomatte for product in recipe.products
                                                for layer in product.layers) else {}
     check_raw_sources(recipe, tuple(copied), "the path index does not hold (it keeps light paths; data AOVs need "
@@ -116,17 +118,18 @@ def _cut(index: PathIndex, args: argparse.Namespace) -> int:
     outputs = plan_outputs(recipe, frame, directory, exr)
     metadata = index_metadata(index, directory)
     beauty = beauty_beside(index)
-    if args.denoise:
+    guides = None
+    if recipe.denoises:
         from ..layers.denoise import available
 
         if available():
-            print(f"pxr-layers extract: error: --denoise: {available()}", file=sys.stderr)
+            print(f"pxr-layers extract: error: denoising: {available()}", file=sys.stderr)
             return 1
-    guides = guides_beside(index) if args.denoise else None
-    if args.denoise and guides is None:
-        print(f"pxr-layers extract: error: --denoise: the render's EXR beside {index.path.name} holds no denoising "
-              "guides (denoiseAlbedo, denoiseNormal): render it with --denoise", file=sys.stderr)
-        return 1
+        guides = guides_beside(index)
+        if guides is None:
+            print(f"pxr-layers extract: error: denoising: the render's EXR beside {index.path.name} holds no "
+                  "denoising guides (denoiseAlbedo, denoiseNormal): render it with --denoise", file=sys.stderr)
+            return 1
     with OutputSet():  # every EXR and preview of the command, or none
         delivered = deliver(index, recipe, beauty, outputs, data=copied, metadata=metadata, previews=args.previews,
                             nuke_scripts=args.nuke_scripts, show_progress=args.show_progress, guides=guides)

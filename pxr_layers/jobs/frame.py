@@ -127,16 +127,18 @@ def plan_frame(
         recipe = resolve_recipe(request, frame, shot)
     if request.cryptomattes:
         recipe = recipe.with_cryptomattes(request.cryptomattes)
+    if request.denoise:
+        recipe = recipe.with_denoise()
     view = recipe.shared_view()
     view_camera, view_resolution = view.camera, view.resolution
     resolution = tuple(request.resolution or view_resolution)
     check_raw_sources(recipe, (*DATA_AOVS, *CRYPTOMATTE_SOURCES), "the renderer does not produce")
-    if request.denoise:
+    if recipe.denoises:
         from ..layers.denoise import available
 
         missing = available()
         if missing:
-            raise RenderSettingsError(f"--denoise: {missing}")
+            raise RenderSettingsError(f"denoising: {missing}")
     sources = raw_sources(recipe)
     crypto_sources = tuple(source for source in sources if source in CRYPTOMATTE_SOURCES)
     model_paths: tuple[str, ...] = ()
@@ -166,7 +168,7 @@ def plan_frame(
                           record_paths=record, merge_records=record and index_mode == "merged",
                           record_sigma=record and sigma and norm_bounces > 0, first_hits=bool(crypto_sources),
                           first_bounce_norms=request.debug_covariance,
-                          clamp_indirect=request.clamp_indirect, guides=request.denoise)
+                          clamp_indirect=request.clamp_indirect, guides=recipe.denoises)
     metadata = {
         "version": __version__,
         "stage": str(stage.resolve()),

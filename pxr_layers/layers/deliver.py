@@ -192,9 +192,10 @@ def deliver(
     metadata: ``pxrLayers/<key>`` attributes on every part (stage, camera, spp, seed...)
     nuke_scripts : also write ``PRODUCT.nk`` beside each EXR (layers.nuke: what
               ``pxr-layers nuke PRODUCT.exr`` writes)
-    guides  : the denoiser's (albedo, normal), each (h, w, 3): also write each product's
-              denoised twin ``PRODUCT.denoised.exr`` (:func:`denoised_path`; layers.denoise),
-              whose stack the previews then show; both gain the guides (GUIDE_LAYERS)
+    guides  : the denoiser's (albedo, normal), each (h, w, 3), for the products that write
+              their denoised twin ``PRODUCT.denoised.exr`` (Product.denoise;
+              :func:`denoised_path`; layers.denoise), whose stack the previews then show;
+              both gain the guides (GUIDE_LAYERS)
     """
     data = dict(data or {})
     check_raw_sources(recipe, tuple(data), "this render did not produce")
@@ -206,7 +207,9 @@ def deliver(
     delivered = []
     for product in recipe.products:
         images = {}
-        if guides is not None:  # the guides are raw parts of the product (and of its twin)
+        if product.denoise:  # the guides are raw parts of the product (and of its twin)
+            if guides is None:
+                raise ValueError(f"product {product.name!r} is denoised: deliver needs the render's guides")
             product = dataclasses.replace(product, layers=product.layers + GUIDE_LAYERS)
             data = {**data, **dict(zip(GUIDE_SOURCES, guides))}
         for layer in product.layers:
@@ -215,7 +218,7 @@ def deliver(
             elif not layer.is_beauty:
                 images[layer.name] = data[layer.source_name]
         path = write_multipart(outputs[product.name], beauty, images, product, recipe=recipe, metadata=metadata)
-        if guides is not None:
+        if product.denoise:
             beauty_shown, images = _denoised_twin(product, beauty, images, guides, outputs[product.name], recipe,
                                                   metadata)
         else:

@@ -337,6 +337,7 @@ class Product:
     ocio_config     : OCIO config URI or file of the previews; display, view: its display
                       and view; rendering_space: the colour space of the EXR pixels in it
     contact_sheet   : write a contact sheet of all layers
+    denoise         : also write the denoised twin PRODUCT.denoised.exr (layers/denoise.py)
     pixel_type, compression : of the beauty part (and the default of the vars)
     per_light       : "none", "lights" or "groups": what per-light layers were added
     pixel_aspect_ratio : a pixel's width over its height (UsdRender pixelAspectRatio): the
@@ -358,6 +359,7 @@ class Product:
     view: str = DEFAULT_VIEW
     rendering_space: str = RENDERING_SPACE
     contact_sheet: bool = True
+    denoise: bool = False
     pixel_type: str = DEFAULT_PIXEL_TYPE
     compression: str = DEFAULT_COMPRESSION
     per_light: str = "none"
@@ -524,6 +526,16 @@ class Recipe:
                           for source in dict.fromkeys(sources) if source not in have)
             products.append(dataclasses.replace(product, layers=product.layers + added))
         return dataclasses.replace(self, products=tuple(products))
+
+    def with_denoise(self) -> Recipe:
+        """A copy in which every product writes its denoised twin (``--denoise``)."""
+        return dataclasses.replace(self, products=tuple(dataclasses.replace(product, denoise=True)
+                                                        for product in self.products))
+
+    @property
+    def denoises(self) -> bool:
+        """Whether some product writes a denoised twin (the render keeps the guides)."""
+        return any(product.denoise for product in self.products)
 
     def with_layers(self, layers, product: str | None = None) -> Recipe:
         """A copy with ``layers`` appended to a product (None: every product).

@@ -230,7 +230,8 @@ class _Reader:
                 name=prim.GetName(), output_name=output_name, **self.camera_view(settings, product)._asdict(),
                 layers=tuple(layers), index=index,
                 ocio_config=config, display=display, view=view, rendering_space=space,
-                contact_sheet=bool(api["contactSheet"][0]), pixel_type=pixel_type, compression=compression,
+                contact_sheet=bool(api["contactSheet"][0]), denoise=bool(api["denoise"][0]), pixel_type=pixel_type,
+                compression=compression,
                 per_light=per_light, prim_path=str(prim.GetPath()),
             )
         except RecipeError as error:

@@ -201,6 +201,7 @@ def _author_product(stage: Usd.Stage, path: Sdf.Path, product: Product) -> UsdRe
         "ocio:view": product.view,
         "ocio:renderingSpace": product.rendering_space,
         "contactSheet": product.contact_sheet,
+        "denoise": product.denoise,
     }
     for short, value in values.items():
         _author_if_needed(render_product.GetPrim(), schema.PRODUCT_API, short, value)
