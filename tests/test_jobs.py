@@ -334,3 +334,18 @@ def test_render_and_a_one_frame_job_write_the_same_bytes(tmp_path):
         assert (tmp_path / "render" / name).read_bytes() == (tmp_path / "job" / name).read_bytes(), name
     parts = [part.name() for part in OpenEXR.File(str(tmp_path / "job" / names[0])).parts]
     assert parts == ["rgba", "diffuse", "CryptoObject00", "CryptoMaterial00"]
+
+
+def test_a_job_denoises_its_frames_from_their_tiles_guides(tmp_path, client):
+    """render.denoise in a job: each frame's denoised twin, its guides summed from 3 tiles,
+    equal to the same frame rendered in one piece (the twin is a function of the frame)."""
+    out = tmp_path / "out"
+    job = job_at(out, frames="1", **{"render.denoise": True, "dask.batch_pixels": 1})
+    assert len(tiles(frame_plan(job, 1.0), job.batch_pixels)) == 3
+    run_job(job, client=client)
+    whole = tmp_path / "whole"
+    run_job(job_at(whole, frames="1", **{"render.denoise": True, "dask.batch_pixels": 1_000_000}), client=client)
+    twins = sorted(path.name for path in out.glob("*.denoised.exr"))
+    assert twins and twins == sorted(path.name for path in whole.glob("*.denoised.exr"))
+    for name in twins:
+        assert (out / name).read_bytes() == (whole / name).read_bytes()
