@@ -141,3 +141,9 @@ over "Render"
     result = render(tmp_path, spp=2, denoise=False, recipe_layers=(layer, preset("light_passes")))
     assert result.plan.recipe.products[0].denoise and result.guides is not None
     assert denoised_path(result.delivered[0].exr).exists()
+
+
+def test_the_nuke_script_of_a_denoised_render_reads_its_twin(tmp_path):
+    result = render(tmp_path, spp=2, nuke_scripts=True)
+    script = result.delivered[0].nuke_script.read_text()
+    assert denoised_path(result.delivered[0].exr).name in script

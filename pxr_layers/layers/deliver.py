@@ -226,7 +226,7 @@ def deliver(
         shown = {name: image for name, image in images.items() if not isinstance(image, Cryptomatte)}
         shares = energy_shares(beauty_shown, shown, {layer.name: layer for layer in product.layers})
         written = write_previews(path.parent, path.stem, beauty_shown, shown, product, shares) if previews else {}
-        script = _nuke_script(outputs[product.name], beauty, images, product) if nuke_scripts else None
+        script = _nuke_script(outputs[product.name], beauty_shown, images, product) if nuke_scripts else None
         delivered.append(Delivered(product, path, written, shares, script))
     return delivered
 
@@ -268,10 +268,11 @@ def _denoised_twin(product: Product, beauty: np.ndarray, images: dict, guides: t
 def _nuke_script(exr: Path, beauty: np.ndarray, images: Mapping[str, np.ndarray | Cryptomatte],
                  product: Product) -> Path:
     """Write the product's Nuke script, with unit grades, beside its EXR ``exr`` (the final
-    path); returns the script's final path."""
+    path), reading its denoised twin when it has one (``beauty`` and ``images`` then the
+    twin's); returns the script's final path."""
     kinds = {layer.name: layer for layer in product.layers}
     script = exr.with_suffix(NUKE_SCRIPT_SUFFIX)
-    write_product_script(script, exr, beauty, {name: image for name, image in images.items() if not kinds[name].is_data},
+    write_product_script(script, denoised_path(exr) if product.denoise else exr, beauty, {name: image for name, image in images.items() if not kinds[name].is_data},
                          {name: image.depth for name, image in images.items() if isinstance(image, Cryptomatte)},
                          product.pixel_aspect_ratio)
     return script
