@@ -18,7 +18,7 @@ demo: $(STAMP)
 
 # The layer inspector on the demo's output (renders it first if it is not there).
 view: $(STAMP)
-	test -f demo/cornell.pxlidx || $(BIN)/pxr-layers demo -o demo
+	test -f demo/demo.pxlidx || $(BIN)/pxr-layers demo -o demo
 	$(BIN)/pxr-layers view demo
 
 test: $(STAMP)

@@ -51,18 +51,21 @@ def _shared_folder(name: str) -> Path:
     pytest.skip(f"{folder} is not here (the workplace's shared assets)")
 
 
-DEMO_RESOLUTION, DEMO_SPP = (64, 64), 16
+CORNELL_RESOLUTION, CORNELL_SPP = (64, 64), 16
 
 
 @pytest.fixture(scope="session")
-def demo_output(tmp_path_factory) -> Path:
-    """A small `pxr-layers demo` output folder (the Cornell box's light passes, its index and
-    previews), rendered once for the inspector's tests by the real console script. Tests
-    that write into it copy it first."""
+def cornell_passes(tmp_path_factory) -> Path:
+    """A small render of the Cornell box into the light_passes preset (light_passes.exr,
+    cornell.pxlidx, the previews), made once for the inspector's tests by the real console
+    script. Tests that write into it copy it first."""
     import subprocess
     import sys
 
-    folder = tmp_path_factory.mktemp("demo")
-    subprocess.run([sys.executable, "-m", "pxr_layers.cli.main", "demo", "-o", str(folder), "-q",
-                    "--resolution", *map(str, DEMO_RESOLUTION), "--spp", str(DEMO_SPP)], check=True)
+    from pxr_layers.cli.demo import embedded_scene
+
+    folder = tmp_path_factory.mktemp("cornell")
+    subprocess.run([sys.executable, "-m", "pxr_layers.cli.main", "render", str(embedded_scene("cornell.usda")),
+                    "--recipe", "light_passes", "-o", str(folder), "-q", "--resolution",
+                    *map(str, CORNELL_RESOLUTION), "--spp", str(CORNELL_SPP)], check=True)
     return folder

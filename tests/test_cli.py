@@ -241,11 +241,17 @@ def test_same_command_gives_the_same_bytes(tmp_path):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
 
 
-def test_demo_renders_the_embedded_cornell_box(tmp_path):
+def test_demo_renders_the_embedded_demo_shot_denoised(tmp_path):
+    """Its two products, each with its denoised twin, every light pass holding light."""
     result = run("demo", "-o", str(tmp_path), *SMALL)
     assert result.returncode == 0, result.stderr
-    assert result.stdout.split() == [str(tmp_path / "light_passes.exr")]
-    assert (tmp_path / "cornell.pxlidx").exists() and (tmp_path / "light_passes.contact.png").exists()
+    assert result.stdout.split() == [str(tmp_path / "demo_passes.exr"), str(tmp_path / "demo_lights.exr")]
+    assert (tmp_path / "demo.pxlidx").exists() and (tmp_path / "demo_passes.contact.png").exists()
+    from pxr_layers.layers.multipart import read_multipart
+
+    passes = read_multipart(tmp_path / "demo_passes.denoised.exr").colour_layers()
+    assert len(passes) == 6 and all(image.max() > 0 for image in passes.values())
+    assert (tmp_path / "demo_lights.denoised.exr").exists()
 
 
 def test_unknown_camera_is_a_user_error(tmp_path):

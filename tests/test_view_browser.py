@@ -27,7 +27,7 @@ from typing import Iterator
 import numpy as np
 import OpenImageIO as oiio
 import pytest
-from test_cli import SCRIPT
+from test_cli import RENDER_DIR, SCRIPT
 
 from pxr_layers.layers.nuke import LayerGrade
 from pxr_layers.layers.previews import to_display
@@ -42,6 +42,7 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic"
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 VIEWPORT = {"width": 1280, "height": 800}
 RESOLUTION = 128
+CORNELL = RENDER_DIR / "cornell.usda"
 RED_DIRECT = "C RD'redWall' L'ceilingLight'"
 TOP_CLASSES = 5
 """How far down the inspect list the red wall's direct light may be at a red wall pixel."""
@@ -117,10 +118,12 @@ def browser(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory) -> Path:
-    """A 128×128, 16 spp demo output: light_passes.exr, cornell.pxlidx, the previews."""
+    """A 128×128, 16 spp render of the Cornell box into light passes: light_passes.exr,
+    cornell.pxlidx, the previews."""
     folder = tmp_path_factory.mktemp("view-demo")
-    result = subprocess.run([SCRIPT, "demo", "-o", str(folder), "--resolution", str(RESOLUTION), str(RESOLUTION),
-                             "--spp", "16", "--quiet"], capture_output=True, text=True, check=False)
+    result = subprocess.run([SCRIPT, "render", str(CORNELL), "--recipe", "light_passes", "-o", str(folder),
+                             "--resolution", str(RESOLUTION), str(RESOLUTION), "--spp", "16", "--quiet"],
+                            capture_output=True, text=True, check=False)
     assert result.returncode == 0, result.stderr
     return folder
 

@@ -14,8 +14,8 @@ from pxr_layers.view import inspect
 
 
 @pytest.fixture(scope="module")
-def index(demo_output) -> PathIndex:
-    return PathIndex(demo_output / "cornell.pxlidx")
+def index(cornell_passes) -> PathIndex:
+    return PathIndex(cornell_passes / "cornell.pxlidx")
 
 
 @pytest.fixture(scope="module")

@@ -69,9 +69,9 @@ class Server:
 
 
 @pytest.fixture(scope="module")
-def folder(demo_output, tmp_path_factory) -> Path:
+def folder(cornell_passes, tmp_path_factory) -> Path:
     copy = tmp_path_factory.mktemp("view") / "demo"
-    shutil.copytree(demo_output, copy)
+    shutil.copytree(cornell_passes, copy)
     return copy
 
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from .. import lpe
 from ..errors import LpeSyntaxError, PxrLayersError, RecipeError
-from ..layers.deliver import at_index_view, beauty_beside, deliver, index_inputs, index_metadata
+from ..layers.deliver import DENOISED_SUFFIX, at_index_view, beauty_beside, deliver, index_inputs, index_metadata
 from ..layers.display_lut import DisplayLut, bake_display_lut, lut_bytes, lut_description
 from ..layers.extract import extract
 from ..layers.multipart import MultipartImage, read_multipart
@@ -426,10 +426,13 @@ def _render_ids(product: MultipartImage) -> set[str | None]:
 
 def _products_beside(folder: Path, index: PathIndex | None) -> list[MultipartImage]:
     """The product EXRs of the folder that `index`'s render wrote (all of them without an
-    index), in name order; EXRs that are not pxr-layers products are skipped."""
+    index), in name order; EXRs that are not pxr-layers products, and denoised twins, are
+    skipped."""
     render_id = index.manifest.get("render_id") if index else None
     products = []
     for path in sorted(folder.glob("*.exr")):
+        if path.stem.endswith(DENOISED_SUFFIX):  # a denoised twin: the inspector shows the raw stack
+            continue
         try:
             product = read_multipart(path)
         except PxrLayersError as error:
