@@ -147,3 +147,19 @@ def test_the_nuke_script_of_a_denoised_render_reads_its_twin(tmp_path):
     result = render(tmp_path, spp=2, nuke_scripts=True)
     script = result.delivered[0].nuke_script.read_text()
     assert denoised_path(result.delivered[0].exr).name in script
+
+
+def test_the_inspector_opens_a_denoised_render_and_saves_its_raw_stack(denoised):
+    """The inspector reads the raw products beside their twins, and a saved look is the raw
+    stack (its product not denoised: the inspector has no denoised view yet)."""
+    import shutil
+
+    from pxr_layers.view.session import Session
+
+    folder = denoised.index_path.parent
+    copy = folder.parent / "inspected"
+    shutil.copytree(folder, copy)
+    session = Session.open(copy)
+    assert "diffuse_indirect" in session.layers and not any("denoised" in name for name in session.layers)
+    saved = session.save("look", [{"id": "diffuse_direct"}, {"id": "diffuse_indirect"}])
+    assert (copy / saved["exr"]).exists() and not (copy / "look.denoised.exr").exists()

@@ -313,8 +313,9 @@ class Session:
                             "not starting with a digit or -")
         exposure = _stops(exposure, "exposure")
         chosen, grades = self._stack(stack)
+        # the raw stack: the inspector shows no denoised twin yet
         recipe = Recipe((replace(self.base_product, name=name.replace("-", "_"), output_name=f"{name}.exr", prim_path="",
-                                 layers=tuple(chosen), per_light="none"),))
+                                 layers=tuple(chosen), per_light="none", denoise=False),))
         paths = {"recipe": self.folder / f"{name}.usda", "exr": self.folder / f"{name}.exr",
                  "nuke": self.folder / f"{name}.nk"}
         partition = self._partition([self.layers[entry["id"]] for entry in stack if entry["id"] != "beauty"])
