@@ -7,17 +7,18 @@ denoised beauty their sum.
   different picture. The scale is estimated once, from the beauty (:func:`input_scale`,
   OIDN's own autoexposure rule), and every image is filtered with it.
 * Exactness: denoising is not linear, so separately denoised layers do not add up to the
-  separately denoised beauty (8 % L1 on the Cornell passes at 16 spp). Here the layers stay
+  separately denoised beauty (6 % L1 on the Cornell passes at 16 spp). Here the layers stay
   as the filter made them and the denoised beauty is their sum, plus the denoised rest of
   the raw beauty when the layers do not cover it all (a stack of some lights only): the
   layers add up to it by construction, to float precision. The two other ways were
-  measured against a 1024-spp reference (benchmarks/bench_denoise.py): redistributing the
-  gap to a separately denoised beauty over the layers brings them 1.3–1.9× further from the
-  reference (Cornell diffuse indirect at 64²: relMSE 1.0e-3 as filtered, 2.0e-3
-  redistributed); Octane's "denoised remainder" keeps the layers as filtered too, but adds a
-  part holding the gap (8 % of the energy, noise of both signs) and so changes the
-  product's parts; the beauty as the layers' sum is as close to the reference as the
-  separately denoised one (2.8e-3 against 3.0e-3 at 64², 2.15e-3 against 2.06e-3 at 128²).
+  measured against 2048-spp references at 256², 16 spp (benchmarks/bench_denoise.py):
+  redistributing the gap to a separately denoised beauty over the layers moves the Cornell
+  passes further from the reference (diffuse indirect relMSE 2.6e-4 as filtered, 3.3e-4
+  redistributed; diffuse direct 1.06e-4 against 1.21e-4) and leaves the showcase's within a
+  few per cent either way; Octane's "denoised remainder" keeps the layers as filtered too,
+  but adds a part holding the gap (6.3 % of the Cornell beauty's energy, L1, noise of both
+  signs) and so changes the product's parts; the beauty as the layers' sum is as close to
+  the reference as the separately denoised one, or closer (Cornell 5.5e-4 against 6.3e-4).
 * An empty layer stays empty (the filter would leave ~1e-7 in it). Cryptomattes and data
   layers are never denoised (the caller passes colour layers only).
 
