@@ -150,8 +150,8 @@ def test_the_nuke_script_of_a_denoised_render_reads_its_twin(tmp_path):
 
 
 def test_the_inspector_opens_a_denoised_render_and_saves_its_raw_stack(denoised):
-    """The inspector reads the raw products beside their twins, and a saved look is the raw
-    stack (its product not denoised: the inspector has no denoised view yet)."""
+    """The inspector reads the raw products and their twins' versions (a layer made from
+    the index gets one too), and a saved look is the raw stack (its product not denoised)."""
     import shutil
 
     from pxr_layers.view.session import Session
@@ -161,5 +161,11 @@ def test_the_inspector_opens_a_denoised_render_and_saves_its_raw_stack(denoised)
     shutil.copytree(folder, copy)
     session = Session.open(copy)
     assert "diffuse_indirect" in session.layers and not any("denoised" in name for name in session.layers)
+    assert session.description()["denoised"]
+    twin = read_multipart(denoised_path(denoised.delivered[0].exr)).colour_layers()["diffuse_indirect"]
+    shown = np.frombuffer(session.layers["diffuse_indirect"].pixels("denoised"), "<f4").reshape(twin.shape)
+    np.testing.assert_array_equal(shown, twin)
+    made, _ = session.add_layer("walls", "C<RD>.*")  # made from the index: denoised as the twins were
+    assert made.denoised is not None and made.denoised.shape == made.image.shape
     saved = session.save("look", [{"id": "diffuse_direct"}, {"id": "diffuse_indirect"}])
     assert (copy / saved["exr"]).exists() and not (copy / "look.denoised.exr").exists()

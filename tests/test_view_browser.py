@@ -406,3 +406,45 @@ def test_suggest_layers_fills_the_stack_with_a_partition(page):
     np.testing.assert_allclose(total, beauty, rtol=1e-5, atol=1e-6 * beauty.max())
     page.click(f'#stack li[data-id="{added[0]}"] button.mute')
     assert np.abs(canvas_image(page).astype(int) - before).max() > 0
+
+
+@pytest.fixture(scope="module")
+def denoised_render(tmp_path_factory) -> Path:
+    """The Cornell passes rendered with --denoise: light_passes.exr and its denoised twin."""
+    folder = tmp_path_factory.mktemp("view-denoised")
+    result = subprocess.run([SCRIPT, "render", str(CORNELL), "--recipe", "light_passes", "-o", str(folder),
+                             "--resolution", str(RESOLUTION), str(RESOLUTION), "--spp", "4", "--denoise", "--quiet"],
+                            capture_output=True, text=True, check=False)
+    assert result.returncode == 0, result.stderr
+    return folder
+
+
+def test_the_denoised_toggle_shows_the_twins_stack_and_keeps_the_grades(browser, denoised_render):
+    """The button (and the key d) swaps every image for the denoised twin's, and back; the
+    grades stay and apply to either; the composite is the numpy rule on the twin's pixels."""
+    with serving(denoised_render) as url:
+        page = open_inspector(browser, url)
+        try:
+            button = page.locator("#denoised")
+            assert button.is_visible() and button.get_attribute("aria-pressed") == "false"
+            raw = read_part(denoised_render / "light_passes.exr", "diffuse_indirect")
+            twin = read_part(denoised_render / "light_passes.denoised.exr", "diffuse_indirect")
+            np.testing.assert_array_equal(layer_pixels(page, "diffuse_indirect"), raw)
+            page.evaluate("([id, grade]) => pxrViewer.setGrade(id, grade)",
+                          ["diffuse_indirect", {"stops": 1.5, "tint": [1, 0.5, 0.25], "mute": False, "solo": False}])
+            button.click()
+            page.wait_for_function("pxrViewer.state().denoised && !document.querySelector('#denoised').disabled")
+            assert button.get_attribute("aria-pressed") == "true"
+            np.testing.assert_array_equal(layer_pixels(page, "diffuse_indirect"), twin)
+            stack = page.evaluate("pxrViewer.state().layers")
+            assert next(layer for layer in stack if layer["id"] == "diffuse_indirect")["stops"] == 1.5
+            ids = [layer["id"] for layer in stack]
+            grades = [LayerGrade(stops=layer["stops"], tint=tuple(layer["tint"])) for layer in stack[1:]]
+            expected = to_display(composite(layer_pixels(page, ids[0]), [layer_pixels(page, i) for i in ids[1:]],
+                                            grades))
+            assert np.abs(canvas_image(page).astype(int) - expected).max() <= 1
+            page.locator("body").press("d")
+            page.wait_for_function("!pxrViewer.state().denoised && !document.querySelector('#denoised').disabled")
+            np.testing.assert_array_equal(layer_pixels(page, "diffuse_indirect"), raw)
+        finally:
+            page.close()

@@ -116,6 +116,17 @@ class _Filter:
         self._device.release()
 
 
+def denoise_images(beauty: np.ndarray, images: Mapping[str, np.ndarray], albedo: np.ndarray,
+                   normal: np.ndarray) -> dict[str, np.ndarray]:
+    """`images` denoised as layers of the stack whose raw beauty is `beauty` (its input
+    scale, the guides): a layer made later from the index joins a denoised stack so."""
+    run = _Filter(albedo, normal, input_scale(np.asarray(beauty[..., :3], np.float32)))
+    try:
+        return {name: _filtered(run, image) for name, image in images.items()}
+    finally:
+        run.release()
+
+
 def denoise_stack(beauty: np.ndarray, layers: Mapping[str, np.ndarray], albedo: np.ndarray,
                   normal: np.ndarray) -> DenoisedStack:
     """`layers` denoised with one input scale (the beauty's) and the guides (albedo,

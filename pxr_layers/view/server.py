@@ -210,7 +210,7 @@ async def _lut(request: web.Request) -> web.Response:
 async def _image(request: web.Request) -> web.Response:
     session = request.app[SESSION_KEY]
     layer = session.layer(request.match_info["layer"])
-    return web.Response(body=layer.pixels(), content_type="application/octet-stream",
+    return web.Response(body=layer.pixels(request.query.get("version", "raw")), content_type="application/octet-stream",
                         headers={"X-Width": str(session.width), "X-Height": str(session.height),
                                  "Cache-Control": "no-store"})
 

@@ -28,7 +28,8 @@ import numpy as np
 
 from .. import lpe
 from ..errors import LpeSyntaxError, PxrLayersError, RecipeError
-from ..layers.deliver import DENOISED_SUFFIX, at_index_view, beauty_beside, deliver, index_inputs, index_metadata
+from ..layers.deliver import (DENOISED_SUFFIX, GUIDE_SOURCES, at_index_view, beauty_beside, deliver, denoised_path,
+                               index_inputs, index_metadata)
 from ..layers.display_lut import DisplayLut, bake_display_lut, lut_bytes, lut_description
 from ..layers.extract import extract
 from ..layers.multipart import MultipartImage, read_multipart
@@ -65,6 +66,8 @@ MAX_NAME_CHARS = 120
 """Longest save or layer name (NAME.usda and its previews' names stay within the system's 255 bytes)."""
 MAX_SUGGESTED = 32
 """Most layers /api/suggest makes at once."""
+VERSIONS = ("raw", "denoised")
+"""The versions of a layer's pixels /api/image serves: as rendered, and from the denoised twin."""
 
 
 class ViewError(PxrLayersError):
@@ -89,13 +92,20 @@ class ViewLayer:
     share: float | None
     exposure: float = 0.0
     tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    _bytes: bytes | None = field(default=None, repr=False)
+    denoised: np.ndarray | None = None
+    _bytes: dict = field(default_factory=dict, repr=False)
 
-    def pixels(self) -> bytes:
-        """Little-endian float32 h × w × 3, top row first (/api/image)."""
-        if self._bytes is None:
-            self._bytes = np.ascontiguousarray(self.image, dtype="<f4").tobytes()
-        return self._bytes
+    def pixels(self, version: str = "raw") -> bytes:
+        """Little-endian float32 h × w × 3, top row first (/api/image): the layer as
+        rendered ("raw") or from the render's denoised twin ("denoised")."""
+        if version not in VERSIONS:
+            raise ViewError(f"image version {_shown(version)}: one of {', '.join(VERSIONS)}")
+        image = self.image if version == "raw" else self.denoised
+        if image is None:
+            raise ViewError(f"layer {self.id!r} has no denoised version (the render wrote no denoised twin)", 404)
+        if version not in self._bytes:
+            self._bytes[version] = np.ascontiguousarray(image, dtype="<f4").tobytes()
+        return self._bytes[version]
 
     def description(self) -> dict:
         return {"id": self.id, "name": self.name, "kind": self.kind, "product": self.product,
@@ -108,8 +118,12 @@ class Session:
     the stack: the server runs requests on a thread pool)."""
 
     def __init__(self, folder: Path, title: str, beauty: np.ndarray, layers: list[ViewLayer],
-                 index: PathIndex | None, product: Product, threads: int):
+                 index: PathIndex | None, product: Product, threads: int,
+                 guides: tuple[np.ndarray, np.ndarray] | None = None):
+        """guides: the denoiser's (albedo, normal) of a render with denoised twins, whose
+        layers then carry their denoised versions (ViewLayer.denoised); None without."""
         self.folder, self.title, self.beauty, self.index, self.threads = folder, title, beauty, index, threads
+        self.guides = guides
         self.base_product = product
         self.height, self.width = beauty.shape[:2]
         self.layers: dict[str, ViewLayer] = {layer.id: layer for layer in layers}
@@ -154,11 +168,13 @@ class Session:
         layers = [ViewLayer("beauty", "beauty", "beauty", products[0].path.name if products else "", lpe.BEAUTY,
                             np.ascontiguousarray(beauty[..., :3]), 1.0)]
         layers += _product_layers(products, beauty)
+        guides = _denoised_twins(products, layers)
         product = _base_product(products, index, beauty)
         title = products[0].path.stem if products else index.path.stem
-        log.info("%s: %d layers, %s", folder, len(layers) - 1,
-                 f"index {index.path.name} ({index.record_count:,} records)" if index else "no index")
-        return cls(folder, title, beauty, layers, index, product, threads)
+        log.info("%s: %d layers, %s%s", folder, len(layers) - 1,
+                 f"index {index.path.name} ({index.record_count:,} records)" if index else "no index",
+                 ", denoised twins" if guides else "")
+        return cls(folder, title, beauty, layers, index, product, threads, guides)
 
     # -- what the page reads
 
@@ -167,6 +183,7 @@ class Session:
         layers = [layer for layer in self.layers.values() if layer.kind == "layer"]
         return {"title": self.title, "width": self.width, "height": self.height,
                 "layers": [layer.description() for layer in self.layers.values()],
+                "denoised": self.guides is not None,
                 "partition": self._partition(layers), "index": self._index_description(),
                 "alphabet": {"types": list(zip(SCATTERING_TYPES, SCATTERING_TYPE_NAMES, strict=True)),
                              "scatterings": list(zip(SCATTERINGS, SCATTERING_NAMES, strict=True))},
@@ -259,7 +276,8 @@ class Session:
                 raise ViewError(str(error).splitlines()[0]) from None
             image = extraction.layers[name]
             share = energy_shares(self.beauty, {name: image})[name]
-            layer = ViewLayer(name, name, "layer", "", expression, image, share)
+            layer = ViewLayer(name, name, "layer", "", expression, image, share,
+                              denoised=self._denoised({name: image}).get(name))
             self.layers[name] = layer
         seconds = time.perf_counter() - start
         log.info("layer %s = %s: %.2f s", name, expression, seconds)
@@ -282,13 +300,24 @@ class Session:
                            for name, expression in suggestion.layers.items()}
             extraction = extract(index, expressions, threads=self.threads)
             shares = energy_shares(self.beauty, extraction.layers)
-            added = [ViewLayer(name, name, "layer", "", expression, extraction.layers[name], shares[name])
+            denoised = self._denoised(extraction.layers)
+            added = [ViewLayer(name, name, "layer", "", expression, extraction.layers[name], shares[name],
+                               denoised=denoised.get(name))
                      for name, expression in expressions.items()]
             self.layers.update((layer.id, layer) for layer in added)
         seconds = time.perf_counter() - start
         log.info("suggested %d layers in %.2f s", len(added), seconds)
         return added, {"objective": suggestion.objective, "strategy": suggestion.strategy,
                        "splits": list(suggestion.splits), "seconds": seconds}
+
+    def _denoised(self, images: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Layers made from the index, denoised as the render's twins were (its beauty's input
+        scale, its guides); nothing without a denoised render."""
+        if self.guides is None:
+            return {}
+        from ..layers.denoise import denoise_images
+
+        return denoise_images(self.beauty, images, *self.guides)
 
     def _free_name(self, name: str, others) -> str:
         """`name`, or `name_2`, `name_3`… when the stack (or `others`) has it already."""
@@ -313,7 +342,7 @@ class Session:
                             "not starting with a digit or -")
         exposure = _stops(exposure, "exposure")
         chosen, grades = self._stack(stack)
-        # the raw stack: the inspector shows no denoised twin yet
+        # the raw stack (its grades are the look's; a render with --denoise makes the twin)
         recipe = Recipe((replace(self.base_product, name=name.replace("-", "_"), output_name=f"{name}.exr", prim_path="",
                                  layers=tuple(chosen), per_light="none", denoise=False),))
         paths = {"recipe": self.folder / f"{name}.usda", "exr": self.folder / f"{name}.exr",
@@ -478,6 +507,33 @@ def _product_layers(products: list[MultipartImage], beauty: np.ndarray) -> list[
                                     shares[name], recipe_layer.exposure if recipe_layer else 0.0,
                                     recipe_layer.tint if recipe_layer else (1.0, 1.0, 1.0)))
     return layers
+
+
+def _denoised_twins(products: list[MultipartImage], layers: list[ViewLayer]) -> tuple[np.ndarray, np.ndarray] | None:
+    """Give `layers` (the beauty's and the products', ViewLayer.product naming their EXR)
+    their versions from the products' denoised twins beside them, and return the twins'
+    guides (deliver.GUIDE_SOURCES); None, and no denoised version, unless every product has
+    its twin of the same render."""
+    twins = {}
+    for product in products:
+        path = denoised_path(product.path)
+        if not path.is_file():
+            return None
+        try:
+            twin = read_multipart(path)
+        except PxrLayersError as error:
+            log.warning("leaving out the denoised twins: %s", error)
+            return None
+        if _render_ids(twin) != _render_ids(product) or not all(source in twin.parts for source in GUIDE_SOURCES):
+            return None
+        twins[product.path.name] = twin
+    if not twins:
+        return None
+    for layer in layers:
+        twin = twins[layer.product]
+        layer.denoised = twin.beauty[..., :3] if layer.kind == "beauty" else twin.colour_layers()[layer.name]
+    first = twins[products[0].path.name]
+    return tuple(first.parts[source] for source in GUIDE_SOURCES)
 
 
 def _base_product(products: list[MultipartImage], index: PathIndex | None, beauty: np.ndarray) -> Product:

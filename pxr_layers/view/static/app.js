@@ -40,7 +40,8 @@ async function api(path, { method = 'GET', body, signal, binary = false } = {}) 
 
 /** An image of the stack: Float32Array of height × width × 3 linear RGB, top row first. */
 async function fetchImage(id, width, height) {
-  const response = await api(`/api/image/${encodeURIComponent(id)}`, { binary: true });
+  const version = state.denoised ? 'denoised' : 'raw';
+  const response = await api(`/api/image/${encodeURIComponent(id)}?version=${version}`, { binary: true });
   const data = new Float32Array(await response.arrayBuffer());
   if (data.length !== width * height * 3) {
     throw new Error(`image ${id}: ${data.length} floats, expected ${width}×${height}×3`);
@@ -340,6 +341,7 @@ const state = {
   index: null,          // the session's index description, or null
   layers: [],           // the stack: {id, name, kind, share, expression, stops, tint, mute, solo, data}
   exposure: 0,
+  denoised: false,      // showing the denoised twins' stack (the session has them)
   view: { x: 0, y: 0, scale: 1, fit: true },  // device pixels
   selection: null,      // {x0, y0, x1, y1}, image pixels, exclusive end
   inspection: null,     // the last /api/inspect reply
@@ -1099,6 +1101,7 @@ function setupKeyboard() {
     } else if (event.key === 'f') fit();
     else if (event.key === '1') oneToOne();
     else if (event.key === 'r') resetGrades();
+    else if (event.key === 'd') setDenoised(!state.denoised);
   });
   addEventListener('keyup', (event) => {
     if (event.key === ' ') {
@@ -1115,8 +1118,32 @@ function fillDatalist(list, labels) {
   list.replaceChildren(...labels.map((label) => el('option', { value: label })));
 }
 
+/** Show the denoised twins' stack (on) or the stack as rendered: every image fetched again,
+ * the grades kept. */
+async function setDenoised(on) {
+  const button = $('#denoised');
+  if (button.hidden || state.denoised === on) return;
+  state.denoised = on;
+  button.setAttribute('aria-pressed', String(on));
+  button.disabled = true;
+  try {
+    await Promise.all(state.layers.map(async (layer, slot) => {
+      layer.data = await fetchImage(layer.id, state.width, state.height);
+      renderer.setImage(slot, layer.data, state.width, state.height);
+    }));
+    setStatus(on ? 'the denoised stack' : 'the stack as rendered');
+  } catch (error) {
+    setStatus(error.message, true);
+  } finally {
+    button.disabled = false;
+    requestDraw();
+  }
+}
+
 async function start() {
   const session = await api('/api/session');
+  $('#denoised').hidden = !session.denoised;
+  $('#denoised').addEventListener('click', () => setDenoised(!state.denoised));
   state.width = session.width;
   state.height = session.height;
   state.index = session.index;
@@ -1175,7 +1202,7 @@ const pxrViewer = {
   timings,
   frames: () => framesDrawn,
   state: () => ({
-    width: state.width, height: state.height, exposure: state.exposure, view: { ...state.view },
+    width: state.width, height: state.height, exposure: state.exposure, view: { ...state.view }, denoised: state.denoised,
     canvas: [canvas.width, canvas.height], selection: state.selection, gpu: renderer?.gpu,
     layers: state.layers.map(({ id, name, kind, share, stops, tint, mute, solo }) => ({ id, name, kind, share, stops, tint, mute, solo })),
   }),
@@ -1199,6 +1226,8 @@ const pxrViewer = {
     const layer = state.layers.find((entry) => entry.id === id);
     return layer ? base64(new Uint8Array(layer.data.buffer, layer.data.byteOffset, layer.data.byteLength)) : null;
   },
+  /** Show the denoised stack or the stack as rendered, as the button does; resolves when shown. */
+  setDenoised,
   /** Grade a layer as its controls would: change = {stops, tint, mute, solo}. */
   setGrade(id, change) {
     setGrade(state.layers.find((layer) => layer.id === id), change);
