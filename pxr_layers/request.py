@@ -533,8 +533,8 @@ class RenderRequest:
         f"layer, two per part NAME00, NAME01, ... (at most {MAX_CRYPTOMATTE_DEPTH})")
     denoise: bool = option(
         False, Switch(), "also write every product's denoised twin PRODUCT.denoised.exr (Intel Open Image Denoise "
-        "with the render's albedo and normal guides; the same parts and channels, colour layers denoised and made "
-        "to add up to the denoised beauty, data and Cryptomatte layers as they are); previews show it")
+        "with the render's albedo and normal guides; the same parts and channels, colour layers denoised and the "
+        "beauty their sum, data and Cryptomatte layers as they are); previews show it")
     debug_covariance: bool = option(
         False, Switch(), "also write the first bounce's covariance norms beside the index: STEM.covariance.exr "
         "(channels C 1/m, T cycles/m, R cycles/rad) and STEM.covariance.{C,T,R}.png colour maps")
