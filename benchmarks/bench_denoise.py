@@ -32,7 +32,7 @@ import numpy as np
 
 from pxr_layers.jobs.frame import render_frame
 from pxr_layers.layers.deliver import denoised_path
-from pxr_layers.layers.denoise import _Filter, denoise_stack, input_scale
+from pxr_layers.layers.denoise import denoise_images, denoise_stack
 from pxr_layers.layers.multipart import read_multipart
 from pxr_layers.recipe.presets import preset
 from pxr_layers.request import RenderRequest
@@ -83,9 +83,7 @@ def stage_figures(name: str, stage: str, folder: Path, args) -> None:
           f"against {args.reference_spp} spp ({reference_seconds:.0f} s)")
     layers, raw_layers, twin_layers = truth.colour_layers(), raw.colour_layers(), twin.colour_layers()
     # the other way: the beauty denoised on its own (same filter, scale and guides), the layers moved to it
-    run = _Filter(*noisy.guides, input_scale(raw.beauty[..., :3]))
-    alone_beauty = run(raw.beauty[..., :3]).astype(np.float64)
-    run.release()
+    alone_beauty = denoise_images(raw.beauty, {"beauty": raw.beauty}, *noisy.guides)["beauty"].astype(np.float64)
     moved = redistributed(raw.beauty[..., :3], raw_layers, alone_beauty, twin_layers)
     gap = alone_beauty - sum(image.astype(np.float64) for image in twin_layers.values())
     print(f"  {'layer':18}{'raw':>10}{'denoised':>10}{'gain':>8}  target   {'redistributed':>14}")

@@ -40,6 +40,37 @@ BLACK = """
 """/World/black (a Material directly under /World): reflects and emits nothing."""
 
 
+APERTURE, FOCAL = 36.0, 50.0
+"""The camera of centimetre_stage: a 50 mm lens on a 36 mm square gate (tenths of a scene
+unit, as UsdGeom says, on a centimetre stage)."""
+
+
+def centimetre_stage(path, body: str, *, camera: str = "", metadata: str = ""):
+    """Write at `path` a centimetre stage (Y up, defaultPrim /World; `metadata`: more layer
+    metadata lines): `body` in /World, then /World/Camera at the origin looking down −Z
+    (APERTURE, FOCAL; `camera`: more of its attribute lines). Returns `path`."""
+    path.write_text(f"""#usda 1.0
+(
+    upAxis = "Y"
+    metersPerUnit = 0.01
+    defaultPrim = "World"
+    {metadata}
+)
+def Xform "World"
+{{{body}
+    def Camera "Camera"
+    {{
+        float focalLength = {FOCAL}
+        float horizontalAperture = {APERTURE}
+        float verticalAperture = {APERTURE}
+        float2 clippingRange = (0.1, 100000)
+        {camera}
+    }}
+}}
+""")
+    return path
+
+
 def quad(name: str, half_width: float, half_height: float, distance: float) -> str:
     """A Mesh /World/`name` bound to /World/Looks/glow: a rectangle `distance` down −Z."""
     w, h, z = half_width, half_height, -distance

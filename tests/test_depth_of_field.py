@@ -20,11 +20,9 @@ import pytest
 from pxr_layers.errors import StageError
 from pxr_layers.stage import load_stage
 
-from camera_scenes import GLOW, beauty, quad
+from camera_scenes import APERTURE, FOCAL, GLOW, beauty, centimetre_stage, quad
 
 RESOLUTION = 96
-APERTURE = 36.0  # tenths of a scene unit (mm on this centimetre stage), square
-FOCAL = 50.0
 
 
 def stage(tmp_path, *, distance: float, f_stop: float = 0.0, focus: float = 0.0, disable: bool = False) -> str:
@@ -38,29 +36,12 @@ def stage(tmp_path, *, distance: float, f_stop: float = 0.0, focus: float = 0.0,
         int2 resolution = ({RESOLUTION}, {RESOLUTION})
         uniform bool disableDepthOfField = true
     }}""" if disable else ""
-    text = f"""#usda 1.0
-(
-    upAxis = "Y"
-    metersPerUnit = 0.01
-    defaultPrim = "World"
-    {'renderSettingsPrimPath = "/World/Settings"' if disable else ""}
-)
-def Xform "World"
-{{{GLOW}{quad("square", half, half, distance)}
-    def Camera "Camera"
-    {{
-        float focalLength = {FOCAL}
-        float horizontalAperture = {APERTURE}
-        float verticalAperture = {APERTURE}
-        float fStop = {f_stop}
-        float focusDistance = {focus}
-        float2 clippingRange = (0.1, 100000)
-    }}{settings}
-}}
-"""
-    path = tmp_path / f"lens_{distance}_{f_stop}_{focus}_{disable}.usda"
-    path.write_text(text)
-    return path
+    return centimetre_stage(
+        tmp_path / f"lens_{distance}_{f_stop}_{focus}_{disable}.usda",
+        f"""{GLOW}{quad("square", half, half, distance)}{settings}""",
+        metadata='renderSettingsPrimPath = "/World/Settings"' if disable else "",
+        camera=f"""float fStop = {f_stop}
+        float focusDistance = {focus}""")
 
 
 def render(path, spp: int = 64) -> np.ndarray:

@@ -24,6 +24,8 @@ from pxr_layers.stage import load_stage
 from pxr_layers.paths.events import LOBE_HAIR_R
 from pxr_layers.trace import hair
 
+from camera_scenes import centimetre_stage
+
 SINES, SINE_WEIGHTS = np.polynomial.legendre.leggauss(160)  # sin θi: dω = d(sin θ) dφ
 OFFSETS, OFFSET_WEIGHTS = np.polynomial.legendre.leggauss(24)  # h across the fibre
 AZIMUTHS = 192
@@ -164,14 +166,7 @@ def hair_stage(tmp_path, absorption: bool = False, light: str = "sky") -> str:
                 'def SphereLight "back"\n    {\n        float inputs:radius = 5\n        float inputs:intensity = 200\n'
                 '        double3 xformOp:translate = (0, 0, -160)\n'
                 '        uniform token[] xformOpOrder = ["xformOp:translate"]\n    }')
-    text = f"""#usda 1.0
-(
-    upAxis = "Y"
-    metersPerUnit = 0.01
-    defaultPrim = "World"
-)
-def Xform "World"
-{{{HAIR_LOOK.format(absorption=connection)}
+    return centimetre_stage(tmp_path / "hair.usda", f"""{HAIR_LOOK.format(absorption=connection)}
     {lighting}
     def BasisCurves "fibres" (prepend apiSchemas = ["MaterialBindingAPI"])
     {{
@@ -180,19 +175,7 @@ def Xform "World"
         point3f[] points = [(-20, -8, -100), (20, -8, -100), (-20, 0, -100), (20, 0, -100), (-20, 8, -100), (20, 8, -100)]
         float[] widths = [3] (interpolation = "constant")
         rel material:binding = </World/hair>
-    }}
-    def Camera "Camera"
-    {{
-        float focalLength = 50
-        float horizontalAperture = 36
-        float verticalAperture = 36
-        float2 clippingRange = (0.1, 100000)
-    }}
-}}
-"""
-    path = tmp_path / "hair.usda"
-    path.write_text(text)
-    return path
+    }}""")
 
 
 def test_the_materialx_hair_network_is_read(tmp_path):

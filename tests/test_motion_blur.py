@@ -19,10 +19,9 @@ import pytest
 from pxr_layers.errors import StageError
 from pxr_layers.stage import load_stage
 
-from camera_scenes import GLOW, beauty, quad
+from camera_scenes import APERTURE, FOCAL, GLOW, beauty, centimetre_stage, quad
 
 RESOLUTION = 96
-APERTURE, FOCAL = 36.0, 50.0  # tenths of a centimetre: a 50 mm lens, 36 mm square gate
 DISTANCE = 100.0  # cm from the camera to the strip
 PIXELS_PER_CM = RESOLUTION / (APERTURE / FOCAL) / DISTANCE  # at the strip's distance
 
@@ -30,35 +29,18 @@ PIXELS_PER_CM = RESOLUTION / (APERTURE / FOCAL) / DISTANCE  # at the strip's dis
 def stage(tmp_path, *, slide: float = 0.0, turn: float = 0.0, shutter=(0.0, 1.0), settings: str = "") -> str:
     """A centimetre stage: a 4 cm wide, 40 cm tall emissive strip 100 cm down −Z; the camera
     keyed at frames 1 and 2, sliding `slide` cm along +X and turning `turn` degrees about +Y."""
-    text = f"""#usda 1.0
-(
-    upAxis = "Y"
-    metersPerUnit = 0.01
-    defaultPrim = "World"
-    startTimeCode = 1
+    return centimetre_stage(
+        tmp_path / f"moving_{slide}_{turn}_{shutter[0]}_{shutter[1]}_{len(settings)}.usda",
+        f"""{GLOW}{quad("strip", 2, 20, DISTANCE)}
+    {settings}""",
+        metadata=f"""startTimeCode = 1
     endTimeCode = 2
-    {'renderSettingsPrimPath = "/World/Settings"' if settings else ""}
-)
-def Xform "World"
-{{{GLOW}{quad("strip", 2, 20, DISTANCE)}
-    def Camera "Camera"
-    {{
-        float focalLength = {FOCAL}
-        float horizontalAperture = {APERTURE}
-        float verticalAperture = {APERTURE}
-        float2 clippingRange = (0.1, 100000)
-        double shutter:open = {shutter[0]}
+    {'renderSettingsPrimPath = "/World/Settings"' if settings else ""}""",
+        camera=f"""double shutter:open = {shutter[0]}
         double shutter:close = {shutter[1]}
         double3 xformOp:translate.timeSamples = {{1: (0, 0, 0), 2: ({slide}, 0, 0)}}
         float xformOp:rotateY.timeSamples = {{1: 0, 2: {turn}}}
-        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateY"]
-    }}
-    {settings}
-}}
-"""
-    path = tmp_path / f"moving_{slide}_{turn}_{shutter[0]}_{shutter[1]}_{len(settings)}.usda"
-    path.write_text(text)
-    return path
+        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateY"]""")
 
 
 def render(path, spp: int = 64) -> np.ndarray:

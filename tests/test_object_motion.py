@@ -23,10 +23,9 @@ from pxr_layers.jobs.frame import render_frame
 from pxr_layers.request import RenderRequest
 from pxr_layers.stage import load_stage, reader
 
-from camera_scenes import BLACK, GLOW, beauty, quad
+from camera_scenes import APERTURE, BLACK, FOCAL, GLOW, beauty, centimetre_stage, quad
 
 RESOLUTION = 96
-APERTURE, FOCAL = 36.0, 50.0  # tenths of a centimetre: a 50 mm lens, 36 mm square gate
 DISTANCE = 100.0  # cm from the camera to the strip
 PIXELS_PER_CM = RESOLUTION / (APERTURE / FOCAL) / DISTANCE  # at the strip's distance
 TIME_CODES_PER_SECOND = 24.0
@@ -152,34 +151,17 @@ def stage(tmp_path, move: str, settings: str = "") -> str:
         {MOVES[move]}
         rel material:binding = </World/black>
     }}"""
-    text = f"""#usda 1.0
-(
-    upAxis = "Y"
-    metersPerUnit = 0.01
-    defaultPrim = "World"
-    startTimeCode = 1
+    return centimetre_stage(
+        tmp_path / f"strip_{move}_{len(settings)}.usda",
+        f"""{GLOW}{BLACK}{quad("backdrop", 400, 400, 2 * DISTANCE)}
+    {strip}
+    {settings}""",
+        metadata=f"""startTimeCode = 1
     endTimeCode = 2
     timeCodesPerSecond = {TIME_CODES_PER_SECOND}
-    {'renderSettingsPrimPath = "/World/Settings"' if settings else ""}
-)
-def Xform "World"
-{{{GLOW}{BLACK}{quad("backdrop", 400, 400, 2 * DISTANCE)}
-    {strip}
-    def Camera "Camera"
-    {{
-        float focalLength = {FOCAL}
-        float horizontalAperture = {APERTURE}
-        float verticalAperture = {APERTURE}
-        float2 clippingRange = (0.1, 100000)
-        double shutter:open = 0
-        double shutter:close = 1
-    }}
-    {settings}
-}}
-"""
-    path = tmp_path / f"strip_{move}_{len(settings)}.usda"
-    path.write_text(text)
-    return path
+    {'renderSettingsPrimPath = "/World/Settings"' if settings else ""}""",
+        camera="""double shutter:open = 0
+        double shutter:close = 1""")
 
 
 def occlusion(path, spp: int = 64) -> np.ndarray:

@@ -20,10 +20,9 @@ from pxr_layers.paths.reader import PathIndex
 from pxr_layers.request import RenderRequest
 from pxr_layers.stage import load_stage
 
-from camera_scenes import BLACK, GLOW, beauty, quad
+from camera_scenes import APERTURE, BLACK, FOCAL, GLOW, beauty, centimetre_stage, quad
 
 RESOLUTION = 96
-APERTURE, FOCAL = 36.0, 50.0  # tenths of a centimetre: a 50 mm lens, 36 mm square gate
 DISTANCE = 100.0  # cm from the camera to the strands
 VIEW = APERTURE / FOCAL * DISTANCE  # cm across the view at the strands' distance
 
@@ -33,28 +32,9 @@ def stage(tmp_path, strands: str, name: str, light: str = "backdrop") -> str:
     before a glowing backdrop 200 cm away, or under a uniform sky (light="sky")."""
     lighting = (quad("backdrop", 400, 400, 2 * DISTANCE) if light == "backdrop"
                 else 'def DomeLight "sky"\n    {\n        float inputs:intensity = 1\n    }')
-    text = f"""#usda 1.0
-(
-    upAxis = "Y"
-    metersPerUnit = 0.01
-    defaultPrim = "World"
-)
-def Xform "World"
-{{{GLOW}{BLACK}
+    return centimetre_stage(tmp_path / f"{name}.usda", f"""{GLOW}{BLACK}
     {lighting}
-    {strands}
-    def Camera "Camera"
-    {{
-        float focalLength = {FOCAL}
-        float horizontalAperture = {APERTURE}
-        float verticalAperture = {APERTURE}
-        float2 clippingRange = (0.1, 100000)
-    }}
-}}
-"""
-    path = tmp_path / f"{name}.usda"
-    path.write_text(text)
-    return path
+    {strands}""")
 
 
 def curves(name: str, kind: str, basis: str, wrap: str, counts: list[int], points: list[tuple], widths: str,

@@ -122,8 +122,9 @@ def _cut(index: PathIndex, args: argparse.Namespace) -> int:
     if recipe.denoises:
         from ..layers.denoise import available
 
-        if available():
-            print(f"pxr-layers extract: error: denoising: {available()}", file=sys.stderr)
+        missing = available()
+        if missing:
+            print(f"pxr-layers extract: error: denoising: {missing}", file=sys.stderr)
             return 1
         guides = guides_beside(index)
         if guides is None:

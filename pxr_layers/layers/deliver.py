@@ -204,14 +204,15 @@ def deliver(
         for product in recipe.products for layer in product.layers if layer.source_type == "lpe"
     }
     extracted = extract(index, expressions, show_progress=show_progress).layers if expressions else {}
+    if recipe.denoises:  # the guides are raw parts of a denoised product (and of its twin)
+        if guides is None:
+            raise ValueError("the recipe has denoised products: deliver needs the render's guides")
+        data.update(zip(GUIDE_SOURCES, guides))
     delivered = []
     for product in recipe.products:
         images = {}
-        if product.denoise:  # the guides are raw parts of the product (and of its twin)
-            if guides is None:
-                raise ValueError(f"product {product.name!r} is denoised: deliver needs the render's guides")
+        if product.denoise:
             product = dataclasses.replace(product, layers=product.layers + GUIDE_LAYERS)
-            data = {**data, **dict(zip(GUIDE_SOURCES, guides))}
         for layer in product.layers:
             if layer.source_type == "lpe":
                 images[layer.name] = extracted[_key(product, layer)]

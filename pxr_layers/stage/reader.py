@@ -299,21 +299,14 @@ class _MeshBuilder:
         its topology must stay the mesh's, or StageError names the prim."""
         context = self._context
         times = context.shutter.times(step_count)
-        surfaces = [item.surface] * step_count
         if item.posed:
             return self._moving_skinned(item, mesh, times)
+        surfaces = [item.surface] * step_count
         if motion.deforms(item.prim):
             changed = motion.topology_change(item.prim)
             if changed:
                 raise StageError(f"{changed}: motion blur interpolates one mesh", file=context.file, prim=item.path)
-            surfaces = []
-            for points in motion.points_at(item.prim, times):
-                local = read_mesh(item.prim, context.time, item.uv_primvar, Diagnostics(), context.file,
-                                  subdiv_level=self._levels.level(item.prim), points=points, primvars=item.primvars)
-                if local is None or not np.array_equal(local.triangles, item.surface.surface.triangles):
-                    raise StageError("its points over the shutter give another mesh than at the frame: motion blur "
-                                     "interpolates one mesh", file=context.file, prim=item.path)
-                surfaces.append(prepare_surface(local))
+            surfaces = [self._surface_at(item, points) for points in motion.points_at(item.prim, times)]
         placements = motion.placements(item.prim, item.instancer, item.instance, times)
         placed = [place_surface(surface, world_from_local, context.meters_per_unit, item.triangle_material, item.name,
                                 item.path, Diagnostics(), instance=item.instance)
@@ -341,17 +334,21 @@ class _MeshBuilder:
             raise StageError("its skinning fails at a time over the shutter (see the skinning warnings)",
                              file=context.file, prim=item.path)
         placement = item.world_from_local @ np.linalg.inv(at_frame.world_from_points)
-        placed = []
-        for pose in poses:
-            local = read_mesh(item.prim, context.time, item.uv_primvar, Diagnostics(), context.file,
-                              subdiv_level=self._levels.level(item.prim), points=pose.points, primvars=item.primvars)
-            if local is None or not np.array_equal(local.triangles, item.surface.surface.triangles):
-                raise StageError("its posed points over the shutter give another mesh than at the frame: motion "
-                                 "blur interpolates one mesh", file=context.file, prim=item.path)
-            placed.append(place_surface(prepare_surface(local), placement @ pose.world_from_points,
-                                        context.meters_per_unit, item.triangle_material, item.name, item.path,
-                                        Diagnostics(), instance=item.instance))
+        placed = [place_surface(self._surface_at(item, pose.points), placement @ pose.world_from_points,
+                                context.meters_per_unit, item.triangle_material, item.name, item.path, Diagnostics(),
+                                instance=item.instance) for pose in poses]
         return self._with_steps(mesh, placed, item.path)
+
+    def _surface_at(self, item: _Resolved, points: np.ndarray) -> PreparedSurface:
+        """The placement's surface read again with `points` (a step of its motion); StageError
+        naming the prim when they give another mesh than at the frame."""
+        context = self._context
+        local = read_mesh(item.prim, context.time, item.uv_primvar, Diagnostics(), context.file,
+                          subdiv_level=self._levels.level(item.prim), points=points, primvars=item.primvars)
+        if local is None or not np.array_equal(local.triangles, item.surface.surface.triangles):
+            raise StageError("its points over the shutter give another mesh than at the frame: motion blur "
+                             "interpolates one mesh", file=context.file, prim=item.path)
+        return prepare_surface(local)
 
     def _copy(self, item: _Resolved) -> Mesh | None:
         """The placement as a copy of its surface in the world."""

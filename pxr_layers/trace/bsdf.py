@@ -309,6 +309,25 @@ def sample(row, wox, woy, woz, u0, u1, u2):
 
 
 @inline
+def albedo(row, cos_o):
+    """The reflectance (r, g, b) of the non-singular lobes of `row` toward the viewer at
+    cosine cos_o (the denoiser's albedo guide): the diffuse weight, the specular and coat
+    lobes' Fresnel; a hair row's hair.albedo."""
+    if is_hair(row):
+        return hair.albedo(row)
+    r, g, b = row[DIFFUSE_RGB], row[DIFFUSE_RGB + 1], row[DIFFUSE_RGB + 2]
+    if row[ALPHA] >= SINGULAR_ALPHA:
+        weight = row[SPECULAR_WEIGHT]
+        r += weight * schlick(row[F0_RGB], row[F90], cos_o)
+        g += weight * schlick(row[F0_RGB + 1], row[F90], cos_o)
+        b += weight * schlick(row[F0_RGB + 2], row[F90], cos_o)
+    if row[COAT_ALPHA] >= SINGULAR_ALPHA:
+        coat = row[COAT_WEIGHT] * schlick(COAT_F0, 1.0, cos_o)
+        r, g, b = r + coat, g + coat, b + coat
+    return r, g, b
+
+
+@inline
 def power_heuristic(chosen, other):
     """MIS weight of the strategy with density `chosen` against `other`; a delta strategy
     (infinite density) takes the whole weight."""

@@ -179,6 +179,16 @@ class Scene:
         self._release()
 
 
+def _share_vertex_steps(geometry, steps: np.ndarray, count: int, vertex_format: int) -> None:
+    """Give `geometry` the vertex buffers of `steps` (k, ≥ count, c) float32, C-contiguous
+    rows: one step, or k ≥ 2 evenly spaced over the shutter (Embree's time steps)."""
+    if len(steps) > 1:
+        _api.rtcSetGeometryTimeStepCount(geometry, len(steps))
+    for step in range(len(steps)):
+        _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, step, vertex_format, steps[step].ctypes.data,
+                                        0, steps.strides[1], count)
+
+
 def add_triangles(scene: Scene, vertices: np.ndarray, triangles: np.ndarray) -> int:
     """Attach a triangle mesh to `scene` (before its commit); returns its geometry id.
 
@@ -200,11 +210,7 @@ def add_triangles(scene: Scene, vertices: np.ndarray, triangles: np.ndarray) -> 
     padded[:, :-1] = steps
     indices = np.ascontiguousarray(triangles, np.uint32)
     geometry = _api.rtcNewGeometry(scene.device.handle, RTC_GEOMETRY_TYPE_TRIANGLE)
-    if len(steps) > 1:
-        _api.rtcSetGeometryTimeStepCount(geometry, len(steps))
-    for step in range(len(steps)):
-        _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, step, RTC_FORMAT_FLOAT3,
-                                        padded[step].ctypes.data, 0, padded.strides[1], count)
+    _share_vertex_steps(geometry, padded, count, RTC_FORMAT_FLOAT3)
     _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, indices.ctypes.data,
                                     0, indices.strides[0], len(indices))
     return _attach(scene, geometry, (padded, indices), "adding triangles")
@@ -222,11 +228,7 @@ def add_strands(scene: Scene, shape: str, vertices: np.ndarray, segments: np.nda
     count = steps.shape[1]
     kind = STRAND_GEOMETRY_TYPES[shape] if normals is None else RIBBON_GEOMETRY_TYPES[shape]
     geometry = _api.rtcNewGeometry(scene.device.handle, kind)
-    if len(steps) > 1:
-        _api.rtcSetGeometryTimeStepCount(geometry, len(steps))
-    for step in range(len(steps)):
-        _api.rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, step, RTC_FORMAT_FLOAT4,
-                                        steps[step].ctypes.data, 0, steps.strides[1], count)
+    _share_vertex_steps(geometry, steps, count, RTC_FORMAT_FLOAT4)
     kept = (shared,)
     if normals is not None:
         facing = np.zeros((count + 1, 3), np.float32)  # one row more: Embree reads 16 bytes a vertex

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..compiled import kernel
 from ..paths.events import SCATTER_SINGULAR
-from . import bsdf, hair
+from . import bsdf
 from .stages.observer import Observer
 from .stages.queues import PathQueue, Splats, SurfaceQueue
 from .stages.scatter import Scattering
@@ -56,24 +56,7 @@ def _guide_kernel(pixel, sample, scattered, scatter, lobes, wo, frame, first_pix
         if guided[path] or not scattered[lane] or scatter[lane] == SCATTER_SINGULAR:
             continue
         guided[path] = True
-        row = lobes[lane]
-        r = g = b = 0.0
-        if bsdf.is_hair(row):
-            for p in range(hair.ORDERS):
-                r += row[hair.WEIGHT + 3 * p]
-                g += row[hair.WEIGHT + 3 * p + 1]
-                b += row[hair.WEIGHT + 3 * p + 2]
-        else:
-            cos_o = wo[lane, 2]
-            r, g, b = row[bsdf.DIFFUSE_RGB], row[bsdf.DIFFUSE_RGB + 1], row[bsdf.DIFFUSE_RGB + 2]
-            if row[bsdf.ALPHA] >= bsdf.SINGULAR_ALPHA:
-                weight = row[bsdf.SPECULAR_WEIGHT]
-                r += weight * bsdf.schlick(row[bsdf.F0_RGB], row[bsdf.F90], cos_o)
-                g += weight * bsdf.schlick(row[bsdf.F0_RGB + 1], row[bsdf.F90], cos_o)
-                b += weight * bsdf.schlick(row[bsdf.F0_RGB + 2], row[bsdf.F90], cos_o)
-            if row[bsdf.COAT_ALPHA] >= bsdf.SINGULAR_ALPHA:
-                coat = row[bsdf.COAT_WEIGHT] * bsdf.schlick(bsdf.COAT_F0, 1.0, cos_o)
-                r, g, b = r + coat, g + coat, b + coat
+        r, g, b = bsdf.albedo(lobes[lane], wo[lane, 2])
         where = pixel[lane] - first_pixel
         sums[where, 0] += min(max(r, 0.0), 1.0)
         sums[where, 1] += min(max(g, 0.0), 1.0)

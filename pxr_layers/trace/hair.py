@@ -159,20 +159,19 @@ def prepare(lobes, lane, inputs, wox, woy, woz, scatters):
     cos_gt = math.sqrt(max(1.0 - sin_gt * sin_gt, 0.0))
     fresnel = fresnel_dielectric(cos_o * math.sqrt(max(1.0 - h * h, 0.0)), eta)
     path = 2.0 * cos_gt / cos_t
-    total = 0.0
-    for p in range(ORDERS):
-        order = min(p, 2)
-        for channel in range(3):
-            t = math.exp(-max(inputs[shading.HAIR_ABSORPTION + channel], 0.0) * path)
-            a = (1.0 - fresnel) * (1.0 - fresnel) * t  # A_1
-            if p == 0:
-                a = fresnel
+    for channel in range(3):  # A_p per channel (the absorption T is the channel's), times tint_p
+        t = math.exp(-max(inputs[shading.HAIR_ABSORPTION + channel], 0.0) * path)
+        a = fresnel
+        for p in range(ORDERS):
+            if p == 1:
+                a = (1.0 - fresnel) * (1.0 - fresnel) * t
             elif p == 2:
                 a *= t * fresnel
             elif p == 3:
-                a *= t * fresnel * t * fresnel / max(1.0 - t * fresnel, 1e-12)
-            tint = max(inputs[shading.HAIR_TINT + 3 * order + channel], 0.0)
-            row[WEIGHT + 3 * p + channel] = tint * a
+                a *= t * fresnel / max(1.0 - t * fresnel, 1e-12)
+            row[WEIGHT + 3 * p + channel] = max(inputs[shading.HAIR_TINT + 3 * min(p, 2) + channel], 0.0) * a
+    total = 0.0
+    for p in range(ORDERS):
         weight = luminance_of(row[WEIGHT + 3 * p], row[WEIGHT + 3 * p + 1], row[WEIGHT + 3 * p + 2])
         row[PROBABILITY + p] = weight
         total += weight
@@ -270,6 +269,17 @@ def sample(row, wox, woy, woz, u0, u1, u2):
         return x, y, z, 0.0, 0.0, 0.0, 0.0, events.LOBE_HAIR_R + lobe, events.SCATTER_GLOSSY, lobe == 1, False
     return (x, y, z, r / density, g / density, b / density, density, events.LOBE_HAIR_R + lobe,
             events.SCATTER_GLOSSY, lobe == 1, True)
+
+
+@inline
+def albedo(row):
+    """The fibre's reflectance (r, g, b) toward the viewer: Σ_p tint_p·A_p (every lobe's)."""
+    r = g = b = 0.0
+    for p in range(ORDERS):
+        r += row[WEIGHT + 3 * p]
+        g += row[WEIGHT + 3 * p + 1]
+        b += row[WEIGHT + 3 * p + 2]
+    return r, g, b
 
 
 @inline

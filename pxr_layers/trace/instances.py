@@ -18,7 +18,8 @@ hit point, which is its centroid (the hit's barycentrics become 1/3, 1/3), facin
 normal there, its first corner along the curve's tangent (surface.fibre_direction reads
 it): its shading normal that normal, its curvatures a tube's (1/r around, 0 along the
 curve, r the curve's radius at the hit), a sphere's (1/r both ways) or a flat ribbon's (0),
-its texture coordinates the hit's (u, v), its thickness (GeometryArrays) the diameter. Downstream, nothing tells it from a flat row, and a scene without instances, motion or
+its texture coordinates the hit's (u, v), its thickness (GeometryArrays) the diameter.
+Downstream, nothing tells it from a flat row, and a scene without instances, motion or
 strands pays nothing.
 
 The scratch rows are per tracing thread and per use: a :class:`Slot` (one per thread at a
@@ -285,6 +286,17 @@ def _copy_corner_values(rows, source, row, corner):
 
 
 @inline
+def _time_step(count, time):
+    """(step, b): of `count` ≥ 2 evenly spaced time steps over the shutter, the one at or
+    before `time` (a shutter fraction, clamped to [0, 1]) and the weight of the next one, as
+    Embree interpolates between them."""
+    last = count - 1
+    position = min(max(time, 0.0), 1.0) * last
+    step = min(int(position), last - 1)
+    return step, position - step
+
+
+@inline
 def _curve_at(vertices, first, basis, u):
     """(radius, ∂P/∂u x, y, z) of the segment whose control points start at vertices[first]
     (x, y, z, radius rows) at parameter u ∈ [0, 1], in its basis (world.STRAND_SHAPES codes),
@@ -333,10 +345,7 @@ def _place_strand(rows, instances, source, segment, row, hits, entry, time, cont
     moving, step, b = strands.motion, 0, 0.0
     start = strands.motion_first[local]
     if start >= 0:
-        last = moving.shape[0] - 1
-        position = min(max(time, 0.0), 1.0) * last
-        step = min(int(position), last - 1)
-        b = position - step
+        step, b = _time_step(moving.shape[0], time)
         start += first - strands.vertex_first[local]
     for k in range(span + 1):
         for column in range(4):
@@ -409,10 +418,7 @@ def _placement_at(steps, time, transform, rotation):
     """Write into transform (3, 4) the placement at `time` (a shutter fraction) between the
     (k, 3, 4) `steps` around it, linearly as Embree interpolates them, and into rotation
     (3, 3) its linear part over its scale s = |det|^(1/3), which it returns."""
-    last = steps.shape[0] - 1
-    position = min(max(time, 0.0), 1.0) * last
-    step = min(int(position), last - 1)
-    b = position - step
+    step, b = _time_step(steps.shape[0], time)
     for axis in range(3):
         for column in range(4):
             transform[axis, column] = (1.0 - b) * steps[step, axis, column] + b * steps[step + 1, axis, column]
@@ -432,10 +438,7 @@ def _place_moving(rows, instances, source, row, time):
     """Write moving row `source` at `time` (a shutter fraction) into scratch row `row`."""
     geometry, steps = rows.geometry, instances.moving
     local = source - instances.moving_first
-    last = steps.area.shape[0] - 1
-    position = min(max(time, 0.0), 1.0) * last
-    step = min(int(position), last - 1)
-    b = position - step
+    step, b = _time_step(steps.area.shape[0], time)
     a = 1.0 - b
     for corner in range(3):
         length = 0.0
