@@ -63,6 +63,10 @@ copy counted: about 2 GB of render memory (stage.budgets.MAX_SCENE_TRIANGLES say
 a triangle). Each level multiplies a mesh's triangles by 4; past the budget the reader lowers
 the highest levels first (a dense cage, the OpenChessSet's 20 k-face pieces, is already finer
 than a pixel at shot resolution and loses least), with one warning naming them."""
+DEFAULT_TEXTURE_MEMORY = 0.25
+"""The material textures' default budget (trace/texture_cache.py), a fraction of the machine's
+physical memory, at most MAX_DEFAULT_TEXTURE_MIB."""
+MAX_DEFAULT_TEXTURE_MIB = 4096
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 AS_AUTHORED = "recipe"
 """The per-light word for "each product's pxrLayers:perLight as authored" (the default)."""
@@ -535,6 +539,11 @@ class RenderRequest:
         False, Switch(), "also write every product's denoised twin PRODUCT.denoised.exr (Intel Open Image Denoise "
         "with the render's albedo and normal guides; the same parts and channels, colour layers denoised and the "
         "beauty their sum, data and Cryptomatte layers as they are); previews show it")
+    texture_memory: int | None = option(
+        None, Integer(16, None, "MiB"), "the most memory, in MiB, the material textures may take: each is held "
+        "from the MIP level the frame's view of it needs, in its file's precision, and past the budget the "
+        "largest are held coarser, with a warning naming them", default_text=f"1/{round(1 / DEFAULT_TEXTURE_MEMORY)} of "
+        f"the machine's memory, at most {MAX_DEFAULT_TEXTURE_MIB}")
     debug_covariance: bool = option(
         False, Switch(), "also write the first bounce's covariance norms beside the index: STEM.covariance.exr "
         "(channels C 1/m, T cycles/m, R cycles/rad) and STEM.covariance.{C,T,R}.png colour maps")

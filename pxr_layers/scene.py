@@ -33,18 +33,46 @@ REC709_LUMINANCE = (0.2126, 0.7152, 0.0722)
 
 
 @dataclass(frozen=True)
+class TextureHeader:
+    """What an image file's header says, before any pixel is decoded (texture_files.py).
+
+    width, height : texels of the finest level
+    channels      : as stored (1 grey, 2 grey + alpha, 3 RGB, 4 RGBA, more: only 4 are read)
+    stored        : how its values are kept in memory, one of texture_files.STORED_TYPES
+                    ("uint8", "uint16", "half", "float")
+    file_levels   : MIP levels the file holds (1: the image alone)
+    wrap_modes    : (s, t) from the ``wrapmodes`` metadata, None where absent
+    """
+
+    width: int
+    height: int
+    channels: int
+    stored: str
+    file_levels: int
+    wrap_modes: tuple[WrapMode | None, WrapMode | None]
+
+
+@dataclass(frozen=True)
 class TextureImage:
-    """A decoded image.
+    """An image a material or a light reads: decoded, or a file the tracer reads lazily.
 
     pixels : (h, w, c) float32, linear values (``sourceColorSpace`` already applied), the
              file's channels: c = 1 grey, 2 grey + alpha, 3 RGB, 4 RGBA (lookups read
              grey as rgb and a missing alpha as 1, as UsdUVTexture expands them);
              row 0 is the **top** row of the file, so UsdUVTexture's st = (0, 0) is
-             ``pixels[h - 1, 0]``.
+             ``pixels[h - 1, 0]``. None: not decoded — ``path`` is a file on disk that the
+             tracer's texture cache (trace/texture_cache.py) reads at the MIP levels the
+             frame needs, in its own precision, decoding ``color_space`` at lookup.
+    header      : the file's header (lazy images; None for decoded ones)
+    color_space : "raw" or "sRGB", how a lazy image's colour channels are decoded
+    user        : the prim that first reads it, for the warnings about it
     """
 
     path: str
-    pixels: np.ndarray
+    pixels: np.ndarray | None = None
+    header: TextureHeader | None = None
+    color_space: str = "raw"
+    user: str = ""
 
 
 Color = tuple[float, float, float] | ShaderNode

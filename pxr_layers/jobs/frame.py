@@ -168,7 +168,8 @@ def plan_frame(
                           record_paths=record, merge_records=record and index_mode == "merged",
                           record_sigma=record and sigma and norm_bounces > 0, first_hits=bool(crypto_sources),
                           first_bounce_norms=request.debug_covariance,
-                          clamp_indirect=request.clamp_indirect, guides=recipe.denoises)
+                          clamp_indirect=request.clamp_indirect, guides=recipe.denoises,
+                          texture_memory=request.texture_memory)
     metadata = {
         "version": __version__,
         "stage": str(stage.resolve()),

@@ -11,6 +11,14 @@ opened by OIIO directly; anything else USD's asset resolver (Ar) resolved, a mem
 package (``/x/shot.usdz[textures/rough.png]``) or a path of a custom resolver, is read through
 ``Ar.GetResolver().OpenAsset`` and its bytes decoded by OIIO.
 
+Material textures that are files on disk are not decoded here: their header is read (size,
+channels, stored type, levels, wrap modes; a file that cannot be a texture is a warning and
+its fallback value) and they reach the tracer as scene.TextureImage without pixels, which
+its texture cache (trace/texture_cache.py) reads at the MIP levels the frame needs. The
+images of lights (the samplers need every texel) and textures only USD's resolver can open
+are decoded here, bounded as texture_files.py says (a file of more than MAX_TEXTURE_TEXELS
+is read at its first MIP level within it, with a warning naming it).
+
 Texels no lookup can use are replaced by 0 when a file is decoded, with one warning naming
 the file and how many texels changed (_repaired): NaN and infinite ones in every texture
 (a NaN roughness or albedo makes NaN pixels, and an infinite one NaN as soon as it is
@@ -19,18 +27,7 @@ rect light's colour map) negative ones too, which would be negative radiance, wh
 above MAX_LIGHT_TEXEL are lowered to it. Those of materials keep their sign, which normal
 maps, displacement and scale/bias offsets need.
 
-Images are bounded (a 20000 × 20000 PNG of one colour is a 1 MB file that decodes to 4.8 GB
-of float32): the header is read first, before any pixel. A file of more than
-MAX_FILE_TEXELS is not decoded at all (a warning, and the fallback value, as for any
-unreadable texture). One of more than MAX_TEXTURE_TEXELS is read at a reduced resolution
-within that budget, with a warning naming the file and both sizes: the first MIP level that
-fits when the file has levels (a tiled EXR or .tx), else the file decoded a band of rows at a
-time and averaged over n × n texel blocks (the values as stored: 8-bit sRGB is averaged
-before it is decoded), so memory never holds more than the reduced image and one band.
-A studio's 16k texture still renders, at 8k, rather than stopping the shot or taking the
-machine's memory; a texture cache would read such a file at a coarser MIP level too.
-
-The textures of the last stage read are remembered in the process by identity (see
+The decoded textures of the last stage read are remembered in the process by identity (see
 _texture_identity): the frames of a shot read the same files one after another, and the next
 read takes the decoded images instead of decoding them again. The images are read-only
 arrays, shared by the scenes of those frames.
@@ -48,11 +45,19 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-import OpenImageIO as oiio
 from pxr import Ar, Sdf, Usd
 
 from pxr_layers.inputs import input_problem
-from pxr_layers.scene import FLOAT, TextureImage, WrapMode
+from pxr_layers.scene import FLOAT, TextureHeader, TextureImage, WrapMode
+from pxr_layers.texture_files import (
+    BAND_BYTES,
+    MAX_FILE_TEXELS,  # noqa: F401 (the bounds of texture files, as the stage reader applies them)
+    MAX_TEXTURE_TEXELS,
+    level_size,
+    read_header,
+    read_level,
+    srgb_to_linear,
+)
 
 from .diagnostics import Diagnostics
 from .values import MAX_RADIANCE
@@ -66,26 +71,7 @@ MAX_LIGHT_TEXEL = MAX_RADIANCE
 """Light texels above this are lowered to it: a light's texel is a radiance (values.MAX_RADIANCE:
 far above any sun an HDRI holds, far enough below float32's range that the dome sampler's
 sums over an image of up to 2^32 texels stay finite)."""
-MAX_TEXTURE_TEXELS = 1 << 26
-"""The most texels (width × height) a texture is held at in memory: 8192 × 8192, 1 GiB as RGBA
-float32. A larger file is read reduced to fit (see the module docstring): a 16k × 8k lat-long
-sky is read at 8k × 4k."""
-MAX_FILE_TEXELS = 1 << 30
-"""The most texels an image file may declare (32768 × 32768, the largest texture a paint
-package exports) and still be read: decoding more takes tens of seconds before anything is
-reduced, and a header claiming more is a decompression bomb or a damaged file."""
-_BAND_BYTES = 1 << 24
-"""About how many bytes of float32 rows a reduced read decodes at a time (16 MiB)."""
 UDIM = "<UDIM>"  # the tile token of a texture path (Mari's convention, as USD and MaterialX use it)
-
-# OIIO's "wrapmodes" metadata ("s,t") uses RenderMan words; scene.py uses UsdUVTexture's.
-_OIIO_WRAP: dict[str, WrapMode] = {
-    "black": "black",
-    "clamp": "clamp",
-    "periodic": "repeat",
-    "mirror": "mirror",
-}
-
 
 @dataclass(frozen=True)
 class _DecodedFile:
@@ -175,13 +161,6 @@ def anchored_asset_path(attribute: Usd.Attribute, asset: Sdf.AssetPath, time: Us
     return asset.path
 
 
-def srgb_to_linear(values: np.ndarray) -> np.ndarray:
-    """The sRGB EOTF (IEC 61966-2-1), elementwise; values below 0 stay on the linear segment."""
-    # np.maximum keeps the power's base positive so negative inputs cannot produce NaN.
-    curved = ((np.maximum(values, 0.04045) + 0.055) / 1.055) ** 2.4
-    return np.where(values <= 0.04045, values / 12.92, curved).astype(FLOAT)
-
-
 def udim_tiles(pattern: str) -> list[tuple[int, str]]:
     """(tile, file) of the UDIM tiles 1001–9999 on disk for a path containing <UDIM>."""
     head, tail = pattern.split(UDIM, 1)
@@ -194,31 +173,41 @@ def udim_tiles(pattern: str) -> list[tuple[int, str]]:
 
 
 class TextureLibrary:
-    """Decoded images for one stage read, appended to ``images`` in first-use order."""
+    """The images of one stage read (decoded, or headers for the tracer to read), appended to
+    ``images`` in first-use order."""
 
     def __init__(self, diagnostics: Diagnostics) -> None:
         self.images: list[TextureImage] = []
         self._diagnostics = diagnostics
         self._files: dict[str, _FileTexture | None] = {}
+        self._headers: dict[str, TextureHeader | None | bool] = {}  # see _lazy_header
         self._indices: dict[tuple[str, ColorSpace, bool], int] = {}
 
     def load(
         self, path: str, source_color_space: str, user_prim: str, *, light: bool = False
     ) -> LoadedTexture | None:
-        """Decode ``path`` (a resolved asset path: a file, a package member, any resolver
-        path) for the prim ``user_prim``.
+        """The texture ``path`` (a resolved asset path: a file, a package member, any resolver
+        path) for the prim ``user_prim``: a material's file on disk by its header alone
+        (the tracer decodes it), anything else decoded.
 
         source_color_space : "raw", "sRGB" or "auto" (UsdUVTexture's sourceColorSpace);
                              "auto" decodes 8-bit files with 3+ channels as sRGB and
                              everything else (float, 16-bit, grey) as raw.
-        light              : the image of a light: negative texels are read as 0 too, not
-                             only NaN and infinite ones, and those above MAX_LIGHT_TEXEL as
-                             it (see the module docstring)
+        light              : the image of a light: decoded, and negative texels are read as
+                             0 too, not only NaN and infinite ones, and those above
+                             MAX_LIGHT_TEXEL as it (see the module docstring)
         Returns None after a warning (once per file) when the file cannot be read.
         """
-        texture = self._file(path, user_prim)
-        if texture is None:
+        header = None if light else self._lazy_header(path, user_prim)
+        if header is False:
             return None
+        texture = None
+        if header is None:
+            texture = self._file(path, user_prim)
+            if texture is None:
+                return None
+        uint8, channels = (header.stored == "uint8", header.channels) if header else (texture.is_uint8,
+                                                                                   texture.channels)
         if source_color_space == "sRGB":
             color_space: ColorSpace = "sRGB"
         elif source_color_space == "raw":
@@ -230,40 +219,61 @@ class TextureLibrary:
                     "unknown sourceColorSpace values treated as 'auto' on: {prims}",
                     user_prim,
                 )
-            color_space = "sRGB" if texture.is_uint8 and texture.channels >= 3 else "raw"
-        use: _Use = (color_space, light)
-        key = (path, *use)
+            color_space = "sRGB" if uint8 and channels >= 3 else "raw"
+        key = (path, color_space, light)
         if key not in self._indices:
-            if use not in texture.images:
-                if texture.decoded is None:  # remembered from an earlier read in another use
-                    try:
-                        texture.decoded = _read_texture(path)
-                    except OSError as error:
-                        self._unreadable(path, user_prim, error)
-                        return None
-                pixels = _linear(texture.decoded.pixels, color_space)
-                texture.repaired[use] = _repaired(pixels, light)
-                pixels.flags.writeable = False
-                texture.images[use] = pixels
-            if texture.reduced_from is not None:  # said at every read, as below
-                (width, height), pixels = texture.reduced_from, texture.images[use]
-                self._diagnostics.warn(
-                    f"texture {path} (used by {user_prim}): {width}×{height} texels, more than the "
-                    f"{MAX_TEXTURE_TEXELS:,} a texture may hold: read at {pixels.shape[1]}×{pixels.shape[0]}",
-                    once_key=f"texture-reduced:{path}",
-                )
-            if texture.repaired[use]:  # said at every read: each frame's warnings are its own
-                pixels = texture.images[use]
-                what = (f"NaN, infinite or negative (read as 0) or above {MAX_LIGHT_TEXEL:g} (read as that)"
-                        if light else "NaN or infinite (read as 0)")
-                self._diagnostics.warn(
-                    f"texture {path} (used by {user_prim}): {texture.repaired[use]} of "
-                    f"{pixels.shape[0] * pixels.shape[1]} texels are {what}",
-                    once_key=f"texture-repaired:{path}:{light}",
-                )
+            if header:
+                image = TextureImage(path, None, header, color_space, user_prim)
+            else:
+                try:
+                    image = TextureImage(path, self._decoded(texture, path, color_space, light, user_prim))
+                except OSError as error:
+                    self._unreadable(path, user_prim, error)
+                    return None
             self._indices[key] = len(self.images)
-            self.images.append(TextureImage(path=path, pixels=texture.images[use]))
-        return LoadedTexture(self._indices[key], texture.wrap_modes)
+            self.images.append(image)
+        return LoadedTexture(self._indices[key], header.wrap_modes if header else texture.wrap_modes)
+
+    def _lazy_header(self, path: str, user_prim: str) -> TextureHeader | None | bool:
+        """A material texture's header when the tracer reads it lazily (a file on disk);
+        None when it is decoded here instead (only USD's resolver opens it); False after a
+        warning, when it cannot be read."""
+        if path not in self._headers:
+            try:
+                self._headers[path] = read_header(path) if on_disk(path, "texture") else None
+            except OSError as error:
+                self._unreadable(path, user_prim, error)
+                self._headers[path] = False
+        return self._headers[path]
+
+    def _decoded(self, texture: _FileTexture, path: str, color_space: ColorSpace, light: bool,
+                 user_prim: str) -> np.ndarray:
+        """The read-only linear pixels of `texture` for one use; OSError when a decode fails."""
+        use: _Use = (color_space, light)
+        if use not in texture.images:
+            if texture.decoded is None:  # remembered from an earlier read in another use
+                texture.decoded = _read_texture(path)
+            pixels = _linear(texture.decoded.pixels, color_space)
+            texture.repaired[use] = _repaired(pixels, light)
+            pixels.flags.writeable = False
+            texture.images[use] = pixels
+        pixels = texture.images[use]
+        if texture.reduced_from is not None:  # said at every read, as below
+            width, height = texture.reduced_from
+            self._diagnostics.warn(
+                f"texture {path} (used by {user_prim}): {width}×{height} texels, more than the "
+                f"{MAX_TEXTURE_TEXELS:,} a texture may hold: read at {pixels.shape[1]}×{pixels.shape[0]}",
+                once_key=f"texture-reduced:{path}",
+            )
+        if texture.repaired[use]:  # said at every read: each frame's warnings are its own
+            what = (f"NaN, infinite or negative (read as 0) or above {MAX_LIGHT_TEXEL:g} (read as that)"
+                    if light else "NaN or infinite (read as 0)")
+            self._diagnostics.warn(
+                f"texture {path} (used by {user_prim}): {texture.repaired[use]} of "
+                f"{pixels.shape[0] * pixels.shape[1]} texels are {what}",
+                once_key=f"texture-repaired:{path}:{light}",
+            )
+        return pixels
 
     def load_tiles(self, path: str, source_color_space: str, user: str) -> list[tuple[int, LoadedTexture]]:
         """[(tile, texture)] of a texture path: ((0, texture),) for a plain file, every UDIM
@@ -354,102 +364,18 @@ def _read_texture(resolved_path: str) -> _DecodedFile:
 
 
 def _read_file(path: str, name: str | None = None) -> _DecodedFile:
-    """Decode the image file ``path``; ``name`` is what log lines call it (default ``path``)."""
-    config = oiio.ImageSpec()
-    # OIIO premultiplies PNG/TIFF colour by alpha unless told otherwise; UsdUVTexture reads
-    # channels exactly as stored.
-    config.attribute("oiio:UnassociatedAlpha", 1)
-    image_input = oiio.ImageInput.open(path, config)
-    if image_input is None:
-        raise OSError(oiio.geterror() or "unreadable image")
-    reduced_from = None
-    try:
-        spec = image_input.spec()  # the header alone: nothing is decoded yet
-        width, height = spec.width, spec.height
-        if spec.depth > 1:
-            raise OSError(f"a volume image ({width}×{height}×{spec.depth}) is not a texture")
-        if width * height > MAX_FILE_TEXELS:
-            raise OSError(f"{width}×{height} texels: more than the {MAX_FILE_TEXELS:,} a texture file may have")
-        if width * height > MAX_TEXTURE_TEXELS:
-            reduced_from = (width, height)
-            pixels = _read_reduced(image_input, spec)
-        else:
-            pixels = image_input.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-        if pixels is None:
-            raise OSError(image_input.geterror() or "cannot decode pixels")
-    finally:
-        image_input.close()
-    if reduced_from is None:
-        pixels = np.asarray(pixels, dtype=FLOAT).reshape(spec.height, spec.width, spec.nchannels)
-    wrap_modes: list[WrapMode | None] = [None, None]
-    metadata = spec.get_string_attribute("wrapmodes")
-    if metadata:
-        words = metadata.split(",")
-        words = words if len(words) == 2 else [words[0], words[0]]
-        wrap_modes = [_OIIO_WRAP.get(word.strip()) for word in words]
-    logger.debug("decoded %s: %dx%d, %d channels of %s", name or path, spec.width, spec.height,
-                 spec.nchannels, spec.format)
-    return _DecodedFile(
-        pixels=pixels,
-        is_uint8=spec.format.basetype == oiio.UINT8,
-        wrap_modes=(wrap_modes[0], wrap_modes[1]),
-        reduced_from=reduced_from,
-    )
-
-
-def _read_reduced(image_input: oiio.ImageInput, spec: oiio.ImageSpec) -> np.ndarray | None:
-    """(h', w', c) float32 of an image of more than MAX_TEXTURE_TEXELS, within it: its first MIP
-    level that fits, or its full resolution averaged over n × n blocks (the smallest n that
-    fits; the blocks of the last row and column may be partial), decoded a band of n-row
-    strips at a time. None when a read fails (image_input.geterror() says why)."""
-    channels = spec.nchannels
-    level = 1
-    while True:  # a MIP level's spec has width 0 past the last level
-        level_spec = image_input.spec_dimensions(0, level)
-        if level_spec.width == 0:
-            break
-        if level_spec.width * level_spec.height <= MAX_TEXTURE_TEXELS:
-            pixels = image_input.read_image(0, level, 0, channels, oiio.FLOAT)
-            return None if pixels is None else np.asarray(pixels, FLOAT).reshape(
-                level_spec.height, level_spec.width, channels)
+    """Decode the image file ``path`` as float32 (its finest MIP level within
+    MAX_TEXTURE_TEXELS); ``name`` is what log lines call it (default ``path``)."""
+    header = read_header(path)
+    level = 0
+    while level_size(header.width, header.height, level)[0] * level_size(header.width, header.height, level)[1] \
+            > MAX_TEXTURE_TEXELS:
         level += 1
-    width, height = spec.width, spec.height
-    factor = 2
-    while -(-width // factor) * -(-height // factor) > MAX_TEXTURE_TEXELS:
-        factor += 1
-    # 8- and 16-bit files are decoded as stored (a quarter or half the bytes of float32: most
-    # of a large PNG's read time) and scaled to [0, 1] as OIIO's float conversion does.
-    stored = {oiio.UINT8: (oiio.UINT8, 1.0 / 255.0), oiio.UINT16: (oiio.UINT16, 1.0 / 65535.0)}
-    decoded_as, scale = stored.get(spec.format.basetype, (oiio.FLOAT, 1.0))
-    reduced = np.empty((-(-height // factor), -(-width // factor), channels), FLOAT)
-    strips_per_band = max(1, _BAND_BYTES // (factor * width * channels * 4))
-    for first in range(0, height, factor * strips_per_band):
-        last = min(first + factor * strips_per_band, height)
-        band = image_input.read_scanlines(0, 0, first, last, 0, 0, channels, decoded_as)
-        if band is None:
-            return None
-        band = np.asarray(band).reshape(last - first, width, channels)
-        means = _block_means(band, factor)
-        reduced[first // factor:first // factor + len(means)] = means * FLOAT(scale)
-    return reduced
-
-
-def _block_means(band: np.ndarray, factor: int) -> np.ndarray:
-    """(⌈r/n⌉, ⌈w/n⌉, c) float32 means of the n × n blocks (``factor`` n) of the (r, w, c) ``band``;
-    the blocks of its last row and column hold what is left. Summed one strided offset at a
-    time (n vectorised additions per axis), far faster than numpy's reductions over short axes."""
-    rows, width, channels = band.shape
-    row_sums = np.zeros((-(-rows // factor), width, channels), FLOAT)
-    for offset in range(min(factor, rows)):
-        part = band[offset::factor]
-        row_sums[:len(part)] += part
-    sums = np.zeros((len(row_sums), -(-width // factor), channels), FLOAT)
-    for offset in range(min(factor, width)):
-        part = row_sums[:, offset::factor]
-        sums[:, :part.shape[1]] += part
-    row_counts = np.minimum(factor, rows - factor * np.arange(sums.shape[0])).astype(FLOAT)
-    column_counts = np.minimum(factor, width - factor * np.arange(sums.shape[1])).astype(FLOAT)
-    return sums / (row_counts[:, None, None] * column_counts[None, :, None])
+    _, pixels = read_level(path, level, "float")
+    logger.debug("decoded %s: %dx%d, %d channels of %s", name or path, header.width, header.height,
+                 header.channels, header.stored)
+    return _DecodedFile(pixels=pixels, is_uint8=header.stored == "uint8", wrap_modes=header.wrap_modes,
+                        reduced_from=(header.width, header.height) if level else None)
 
 
 def _repaired(pixels: np.ndarray, light: bool) -> int:
@@ -477,7 +403,7 @@ def _linear(pixels: np.ndarray, color_space: ColorSpace) -> np.ndarray:
     if color_space == "sRGB":
         colour = 3 if channels >= 3 else 1
         # A band of rows at a time: the EOTF's temporaries stay small beside a large image.
-        rows = max(1, _BAND_BYTES // (4 * linear.shape[1] * colour))
+        rows = max(1, BAND_BYTES // (4 * linear.shape[1] * colour))
         for top in range(0, linear.shape[0], rows):
             band = linear[top:top + rows, :, :colour]
             band[...] = srgb_to_linear(band)

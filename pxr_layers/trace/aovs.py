@@ -133,7 +133,7 @@ class _DataTracer:
                 break
             # a fixed presence choice (spp −1): one ray per pixel must not make the data noisy
             surfaces = surface(queue, hits, np.ones(len(queue), bool), step, integrator.geometry, integrator.materials.arrays,
-                               np.zeros(0, FLOAT), max_depth=0, spp=-1)
+                               np.zeros(0, FLOAT), max_depth=0, spp=-1, ray_cone=integrator.ray_cone)
             seen = np.flatnonzero(~surfaces.cut)
             seen_object[lanes[seen]] = np.take(world.triangle_object, hits.triangle[seen])
             distance[lanes[seen]] = queue.travelled[seen]

@@ -43,7 +43,7 @@ from ..scene import FLOAT, SceneData
 from . import bsdf, hair
 from ..compiled import inline, kernel
 from ..paths import events
-from .shading import diffuse_texture
+from .shading import MaterialTable, diffuse_texture
 from .vectors import dot
 from .world import World
 
@@ -97,7 +97,7 @@ def _content_digest(pixels: np.ndarray) -> bytes:
 class BounceNorms:
     """Per-scene tables for C and T, built once per frame, shared read-only by threads."""
 
-    def __init__(self, scene: SceneData, world: World):
+    def __init__(self, scene: SceneData, world: World, materials: MaterialTable):
         self.world = world
         self.curvature = curvature_norm(world.curvature_k1, world.curvature_k2).astype(FLOAT)
         driving = [diffuse_texture(material) for material in scene.materials]
@@ -106,8 +106,11 @@ class BounceNorms:
         # (m + 1, 2, 3) the affine map from the mesh's st to the texture's uv
         self.material_uv = np.array([np.eye(3)[:2] if found is None else np.reshape(found[1], (2, 3))
                                      for found in driving] + [np.eye(3)[:2]])
-        used = sorted({index for index in textured if index >= 0})
-        self.spectra = {index: texture_spectrum(scene.textures[index].pixels) for index in used}
+        # each texture's spectrum of its finest resident level (texture units, as T's lookups)
+        rows = {index: row for row, index in enumerate(materials.textures)}
+        finest = {index: materials.resident.finest_linear(rows[index])
+                  for index in sorted({index for index in textured if index in rows})}
+        self.spectra = {index: texture_spectrum(pixels) for index, pixels in finest.items() if pixels is not None}
 
     def texture(self, surfaces, footprint: np.ndarray) -> None:
         """Fill ``surfaces.texture`` (T, cycles/m) of a SurfaceQueue's textured lanes, for

@@ -71,6 +71,7 @@ class TraceSettings:
                  ``clamp_splats``); NO_CLAMP (0): none is clamped.
     guides : sum, per pixel, the denoiser's albedo and normal guides (``BatchResult.guides``,
                  guides.py).
+    texture_memory : the material textures' budget, MiB (texture_cache.py); None: its default
     """
 
     spp: int = DEFAULT_SPP
@@ -85,6 +86,7 @@ class TraceSettings:
     first_hits: bool = False
     clamp_indirect: float = NO_CLAMP
     guides: bool = False
+    texture_memory: int | None = None
 
     def __post_init__(self) -> None:
         if self.first_bounce_norms and self.norm_bounces <= 0:
@@ -219,7 +221,7 @@ class Integrator:
             wants_norms = any(observer.wants_norms(step) for observer in observers)
             surfaces = surface(queue, hits, alive, step, geometry, materials,
                                self.curvature if wants_norms else self.curvature[:0], settings.max_depth,
-                               self.key, spp)
+                               self.key, spp, self.ray_cone)
             film.add_coverage(queue, hit & unscattered & ~surfaces.cut, hits.triangle)
             if wants_norms and self.bounce_norms:
                 footprint = self.ray_cone.footprint(queue.travelled, surfaces.wo[:, 2])

@@ -25,6 +25,8 @@ from .integrator import BatchResult, Integrator, TraceSettings
 from .stages.film import FirstHits
 from .lights import LightSampler
 from .shading import MaterialTable
+from .texture_cache import ANY_LEVEL, NOT_WANTED
+from ..texture_files import level_count
 from .world import World, build_world, flatten_instances, geometry_arrays
 
 log = logging.getLogger(__name__)
@@ -33,7 +35,9 @@ DEFAULT_BATCH_PATHS = 1 << 16
 
 
 def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Integrator:
-    """Build the world, its Embree scene, material and light tables for one frame."""
+    """Build the world, its Embree scene, material and light tables for one frame: the
+    textures the frame's visibility pre-pass (:func:`_texture_levels`) looked up, at the
+    MIP levels it asked for."""
     width, height = spec.resolution
     if width <= 0 or height <= 0:
         raise RenderSettingsError(f"resolution must be positive, got {width}×{height}")
@@ -52,12 +56,19 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
     lanes, slots = max(DEFAULT_BATCH_PATHS, width), min(available_cores(), MAX_SLOTS)
     world = build_world(scene, rows_needed(lanes, slots) if placing else 0)
     geometry = geometry_arrays(world)
-    materials = MaterialTable(scene, world.primvar_columns)
+    camera = ThinLensCamera.from_spec(spec)
+    finest = _texture_levels(scene, spec, settings, world, geometry, camera, lanes, slots)
+    materials = MaterialTable(scene, world.primvar_columns, finest, settings.texture_memory)
+    return _integrator(scene, spec.resolution, settings, world, geometry, camera, materials, lanes, slots)
+
+
+def _integrator(scene: SceneData, resolution: tuple[int, int], settings: TraceSettings, world: World, geometry,
+                camera: ThinLensCamera, materials: MaterialTable, lanes: int, slots: int) -> Integrator:
+    """The Integrator of `world` with `materials`: its lights, norms, subjects and rows."""
     lights = LightSampler(scene, world, materials, geometry)
     if lights.darkness:
         log.warning("%s: %s", scene.stage_path, lights.darkness)
-    camera = ThinLensCamera.from_spec(spec)
-    bounce_norms = BounceNorms(scene, world) if settings.norm_bounces > 0 else None
+    bounce_norms = BounceNorms(scene, world, materials) if settings.norm_bounces > 0 else None
     pairs, triangle_subject, subject_first, subject_rank = _subjects(world)
     instance_rows = None
     if world.needs_placing:
@@ -71,8 +82,58 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
         material_names=tuple(m.name for m in scene.materials), material_paths=tuple(m.path for m in scene.materials),
         light_names=tuple(light.name for light in scene.lights), light_paths=tuple(light.path for light in scene.lights),
     )
-    return Integrator(world, geometry, materials, lights, camera, spec.resolution, settings, scene.frame, RayCaster(world),
+    return Integrator(world, geometry, materials, lights, camera, resolution, settings, scene.frame, RayCaster(world),
                       vocabulary, triangle_subject, bounce_norms, instance_rows)
+
+
+PREPASS_PATHS = 1 << 17
+"""Camera paths of the visibility pre-pass at most: one a pixel of a film 2^k times coarser
+than the frame's (k the smallest that fits)."""
+ANY_LEVEL_STEPS = 8
+"""A texture that only footprint-less lookups asked for (shadow rays through cut-outs, light
+sampling: they read whatever level is resident) is held from the level 8 steps above 1 × 1,
+256 texels on its larger side."""
+
+
+def _texture_levels(scene: SceneData, spec: RenderSpec, settings: TraceSettings, world: World, geometry,
+                    camera: ThinLensCamera, lanes: int, slots: int) -> dict[int, int | None] | None:
+    """SceneData.textures index → the finest MIP level to hold (None: none), from a visibility
+    pre-pass: the frame traced at one sample a pixel on a film 2^k times coarser (at most
+    PREPASS_PATHS paths), the same depth and seed, with only the decoded images resident;
+    its lookups record the level each texture asked for (texture_cache ``wanted``), which is
+    k levels coarser than the frame's own; the frame holds one level finer still, since one
+    sample a pixel sees a texture at fewer places than the frame's samples do. None when every
+    texture is decoded already (nothing to choose). Traced on this thread alone, so the
+    levels, and the render, do not depend on thread timing."""
+    lazy = [index for index, image in enumerate(scene.textures) if image.pixels is None]
+    if not lazy:
+        return None
+    decoded = {index: 0 for index, image in enumerate(scene.textures) if image.pixels is not None}
+    probe = MaterialTable(scene, world.primvar_columns, decoded, settings.texture_memory)
+    width, height = spec.resolution
+    shrink = 0
+    while -(-width >> shrink) * -(-height >> shrink) > PREPASS_PATHS:
+        shrink += 1
+    size = (-(-width >> shrink), -(-height >> shrink))
+    pre_pass = TraceSettings(spp=1, max_depth=settings.max_depth, seed=settings.seed,
+                             roulette_depth=settings.roulette_depth, texture_memory=settings.texture_memory)
+    integrator = _integrator(scene, size, pre_pass, world, geometry, camera, probe, lanes, slots)
+    paths = size[0] * size[1]
+    for first in range(0, paths, DEFAULT_BATCH_PATHS):
+        integrator.trace(first, min(first + DEFAULT_BATCH_PATHS, paths))
+    finest: dict[int, int | None] = dict(decoded)
+    for row, index in enumerate(probe.textures):
+        asked = int(probe.arrays.texture_wanted[row])
+        if index in finest or asked == NOT_WANTED:
+            continue
+        header = scene.textures[index].header
+        if asked == ANY_LEVEL:
+            finest[index] = max(0, level_count(header.width, header.height) - 1 - ANY_LEVEL_STEPS)
+        else:
+            finest[index] = max(0, asked - shrink - 1)
+    log.info("%s: %d of %d textures looked up by the visibility pre-pass (%d×%d, 1 spp)", scene.stage_path,
+             sum(1 for index in lazy if finest.get(index) is not None), len(lazy), *size)
+    return finest
 
 
 def _subjects(world: World) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -144,6 +205,7 @@ def trace_pixels(integrator: Integrator, first_pixel: int, stop_pixel: int, on_b
                 on_batch(pending.popleft().result())
         while pending:
             on_batch(pending.popleft().result())
+    integrator.materials.report_unresident()
 
 
 class Film:

@@ -13,14 +13,16 @@ row that index −1 (the light shapes) reads and never shades:
   Sources: ``texcoord`` reads the mesh's st; ``primvar`` (b = column of
   GeometryArrays.corner_primvars, c = width, its presence column after it; parameters =
   fallback); ``texture`` (a = uv register, b, c = wrap codes s, t, d = tile count, extra =
-  first row of ``tiles`` (x, 2) int64 (tile, atlas texture), parameters = fallback).
-* The textures packed in one atlas (textures.py).
+  first row of ``tiles`` (x, 2) int64 (tile, texture), parameters = fallback).
+* The textures' resident MIP levels (texture_cache.py), looked up trilinearly with the
+  lookup's footprint (``_texture_value``).
 
 ``REGISTERS`` bounds a material's distinct nodes.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import NamedTuple
 
@@ -30,7 +32,8 @@ from .. import shader_nodes
 from ..compiled import inline, kernel
 from ..scene import Material, SceneData
 from ..shader_nodes import ShaderNode
-from . import textures
+from . import texture_cache, textures
+from .texture_cache import resident_textures
 
 # Columns of a material row.
 DIFFUSE, EMISSIVE, SPECULAR = 0, 3, 6  # 3 columns each
@@ -54,6 +57,7 @@ _INPUTS = (("diffuse_color", DIFFUSE, 3), ("emissive_color", EMISSIVE, 3), ("spe
            ("hair_tint_r", HAIR_TINT, 3), ("hair_tint_tt", HAIR_TINT + 3, 3), ("hair_tint_trt", HAIR_TINT + 6, 3),
            ("hair_absorption", HAIR_ABSORPTION, 3))
 REGISTERS = 256
+log = logging.getLogger(__name__)
 _INSTRUCTION = 8
 
 
@@ -67,8 +71,13 @@ class MaterialArrays(NamedTuple):
     stores: np.ndarray
     store_range: np.ndarray
     tiles: np.ndarray
-    texels: np.ndarray
+    texel_u8: np.ndarray
+    texel_u16: np.ndarray
+    texel_f32: np.ndarray
+    texture_levels: np.ndarray
     texture_info: np.ndarray
+    texture_luts: np.ndarray
+    texture_wanted: np.ndarray
 
 
 class MaterialTable:
@@ -76,9 +85,14 @@ class MaterialTable:
 
     primvar_columns : GeometryArrays' primvar columns, name → (offset, width); a primvar
                       no mesh carries reads its fallback.
+    finest          : SceneData.textures index → the finest MIP level to hold (None or
+                      absent: none, its lookups read the fallback); default: every texture
+                      from level 0 (texture_cache.resident_textures)
+    texture_memory  : the textures' budget, MiB (default: texture_cache's)
     """
 
-    def __init__(self, scene: SceneData, primvar_columns: dict[str, tuple[int, int]] | None = None):
+    def __init__(self, scene: SceneData, primvar_columns: dict[str, tuple[int, int]] | None = None,
+                 finest: dict[int, int | None] | None = None, texture_memory: int | None = None):
         materials = scene.materials or (Material(name="default", path="<default>"),)
         compiler = _Compiler(scene, primvar_columns or {})
         rows = len(materials) + 1
@@ -113,13 +127,32 @@ class MaterialTable:
         # Whether any material lets light through (presence below 1 somewhere).
         self.see_through = any(isinstance(material.opacity, ShaderNode) or material.opacity < 1
                                for material in materials)
-        texels, info = textures.packed([scene.textures[texture].pixels for texture in compiler.atlas])
+        # SceneData.textures indices in the order of the kernels' texture rows
+        self.textures = list(compiler.atlas)
+        images = [scene.textures[texture] for texture in self.textures]
+        self.resident = resident_textures(
+            images, None if finest is None else [finest.get(texture) for texture in self.textures], texture_memory)
         self.arrays = MaterialArrays(
             constants=constants, program=np.array(compiler.program, np.int32).reshape(-1, _INSTRUCTION),
             parameters=np.array(compiler.parameters + [0.0], np.float32), program_range=program_range,
             stores=np.array(compiler.stores, np.int32).reshape(-1, 3), store_range=store_range,
-            tiles=np.array(compiler.tiles, np.int64).reshape(-1, 2), texels=texels, texture_info=info)
+            tiles=np.array(compiler.tiles, np.int64).reshape(-1, 2), texel_u8=self.resident.u8,
+            texel_u16=self.resident.u16, texel_f32=self.resident.f32, texture_levels=self.resident.levels,
+            texture_info=self.resident.info, texture_luts=self.resident.luts, texture_wanted=self.resident.wanted)
         self.emissive = emissive  # (materials,) bool, without the light-shape row
+        self._images = images
+        self._reported: set[int] = set()
+
+    def report_unresident(self) -> None:
+        """Warn, once per texture, about those lookups asked for that held no level (they
+        read the fallback value): seen by the frame, missed by the visibility pre-pass."""
+        wanted, resident = self.arrays.texture_wanted, self.arrays.texture_info[:, texture_cache.RESIDENT]
+        for row in np.flatnonzero((wanted != texture_cache.NOT_WANTED) & (resident == 0)).tolist():
+            if row not in self._reported:
+                self._reported.add(row)
+                image = self._images[row]
+                log.warning("texture %s%s: looked up where the visibility pre-pass did not see it; its fallback "
+                            "value was used there", image.path, texture_cache.used_by(image))
 
 
 class _Compiler:
@@ -130,7 +163,7 @@ class _Compiler:
         self.parameters: list[float] = []
         self.stores: list[list[int]] = []
         self.tiles: list[list[int]] = []
-        self.atlas: dict[int, int] = {}  # SceneData.textures index → atlas index
+        self.atlas: dict[int, int] = {}  # SceneData.textures index → texture row
         self._scene = scene
         self._primvar_columns = primvar_columns
 
@@ -217,8 +250,12 @@ def _uv_transform(uv: ShaderNode):
 # -- per-lane functions of kernels
 
 @inline
-def _texture_value(materials, row, registers, out):
-    """registers[out] ← the texture instruction `row`'s lookup."""
+def _texture_value(materials, row, registers, out, footprint):
+    """registers[out] ← the texture instruction `row`'s lookup, `footprint` (st units) wide:
+    trilinear between the two resident MIP levels whose texels are nearest that size (the
+    finest resident level for a footprint of 0 or one finer than it); the fallback where
+    no level is resident. Records the level asked for in ``texture_wanted`` (ANY_LEVEL
+    without a footprint)."""
     program, ro = materials.program, registers[out]
     s, t = registers[program[row, 2], 0], registers[program[row, 2], 1]
     count, first = program[row, 5], program[row, 7]
@@ -233,19 +270,65 @@ def _texture_value(materials, row, registers, out):
                 if materials.tiles[first + k, 0] == tile:
                     texture = materials.tiles[first + k, 1]
         s, t = s - column, t - line
-    if texture < 0:
+    info = materials.texture_info
+    level = 0.0
+    if texture >= 0:
+        texels = footprint * max(info[texture, texture_cache.BASE_WIDTH], info[texture, texture_cache.BASE_HEIGHT])
+        level = math.log2(texels) if 1.0 < texels < 1e30 else 0.0  # NaN fails both tests too
+        asked = np.int32(level) if footprint > 0.0 else np.int32(texture_cache.ANY_LEVEL)
+        if asked < materials.texture_wanted[texture]:
+            materials.texture_wanted[texture] = asked
+    if texture < 0 or info[texture, texture_cache.RESIDENT] == 0:
         offset = program[row, 6]
         for k in range(4):
             ro[k] = materials.parameters[offset + k]
         return
-    i00, i10, i01, i11, fx, fy = textures.footprint(materials.texture_info, texture, s, t, program[row, 3],
+    resident = info[texture, texture_cache.RESIDENT]
+    level = min(max(level - info[texture, texture_cache.FINEST], 0.0), resident - 1.0)
+    lower = int(level)
+    fraction = level - lower
+    top = info[texture, texture_cache.FIRST_ROW] + lower
+    channels = materials.texture_levels[top, textures.CHANNELS]
+    i00, i10, i01, i11, fx, fy = textures.footprint(materials.texture_levels, top, s, t, program[row, 3],
                                                     program[row, 4])
-    channels = materials.texture_info[texture, textures.CHANNELS]
     for k in range(channels):  # each stored channel once, then expanded to RGBA in place
-        ro[k] = textures.blend(materials.texels, i00, i10, i01, i11, fx, fy, k)
+        ro[k] = _blend_stored(materials, top, i00, i10, i01, i11, fx, fy, k)
+    if fraction > 0.0 and lower + 1 < resident:
+        i00, i10, i01, i11, fx, fy = textures.footprint(materials.texture_levels, top + 1, s, t, program[row, 3],
+                                                        program[row, 4])
+        for k in range(channels):
+            ro[k] += fraction * (_blend_stored(materials, top + 1, i00, i10, i01, i11, fx, fy, k) - ro[k])
     for k in range(3, -1, -1):  # descending: the channel a component reads is never above it
         stored = textures.rgba_channel(channels, k)
         ro[k] = 1.0 if stored < 0 else ro[stored]
+
+
+@inline
+def _stored_texel(materials, level, index, channel):
+    """The linear value of stored `channel` of the texel at flat offset `index` (−1: black)
+    of the resident level row `level`: the f32 pool's value, or the LUT's for the stored
+    8- or 16-bit value (the colour LUT for colour channels, the raw one for alpha)."""
+    if index < 0:
+        return 0.0
+    levels = materials.texture_levels
+    pool = levels[level, texture_cache.POOL]
+    if pool == texture_cache.POOL_F32:
+        return materials.texel_f32[index + channel]
+    colour = channel < (3 if levels[level, textures.CHANNELS] >= 3 else 1)
+    lut = levels[level, texture_cache.COLOUR_LUT] if colour else levels[level, texture_cache.ALPHA_LUT]
+    if pool == texture_cache.POOL_U8:
+        return materials.texture_luts[lut + np.int64(materials.texel_u8[index + channel])]
+    return materials.texture_luts[lut + np.int64(materials.texel_u16[index + channel])]
+
+
+@inline
+def _blend_stored(materials, level, i00, i10, i01, i11, fx, fy, channel):
+    """One stored channel of a bilinear lookup in the level row `level` (textures.footprint)."""
+    top = (_stored_texel(materials, level, i00, channel) * (1 - fx)
+           + _stored_texel(materials, level, i10, channel) * fx)
+    bottom = (_stored_texel(materials, level, i01, channel) * (1 - fx)
+              + _stored_texel(materials, level, i11, channel) * fx)
+    return top * (1 - fy) + bottom * fy
 
 
 @inline
@@ -266,10 +349,11 @@ def _primvar_value(materials, row, corner_primvars, triangle, u, v, registers, o
 
 
 @kernel  # called, not inlined: the interpreter is compiled once, not into every kernel that shades
-def material_inputs(materials, material, s, t, corner_primvars, triangle, u, v, registers, out):
-    """Every input of `material` at a shading point — texture coordinates (s, t),
-    barycentrics (u, v) of `triangle` — into out (MATERIAL_FIELDS,); registers:
-    (REGISTERS, 4) float32 scratch."""
+def material_inputs(materials, material, s, t, footprint, corner_primvars, triangle, u, v, registers, out):
+    """Every input of `material` at a shading point — texture coordinates (s, t), textures
+    looked up `footprint` wide (st units; 0: their finest resident level), barycentrics
+    (u, v) of `triangle` — into out (MATERIAL_FIELDS,); registers: (REGISTERS, 4) float32
+    scratch."""
     for column in range(MATERIAL_FIELDS):
         out[column] = materials.constants[material, column]
     program = materials.program
@@ -278,7 +362,7 @@ def material_inputs(materials, material, s, t, corner_primvars, triangle, u, v, 
         if op == shader_nodes.TEXCOORD:
             registers[target, 0], registers[target, 1], registers[target, 2], registers[target, 3] = s, t, 0.0, 1.0
         elif op == shader_nodes.TEXTURE:
-            _texture_value(materials, row, registers, target)
+            _texture_value(materials, row, registers, target, footprint)
         elif op == shader_nodes.PRIMVAR:
             _primvar_value(materials, row, corner_primvars, triangle, u, v, registers, target)
         else:
@@ -319,12 +403,32 @@ def interpolate_st(corner_uvs, triangle, u, v):
 
 
 @inline
-def shade_point(materials, geometry, triangle, u, v, registers, inputs):
-    """material_inputs of `triangle`'s material at barycentrics (u, v); returns (s, t)."""
+def shade_point(materials, geometry, triangle, u, v, registers, inputs, footprint):
+    """material_inputs of `triangle`'s material at barycentrics (u, v), textures looked up
+    `footprint` metres wide (0: their finest resident level); returns (s, t)."""
     s, t = interpolate_st(geometry.corner_uvs, triangle, u, v)
-    material_inputs(materials, geometry.triangle_material[triangle], s, t, geometry.corner_primvars, triangle, u, v,
-                    registers, inputs)
+    material_inputs(materials, geometry.triangle_material[triangle], s, t,
+                    footprint * st_per_metre(geometry, triangle) if footprint > 0.0 else 0.0,
+                    geometry.corner_primvars, triangle, u, v, registers, inputs)
     return s, t
+
+
+@inline
+def st_per_metre(geometry, triangle):
+    """How many st units a metre of `triangle` spans: √(its area in st / its area in metres),
+    0 where either is 0 (the footprint of a lookup in st, for its MIP level)."""
+    corners, uvs = geometry.corner_positions, geometry.corner_uvs
+    e1x = corners[triangle, 1, 0] - corners[triangle, 0, 0]
+    e1y = corners[triangle, 1, 1] - corners[triangle, 0, 1]
+    e1z = corners[triangle, 1, 2] - corners[triangle, 0, 2]
+    e2x = corners[triangle, 2, 0] - corners[triangle, 0, 0]
+    e2y = corners[triangle, 2, 1] - corners[triangle, 0, 1]
+    e2z = corners[triangle, 2, 2] - corners[triangle, 0, 2]
+    cx, cy, cz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    area = math.sqrt(cx * cx + cy * cy + cz * cz)
+    st_area = abs((uvs[triangle, 1, 0] - uvs[triangle, 0, 0]) * (uvs[triangle, 2, 1] - uvs[triangle, 0, 1])
+                  - (uvs[triangle, 2, 0] - uvs[triangle, 0, 0]) * (uvs[triangle, 1, 1] - uvs[triangle, 0, 1]))
+    return math.sqrt(st_area / area) if area > 0.0 else 0.0
 
 
 def inputs_at(arrays: MaterialArrays, material: int, st: np.ndarray) -> np.ndarray:
@@ -341,5 +445,5 @@ def inputs_at(arrays: MaterialArrays, material: int, st: np.ndarray) -> np.ndarr
 @kernel
 def _inputs_at_kernel(materials, material, st, corner_primvars, registers, out):
     for lane in range(len(st)):
-        material_inputs(materials, material, st[lane, 0], st[lane, 1], corner_primvars, 0, 0.0, 0.0, registers,
-                        out[lane])
+        material_inputs(materials, material, st[lane, 0], st[lane, 1], 0.0, corner_primvars, 0, 0.0, 0.0,
+                        registers, out[lane])

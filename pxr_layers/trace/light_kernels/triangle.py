@@ -43,7 +43,7 @@ def emitted(triangle, u, v, ex, ey, ez, cos_toward_viewer, geometry, emission, m
     shading.material_inputs."""
     light = geometry.triangle_light[triangle]
     if light < 0:
-        shading.shade_point(materials, geometry, triangle, u, v, registers, inputs)
+        shading.shade_point(materials, geometry, triangle, u, v, registers, inputs, 0.0)
         present = 1.0 - shading.pass_fraction(inputs)  # what passes through does not emit
         out[0], out[1], out[2] = (inputs[shading.EMISSIVE] * present, inputs[shading.EMISSIVE + 1] * present,
                                   inputs[shading.EMISSIVE + 2] * present)

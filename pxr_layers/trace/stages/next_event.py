@@ -102,7 +102,7 @@ def _presence_kernel(triangle, bary_u, bary_v, light, geometry, materials, light
         if geometry.triangle_light[tri] >= 0:  # a light's shape: opaque
             fraction_out[lane] = 0.0
             continue
-        shading.shade_point(materials, geometry, tri, bary_u[lane], bary_v[lane], registers, inputs)
+        shading.shade_point(materials, geometry, tri, bary_u[lane], bary_v[lane], registers, inputs, 0.0)
         fraction_out[lane] = shading.pass_fraction(inputs)
 
 

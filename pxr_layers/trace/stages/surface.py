@@ -61,7 +61,7 @@ mirror reflection of wo (module docstring): Iray's and Cycles' value."""
 
 def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry: GeometryArrays,
             materials: MaterialArrays, curvature: np.ndarray, max_depth: int, frame_key: np.uint64 = np.uint64(0),
-            spp: int = 0) -> SurfaceQueue:
+            spp: int = 0, ray_cone=None) -> SurfaceQueue:
     """The shading points of `queue`'s hits, for the lanes `alive` (n,) bool marks: those
     that hit a surface that is not a light (lights absorb what reaches them).
 
@@ -79,8 +79,12 @@ def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry
     A hair material's frame is the fibre's instead (x along it, z its normal: hair.py), with
     neither normal map nor bend. Paths at `max_depth` get no lobe. curvature: (t,) float32 C
     per triangle, or (0,) for none (C = 0). Also adds the hit distance to
-    ``queue.travelled``.
+    ``queue.travelled``. Textures are looked up as wide as the camera sample's ray cone
+    (``ray_cone``, a sigma.RayCone: its width at the distance travelled, over the cosine at
+    the geometric surface), at their finest resident level without one.
     """
+    cone = (0.0, 0.0, 0.0) if ray_cone is None else (ray_cone.pixel_angle, ray_cone.lens_radius,
+                                                      ray_cone.focus_distance)
     n = len(queue)
     out = SurfaceQueue(
         position=np.empty((n, 3), np.float32), facing=np.empty((n, 3), np.float32),
@@ -90,7 +94,7 @@ def surface(queue: PathQueue, hits: Hits, alive: np.ndarray, step: int, geometry
         through=np.zeros(n, np.float32))
     _surface_kernel(alive, queue.key, queue.pixel, queue.sample, frame_key, spp if step == 0 or spp < 0 else 0,
                     rng.step_dimension(step) + rng.PRESENCE, hits.triangle, hits.u, hits.v, hits.t,
-                    queue.direction, queue.depth, queue.travelled, max_depth, geometry, materials, curvature,
+                    queue.direction, queue.depth, queue.travelled, *cone, max_depth, geometry, materials, curvature,
                     scratch(3), scratch(3), scratch(shading.REGISTERS, 4), scratch(shading.MATERIAL_FIELDS),
                     out.position, out.facing, out.frame, out.wo, out.lobes, out.cut, out.scatters, out.st,
                     out.curvature, out.through)
@@ -185,8 +189,8 @@ def bent_normal(nx, ny, nz, gx, gy, gz, wx, wy, wz):
 
 
 @kernel
-def _surface_kernel(alive, key, pixel, sample, frame_key, spp, presence_dimension, triangle, bary_u, bary_v, t_hit, direction, depth, travelled,
-                    max_depth, geometry, materials, curvature, point, normal, registers, inputs, position_out,
+def _surface_kernel(alive, key, pixel, sample, frame_key, spp, presence_dimension, triangle, bary_u, bary_v, t_hit,
+                    direction, depth, travelled, pixel_angle, lens_radius, focus_distance, max_depth, geometry, materials, curvature, point, normal, registers, inputs, position_out,
                     facing_out, frame_out, wo_out, lobes_out, cut_out, scatters_out, st_out, curvature_out,
                     through_out):
     has_curvature = len(curvature) > 0
@@ -200,10 +204,16 @@ def _surface_kernel(alive, key, pixel, sample, frame_key, spp, presence_dimensio
         travelled[lane] += t_hit[lane]
         shading.interpolate3(geometry.corner_positions, tri, u, v, point)
         shading.interpolate3(geometry.corner_normals, tri, u, v, normal)
-        s, t = shading.shade_point(materials, geometry, tri, u, v, registers, inputs)
         gx, gy, gz = geometry.geometric_normal[tri, 0], geometry.geometric_normal[tri, 1], geometry.geometric_normal[tri, 2]
         wx, wy, wz = -direction[lane, 0], -direction[lane, 1], -direction[lane, 2]
         cos_geometric = gx * wx + gy * wy + gz * wz
+        # the ray cone's width (sigma.RayCone.footprint's), over the geometric cosine: the
+        # shading frame that RayCone divides by is not built before the material is read
+        width = travelled[lane] * pixel_angle
+        if lens_radius > 0.0:
+            width += 2.0 * lens_radius * abs(1.0 - travelled[lane] / focus_distance)
+        footprint = width / max(abs(cos_geometric), 0.05)
+        s, t = shading.shade_point(materials, geometry, tri, u, v, registers, inputs, footprint)
         passing = shading.pass_fraction(inputs)
         cut = False
         if passing > 0:  # a random number only where there is a choice (most surfaces are opaque)
