@@ -27,6 +27,8 @@ from pxr_layers.cli.main import main
 from pxr_layers.stage.diagnostics import Diagnostics
 from pxr_layers.stage.placement import MAX_WORLD_COORDINATE
 from pxr_layers.stage.textures import MAX_LIGHT_TEXEL, TextureLibrary
+from pxr_layers.trace import texture_cache
+from pxr_layers.trace.texture_cache import resident_textures
 
 TINY = ["--spp", "1", "--resolution", "8", "8", "--quiet", "--no-previews", "--no-index"]
 SUN = '    def DistantLight "sun"\n    {\n    }\n'
@@ -260,23 +262,27 @@ def test_a_dome_image_of_texels_no_light_has_is_read_sanitised_with_one_warning(
         assert f"or above {MAX_LIGHT_TEXEL:g} (read as that)" in line and pixels.max() <= MAX_LIGHT_TEXEL
 
 
-def test_material_textures_lose_only_their_non_finite_texels_and_every_read_says_so(tmp_path):
+def test_material_textures_lose_only_their_non_finite_texels_and_every_read_says_so(tmp_path, caplog):
     """NaN and infinities are 0 in every texture; negative texels stay in a material's (a
-    normal map's, a displacement's) but not in a light's; a later read that takes the
-    remembered images warns again, as each frame's warnings are its own."""
+    normal map's, a displacement's) but not in a light's; a later frame that takes the
+    remembered images (the stage reader's for lights, the texture cache's for materials)
+    warns again, as each frame's warnings are its own."""
     path = str(tmp_path / "signed.exr")
     image = oiio.ImageOutput.create(path)
     image.open(path, oiio.ImageSpec(4, 1, 1, "float"))
     image.write_image(np.array([[[np.nan], [-2.0], [0.5], [np.inf]]], np.float32))
     image.close()
     for _ in range(2):
+        caplog.clear()
         diagnostics = Diagnostics()
         library = TextureLibrary(diagnostics)
         material = library.load(path, "raw", "/World/look/normals")
         light = library.load(path, "raw", "/World/sky", light=True)
         library.remember()
-        assert library.images[material.index].pixels[0, :, 0].tolist() == [0.0, -2.0, 0.5, 0.0]
+        resident = resident_textures([library.images[material.index]])
+        assert resident.finest_linear(0)[0, :, 0].tolist() == [0.0, -2.0, 0.5, 0.0]
         assert library.images[light.index].pixels[0, :, 0].tolist() == [0.0, 0.0, 0.5, 0.0]
-        material_warning, light_warning = diagnostics.finish()
-        assert material_warning == f"texture {path} (used by /World/look/normals): 2 of 4 texels are NaN or infinite (read as 0)"
+        (light_warning,) = diagnostics.finish()
         assert light_warning.startswith(f"texture {path} (used by /World/sky): 3 of 4 texels are NaN, infinite or negative")
+        assert [record.getMessage() for record in caplog.records if record.name == texture_cache.__name__] == [
+            f"texture {path} (used by /World/look/normals): 2 of 4 texels are NaN or infinite (read as 0)"]

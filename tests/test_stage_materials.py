@@ -14,7 +14,10 @@ from pxr import Sdf, Usd, UsdGeom, UsdRender, UsdShade, Vt
 from pxr_layers.scene import DEFAULT_MATERIAL_PATH, Material
 from pxr_layers.shader_nodes import ShaderNode
 from pxr_layers.stage import load_stage
+from pxr_layers.texture_files import read_level
+from pxr_layers.trace import texture_cache
 from pxr_layers.trace.shading import MaterialTable, inputs_at
+from pxr_layers.trace.texture_cache import decoded
 
 QUAD = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]
 STRIP_POINTS = [(0, 0, 0), (1, 0, 0), (2, 0, 0), (0, 1, 0), (1, 1, 0), (2, 1, 0)]
@@ -310,35 +313,42 @@ def test_8bit_png_is_decoded_as_srgb_by_auto_and_kept_by_raw(tmp_path):
     assert auto.texture == srgb.texture != raw.texture  # one image per file + colour space
     assert len(scene.textures) == 2
     stored = PNG_VALUES.astype(np.float64) / 255.0
-    decoded = scene.textures[auto.texture]
-    assert decoded.path == png and decoded.pixels.shape == (2, 2, 3)  # the file's channels, no alpha added
-    assert decoded.pixels.dtype == np.float32
-    np.testing.assert_allclose(decoded.pixels, srgb_eotf(stored), atol=1e-6)
-    np.testing.assert_allclose(scene.textures[raw.texture].pixels, stored, atol=1e-6)
+    image = scene.textures[auto.texture]
+    assert image.path == png and image.pixels is None  # read by the tracer, at the levels it needs
+    assert image.header.stored == "uint8" and image.color_space == "sRGB"
+    pixels = decoded(image)
+    assert pixels.shape == (2, 2, 3)  # the file's channels, no alpha added
+    assert pixels.dtype == np.float32
+    np.testing.assert_allclose(pixels, srgb_eotf(stored), atol=1e-6)
+    np.testing.assert_allclose(decoded(scene.textures[raw.texture]), stored, atol=1e-6)
     # row 0 is the top row of the file
-    np.testing.assert_allclose(scene.textures[raw.texture].pixels[0, 1, 0], 1.0)
+    np.testing.assert_allclose(decoded(scene.textures[raw.texture])[0, 1, 0], 1.0)
 
 
-def test_the_next_read_takes_the_textures_of_the_last_unless_the_file_changed(tmp_path):
-    """A shot's frames read the same files: the decoded images are shared (read-only), in
-    each colour space, and a rewritten file is decoded again."""
+def test_the_next_frame_takes_the_texture_levels_of_the_last_unless_the_file_changed(tmp_path, monkeypatch):
+    """A shot's frames read the same files: the tracer's texture cache keeps the last frame's
+    levels (by file identity), in each colour space, and a rewritten file is read again."""
+    reads = []
+    monkeypatch.setattr(texture_cache, "read_level", lambda *args: reads.append(args) or read_level(*args))
     png = write_image(tmp_path / "colour.png", PNG_VALUES, oiio.UINT8)
     stage = new_stage(tmp_path)
     bind(quad(stage), textured_material(stage, "/Looks/auto", "colour.png"))
     first, _ = load(stage)
+    texture_cache.resident_textures(first.textures)
     second, _ = load(stage)
-    assert second.textures[0].pixels is first.textures[0].pixels
-    assert not first.textures[0].pixels.flags.writeable
+    texture_cache.resident_textures(second.textures)
+    assert len(reads) == 1
     bind(quad(stage, "/raw", [(x, y + 2, z) for x, y, z in QUAD]),
          textured_material(stage, "/Looks/raw", "colour.png", sourceColorSpace="raw"))
-    both, _ = load(stage)  # the remembered sRGB image, and the same file decoded raw
-    assert both.textures[0].pixels is first.textures[0].pixels
-    np.testing.assert_allclose(both.textures[1].pixels[:, :, :3], PNG_VALUES / 255.0, atol=1e-6)
+    both, _ = load(stage)  # the remembered sRGB levels, and the same file held for raw lookups
+    resident = texture_cache.resident_textures(both.textures)
+    assert len(reads) == 2
+    np.testing.assert_allclose(resident.finest_linear(1)[:, :, :3], PNG_VALUES / 255.0, atol=1e-6)
     brighter = np.minimum(PNG_VALUES.astype(np.int64) + 5, 255).astype(np.uint8)
     write_image(png, brighter, oiio.UINT8)
     os.utime(png, ns=(0, 0))  # a new modification time even on a coarse clock
     changed, _ = load(stage)
-    np.testing.assert_allclose(changed.textures[1].pixels[:, :, :3], brighter / 255.0, atol=1e-6)
+    np.testing.assert_allclose(decoded(changed.textures[1])[:, :, :3], brighter / 255.0, atol=1e-6)
 
 
 def test_srgb_decoding_leaves_alpha_alone(tmp_path):
@@ -351,7 +361,7 @@ def test_srgb_decoding_leaves_alpha_alone(tmp_path):
     scene, _ = load(stage)
     opacity = texture_input(material_of(scene).opacity, 1)
     assert opacity.channels == (3,)
-    pixels = scene.textures[opacity.texture].pixels
+    pixels = decoded(scene.textures[opacity.texture])
     assert pixels[0, 0, 3] == pytest.approx(128 / 255, abs=1e-6)  # alpha as stored
     assert pixels[0, 0, 0] == pytest.approx(srgb_eotf(128 / 255), abs=1e-6)  # not premultiplied
 
@@ -367,9 +377,9 @@ def test_float_exr_is_raw_and_grey_images_expand_to_rgb(tmp_path):
          textured_material(stage, "/Looks/grey", "grey.png"))
     scene, _ = load(stage)
     by_mesh = {mesh.path: scene.materials[mesh.triangle_material[0]] for mesh in scene.meshes}
-    hdr = scene.textures[texture_input(by_mesh["/hdr"].diffuse_color, 3).texture].pixels
+    hdr = decoded(scene.textures[texture_input(by_mesh["/hdr"].diffuse_color, 3).texture])
     np.testing.assert_allclose(hdr[0, 0], [0.5, 2.0, -1.0])
-    grey_pixels = scene.textures[texture_input(by_mesh["/grey"].diffuse_color, 3).texture].pixels
+    grey_pixels = decoded(scene.textures[texture_input(by_mesh["/grey"].diffuse_color, 3).texture])
     # one channel is not a colour image: auto keeps it raw, and stores it as one channel
     np.testing.assert_allclose(grey_pixels[0, 0], [200 / 255], atol=1e-6)
     table = MaterialTable(scene).arrays  # ... which lookups read as grey rgb, alpha 1

@@ -13,7 +13,9 @@ from pxr_layers.shader_nodes import ShaderNode
 from pxr_layers.stage.context import ReadContext
 from pxr_layers.stage.diagnostics import Diagnostics
 from pxr_layers.stage.materialx import MaterialXReader
-from pxr_layers.stage.textures import TextureLibrary, srgb_to_linear
+from pxr_layers.stage.textures import TextureLibrary
+from pxr_layers.texture_files import srgb_to_linear
+from pxr_layers.trace.texture_cache import decoded
 
 
 def _reader(stage=None, textures=None):
@@ -111,7 +113,7 @@ def test_image_node_reads_channels_wrap_and_colour_space(tmp_path):
     assert color_lookup.wrap == ("clamp", "mirror") and rough_lookup.wrap == ("repeat", "black")
     assert color_lookup.inputs[0] == ShaderNode("texcoord")
     assert rough_lookup.values == (0.25, 0.0, 0.0, 0.0)
-    srgb, raw = (textures.images[lookup.tiles[0][1]].pixels for lookup in (color_lookup, rough_lookup))
+    srgb, raw = (decoded(textures.images[lookup.tiles[0][1]]) for lookup in (color_lookup, rough_lookup))
     assert srgb[0, 0, :3] == pytest.approx(srgb_to_linear(pixels[0, 0] / 255.0), abs=1e-6)
     assert raw[0, 0, :3] == pytest.approx(pixels[0, 0] / 255.0, abs=1e-6)  # float images are not colour-managed
     assert look.uv_primvars == ("st",)

@@ -11,7 +11,9 @@ How one tile is measured
 * The image is reduced to one channel, the mean of its colour channels (alpha excluded).
   The material input's scale and bias are ignored: T is a property of the image.
 * Tiles are ``TILE`` × ``TILE`` texels of the full-resolution image (the whole image
-  when smaller), centres every ``TILE / 2`` texels. Each tile is multiplied by a Hann
+  when smaller), centres every ``TILE / 2`` texels; an image that is a texture's MIP
+  level ``m`` (the tracer's texture cache holds the levels a frame needs) has tiles of
+  ``TILE / 2^m`` texels (at least MIN_TILE), the same part of the texture. Each tile is multiplied by a Hann
   window (otherwise the tile edges add spurious high frequencies) and transformed.
 * T = second moments of the amplitude spectrum |â| taken as a density, in cycles per
   texture unit (the convention of Σ: a cosine 1 + a·cos(2π f x) gives a·f²/(1 + a)).
@@ -42,6 +44,7 @@ import numpy as np
 logger = logging.getLogger(__name__)
 
 TILE = 128  # texels of the full-resolution image per analysis tile
+MIN_TILE = 8  # texels of a tile of a texture's coarse MIP level at least
 TILES_AT_ONCE = 512
 """Tiles whose spectra are computed together (about 0.3 GiB of float64 and complex arrays):
 memory stays bounded whatever the texture's size."""
@@ -64,15 +67,17 @@ class TextureSpectrum:
     height: int
 
     @classmethod
-    def of_image(cls, pixels: np.ndarray) -> TextureSpectrum:
-        """Measure T for every tile and level of `pixels` (h, w, c) float, row 0 = top."""
+    def of_image(cls, pixels: np.ndarray, level: int = 0) -> TextureSpectrum:
+        """Measure T for every tile and level of `pixels` (h, w, c) float, row 0 = top: a
+        texture's MIP level `level` (0: its full resolution)."""
         image = np.asarray(pixels)
         if image.ndim == 3:  # the colour channels: RGB, or the grey of grey (+ alpha)
             # in float64 without a float64 copy of every channel first (a large texture's GiBs)
             image = image[..., :3].mean(axis=2, dtype=np.float64) if image.shape[2] >= 3 else image[..., 0]
         image = np.asarray(image, dtype=np.float64)
         height, width = image.shape
-        tile_h, tile_w = min(TILE, height), min(TILE, width)
+        tile = max(MIN_TILE, TILE >> level)
+        tile_h, tile_w = min(tile, height), min(tile, width)
         rows = _tile_starts(height, tile_h)
         cols = _tile_starts(width, tile_w)
         window = np.outer(_hann(tile_h), _hann(tile_w))

@@ -44,6 +44,7 @@ from . import bsdf, hair
 from ..compiled import inline, kernel
 from ..paths import events
 from .shading import MaterialTable, diffuse_texture
+from .texture_cache import FINEST
 from .vectors import dot
 from .world import World
 
@@ -56,15 +57,15 @@ SPECTRA_KEPT = 32
 """Texture spectra a process keeps, by image content (see :func:`texture_spectrum`)."""
 
 
-def texture_spectrum(pixels: np.ndarray) -> TextureSpectrum:
-    """``TextureSpectrum.of_image(pixels)``, remembered by content: the frames of a shot
-    are prepared one after another in one process, and textures rarely change between
+def texture_spectrum(pixels: np.ndarray, level: int = 0) -> TextureSpectrum:
+    """``TextureSpectrum.of_image(pixels, level)``, remembered by content: the frames of a
+    shot are prepared one after another in one process, and textures rarely change between
     them, so the FFTs of a 4K texture are not redone per frame (hashing is far cheaper)."""
     pixels = np.ascontiguousarray(pixels)
-    digest = _content_digest(pixels)
+    digest = _content_digest(pixels) + bytes([level])
     with _SPECTRA_LOCK:
         if digest not in _SPECTRA:
-            _SPECTRA[digest] = TextureSpectrum.of_image(pixels)
+            _SPECTRA[digest] = TextureSpectrum.of_image(pixels, level)
             while len(_SPECTRA) > SPECTRA_KEPT:
                 _SPECTRA.popitem(last=False)
         _SPECTRA.move_to_end(digest)
@@ -108,9 +109,10 @@ class BounceNorms:
                                      for found in driving] + [np.eye(3)[:2]])
         # each texture's spectrum of its finest resident level (texture units, as T's lookups)
         rows = {index: row for row, index in enumerate(materials.textures)}
-        finest = {index: materials.resident.finest_linear(rows[index])
-                  for index in sorted({index for index in textured if index in rows})}
-        self.spectra = {index: texture_spectrum(pixels) for index, pixels in finest.items() if pixels is not None}
+        resident = materials.resident
+        finest = {index: resident.finest_linear(rows[index]) for index in sorted(set(textured) & set(rows))}
+        self.spectra = {index: texture_spectrum(pixels, int(resident.info[rows[index], FINEST]))
+                        for index, pixels in finest.items() if pixels is not None}
 
     def texture(self, surfaces, footprint: np.ndarray) -> None:
         """Fill ``surfaces.texture`` (T, cycles/m) of a SurfaceQueue's textured lanes, for

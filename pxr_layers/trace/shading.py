@@ -13,7 +13,8 @@ row that index −1 (the light shapes) reads and never shades:
   Sources: ``texcoord`` reads the mesh's st; ``primvar`` (b = column of
   GeometryArrays.corner_primvars, c = width, its presence column after it; parameters =
   fallback); ``texture`` (a = uv register, b, c = wrap codes s, t, d = tile count, extra =
-  first row of ``tiles`` (x, 2) int64 (tile, texture), parameters = fallback).
+  first row of ``tiles`` (x, 2) int64 (tile, texture), parameters = fallback, then at
+  UV_SCALE the texture units a unit of st spans at most, which scales its footprint).
 * The textures' resident MIP levels (texture_cache.py), looked up trilinearly with the
   lookup's footprint (``_texture_value``).
 
@@ -57,6 +58,7 @@ _INPUTS = (("diffuse_color", DIFFUSE, 3), ("emissive_color", EMISSIVE, 3), ("spe
            ("hair_tint_r", HAIR_TINT, 3), ("hair_tint_tt", HAIR_TINT + 3, 3), ("hair_tint_trt", HAIR_TINT + 6, 3),
            ("hair_absorption", HAIR_ABSORPTION, 3))
 REGISTERS = 256
+UV_SCALE = 4  # the parameter of a texture instruction after its fallback (see the module docstring)
 log = logging.getLogger(__name__)
 _INSTRUCTION = 8
 
@@ -195,6 +197,7 @@ class _Compiler:
         elif current.op == "texture":
             row[3], row[4] = textures.wrap_code(current.wrap[0]), textures.wrap_code(current.wrap[1])
             row[5], row[7] = len(current.tiles), len(self.tiles)
+            self.parameters[row[6] + UV_SCALE] = _uv_scale(current.inputs[0])
             for tile, texture in current.tiles:
                 self.tiles.append([tile, self.atlas.setdefault(texture, len(self.atlas))])
         self.program.append(row)
@@ -235,6 +238,16 @@ def normal_uv_frame(material: Material) -> np.ndarray:
     return identity
 
 
+def _uv_scale(uv: ShaderNode) -> float:
+    """How many texture units a unit of the mesh's st spans, at most, along any direction, for
+    a texture looked up at `uv`: the largest singular value of its affine map from st (1 when
+    uv is not an affine map of st: a primvar, a computed uv)."""
+    transform = _uv_transform(uv)
+    if transform is None:
+        return 1.0
+    return float(np.linalg.norm(np.reshape(transform, (2, 3))[:, :2], 2))
+
+
 def _uv_transform(uv: ShaderNode):
     """The affine map (6,) from the mesh's st to `uv`, or None when uv is not one."""
     matrix = np.eye(3)
@@ -273,7 +286,8 @@ def _texture_value(materials, row, registers, out, footprint):
     info = materials.texture_info
     level = 0.0
     if texture >= 0:
-        texels = footprint * max(info[texture, texture_cache.BASE_WIDTH], info[texture, texture_cache.BASE_HEIGHT])
+        texels = (footprint * materials.parameters[program[row, 6] + UV_SCALE]
+                  * max(info[texture, texture_cache.BASE_WIDTH], info[texture, texture_cache.BASE_HEIGHT]))
         level = math.log2(texels) if 1.0 < texels < 1e30 else 0.0  # NaN fails both tests too
         asked = np.int32(level) if footprint > 0.0 else np.int32(texture_cache.ANY_LEVEL)
         if asked < materials.texture_wanted[texture]:

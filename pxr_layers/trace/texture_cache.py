@@ -96,15 +96,16 @@ def default_texture_memory_mib() -> int:
 
 def _build_luts() -> tuple[np.ndarray, dict[tuple[str, str], int]]:
     """(the LUTs concatenated, float32; (stored type, colour space) → offset)."""
-    unorm8 = np.arange(256, dtype=np.float64) / 255.0
-    unorm16 = np.arange(65536, dtype=np.float64) / 65535.0
-    half = np.arange(65536, dtype=np.uint16).view(np.float16).astype(np.float64)
+    # float32 arithmetic, as OpenImageIO's conversion and the stage reader's EOTF: the same bits
+    unorm8 = np.arange(256, dtype=FLOAT) * FLOAT(1 / 255)
+    unorm16 = np.arange(65536, dtype=FLOAT) * FLOAT(1 / 65535)
+    half = np.arange(65536, dtype=np.uint16).view(np.float16).astype(FLOAT)
     half[~np.isfinite(half)] = 0.0
     tables, offsets, offset = [], {}, 0
     for stored, values in (("uint8", unorm8), ("uint16", unorm16), ("half", half)):
         for color_space in ("raw", "sRGB"):
             offsets[stored, color_space] = offset
-            tables.append(values.astype(FLOAT) if color_space == "raw" else srgb_to_linear(values))
+            tables.append(values if color_space == "raw" else srgb_to_linear(values))
             offset += len(values)
     return np.concatenate(tables).astype(FLOAT), offsets
 
@@ -141,6 +142,17 @@ class ResidentTextures:
         linear[..., :colour] = self.luts[row[COLOUR_LUT] + stored[..., :colour].astype(np.int64)]
         linear[..., colour:] = self.luts[row[ALPHA_LUT] + stored[..., colour:].astype(np.int64)]
         return linear
+
+
+def decoded(image: TextureImage) -> np.ndarray:
+    """(h, w, c) float32 linear values of `image` at full size, as lookups read its level 0
+    (its pixels when the stage reader decoded it)."""
+    if image.pixels is not None:
+        return image.pixels
+    linear = resident_textures([image], [0], budget_mib=np.iinfo(np.int32).max).finest_linear(0)
+    if linear is None:
+        raise OSError(f"cannot read texture {image.path}")
+    return linear
 
 
 def pyramid_bytes(image: TextureImage, finest: int) -> int:
@@ -214,7 +226,7 @@ def _texels(image: TextureImage, level: int) -> int:
     return w * h
 
 
-_LAST: dict[tuple, list[np.ndarray]] = {}  # the last frame's pyramids, by _pyramid_key
+_LAST: dict[tuple, tuple[list[np.ndarray], int]] = {}  # the last frame's _pyramid results, by _pyramid_key
 _LAST_LOCK = threading.Lock()
 
 
@@ -228,9 +240,11 @@ def _pyramid_key(image: TextureImage, finest: int) -> tuple | None:
             image.color_space, finest)
 
 
-def _pyramid(image: TextureImage, finest: int) -> list[np.ndarray]:
+def _pyramid(image: TextureImage, finest: int) -> tuple[list[np.ndarray], int]:
     """`image`'s levels from `finest` to 1 × 1, (h, w, c) arrays of its stored type (float32
-    linear for the f32 pool); OSError when its file cannot be read."""
+    linear for the f32 pool), and how many texels of the first were NaN or infinite (read
+    as 0); OSError when its file cannot be read."""
+    repaired = 0
     if image.pixels is not None:
         top = np.asarray(image.pixels[..., :4], FLOAT)
         for _ in range(finest):
@@ -242,58 +256,49 @@ def _pyramid(image: TextureImage, finest: int) -> list[np.ndarray]:
         if (header.width, header.height, header.stored) != (image.header.width, image.header.height, stored):
             raise OSError("the file changed since the stage was read")
         if stored in ("half", "float"):
-            top = _repaired(image, top, stored)
+            top = np.array(top)
+            unusable = ~np.isfinite(top)
+            repaired = int(np.count_nonzero(unusable.any(axis=2)))
+            top[unusable] = 0
+            if stored == "float" and image.color_space == "sRGB":
+                colour = 3 if top.shape[2] >= 3 else 1
+                top[..., :colour] = srgb_to_linear(top[..., :colour])
     levels = [top]
     while levels[-1].shape[0] > 1 or levels[-1].shape[1] > 1:
         levels.append(as_stored(block_means(levels[-1], 2), stored))
     for level in levels:
         level.flags.writeable = False
-    return levels
-
-
-def _repaired(image: TextureImage, values: np.ndarray, stored: str) -> np.ndarray:
-    """Float values as a lookup reads them: NaN and infinities 0 (a warning counts them), and
-    float32 files' colour channels linear."""
-    values = np.array(values)
-    unusable = ~np.isfinite(values)
-    count = int(np.count_nonzero(unusable.any(axis=2)))
-    if count:
-        values[unusable] = 0
-        log.warning("texture %s%s: %d of %d texels are NaN or infinite (read as 0)", image.path,
-                    used_by(image), count, values.shape[0] * values.shape[1])
-    if stored == "float" and image.color_space == "sRGB":
-        colour = 3 if values.shape[2] >= 3 else 1
-        values[..., :colour] = srgb_to_linear(values[..., :colour])
-    return values
+    return levels, repaired
 
 
 def resident_textures(images: Sequence[TextureImage], finest: Sequence[int | None] | None = None,
                       budget_mib: int | None = None) -> ResidentTextures:
     """The arrays of `images` holding, for each, its levels from ``finest[i]`` down (None:
     none; default: every image from level 0), within ``budget_mib`` MiB (default
-    default_texture_memory_mib()), decoded on every core this process may use."""
+    default_texture_memory_mib()), decoded on every core this process may use. Says, at
+    every call (each frame's warnings are its own), which files held NaN or infinite texels."""
     finest = [0] * len(images) if finest is None else list(finest)
     budget_mib = default_texture_memory_mib() if budget_mib is None else budget_mib
     chosen = fit_levels(images, finest, budget_mib)
     work = [index for index, level in enumerate(chosen) if level is not None]
-    kept: dict[tuple, list[np.ndarray]] = {}
+    kept: dict[tuple, tuple[list[np.ndarray], int]] = {}
     with _LAST_LOCK:
         last = dict(_LAST)
 
     def pyramid(index: int) -> list[np.ndarray] | None:
         image = images[index]
         key = None if image.pixels is not None else _pyramid_key(image, chosen[index])
-        if key is not None and key in last:
-            kept[key] = last[key]
-            return last[key]
         try:
-            levels = _pyramid(image, chosen[index])
+            levels, repaired = last[key] if key in last else _pyramid(image, chosen[index])
         except OSError as error:
             log.warning("cannot read texture %s%s: %s; using the fallback value instead", image.path,
                         used_by(image), error)
             return None
         if key is not None:
-            kept[key] = levels
+            kept[key] = levels, repaired
+        if repaired:
+            log.warning("texture %s%s: %d of %d texels are NaN or infinite (read as 0)", image.path, used_by(image),
+                        repaired, levels[0].shape[0] * levels[0].shape[1])
         return levels
 
     with ThreadPoolExecutor(max(1, min(available_cores(), len(work)))) as pool:
