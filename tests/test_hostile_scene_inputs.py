@@ -41,7 +41,7 @@ from test_hostile_stage import TINY, own_logging
 
 from pxr_layers.cli.main import main
 from pxr_layers.stage.budgets import MAX_SCENE_MESHES, MAX_SCENE_TRIANGLES
-from pxr_layers.stage.textures import MAX_FILE_TEXELS, MAX_TEXTURE_TEXELS
+from pxr_layers.texture_files import MAX_FILE_TEXELS, MAX_TEXTURE_TEXELS
 from pxr_layers.stage.values import MAX_ARRAY_VALUES
 
 HANG_SECONDS = 60

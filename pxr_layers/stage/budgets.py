@@ -9,8 +9,8 @@ crosses it, the count and the budget, raised as soon as the count is known (an a
 length, before it is triangulated, placed or even copied by numpy), within seconds and
 without a large allocation: never a MemoryError, never an hour of work.
 
-Textures have their own budget (textures.MAX_TEXTURE_TEXELS), and so do arrays
-(values.MAX_ARRAY_VALUES, derived from the triangles'). Subdivision surfaces are not refused
+Textures have their own budgets (texture_files.MAX_TEXTURE_TEXELS, the tracer's
+--texture-memory), and so do arrays (values.MAX_ARRAY_VALUES, derived from the triangles'). Subdivision surfaces are not refused
 but fitted: their levels are lowered until they fit request.MAX_SUBDIVISION_TRIANGLES
 (:func:`fit_subdivision_levels`).
 """

@@ -51,7 +51,6 @@ from pxr_layers.inputs import input_problem
 from pxr_layers.scene import FLOAT, TextureHeader, TextureImage, WrapMode
 from pxr_layers.texture_files import (
     BAND_BYTES,
-    MAX_FILE_TEXELS,  # noqa: F401 (the bounds of texture files, as the stage reader applies them)
     MAX_TEXTURE_TEXELS,
     level_size,
     read_header,

@@ -24,7 +24,7 @@ from .instances import MAX_SLOTS, InstanceRows, InstanceTables, RowTables, rows_
 from .integrator import BatchResult, Integrator, TraceSettings
 from .stages.film import FirstHits
 from .lights import LightSampler
-from .shading import MaterialTable
+from .shading import MaterialTable, diffuse_texture
 from .texture_cache import ANY_LEVEL, NOT_WANTED
 from ..texture_files import level_count
 from .world import World, build_world, flatten_instances, geometry_arrays
@@ -59,15 +59,16 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
     camera = ThinLensCamera.from_spec(spec)
     finest = _texture_levels(scene, spec, settings, world, geometry, camera, lanes, slots)
     materials = MaterialTable(scene, world.primvar_columns, finest, settings.texture_memory)
-    return _integrator(scene, spec.resolution, settings, world, geometry, camera, materials, lanes, slots)
+    integrator = _integrator(scene, spec.resolution, settings, world, geometry, camera, materials, lanes, slots)
+    if integrator.lights.darkness:
+        log.warning("%s: %s", scene.stage_path, integrator.lights.darkness)
+    return integrator
 
 
 def _integrator(scene: SceneData, resolution: tuple[int, int], settings: TraceSettings, world: World, geometry,
                 camera: ThinLensCamera, materials: MaterialTable, lanes: int, slots: int) -> Integrator:
     """The Integrator of `world` with `materials`: its lights, norms, subjects and rows."""
     lights = LightSampler(scene, world, materials, geometry)
-    if lights.darkness:
-        log.warning("%s: %s", scene.stage_path, lights.darkness)
     bounce_norms = BounceNorms(scene, world, materials) if settings.norm_bounces > 0 else None
     pairs, triangle_subject, subject_first, subject_rank = _subjects(world)
     instance_rows = None
@@ -87,8 +88,13 @@ def _integrator(scene: SceneData, resolution: tuple[int, int], settings: TraceSe
 
 
 PREPASS_PATHS = 1 << 17
-"""Camera paths of the visibility pre-pass at most: one a pixel of a film 2^k times coarser
-than the frame's (k the smallest that fits)."""
+"""Camera paths of the visibility pre-pass at most: a film 2^k times coarser than the frame's (k
+the smallest that fits), with as many samples a pixel as fit, at most the frame's."""
+SPECTRUM_LEVELS = 2
+"""How many levels finer still a texture that drives the covariance norm T is held, when the
+frame traces the norms: its spectrum (covariance/texture_spectrum.py) is measured on its finest
+resident level, and a level's box filter has already weakened the frequencies near its own
+limit, which T at the lookups' footprint still counts."""
 ANY_LEVEL_STEPS = 8
 """A texture that only footprint-less lookups asked for (shadow rays through cut-outs, light
 sampling: they read whatever level is resident) is held from the level 8 steps above 1 × 1,
@@ -98,13 +104,14 @@ sampling: they read whatever level is resident) is held from the level 8 steps a
 def _texture_levels(scene: SceneData, spec: RenderSpec, settings: TraceSettings, world: World, geometry,
                     camera: ThinLensCamera, lanes: int, slots: int) -> dict[int, int | None] | None:
     """SceneData.textures index → the finest MIP level to hold (None: none), from a visibility
-    pre-pass: the frame traced at one sample a pixel on a film 2^k times coarser (at most
-    PREPASS_PATHS paths), the same depth and seed, with only the decoded images resident;
-    its lookups record the level each texture asked for (texture_cache ``wanted``), which is
-    k levels coarser than the frame's own; the frame holds one level finer still, since one
-    sample a pixel sees a texture at fewer places than the frame's samples do. None when every
-    texture is decoded already (nothing to choose). Traced on this thread alone, so the
-    levels, and the render, do not depend on thread timing."""
+    pre-pass: the frame traced on a film 2^k times coarser, at as many samples a pixel as
+    PREPASS_PATHS allows (at least 1, at most the frame's), the same depth and seed, with
+    only the decoded images resident; its lookups record the level each texture asked for
+    (texture_cache ``wanted``), which is k levels coarser than the frame's own; the frame
+    holds one level finer still, since the pre-pass sees a texture at fewer places than the
+    frame's samples do (SPECTRUM_LEVELS more for the textures of T). None when every texture
+    is decoded already (nothing to choose). Traced on this thread alone, so the levels, and
+    the render, do not depend on thread timing."""
     lazy = [index for index, image in enumerate(scene.textures) if image.pixels is None]
     if not lazy:
         return None
@@ -115,13 +122,15 @@ def _texture_levels(scene: SceneData, spec: RenderSpec, settings: TraceSettings,
     while -(-width >> shrink) * -(-height >> shrink) > PREPASS_PATHS:
         shrink += 1
     size = (-(-width >> shrink), -(-height >> shrink))
-    pre_pass = TraceSettings(spp=1, max_depth=settings.max_depth, seed=settings.seed,
+    spp = max(1, min(settings.spp, PREPASS_PATHS // (size[0] * size[1])))
+    pre_pass = TraceSettings(spp=spp, max_depth=settings.max_depth, seed=settings.seed,
                              roulette_depth=settings.roulette_depth, texture_memory=settings.texture_memory)
     integrator = _integrator(scene, size, pre_pass, world, geometry, camera, probe, lanes, slots)
-    paths = size[0] * size[1]
+    paths = size[0] * size[1] * spp
     for first in range(0, paths, DEFAULT_BATCH_PATHS):
         integrator.trace(first, min(first + DEFAULT_BATCH_PATHS, paths))
     finest: dict[int, int | None] = dict(decoded)
+    of_norms = {found[0] for found in map(diffuse_texture, scene.materials) if found} if settings.norm_bounces else set()
     for row, index in enumerate(probe.textures):
         asked = int(probe.arrays.texture_wanted[row])
         if index in finest or asked == NOT_WANTED:
@@ -130,9 +139,9 @@ def _texture_levels(scene: SceneData, spec: RenderSpec, settings: TraceSettings,
         if asked == ANY_LEVEL:
             finest[index] = max(0, level_count(header.width, header.height) - 1 - ANY_LEVEL_STEPS)
         else:
-            finest[index] = max(0, asked - shrink - 1)
-    log.info("%s: %d of %d textures looked up by the visibility pre-pass (%d×%d, 1 spp)", scene.stage_path,
-             sum(1 for index in lazy if finest.get(index) is not None), len(lazy), *size)
+            finest[index] = max(0, asked - shrink - 1 - (SPECTRUM_LEVELS if index in of_norms else 0))
+    log.info("%s: %d of %d textures looked up by the visibility pre-pass (%d×%d, %d spp)", scene.stage_path,
+             sum(1 for index in lazy if finest.get(index) is not None), len(lazy), *size, spp)
     return finest
 
 

@@ -445,19 +445,20 @@ def st_per_metre(geometry, triangle):
     return math.sqrt(st_area / area) if area > 0.0 else 0.0
 
 
-def inputs_at(arrays: MaterialArrays, material: int, st: np.ndarray) -> np.ndarray:
+def inputs_at(arrays: MaterialArrays, material: int, st: np.ndarray, footprint: float = 0.0) -> np.ndarray:
     """Every input (n, MATERIAL_FIELDS) float32 of `material` at texture coordinates st
-    (n, 2), on a mesh without primvars (readers give their fallbacks): the shading kernels'
-    own evaluation, for checks and tools."""
+    (n, 2), textures looked up `footprint` st units wide (0: their finest resident level), on
+    a mesh without primvars (readers give their fallbacks): the shading kernels' own
+    evaluation, for checks and tools."""
     st = np.ascontiguousarray(st, np.float32).reshape(-1, 2)
     out = np.empty((len(st), MATERIAL_FIELDS), np.float32)
-    _inputs_at_kernel(arrays, material, st, np.zeros((1, 3, 0), np.float32), np.empty((REGISTERS, 4), np.float32),
-                      out)
+    _inputs_at_kernel(arrays, material, st, float(footprint), np.zeros((1, 3, 0), np.float32),
+                      np.empty((REGISTERS, 4), np.float32), out)
     return out
 
 
 @kernel
-def _inputs_at_kernel(materials, material, st, corner_primvars, registers, out):
+def _inputs_at_kernel(materials, material, st, footprint, corner_primvars, registers, out):
     for lane in range(len(st)):
-        material_inputs(materials, material, st[lane, 0], st[lane, 1], 0.0, corner_primvars, 0, 0.0, 0.0,
+        material_inputs(materials, material, st[lane, 0], st[lane, 1], footprint, corner_primvars, 0, 0.0, 0.0,
                         registers, out[lane])
