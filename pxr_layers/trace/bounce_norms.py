@@ -110,9 +110,11 @@ class BounceNorms:
         # each texture's spectrum of its finest resident level (texture units, as T's lookups)
         rows = {index: row for row, index in enumerate(materials.textures)}
         resident = materials.resident
-        finest = {index: resident.finest_linear(rows[index]) for index in sorted(set(textured) & set(rows))}
-        self.spectra = {index: texture_spectrum(pixels, int(resident.info[rows[index], FINEST]))
-                        for index, pixels in finest.items() if pixels is not None}
+        self.spectra = {}
+        for index in sorted(set(textured) & set(rows)):  # one linear copy of a level at a time
+            pixels = resident.finest_linear(rows[index])
+            if pixels is not None:
+                self.spectra[index] = texture_spectrum(pixels, int(resident.info[rows[index], FINEST]))
 
     def texture(self, surfaces, footprint: np.ndarray) -> None:
         """Fill ``surfaces.texture`` (T, cycles/m) of a SurfaceQueue's textured lanes, for

@@ -303,18 +303,20 @@ def resident_textures(images: Sequence[TextureImage], finest: Sequence[int | Non
 
     with ThreadPoolExecutor(max(1, min(available_cores(), len(work)))) as pool:
         pyramids = dict(zip(work, pool.map(pyramid, work)))
+    resident = _assemble(images, pyramids, chosen)  # the kept levels are views of its pools now
     with _LAST_LOCK:
         _LAST.clear()
         _LAST.update(kept)
-    return _assemble(images, pyramids, chosen)
+    return resident
 
 
 def _assemble(images: Sequence[TextureImage], pyramids: dict[int, list[np.ndarray] | None],
               chosen: list[int | None]) -> ResidentTextures:
-    """One block per level in its pool (module docstring)."""
+    """One block per level in its pool (module docstring). Each pyramid's levels are copied
+    in and replaced, in its list, by a view of the pool, one at a time: the pools' pages are
+    only touched as they are filled, so memory holds the textures about once, not twice."""
     info = np.zeros((len(images), 5), np.int64)
     rows: list[list[int]] = []
-    blocks: list[list[np.ndarray]] = [[], [], []]
     sizes = [0, 0, 0]
     for index, image in enumerate(images):
         width, height, _, stored = _shape(image)
@@ -331,11 +333,19 @@ def _assemble(images: Sequence[TextureImage], pyramids: dict[int, list[np.ndarra
         for level in levels:
             h, w, c = level.shape
             rows.append([sizes[pool], w, h, c, pool, colour_lut, alpha_lut])
-            flat = level.reshape(-1)
-            blocks[pool].append(flat.view(np.uint16) if stored == "half" else flat)
-            sizes[pool] += flat.size
-    dtypes = (np.uint8, np.uint16, FLOAT)
-    u8, u16, f32 = (np.concatenate(parts).astype(dtype, copy=False) if parts else np.zeros(1, dtype)
-                    for parts, dtype in zip(blocks, dtypes))
-    return ResidentTextures(u8=u8, u16=u16, f32=f32, levels=np.array(rows, np.int64).reshape(-1, 7), info=info,
-                            luts=LUTS, wanted=np.full(len(images), NOT_WANTED, np.int32))
+            sizes[pool] += level.size
+    pools = [np.empty(max(size, 1), dtype) for size, dtype in zip(sizes, (np.uint8, np.uint16, FLOAT))]
+    row = 0
+    for index in range(len(images)):
+        for number, level in enumerate(pyramids.get(index) or ()):
+            offset, pool = rows[row][OFFSET], rows[row][POOL]
+            block = pools[pool][offset:offset + level.size]
+            block[:] = (level.view(np.uint16) if level.dtype == np.float16 else level).reshape(-1)
+            block.flags.writeable = False
+            pyramids[index][number] = block.view(level.dtype).reshape(level.shape)
+            row += 1
+    for array in pools:
+        array.flags.writeable = False
+    return ResidentTextures(u8=pools[POOL_U8], u16=pools[POOL_U16], f32=pools[POOL_F32],
+                            levels=np.array(rows, np.int64).reshape(-1, 7), info=info, luts=LUTS,
+                            wanted=np.full(len(images), NOT_WANTED, np.int32))
