@@ -66,6 +66,7 @@ tracer triangles.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 import math
@@ -256,13 +257,13 @@ def refine(
         data = _refine_vertex_data(current, data, rules, child_sharpness)
         if varying_data is not None:
             varying_data = _refine_vertex_data(current, varying_data, linear_rules, None)
+        child = _child_level(current, split, child_sharpness)
         for index, (fvar_level, fvar_values) in enumerate(channels):
             fvar_child_sharpness = _child_edge_sharpness(fvar_level, tags.crease_method)
             channels[index] = (
-                _child_level(fvar_level, split, fvar_child_sharpness),
+                _child_level(fvar_level, split, fvar_child_sharpness, child.faces),
                 _refine_vertex_data(fvar_level, fvar_values, fvar_rules, fvar_child_sharpness),
             )
-        child = _child_level(current, split, child_sharpness)
         fans = _child_fans(current, fans, child) if split == "quads" else None
         current = child
     if fans is None:
@@ -376,6 +377,51 @@ def _optional_columns(values, count: int, name: str) -> np.ndarray | None:
 # --- mesh levels ------------------------------------------------------------------------------
 
 
+class _Faces:
+    """The faces of a level: their sizes, and each corner's face and neighbours in it.
+
+    sizes       : (f,) corners per face
+    offsets     : (f,) first corner of each face
+    corner_face : (c,) the face of each corner
+    corner_next : (c,) the next corner of the same face (corner_prev: the previous one)
+
+    The authored level gives every array. A refined level (every face of ``uniform`` corners)
+    makes its per-corner arrays on first use: the last level needs few of them, and a mesh's
+    face-varying channels share its faces, so each level's are made once.
+    """
+
+    def __init__(self, sizes: np.ndarray, offsets: np.ndarray, corner_face: np.ndarray | None = None,
+                 corner_next: np.ndarray | None = None, corner_prev: np.ndarray | None = None,
+                 uniform: int = 0) -> None:
+        self.sizes = sizes
+        self.offsets = offsets
+        self.uniform = uniform
+        if corner_face is not None:  # instead of the cached properties below
+            self.__dict__.update(corner_face=corner_face, corner_next=corner_next, corner_prev=corner_prev)
+
+    @staticmethod
+    def of_uniform(face_count: int, corners_per_face: int) -> _Faces:
+        return _Faces(np.full(face_count, corners_per_face, dtype=INDEX),
+                      np.arange(face_count, dtype=INDEX) * corners_per_face, uniform=corners_per_face)
+
+    @functools.cached_property
+    def corner_face(self) -> np.ndarray:
+        return np.repeat(np.arange(len(self.sizes), dtype=INDEX), self.uniform)
+
+    @functools.cached_property
+    def corner_next(self) -> np.ndarray:
+        # +1, but from the last corner of a face back to its first
+        following = np.arange(1, len(self.sizes) * self.uniform + 1, dtype=INDEX)
+        following[self.uniform - 1::self.uniform] -= self.uniform
+        return following
+
+    @functools.cached_property
+    def corner_prev(self) -> np.ndarray:
+        preceding = np.arange(-1, len(self.sizes) * self.uniform - 1, dtype=INDEX)
+        preceding[::self.uniform] += self.uniform
+        return preceding
+
+
 @dataclass(frozen=True, eq=False)
 class _Level:
     """The topology and sharpness of one refinement level (of the mesh or of one fvar channel).
@@ -385,11 +431,7 @@ class _Level:
     """
 
     vertex_count: int
-    face_sizes: np.ndarray  # (f,)
-    face_offsets: np.ndarray  # (f,) first corner of each face
-    corner_face: np.ndarray  # (c,)
-    corner_next: np.ndarray  # (c,) next corner of the same face
-    corner_prev: np.ndarray  # (c,)
+    faces: _Faces
     corner_vertex: np.ndarray  # (c,)
     corner_edge: np.ndarray  # (c,)
     edge_vertices: np.ndarray  # (e, 2)
@@ -400,12 +442,43 @@ class _Level:
     face_origin: np.ndarray  # (f,) authored face
 
     @property
+    def face_sizes(self) -> np.ndarray:
+        return self.faces.sizes
+
+    @property
+    def face_offsets(self) -> np.ndarray:
+        return self.faces.offsets
+
+    @property
+    def corner_face(self) -> np.ndarray:
+        return self.faces.corner_face
+
+    @property
+    def corner_next(self) -> np.ndarray:
+        return self.faces.corner_next
+
+    @property
+    def corner_prev(self) -> np.ndarray:
+        return self.faces.corner_prev
+
+    @property
     def edge_count(self) -> int:
         return len(self.edge_vertices)
 
     @property
     def face_count(self) -> int:
         return len(self.face_sizes)
+
+    def following_vertex(self, steps: int) -> np.ndarray:
+        """(c,) the vertex ``steps`` corners further along each corner's face (1: the far end
+        of its outgoing edge; 2 in a quad: the opposite corner's)."""
+        size = self.faces.uniform
+        if size:  # a rotation of each face's corners: no index arrays
+            return np.roll(self.corner_vertex.reshape(-1, size), -steps, axis=1).reshape(-1)
+        corners = self.corner_next
+        for _ in range(steps - 1):
+            corners = self.corner_next[corners]
+        return self.corner_vertex[corners]
 
 
 def _face_structure(counts: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -502,11 +575,8 @@ def _base_level(
 
     level = _Level(
         vertex_count=vertex_count,
-        face_sizes=counts.astype(INDEX),
-        face_offsets=offsets,
-        corner_face=corner_face,
-        corner_next=corner_next,
-        corner_prev=corner_prev,
+        faces=_Faces(counts.astype(INDEX), offsets, corner_face, corner_next, corner_prev,
+                     uniform=int(counts[0]) if len(counts) and (counts == counts[0]).all() else 0),
         corner_vertex=indices.astype(INDEX),
         corner_edge=corner_edge,
         edge_vertices=edge_vertices,
@@ -573,44 +643,6 @@ def _crease_edges(
     return keys, np.clip(np.nan_to_num(pair_sharpness), 0.0, SHARPNESS_INFINITE)
 
 
-def _uniform_level(
-    vertex_count: int,
-    corner_vertex: np.ndarray,
-    corner_edge: np.ndarray,
-    corners_per_face: int,
-    edge_vertices: np.ndarray,
-    edge_face_count: np.ndarray,
-    edge_sharpness: np.ndarray,
-    vertex_sharpness: np.ndarray,
-    face_hole: np.ndarray,
-    face_origin: np.ndarray,
-) -> _Level:
-    corner_count = len(corner_vertex)
-    face_count = corner_count // corners_per_face
-    corners = np.arange(corner_count, dtype=INDEX)
-    # Within a face, next is +1 but from the last corner back to the first (and prev the
-    # reverse): per-face patterns tiled, no integer division over every corner.
-    step_next = np.ones(corners_per_face, dtype=INDEX)
-    step_next[-1] = 1 - corners_per_face
-    step_prev = -np.roll(step_next, 1)
-    return _Level(
-        vertex_count=vertex_count,
-        face_sizes=np.full(face_count, corners_per_face, dtype=INDEX),
-        face_offsets=np.arange(face_count, dtype=INDEX) * corners_per_face,
-        corner_face=np.repeat(np.arange(face_count, dtype=INDEX), corners_per_face),
-        corner_next=corners + np.tile(step_next, face_count),
-        corner_prev=corners + np.tile(step_prev, face_count),
-        corner_vertex=corner_vertex,
-        corner_edge=corner_edge,
-        edge_vertices=edge_vertices,
-        edge_face_count=edge_face_count,
-        edge_sharpness=edge_sharpness,
-        vertex_sharpness=vertex_sharpness,
-        face_hole=face_hole,
-        face_origin=face_origin,
-    )
-
-
 def _decrement(sharpness: np.ndarray) -> np.ndarray:
     """Uniform decay: one less per level, infinite stays infinite."""
     return np.where(
@@ -652,12 +684,14 @@ def _bincount_ends(ends: np.ndarray, weights: np.ndarray, size: int) -> np.ndarr
     )
 
 
-def _child_level(level: _Level, split: str, child_sharpness: np.ndarray) -> _Level:
+def _child_level(level: _Level, split: str, child_sharpness: np.ndarray, faces: _Faces | None = None) -> _Level:
     """The next level's topology, built structurally (no search for edges).
 
     Child vertices: the parent's vertices, then one per edge, then (quads) one per face.
     Child edges: the two halves of each parent edge (2e at its first vertex, 2e + 1 at its
     second), then one interior edge per parent corner.
+    faces: the child faces when made already (those of the mesh's child level, which its
+    face-varying channels share); None makes them.
     """
     vertex_count = level.vertex_count
     edge_count = level.edge_count
@@ -711,11 +745,11 @@ def _child_level(level: _Level, split: str, child_sharpness: np.ndarray) -> _Lev
         corners_per_face = 3
         new_vertices = edge_count
 
-    return _uniform_level(
+    return _Level(
         vertex_count=child_vertex_count,
+        faces=faces if faces is not None else _Faces.of_uniform(len(face_hole), corners_per_face),
         corner_vertex=child_vertices.reshape(-1),
         corner_edge=child_edges.reshape(-1),
-        corners_per_face=corners_per_face,
         edge_vertices=np.concatenate([halves, interior]),
         edge_face_count=np.concatenate(
             [np.repeat(level.edge_face_count, 2), np.full(corner_count, 2, dtype=INDEX)]
@@ -811,7 +845,7 @@ def _refine_vertex_data(
     valence = np.maximum(face_counts, 1)[:, None].astype(np.float64)
     # Around a smooth (interior, manifold) vertex the far ends of its corners' outgoing edges
     # are all its neighbours, each once; other vertices do not use this sum.
-    ring_vertex = corner_vertex[level.corner_next]
+    ring_vertex = level.following_vertex(1)
 
     # Edge points: the smooth mask, the crease midpoint, or a blend while sharpness < 1.
     if rules.scheme == "catmullClark":
@@ -947,11 +981,10 @@ class _Ring:
 
     @staticmethod
     def of(level: _Level, data: np.ndarray, split: str) -> "_Ring":
-        following = level.corner_next
-        edge = _rows(data, level.corner_vertex[following])
+        edge = _rows(data, level.following_vertex(1))
         if split != "quads":
             return _Ring(edge, None)
-        return _Ring(edge, _rows(data, level.corner_vertex[following[following]]))
+        return _Ring(edge, _rows(data, level.following_vertex(2)))
 
 
 def _limit_positions(level: _Level, data: np.ndarray, scheme: str, ring: _Ring) -> np.ndarray:
@@ -1468,11 +1501,7 @@ def _face_varying_level(
 
     level = _Level(
         vertex_count=value_count,
-        face_sizes=base.face_sizes,
-        face_offsets=base.face_offsets,
-        corner_face=base.corner_face,
-        corner_next=base.corner_next,
-        corner_prev=base.corner_prev,
+        faces=base.faces,
         corner_vertex=fvar_vertex,
         corner_edge=corner_edge,
         edge_vertices=edge_vertices,
