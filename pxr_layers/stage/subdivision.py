@@ -970,10 +970,11 @@ def _blend_vertex_rules(
 class _Ring:
     """Per corner of a level, the data at the far end of its outgoing edge (e_j around the
     corner's vertex) and, for quads, at the opposite corner (d_j): gathered once for the
-    limit position and tangent stencils.
+    limit position and tangent stencils, a row per column of the data so that the stencils'
+    sums run on contiguous rows.
 
-    edge     : (c, m)
-    diagonal : (c, m), None for triangles
+    edge     : (m, c)
+    diagonal : (m, c), None for triangles
     """
 
     edge: np.ndarray
@@ -981,10 +982,20 @@ class _Ring:
 
     @staticmethod
     def of(level: _Level, data: np.ndarray, split: str) -> "_Ring":
-        edge = _rows(data, level.following_vertex(1))
+        columns = np.ascontiguousarray(data.T)
+        edge = np.take(columns, level.following_vertex(1), axis=1)
         if split != "quads":
             return _Ring(edge, None)
-        return _Ring(edge, _rows(data, level.following_vertex(2)))
+        return _Ring(edge, np.take(columns, level.following_vertex(2), axis=1))
+
+
+def _scatter_rows(index: np.ndarray, rows: np.ndarray, size: int) -> np.ndarray:
+    """(size, m) sums of the columns of ``rows`` (m, n) grouped by ``index`` (n,): _scatter
+    of the transposed values."""
+    out = np.empty((size, len(rows)))
+    for column, row in enumerate(rows):
+        out[:, column] = np.bincount(index, weights=row, minlength=size)
+    return out
 
 
 def _limit_positions(level: _Level, data: np.ndarray, scheme: str, ring: _Ring) -> np.ndarray:
@@ -1001,14 +1012,14 @@ def _limit_positions(level: _Level, data: np.ndarray, scheme: str, ring: _Ring) 
         # Regular: (1/36) [1 4 1; 4 16 4; 1 4 1]; valence n: 1/(n(n+5)) per diagonal vertex.
         diagonal_weight = 1.0 / (n * (n + 5.0))
         self_weight = 1.0 - 5.0 * n * diagonal_weight
-        ring_sum = _scatter(corner_vertex, 4.0 * ring.edge + ring.diagonal, size)
+        ring_sum = _scatter_rows(corner_vertex, 4.0 * ring.edge + ring.diagonal, size)
         smooth = self_weight[:, None] * data + diagonal_weight[:, None] * ring_sum
         smooth = np.where((face_counts == 2)[:, None], data, smooth)  # OpenSubdiv: a corner
     else:
         # Loop's beta is positive for every valence, so the division is safe.
         loop_edge_weight, _ = _loop_vertex_weights(face_counts)
         edge_weight = 1.0 / (n + 3.0 / (8.0 * loop_edge_weight))
-        neighbour_sum = _scatter(corner_vertex, ring.edge, size)
+        neighbour_sum = _scatter_rows(corner_vertex, ring.edge, size)
         smooth = (1.0 - n * edge_weight)[:, None] * data + edge_weight[:, None] * neighbour_sum
     crease = (4.0 * data + _crease_neighbour_sum(ends, data, sharp, sharp, size)) / 6.0
     return np.where(
@@ -1276,9 +1287,8 @@ def _smooth_limit_normals(level: _Level, fans: _Fans, scheme: str, ring: _Ring) 
     corner_valence = valence[corner_vertex]
     tables, row_start = _tangent_weight_tables(valence, scheme)
     entry = row_start[corner_valence] + np.minimum(fans.position, corner_valence - 1)
-    # Contiguous coordinate rows: the products below run on whole rows, not strided columns.
-    edges = np.ascontiguousarray(ring.edge[:, :3].T)
-    diagonals = None if ring.diagonal is None else np.ascontiguousarray(ring.diagonal[:, :3].T)
+    edges = ring.edge[:3]
+    diagonals = None if ring.diagonal is None else ring.diagonal[:3]
     tangents = []
     for edge_table, diagonal_table in tables:
         edge_weight = edge_table[entry]
