@@ -150,28 +150,47 @@ class FaceVaryingPrimvar:
 class RefinedMesh:
     """A mesh refined ``level`` times, hole faces left out.
 
-    points        : (v, 3) float64 limit positions (refined positions with ``limit=False`` or
-                    the bilinear scheme), units of the input
-    faces         : (f, k) int64 vertex indices, k = 4 (catmullClark, bilinear) or 3 (loop),
-                    in the winding of the authored faces
-    face_origin   : (f,) int64 authored face each face comes from
-    normals       : (f, k, 3) float64 unit normal per face corner (see the module docstring)
-    vertex_data   : (v, m) float64 vertex primvars, refined and limited like the points
-    varying_data  : (v, m) float64 varying primvars, refined linearly
-    face_varying  : one (f, k, m) float64 array per face-varying channel, per face corner
-    scheme        : the scheme used (loop falls back to catmullClark on non-triangles)
-    warnings      : problems met and how they were handled, one sentence each
+    points               : (v, 3) float64 limit positions (refined positions with ``limit=False``
+                           or the bilinear scheme), units of the input
+    faces                : (f, k) int64 vertex indices, k = 4 (catmullClark, bilinear) or 3
+                           (loop), in the winding of the authored faces
+    face_origin          : (f,) int64 authored face each face comes from
+    normal_values        : (n, 3) float64 unit normals (see the module docstring): one per
+                           vertex where its corners share it, then one per other corner
+    corner_normals       : (f, k) int64 index into normal_values per face corner
+    vertex_data          : (v, m) float64 vertex primvars, refined and limited like the points
+    varying_data         : (v, m) float64 varying primvars, refined linearly
+    face_varying_values  : per face-varying channel, (n_i, m) float64 values
+    face_varying_corners : per channel, (f, k) int64 index into its values per face corner
+    scheme               : the scheme used (loop falls back to catmullClark on non-triangles)
+    warnings             : problems met and how they were handled, one sentence each
+
+    The per-corner arrays are indexed (a value per refined vertex, not per corner): a caller
+    gathers them once, for its own corners.
     """
 
     points: np.ndarray
     faces: np.ndarray
     face_origin: np.ndarray
-    normals: np.ndarray
+    normal_values: np.ndarray
+    corner_normals: np.ndarray
     vertex_data: np.ndarray | None
     varying_data: np.ndarray | None
-    face_varying: tuple[np.ndarray, ...]
+    face_varying_values: tuple[np.ndarray, ...]
+    face_varying_corners: tuple[np.ndarray, ...]
     scheme: str
     warnings: tuple[str, ...]
+
+    @property
+    def normals(self) -> np.ndarray:
+        """(f, k, 3) float64 unit normal per face corner."""
+        return _rows(self.normal_values, self.corner_normals.reshape(-1)).reshape(*self.faces.shape, 3)
+
+    @property
+    def face_varying(self) -> tuple[np.ndarray, ...]:
+        """One (f, k, m) float64 array per face-varying channel, per face corner."""
+        return tuple(_rows(values, corners.reshape(-1)).reshape(*corners.shape, values.shape[1])
+                     for values, corners in zip(self.face_varying_values, self.face_varying_corners))
 
 
 def refine(
@@ -318,26 +337,25 @@ def _without_holes(
     data: np.ndarray,
     has_vertex_data: bool,
     varying_data: np.ndarray | None,
-    normals: np.ndarray,
+    normals: tuple[np.ndarray, np.ndarray],
     channels: list[tuple[_Level, np.ndarray]],
     scheme: str,
     warnings: list[str],
 ) -> RefinedMesh:
-    """The last level's faces that are not holes, and only the points they use."""
+    """The last level's faces that are not holes, and only the points they use.
+
+    normals : ((n, 3) values, (c,) index per corner of ``level``), from _corner_normals
+    """
     corners_per_face = 3 if scheme == "loop" else 4
     visible = ~level.face_hole
     holes = not visible.all()
 
-    def shown(per_face: np.ndarray) -> np.ndarray:  # (without copying when nothing is hidden)
+    def shown(per_corner: np.ndarray) -> np.ndarray:
+        """(f', k) the rows of the shown faces (without copying when nothing is hidden)."""
+        per_face = per_corner.reshape(-1, corners_per_face)
         return per_face[visible] if holes else per_face
 
-    faces = shown(level.corner_vertex.reshape(-1, corners_per_face))
-    face_varying = tuple(
-        shown(
-            _rows(values, fvar_level.corner_vertex).reshape(-1, corners_per_face, values.shape[1])
-        )
-        for fvar_level, values in channels
-    )
+    faces = shown(level.corner_vertex)
     if holes:
         # Points only the hole faces used would be stray vertices for the renderer.
         used = np.zeros(level.vertex_count, dtype=bool)
@@ -345,14 +363,17 @@ def _without_holes(
         faces = (np.cumsum(used) - 1)[faces]
         data = data[used]
         varying_data = None if varying_data is None else varying_data[used]
+    normal_values, corner_normals = normals
     return RefinedMesh(
         points=np.ascontiguousarray(data[:, :3]),
         faces=faces,
-        face_origin=shown(level.face_origin),
-        normals=shown(normals.reshape(-1, corners_per_face, 3)),
+        face_origin=level.face_origin[visible] if holes else level.face_origin,
+        normal_values=normal_values,
+        corner_normals=shown(corner_normals),
         vertex_data=np.ascontiguousarray(data[:, 3:]) if has_vertex_data else None,
         varying_data=varying_data,
-        face_varying=face_varying,
+        face_varying_values=tuple(values for _, values in channels),
+        face_varying_corners=tuple(shown(fvar_level.corner_vertex) for fvar_level, _ in channels),
         scheme=scheme,
         warnings=tuple(warnings),
     )
@@ -1218,13 +1239,15 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _corner_normals(
     level: _Level, fans: _Fans, points: np.ndarray, scheme: str, ring: _Ring | None
-) -> np.ndarray:
-    """(c, 3) unit normal per corner of the final level: limit normals given the ``ring`` of
-    the limit stencils, area-weighted normals without it (no limit step).
+) -> tuple[np.ndarray, np.ndarray]:
+    """The unit normal of each corner of the final level, as ((n, 3) values, (c,) index into
+    them per corner): limit normals given the ``ring`` of the limit stencils, area-weighted
+    normals without it (no limit step).
 
-    With a ring, corners of smooth interior vertices get the limit normal of their vertex;
-    the others (boundaries, creases, corners, non-manifold fans: few) are handled per sector
-    by _sector_normals. Without it every corner gets its sector's area-weighted normal.
+    With a ring, corners of smooth interior vertices get the limit normal of their vertex
+    (value v for vertex v); the others (boundaries, creases, corners, non-manifold fans: few)
+    are handled per sector by _sector_normals, a value each after the vertices'. Without it
+    every corner gets its sector's area-weighted normal.
     """
     corner_vertex = level.corner_vertex
     size = level.vertex_count
@@ -1241,19 +1264,22 @@ def _corner_normals(
         whole_vertex = fans.manifold & fans.closed & (sharp_edge_count == 0)
         face_areas = _corner_face_areas(level, points, level.face_offsets)
         vertex_normals = _scatter(corner_vertex, _rows(face_areas, level.corner_face), size)
-    normals = _rows(_unit_rows(vertex_normals), corner_vertex)
+    values = [_unit_rows(vertex_normals)]
+    index = corner_vertex.copy()
     others = np.flatnonzero(~whole_vertex[corner_vertex])
     if len(others):
-        normals[others] = _unit_rows(
-            _sector_normals(level, points, fans, scheme, rule, others, limit)
-        )
-    bad = np.flatnonzero(~np.isfinite(normals[:, 0]))
+        values.append(_unit_rows(_sector_normals(level, points, fans, scheme, rule, others, limit)))
+        index[others] = size + np.arange(len(others))
+    values = np.concatenate(values) if len(values) > 1 else values[0]
+    bad = np.flatnonzero(~np.isfinite(values[:, 0])[index])
     if len(bad):
         # A fan whose normal vanishes (degenerate geometry) takes its face's direction, and a
         # face of no area any unit vector: a renderer needs finite normals.
-        normals[bad] = _unit_rows(_corner_face_areas(level, points, bad))
-        normals[bad[~np.isfinite(normals[bad, 0])]] = (0.0, 0.0, 1.0)
-    return normals
+        replacements = _unit_rows(_corner_face_areas(level, points, bad))
+        replacements[~np.isfinite(replacements[:, 0])] = (0.0, 0.0, 1.0)
+        index[bad] = len(values) + np.arange(len(bad))
+        values = np.concatenate([values, replacements])
+    return values, index
 
 
 def _unit_rows(vectors: np.ndarray) -> np.ndarray:
