@@ -66,6 +66,7 @@ tracer triangles.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 import math
@@ -149,28 +150,47 @@ class FaceVaryingPrimvar:
 class RefinedMesh:
     """A mesh refined ``level`` times, hole faces left out.
 
-    points        : (v, 3) float64 limit positions (refined positions with ``limit=False`` or
-                    the bilinear scheme), units of the input
-    faces         : (f, k) int64 vertex indices, k = 4 (catmullClark, bilinear) or 3 (loop),
-                    in the winding of the authored faces
-    face_origin   : (f,) int64 authored face each face comes from
-    normals       : (f, k, 3) float64 unit normal per face corner (see the module docstring)
-    vertex_data   : (v, m) float64 vertex primvars, refined and limited like the points
-    varying_data  : (v, m) float64 varying primvars, refined linearly
-    face_varying  : one (f, k, m) float64 array per face-varying channel, per face corner
-    scheme        : the scheme used (loop falls back to catmullClark on non-triangles)
-    warnings      : problems met and how they were handled, one sentence each
+    points               : (v, 3) float64 limit positions (refined positions with ``limit=False``
+                           or the bilinear scheme), units of the input
+    faces                : (f, k) int64 vertex indices, k = 4 (catmullClark, bilinear) or 3
+                           (loop), in the winding of the authored faces
+    face_origin          : (f,) int64 authored face each face comes from
+    normal_values        : (n, 3) float64 unit normals (see the module docstring): one per
+                           vertex where its corners share it, then one per other corner
+    corner_normals       : (f, k) int64 index into normal_values per face corner
+    vertex_data          : (v, m) float64 vertex primvars, refined and limited like the points
+    varying_data         : (v, m) float64 varying primvars, refined linearly
+    face_varying_values  : per face-varying channel, (n_i, m) float64 values
+    face_varying_corners : per channel, (f, k) int64 index into its values per face corner
+    scheme               : the scheme used (loop falls back to catmullClark on non-triangles)
+    warnings             : problems met and how they were handled, one sentence each
+
+    The per-corner arrays are indexed (a value per refined vertex, not per corner): a caller
+    gathers them once, for its own corners.
     """
 
     points: np.ndarray
     faces: np.ndarray
     face_origin: np.ndarray
-    normals: np.ndarray
+    normal_values: np.ndarray
+    corner_normals: np.ndarray
     vertex_data: np.ndarray | None
     varying_data: np.ndarray | None
-    face_varying: tuple[np.ndarray, ...]
+    face_varying_values: tuple[np.ndarray, ...]
+    face_varying_corners: tuple[np.ndarray, ...]
     scheme: str
     warnings: tuple[str, ...]
+
+    @property
+    def normals(self) -> np.ndarray:
+        """(f, k, 3) float64 unit normal per face corner."""
+        return _rows(self.normal_values, self.corner_normals.reshape(-1)).reshape(*self.faces.shape, 3)
+
+    @property
+    def face_varying(self) -> tuple[np.ndarray, ...]:
+        """One (f, k, m) float64 array per face-varying channel, per face corner."""
+        return tuple(_rows(values, corners.reshape(-1)).reshape(*corners.shape, values.shape[1])
+                     for values, corners in zip(self.face_varying_values, self.face_varying_corners))
 
 
 def refine(
@@ -256,13 +276,13 @@ def refine(
         data = _refine_vertex_data(current, data, rules, child_sharpness)
         if varying_data is not None:
             varying_data = _refine_vertex_data(current, varying_data, linear_rules, None)
+        child = _child_level(current, split, child_sharpness)
         for index, (fvar_level, fvar_values) in enumerate(channels):
             fvar_child_sharpness = _child_edge_sharpness(fvar_level, tags.crease_method)
             channels[index] = (
-                _child_level(fvar_level, split, fvar_child_sharpness),
+                _child_level(fvar_level, split, fvar_child_sharpness, child.faces),
                 _refine_vertex_data(fvar_level, fvar_values, fvar_rules, fvar_child_sharpness),
             )
-        child = _child_level(current, split, child_sharpness)
         fans = _child_fans(current, fans, child) if split == "quads" else None
         current = child
     if fans is None:
@@ -317,26 +337,25 @@ def _without_holes(
     data: np.ndarray,
     has_vertex_data: bool,
     varying_data: np.ndarray | None,
-    normals: np.ndarray,
+    normals: tuple[np.ndarray, np.ndarray],
     channels: list[tuple[_Level, np.ndarray]],
     scheme: str,
     warnings: list[str],
 ) -> RefinedMesh:
-    """The last level's faces that are not holes, and only the points they use."""
+    """The last level's faces that are not holes, and only the points they use.
+
+    normals : ((n, 3) values, (c,) index per corner of ``level``), from _corner_normals
+    """
     corners_per_face = 3 if scheme == "loop" else 4
     visible = ~level.face_hole
     holes = not visible.all()
 
-    def shown(per_face: np.ndarray) -> np.ndarray:  # (without copying when nothing is hidden)
+    def shown(per_corner: np.ndarray) -> np.ndarray:
+        """(f', k) the rows of the shown faces (without copying when nothing is hidden)."""
+        per_face = per_corner.reshape(-1, corners_per_face)
         return per_face[visible] if holes else per_face
 
-    faces = shown(level.corner_vertex.reshape(-1, corners_per_face))
-    face_varying = tuple(
-        shown(
-            _rows(values, fvar_level.corner_vertex).reshape(-1, corners_per_face, values.shape[1])
-        )
-        for fvar_level, values in channels
-    )
+    faces = shown(level.corner_vertex)
     if holes:
         # Points only the hole faces used would be stray vertices for the renderer.
         used = np.zeros(level.vertex_count, dtype=bool)
@@ -344,14 +363,17 @@ def _without_holes(
         faces = (np.cumsum(used) - 1)[faces]
         data = data[used]
         varying_data = None if varying_data is None else varying_data[used]
+    normal_values, corner_normals = normals
     return RefinedMesh(
         points=np.ascontiguousarray(data[:, :3]),
         faces=faces,
-        face_origin=shown(level.face_origin),
-        normals=shown(normals.reshape(-1, corners_per_face, 3)),
+        face_origin=level.face_origin[visible] if holes else level.face_origin,
+        normal_values=normal_values,
+        corner_normals=shown(corner_normals),
         vertex_data=np.ascontiguousarray(data[:, 3:]) if has_vertex_data else None,
         varying_data=varying_data,
-        face_varying=face_varying,
+        face_varying_values=tuple(values for _, values in channels),
+        face_varying_corners=tuple(shown(fvar_level.corner_vertex) for fvar_level, _ in channels),
         scheme=scheme,
         warnings=tuple(warnings),
     )
@@ -376,6 +398,51 @@ def _optional_columns(values, count: int, name: str) -> np.ndarray | None:
 # --- mesh levels ------------------------------------------------------------------------------
 
 
+class _Faces:
+    """The faces of a level: their sizes, and each corner's face and neighbours in it.
+
+    sizes       : (f,) corners per face
+    offsets     : (f,) first corner of each face
+    corner_face : (c,) the face of each corner
+    corner_next : (c,) the next corner of the same face (corner_prev: the previous one)
+
+    The authored level gives every array. A refined level (every face of ``uniform`` corners)
+    makes its per-corner arrays on first use: the last level needs few of them, and a mesh's
+    face-varying channels share its faces, so each level's are made once.
+    """
+
+    def __init__(self, sizes: np.ndarray, offsets: np.ndarray, corner_face: np.ndarray | None = None,
+                 corner_next: np.ndarray | None = None, corner_prev: np.ndarray | None = None,
+                 uniform: int = 0) -> None:
+        self.sizes = sizes
+        self.offsets = offsets
+        self.uniform = uniform
+        if corner_face is not None:  # instead of the cached properties below
+            self.__dict__.update(corner_face=corner_face, corner_next=corner_next, corner_prev=corner_prev)
+
+    @staticmethod
+    def of_uniform(face_count: int, corners_per_face: int) -> _Faces:
+        return _Faces(np.full(face_count, corners_per_face, dtype=INDEX),
+                      np.arange(face_count, dtype=INDEX) * corners_per_face, uniform=corners_per_face)
+
+    @functools.cached_property
+    def corner_face(self) -> np.ndarray:
+        return np.repeat(np.arange(len(self.sizes), dtype=INDEX), self.uniform)
+
+    @functools.cached_property
+    def corner_next(self) -> np.ndarray:
+        # +1, but from the last corner of a face back to its first
+        following = np.arange(1, len(self.sizes) * self.uniform + 1, dtype=INDEX)
+        following[self.uniform - 1::self.uniform] -= self.uniform
+        return following
+
+    @functools.cached_property
+    def corner_prev(self) -> np.ndarray:
+        preceding = np.arange(-1, len(self.sizes) * self.uniform - 1, dtype=INDEX)
+        preceding[::self.uniform] += self.uniform
+        return preceding
+
+
 @dataclass(frozen=True, eq=False)
 class _Level:
     """The topology and sharpness of one refinement level (of the mesh or of one fvar channel).
@@ -385,11 +452,7 @@ class _Level:
     """
 
     vertex_count: int
-    face_sizes: np.ndarray  # (f,)
-    face_offsets: np.ndarray  # (f,) first corner of each face
-    corner_face: np.ndarray  # (c,)
-    corner_next: np.ndarray  # (c,) next corner of the same face
-    corner_prev: np.ndarray  # (c,)
+    faces: _Faces
     corner_vertex: np.ndarray  # (c,)
     corner_edge: np.ndarray  # (c,)
     edge_vertices: np.ndarray  # (e, 2)
@@ -400,12 +463,43 @@ class _Level:
     face_origin: np.ndarray  # (f,) authored face
 
     @property
+    def face_sizes(self) -> np.ndarray:
+        return self.faces.sizes
+
+    @property
+    def face_offsets(self) -> np.ndarray:
+        return self.faces.offsets
+
+    @property
+    def corner_face(self) -> np.ndarray:
+        return self.faces.corner_face
+
+    @property
+    def corner_next(self) -> np.ndarray:
+        return self.faces.corner_next
+
+    @property
+    def corner_prev(self) -> np.ndarray:
+        return self.faces.corner_prev
+
+    @property
     def edge_count(self) -> int:
         return len(self.edge_vertices)
 
     @property
     def face_count(self) -> int:
         return len(self.face_sizes)
+
+    def following_vertex(self, steps: int) -> np.ndarray:
+        """(c,) the vertex ``steps`` corners further along each corner's face (1: the far end
+        of its outgoing edge; 2 in a quad: the opposite corner's)."""
+        size = self.faces.uniform
+        if size:  # a rotation of each face's corners: no index arrays
+            return np.roll(self.corner_vertex.reshape(-1, size), -steps, axis=1).reshape(-1)
+        corners = self.corner_next
+        for _ in range(steps - 1):
+            corners = self.corner_next[corners]
+        return self.corner_vertex[corners]
 
 
 def _face_structure(counts: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -502,11 +596,8 @@ def _base_level(
 
     level = _Level(
         vertex_count=vertex_count,
-        face_sizes=counts.astype(INDEX),
-        face_offsets=offsets,
-        corner_face=corner_face,
-        corner_next=corner_next,
-        corner_prev=corner_prev,
+        faces=_Faces(counts.astype(INDEX), offsets, corner_face, corner_next, corner_prev,
+                     uniform=int(counts[0]) if len(counts) and (counts == counts[0]).all() else 0),
         corner_vertex=indices.astype(INDEX),
         corner_edge=corner_edge,
         edge_vertices=edge_vertices,
@@ -573,44 +664,6 @@ def _crease_edges(
     return keys, np.clip(np.nan_to_num(pair_sharpness), 0.0, SHARPNESS_INFINITE)
 
 
-def _uniform_level(
-    vertex_count: int,
-    corner_vertex: np.ndarray,
-    corner_edge: np.ndarray,
-    corners_per_face: int,
-    edge_vertices: np.ndarray,
-    edge_face_count: np.ndarray,
-    edge_sharpness: np.ndarray,
-    vertex_sharpness: np.ndarray,
-    face_hole: np.ndarray,
-    face_origin: np.ndarray,
-) -> _Level:
-    corner_count = len(corner_vertex)
-    face_count = corner_count // corners_per_face
-    corners = np.arange(corner_count, dtype=INDEX)
-    # Within a face, next is +1 but from the last corner back to the first (and prev the
-    # reverse): per-face patterns tiled, no integer division over every corner.
-    step_next = np.ones(corners_per_face, dtype=INDEX)
-    step_next[-1] = 1 - corners_per_face
-    step_prev = -np.roll(step_next, 1)
-    return _Level(
-        vertex_count=vertex_count,
-        face_sizes=np.full(face_count, corners_per_face, dtype=INDEX),
-        face_offsets=np.arange(face_count, dtype=INDEX) * corners_per_face,
-        corner_face=np.repeat(np.arange(face_count, dtype=INDEX), corners_per_face),
-        corner_next=corners + np.tile(step_next, face_count),
-        corner_prev=corners + np.tile(step_prev, face_count),
-        corner_vertex=corner_vertex,
-        corner_edge=corner_edge,
-        edge_vertices=edge_vertices,
-        edge_face_count=edge_face_count,
-        edge_sharpness=edge_sharpness,
-        vertex_sharpness=vertex_sharpness,
-        face_hole=face_hole,
-        face_origin=face_origin,
-    )
-
-
 def _decrement(sharpness: np.ndarray) -> np.ndarray:
     """Uniform decay: one less per level, infinite stays infinite."""
     return np.where(
@@ -652,12 +705,14 @@ def _bincount_ends(ends: np.ndarray, weights: np.ndarray, size: int) -> np.ndarr
     )
 
 
-def _child_level(level: _Level, split: str, child_sharpness: np.ndarray) -> _Level:
+def _child_level(level: _Level, split: str, child_sharpness: np.ndarray, faces: _Faces | None = None) -> _Level:
     """The next level's topology, built structurally (no search for edges).
 
     Child vertices: the parent's vertices, then one per edge, then (quads) one per face.
     Child edges: the two halves of each parent edge (2e at its first vertex, 2e + 1 at its
     second), then one interior edge per parent corner.
+    faces: the child faces when made already (those of the mesh's child level, which its
+    face-varying channels share); None makes them.
     """
     vertex_count = level.vertex_count
     edge_count = level.edge_count
@@ -711,11 +766,11 @@ def _child_level(level: _Level, split: str, child_sharpness: np.ndarray) -> _Lev
         corners_per_face = 3
         new_vertices = edge_count
 
-    return _uniform_level(
+    return _Level(
         vertex_count=child_vertex_count,
+        faces=faces if faces is not None else _Faces.of_uniform(len(face_hole), corners_per_face),
         corner_vertex=child_vertices.reshape(-1),
         corner_edge=child_edges.reshape(-1),
-        corners_per_face=corners_per_face,
         edge_vertices=np.concatenate([halves, interior]),
         edge_face_count=np.concatenate(
             [np.repeat(level.edge_face_count, 2), np.full(corner_count, 2, dtype=INDEX)]
@@ -811,7 +866,7 @@ def _refine_vertex_data(
     valence = np.maximum(face_counts, 1)[:, None].astype(np.float64)
     # Around a smooth (interior, manifold) vertex the far ends of its corners' outgoing edges
     # are all its neighbours, each once; other vertices do not use this sum.
-    ring_vertex = corner_vertex[level.corner_next]
+    ring_vertex = level.following_vertex(1)
 
     # Edge points: the smooth mask, the crease midpoint, or a blend while sharpness < 1.
     if rules.scheme == "catmullClark":
@@ -936,10 +991,11 @@ def _blend_vertex_rules(
 class _Ring:
     """Per corner of a level, the data at the far end of its outgoing edge (e_j around the
     corner's vertex) and, for quads, at the opposite corner (d_j): gathered once for the
-    limit position and tangent stencils.
+    limit position and tangent stencils, a row per column of the data so that the stencils'
+    sums run on contiguous rows.
 
-    edge     : (c, m)
-    diagonal : (c, m), None for triangles
+    edge     : (m, c)
+    diagonal : (m, c), None for triangles
     """
 
     edge: np.ndarray
@@ -947,11 +1003,20 @@ class _Ring:
 
     @staticmethod
     def of(level: _Level, data: np.ndarray, split: str) -> "_Ring":
-        following = level.corner_next
-        edge = _rows(data, level.corner_vertex[following])
+        columns = np.ascontiguousarray(data.T)
+        edge = np.take(columns, level.following_vertex(1), axis=1)
         if split != "quads":
             return _Ring(edge, None)
-        return _Ring(edge, _rows(data, level.corner_vertex[following[following]]))
+        return _Ring(edge, np.take(columns, level.following_vertex(2), axis=1))
+
+
+def _scatter_rows(index: np.ndarray, rows: np.ndarray, size: int) -> np.ndarray:
+    """(size, m) sums of the columns of ``rows`` (m, n) grouped by ``index`` (n,): _scatter
+    of the transposed values."""
+    out = np.empty((size, len(rows)))
+    for column, row in enumerate(rows):
+        out[:, column] = np.bincount(index, weights=row, minlength=size)
+    return out
 
 
 def _limit_positions(level: _Level, data: np.ndarray, scheme: str, ring: _Ring) -> np.ndarray:
@@ -968,14 +1033,14 @@ def _limit_positions(level: _Level, data: np.ndarray, scheme: str, ring: _Ring) 
         # Regular: (1/36) [1 4 1; 4 16 4; 1 4 1]; valence n: 1/(n(n+5)) per diagonal vertex.
         diagonal_weight = 1.0 / (n * (n + 5.0))
         self_weight = 1.0 - 5.0 * n * diagonal_weight
-        ring_sum = _scatter(corner_vertex, 4.0 * ring.edge + ring.diagonal, size)
+        ring_sum = _scatter_rows(corner_vertex, 4.0 * ring.edge + ring.diagonal, size)
         smooth = self_weight[:, None] * data + diagonal_weight[:, None] * ring_sum
         smooth = np.where((face_counts == 2)[:, None], data, smooth)  # OpenSubdiv: a corner
     else:
         # Loop's beta is positive for every valence, so the division is safe.
         loop_edge_weight, _ = _loop_vertex_weights(face_counts)
         edge_weight = 1.0 / (n + 3.0 / (8.0 * loop_edge_weight))
-        neighbour_sum = _scatter(corner_vertex, ring.edge, size)
+        neighbour_sum = _scatter_rows(corner_vertex, ring.edge, size)
         smooth = (1.0 - n * edge_weight)[:, None] * data + edge_weight[:, None] * neighbour_sum
     crease = (4.0 * data + _crease_neighbour_sum(ends, data, sharp, sharp, size)) / 6.0
     return np.where(
@@ -1174,13 +1239,15 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _corner_normals(
     level: _Level, fans: _Fans, points: np.ndarray, scheme: str, ring: _Ring | None
-) -> np.ndarray:
-    """(c, 3) unit normal per corner of the final level: limit normals given the ``ring`` of
-    the limit stencils, area-weighted normals without it (no limit step).
+) -> tuple[np.ndarray, np.ndarray]:
+    """The unit normal of each corner of the final level, as ((n, 3) values, (c,) index into
+    them per corner): limit normals given the ``ring`` of the limit stencils, area-weighted
+    normals without it (no limit step).
 
-    With a ring, corners of smooth interior vertices get the limit normal of their vertex;
-    the others (boundaries, creases, corners, non-manifold fans: few) are handled per sector
-    by _sector_normals. Without it every corner gets its sector's area-weighted normal.
+    With a ring, corners of smooth interior vertices get the limit normal of their vertex
+    (value v for vertex v); the others (boundaries, creases, corners, non-manifold fans: few)
+    are handled per sector by _sector_normals, a value each after the vertices'. Without it
+    every corner gets its sector's area-weighted normal.
     """
     corner_vertex = level.corner_vertex
     size = level.vertex_count
@@ -1197,19 +1264,22 @@ def _corner_normals(
         whole_vertex = fans.manifold & fans.closed & (sharp_edge_count == 0)
         face_areas = _corner_face_areas(level, points, level.face_offsets)
         vertex_normals = _scatter(corner_vertex, _rows(face_areas, level.corner_face), size)
-    normals = _rows(_unit_rows(vertex_normals), corner_vertex)
+    values = [_unit_rows(vertex_normals)]
+    index = corner_vertex.copy()
     others = np.flatnonzero(~whole_vertex[corner_vertex])
     if len(others):
-        normals[others] = _unit_rows(
-            _sector_normals(level, points, fans, scheme, rule, others, limit)
-        )
-    bad = np.flatnonzero(~np.isfinite(normals[:, 0]))
+        values.append(_unit_rows(_sector_normals(level, points, fans, scheme, rule, others, limit)))
+        index[others] = size + np.arange(len(others))
+    values = np.concatenate(values) if len(values) > 1 else values[0]
+    bad = np.flatnonzero(~np.isfinite(values[:, 0])[index])
     if len(bad):
         # A fan whose normal vanishes (degenerate geometry) takes its face's direction, and a
         # face of no area any unit vector: a renderer needs finite normals.
-        normals[bad] = _unit_rows(_corner_face_areas(level, points, bad))
-        normals[bad[~np.isfinite(normals[bad, 0])]] = (0.0, 0.0, 1.0)
-    return normals
+        replacements = _unit_rows(_corner_face_areas(level, points, bad))
+        replacements[~np.isfinite(replacements[:, 0])] = (0.0, 0.0, 1.0)
+        index[bad] = len(values) + np.arange(len(bad))
+        values = np.concatenate([values, replacements])
+    return values, index
 
 
 def _unit_rows(vectors: np.ndarray) -> np.ndarray:
@@ -1243,9 +1313,8 @@ def _smooth_limit_normals(level: _Level, fans: _Fans, scheme: str, ring: _Ring) 
     corner_valence = valence[corner_vertex]
     tables, row_start = _tangent_weight_tables(valence, scheme)
     entry = row_start[corner_valence] + np.minimum(fans.position, corner_valence - 1)
-    # Contiguous coordinate rows: the products below run on whole rows, not strided columns.
-    edges = np.ascontiguousarray(ring.edge[:, :3].T)
-    diagonals = None if ring.diagonal is None else np.ascontiguousarray(ring.diagonal[:, :3].T)
+    edges = ring.edge[:3]
+    diagonals = None if ring.diagonal is None else ring.diagonal[:3]
     tangents = []
     for edge_table, diagonal_table in tables:
         edge_weight = edge_table[entry]
@@ -1468,11 +1537,7 @@ def _face_varying_level(
 
     level = _Level(
         vertex_count=value_count,
-        face_sizes=base.face_sizes,
-        face_offsets=base.face_offsets,
-        corner_face=base.corner_face,
-        corner_next=base.corner_next,
-        corner_prev=base.corner_prev,
+        faces=base.faces,
         corner_vertex=fvar_vertex,
         corner_edge=corner_edge,
         edge_vertices=edge_vertices,

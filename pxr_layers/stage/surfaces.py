@@ -812,19 +812,21 @@ def _subdivision_surface(
     for key, channel in channels.items():
         interpolation, values = channel.interpolation, channel.values
         width = values.shape[1]
+        value_corners = triangle_corners
         if interpolation == UsdGeom.Tokens.faceVarying:
-            values = refined.face_varying[column_start[key]].reshape(-1, width)
+            values = refined.face_varying_values[column_start[key]]
+            value_corners = refined.face_varying_corners[column_start[key]].reshape(-1)[triangle_corners]
         elif interpolation in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
             data = refined.vertex_data if interpolation == UsdGeom.Tokens.vertex else refined.varying_data
             start = column_start[key]
             values = data[:, start:start + width]
-        per_corner[key] = _corner_values(values, interpolation, triangle_face, triangle_corners,
+        per_corner[key] = _corner_values(values, interpolation, triangle_face, value_corners,
                                          triangles, np.float32 if key is not None else np.float64)
     uvs = per_corner.pop(None, None)
     return LocalSurface(
         points=refined.points,
         triangles=triangles,
-        normals=np.take(refined.normals.reshape(-1, 3), triangle_corners, axis=0),
+        normals=np.take(refined.normal_values, refined.corner_normals.reshape(-1)[triangle_corners], axis=0),
         smooth=True,
         # (t, 3, 2) of its own, as ever: constant and uniform uvs written out
         uvs=uvs if uvs is None or uvs.flags.writeable else np.array(uvs),

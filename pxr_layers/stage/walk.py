@@ -160,11 +160,27 @@ def walk_stage(context: ReadContext) -> StageContents:
     return contents
 
 
+# Schema type (Tf.Type, fallback types resolved) → (opaque, imageable): IsA depends on the
+# type alone, so each type is asked once per process, not nine times per prim visited.
+_TYPE_KINDS: dict[object, tuple[bool, bool]] = {}
+
+
+def _type_kind(prim: Usd.Prim) -> tuple[bool, bool]:
+    """(one of _OPAQUE_TYPES, a UsdGeom.Imageable) for ``prim``'s type."""
+    schema_type = prim.GetPrimTypeInfo().GetSchemaType()
+    kind = _TYPE_KINDS.get(schema_type)
+    if kind is None:
+        kind = _TYPE_KINDS[schema_type] = (any(prim.IsA(schema) for schema in _OPAQUE_TYPES),
+                                           prim.IsA(UsdGeom.Imageable))
+    return kind
+
+
 def _is_rendered(context: ReadContext, prim: Usd.Prim) -> bool:
     """False for subtrees that never render: shading networks, invisible prims, guides."""
-    if any(prim.IsA(schema) for schema in _OPAQUE_TYPES):
+    opaque, is_imageable = _type_kind(prim)
+    if opaque:
         return False
-    if not prim.IsA(UsdGeom.Imageable):
+    if not is_imageable:
         return True  # typeless and unknown-typed prims are plain containers
     imageable = UsdGeom.Imageable(prim)
     # Ancestors were checked on the way down (invisible ones pruned), so the prim's own
