@@ -206,11 +206,14 @@ def synthetic_folder() -> Path:
     return SYNTHETIC_CACHE / key
 
 
+_STAGE_REVISION = 2  # of _write_synthetic_stage: a new one is written beside the same textures
+
+
 def write_synthetic_set() -> Path:
     """The synthetic set's stage (see the module docstring), written on first use and reused
     after: its stage file is written last, so a folder holding it is complete."""
     folder = synthetic_folder()
-    stage_path = folder / "set.usda"
+    stage_path = folder / f"set.{_STAGE_REVISION}.usda"
     if stage_path.exists():
         return stage_path
     folder.mkdir(parents=True, exist_ok=True)
@@ -268,6 +271,7 @@ def _write_synthetic_stage(path: Path, texture_paths: list[Path]) -> None:
     camera.CreateFocalLengthAttr(35.0)
     light = UsdLux.DistantLight.Define(stage, "/World/Sun")
     light.CreateIntensityAttr(3.0)
+    light.CreateNormalizeAttr(True)  # 3 lux-like on the quads, not 3 nits from a 0.53° disc (near black)
     UsdGeom.Xform.Define(stage, "/World/Hidden").CreateVisibilityAttr(UsdGeom.Tokens.invisible)
     UsdGeom.Xform.Define(stage, "/World/Guides").CreatePurposeAttr(UsdGeom.Tokens.guide)
     UsdGeom.Scope.Define(stage, "/World/Looks")

@@ -428,21 +428,25 @@ def shade_point(materials, geometry, triangle, u, v, registers, inputs, footprin
 
 
 @inline
+def triangle_edges(geometry, triangle):
+    """`triangle`'s edges from its first corner: (e1, e2) in metres and (ds1, dt1, ds2, dt2)
+    in st, as ten scalars."""
+    corners, uvs = geometry.corner_positions, geometry.corner_uvs
+    return (corners[triangle, 1, 0] - corners[triangle, 0, 0], corners[triangle, 1, 1] - corners[triangle, 0, 1],
+            corners[triangle, 1, 2] - corners[triangle, 0, 2], corners[triangle, 2, 0] - corners[triangle, 0, 0],
+            corners[triangle, 2, 1] - corners[triangle, 0, 1], corners[triangle, 2, 2] - corners[triangle, 0, 2],
+            uvs[triangle, 1, 0] - uvs[triangle, 0, 0], uvs[triangle, 1, 1] - uvs[triangle, 0, 1],
+            uvs[triangle, 2, 0] - uvs[triangle, 0, 0], uvs[triangle, 2, 1] - uvs[triangle, 0, 1])
+
+
+@inline
 def st_per_metre(geometry, triangle):
     """How many st units a metre of `triangle` spans: √(its area in st / its area in metres),
     0 where either is 0 (the footprint of a lookup in st, for its MIP level)."""
-    corners, uvs = geometry.corner_positions, geometry.corner_uvs
-    e1x = corners[triangle, 1, 0] - corners[triangle, 0, 0]
-    e1y = corners[triangle, 1, 1] - corners[triangle, 0, 1]
-    e1z = corners[triangle, 1, 2] - corners[triangle, 0, 2]
-    e2x = corners[triangle, 2, 0] - corners[triangle, 0, 0]
-    e2y = corners[triangle, 2, 1] - corners[triangle, 0, 1]
-    e2z = corners[triangle, 2, 2] - corners[triangle, 0, 2]
+    e1x, e1y, e1z, e2x, e2y, e2z, ds1, dt1, ds2, dt2 = triangle_edges(geometry, triangle)
     cx, cy, cz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
     area = math.sqrt(cx * cx + cy * cy + cz * cz)
-    st_area = abs((uvs[triangle, 1, 0] - uvs[triangle, 0, 0]) * (uvs[triangle, 2, 1] - uvs[triangle, 0, 1])
-                  - (uvs[triangle, 2, 0] - uvs[triangle, 0, 0]) * (uvs[triangle, 1, 1] - uvs[triangle, 0, 1]))
-    return math.sqrt(st_area / area) if area > 0.0 else 0.0
+    return math.sqrt(abs(ds1 * dt2 - ds2 * dt1) / area) if area > 0.0 else 0.0
 
 
 def inputs_at(arrays: MaterialArrays, material: int, st: np.ndarray, footprint: float = 0.0) -> np.ndarray:

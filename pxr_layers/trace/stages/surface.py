@@ -108,15 +108,7 @@ def mapped_normal(geometry, triangle, inputs, nx, ny, nz):
     looked up at (inputs[NORMAL_UV:+4], through its uv transform), Gram–Schmidt
     orthonormalised (one tangent frame per triangle); unchanged where the uvs are
     degenerate."""
-    corners, uvs = geometry.corner_positions, geometry.corner_uvs
-    e1x = corners[triangle, 1, 0] - corners[triangle, 0, 0]
-    e1y = corners[triangle, 1, 1] - corners[triangle, 0, 1]
-    e1z = corners[triangle, 1, 2] - corners[triangle, 0, 2]
-    e2x = corners[triangle, 2, 0] - corners[triangle, 0, 0]
-    e2y = corners[triangle, 2, 1] - corners[triangle, 0, 1]
-    e2z = corners[triangle, 2, 2] - corners[triangle, 0, 2]
-    ds1, dt1 = uvs[triangle, 1, 0] - uvs[triangle, 0, 0], uvs[triangle, 1, 1] - uvs[triangle, 0, 1]
-    ds2, dt2 = uvs[triangle, 2, 0] - uvs[triangle, 0, 0], uvs[triangle, 2, 1] - uvs[triangle, 0, 1]
+    e1x, e1y, e1z, e2x, e2y, e2z, ds1, dt1, ds2, dt2 = shading.triangle_edges(geometry, triangle)
     det = ds1 * dt2 - ds2 * dt1
     if not abs(det) > 1e-20:
         return nx, ny, nz
