@@ -45,8 +45,8 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class Extraction:
     """layers : name → (h, w, 3) float32 linear images (same scale as the beauty)
-    records_read : records of the classes some layer can use (the chunks holding them are
-    read whole: their other records are decoded too, and skipped); classes_matched : those classes
+    records_read : records of the classes some layer can use (only those are decoded);
+    classes_matched : those classes
     warnings : one line per quoted label that names nothing in the index (logged too:
     lpe.labels.unknown_labels), for callers that show them elsewhere (the inspector)
     """
@@ -139,13 +139,12 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     class_set = class_set << len(keyed)
     width, height = index.manifest["resolution"]
     accumulator = LayerSums(plain_sets, keyed, width * height)
-    records_read = sum(index.classes[c].records for c in wanted.tolist())
-    # Chunks holding a wanted class are read whole: the records of other classes in them
-    # have the empty plain set and no group, and feed nothing (cheaper than cutting them out).
+    records_read = int(index.class_records()[wanted].sum())
+    # Only the runs of wanted classes are decoded (PathIndex.records): a chunk's other
+    # records cost their share of its decompression only.
     selected = None if len(wanted) == class_count else wanted.tolist()
-    progress = Progress(sum(index.chunks[number]["records"] for number in index.chunks_holding(selected)),
-                        "extract", enabled=show_progress)
-    for chunk in index.records(selected, norms=bool(groups), threads=threads, whole_chunks=True):
+    progress = Progress(records_read, "extract", enabled=show_progress)
+    for chunk in index.records(selected, norms=bool(groups), threads=threads):
         key = class_set[chunk.class_id]
         for bit, row in enumerate(conditional_rows):
             # The chunk's records of each group of the layer, from one sort by group.

@@ -36,7 +36,7 @@ from ..recipe.model import (
     Layer,
     Product,
 )
-from ..scene import REC709_LUMINANCE
+from ..colour import REC709_LUMINANCE
 from ..outputs import write_atomically
 
 logger = logging.getLogger(__name__)

@@ -9,7 +9,6 @@ chunks it found them in (:func:`select`).
 
 from __future__ import annotations
 
-import math
 from collections import defaultdict
 from dataclasses import dataclass
 from typing import Iterable, Sequence
@@ -18,15 +17,14 @@ import numpy as np
 
 from ..layers.previews import LUMINANCE_WEIGHTS as LUMINANCE
 from ..paths.events import SCATTERING_TYPES, Event, path_text
-from ..paths.format import NormBins
 from ..paths.reader import PathClass, PathIndex
 
 TOP_CLASSES = 50
 """Classes listed for a selection, by share."""
-NORM_OCTAVES = (int(math.log2(NormBins.LOWEST)),
-                int(math.ceil(math.log2(NormBins.LOWEST) + (NormBins.CODES - 2) / NormBins.BINS_PER_OCTAVE)))
-"""The norm histograms' range, as powers of 2: NormBins' range (2^-32 to 2^31.5), one bin an
-octave, values outside counted in the first and last bins, 0 on its own."""
+NORM_OCTAVES = (-32, 32)
+"""The norm histograms' range, as powers of 2 (2^-32 to 2^32: norms of real scenes lie well
+inside), one bin an octave, values outside counted in the first and last bins, 0 on its own.
+A merged index keeps norms by octave (paths.format.NormBins): these bins hold exactly its values."""
 NORM_QUANTITIES = ("C", "T", "R")
 ASPECTS = ("light", "first_object", "first_material", "first_scattering", "scattering", "bounces")
 """What :func:`generalise` can keep of the classes it is given."""
