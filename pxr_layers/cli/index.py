@@ -76,7 +76,7 @@ def info_lines(index: PathIndex, top: int, verified: int | None = None) -> list[
         f"labels       {len(index.labels):,}",
         (f"size         {index.size:,} bytes ({index.size / max(records, 1):.2f} bytes per record, "
         f"{_per_pixel(index)}{len(index.chunks)} chunks)"),
-        ("chunks       not verified (--verify reads every chunk)" if verified is None
+        ("chunks       light read, not verified (--verify checks all of every chunk)" if verified is None
          else f"chunks       verified: {verified} chunks, CRC-32 and contents ok"),
         "",
     ]

@@ -368,10 +368,10 @@ class RgbBins:
         values = np.asarray(rgb, np.float64)
         coded = np.isfinite(values) & (values > 0)
         brightest = np.where(coded, values, 0.0).max(axis=1, initial=0.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # records without coded values
             anchor = np.rint(cls.BINS_PER_OCTAVE * np.log2(brightest))
             ratio = np.rint(cls.BINS_PER_OCTAVE * np.log2(values / brightest[:, None]))
-        codes = np.where(coded, anchor[:, None] + ratio + cls.OFFSET, 0)
+            codes = np.where(coded, anchor[:, None] + ratio + cls.OFFSET, 0)
         coded &= (codes >= 1) & (codes <= cls.LARGEST_CODE)
         return np.where(coded, codes, np.where(values == 0, cls.ZERO, cls.EXACT)).astype(np.int64)
 

@@ -545,6 +545,8 @@ class PathIndex:
             norms, sigma = (None if name not in covariance else covariance[name] if rows is None
                             else covariance[name][rows] for name in ("norms", "sigma"))
             if self.mode == "merged":
+                if sigma is not None and len(sigma) and np.abs(sigma.astype(np.int32)).max() >= fmt.NormBins.CODES:
+                    raise self._chunk_error(number, "holds Σ codes past the bins'")
                 norms = fmt.NormBins.decoded(norms)
                 sigma = None if sigma is None else fmt.NormBins.decoded(sigma)
         decoded = RecordChunk(

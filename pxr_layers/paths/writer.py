@@ -30,7 +30,7 @@ from .trie import ClassTrie, class_events
 log = logging.getLogger(__name__)
 
 BUFFER_RECORDS = 1 << 18
-"""Records taken in before a buffer goes to the writer's thread (some 12 MB merged, with N = 5).
+"""Records taken in before a buffer goes to the writer's thread (some 10 MB merged, with N = 5).
 Small, so that the last flush, in ``close``, is short; each flush cuts its own chunks, so a
 class appears in up to one chunk per flush (smaller buffers: more, smaller chunks)."""
 QUEUED_BUFFERS = 2
@@ -53,12 +53,13 @@ class PathIndexWriter:
     carry it).
 
     Class ids are given in order of first appearance, and each flush sorts its records by
-    class keeping the tracer's order within a class, so the same render (same settings
-    and batch size) gives a byte-identical file whatever the thread count.
+    class, then pixel (stable), so the same render (same settings and batch size) gives a
+    byte-identical file whatever the thread count.
 
     ``add`` numbers a batch's classes on the caller's thread (that order is the file's);
     every ``buffer_records`` records, the buffer goes (FIFO, at most QUEUED_BUFFERS waiting)
-    to the writer's own thread, which sorts, sums, compresses and writes it. An error
+    to the writer's own thread, which codes (merged: ``_coded_rgb``; a buffer holds whole
+    batches, so every record of each of its pixels), sorts, compresses and writes it. An error
     there (a full disk: OutputError naming the file) is raised by the next ``add`` or by
     ``close``, which then remove the temporary file. ``close`` and ``abort`` end the thread.
     """
@@ -415,7 +416,8 @@ def _coded_rgb(pixel: np.ndarray, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarr
         carrier[group[first[chosen]], channel] = first[chosen]
         exact[order[first[chosen]]] = True
     read = np.where(exact[:, None], values, _RGB_TABLE[codes & 0xFFFF].astype(np.float64))
-    rest = sums - (np.add.reduceat(read[order], starts, axis=0) if len(order) else sums)
+    with np.errstate(invalid="ignore"):  # pixels of NaN or infinite light: no carrier reads their rest
+        rest = sums - (np.add.reduceat(read[order], starts, axis=0) if len(order) else sums)
     for channel in range(3):
         has = carrier[:, channel] >= 0
         at = order[carrier[has, channel]]
