@@ -15,6 +15,7 @@ import contextlib
 import copy
 import dataclasses
 import io
+import itertools
 import json
 import re
 import zlib
@@ -50,7 +51,7 @@ class Intact:
     data: bytes
     tables: dict
     arrays: dict[str, np.ndarray]
-    columns: list[bytes]  # per chunk, its decompressed columns (both frames, one after the other)
+    columns: list[bytes]  # per chunk, its decompressed columns (its three frames, one after the other)
     layers: dict[str, np.ndarray]
 
     def __repr__(self) -> str:  # pytest and hypothesis print the arguments of a failing example
@@ -72,8 +73,9 @@ def cornell_index(shipped_scene, tmp_path_factory) -> Intact:
     columns = []
     for chunk in tables["chunks"]:
         payload = data[chunk["offset"] + fmt.CHUNK_HEADER.size:][:chunk["bytes"]]
-        columns.append(b"".join(zstandard.ZstdDecompressor().decompress(frame) for frame in
-                                (payload[:chunk["sums_bytes"]], payload[chunk["sums_bytes"]:])))
+        ends = np.cumsum([0, chunk["where_bytes"], chunk["light_bytes"], len(payload)]).tolist()
+        columns.append(b"".join(zstandard.ZstdDecompressor().decompress(payload[start:end])
+                                for start, end in itertools.pairwise(ends)))
     assert len(columns) >= 6, len(columns)
     return Intact(data, tables, arrays, columns, extract(PathIndex(path), LAYERS).layers)
 
@@ -112,11 +114,6 @@ def with_footer(data: bytes, tables, arrays: dict[str, np.ndarray] | None = None
                                                      fmt.FORMAT_VERSION, fmt.TRAILER_MAGIC)
 
 
-def sums_bytes(chunk: dict) -> int:
-    """Decoded bytes of a chunk's sums frame."""
-    return fmt.frame_bytes(layout_of(chunk)[0])
-
-
 def layout_of(chunk: dict):
     return fmt.column_layout("merged", chunk["records"], NORM_BOUNCES, False, runs=chunk["runs"],
                              exact=chunk["exact"])
@@ -125,18 +122,20 @@ def layout_of(chunk: dict):
 def forged(tables: dict, arrays: dict[str, np.ndarray], columns: list[bytes], *, compress=None) -> bytes:
     """An index of these tables, class table columns and chunk columns with every offset,
     size and CRC-32 made to agree: damage no checksum can catch. compress: (chunk number,
-    frame 0 or 1, its columns' bytes) -> the frame as stored."""
+    frame 0, 1 or 2, its columns' bytes) -> the frame as stored."""
     default = zstandard.ZstdCompressor(level=fmt.ZSTD_LEVEL).compress
     compress = compress or (lambda number, frame, data: default(data))
     tables = copy.deepcopy(tables)
     data = bytearray(fmt.HEADER.pack(fmt.HEADER_MAGIC, fmt.FORMAT_VERSION, 0))
     for number, (chunk, chunk_columns) in enumerate(zip(tables["chunks"], columns, strict=True)):
-        split = sums_bytes(chunk)
-        sums = compress(number, 0, chunk_columns[:split])
-        payload = sums + compress(number, 1, chunk_columns[split:])
-        chunk.update(offset=len(data), bytes=len(payload), sums_bytes=len(sums), crc32=zlib.crc32(payload))
+        ends = np.cumsum([0, *(fmt.frame_bytes(frame) for frame in layout_of(chunk)[:2]), len(chunk_columns)])
+        frames = [compress(number, frame, chunk_columns[start:end])
+                  for frame, (start, end) in enumerate(itertools.pairwise(ends.tolist()))]
+        payload = b"".join(frames)
+        chunk.update(offset=len(data), bytes=len(payload), where_bytes=len(frames[0]), light_bytes=len(frames[1]),
+                     crc32=zlib.crc32(payload))
         data += fmt.CHUNK_HEADER.pack(fmt.CHUNK_MAGIC, len(payload), chunk["crc32"], chunk["records"], chunk["runs"],
-                                      chunk["exact"], len(sums)) + payload
+                                      chunk["exact"], len(frames[0]), len(frames[1])) + payload
     data += fmt.TRAILER.pack(len(data), 0, 0, 0, fmt.FORMAT_VERSION, fmt.TRAILER_MAGIC)  # where the footer goes
     return with_footer(bytes(data), tables, arrays)
 
@@ -144,8 +143,7 @@ def forged(tables: dict, arrays: dict[str, np.ndarray], columns: list[bytes], *,
 def with_column(columns: list[bytes], tables: dict, number: int, name: str, change) -> list[bytes]:
     """`columns` with chunk `number`'s column `name` replaced by change(values) (a copy)."""
     start = 0
-    sums, covariance = layout_of(tables["chunks"][number])
-    for column, dtype, shape in sums + covariance:
+    for column, dtype, shape in itertools.chain(*layout_of(tables["chunks"][number])):
         size = int(np.prod(shape)) * dtype.itemsize
         if column == name:
             values = change(fmt.unshuffle(columns[number][start:start + size], dtype, shape).copy())
@@ -274,8 +272,8 @@ def test_forged_records_are_refused_naming_the_chunk(cornell_index, folder, dama
 @pytest.mark.parametrize("payload, message", [
     (lambda columns: zstandard.ZstdCompressor().compress(columns[:-1]), "does not hold its"),
     (lambda columns: zstandard.ZstdCompressor(write_content_size=False).compress(columns), "does not hold its"),
-    (lambda columns: b"not zstd" + columns[:50], "is not two zstd frames of its records"),
-    (lambda columns: zstandard.ZstdCompressor().compress(columns) + b"extra", "is not two zstd frames of its records"),
+    (lambda columns: b"not zstd" + columns[:50], "is not three zstd frames of its records"),
+    (lambda columns: zstandard.ZstdCompressor().compress(columns) + b"extra", "is not three zstd frames of its records"),
 ])
 def test_a_payload_of_other_sizes_is_refused_naming_the_chunk(cornell_index, folder, payload, message):
     columns = cornell_index.columns

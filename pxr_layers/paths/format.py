@@ -39,9 +39,11 @@ Layout, little-endian throughout:
     header   8 s  magic b"PXLIDX\\r\\n" (the \\r\\n catches text-mode copies)
              u32  format version           u32  reserved (0)
     chunk*   4 s  b"CHNK"  u32 payload bytes  u32 CRC-32 of the payload  u32 records
-             u32  class runs  u32 exact records  u32 bytes of the payload's first frame
-             payload: two zstd frames, the sums (classes, pixels, rgb: what a layer without
-             conditions reads) then the covariance (norms, Σ: what conditions read)
+             u32  class runs  u32 exact records  u32 bytes of the where frame  u32 bytes
+             of the light frame
+             payload: three zstd frames: where (classes, pixels: what a click on a pixel
+             reads), light (rgb: what a layer without conditions reads too), covariance
+             (norms, Σ: what conditions read)
     footer   a zstd frame of a UTF-8 JSON document (manifest, labels, events, chunks), then
              a zstd frame of the class table (binary columns, ``class_table_layout``)
     trailer  u64 footer offset  u64 footer bytes  u64 bytes of the footer's JSON frame
@@ -51,21 +53,21 @@ Columns of a chunk (``column_layout``), records sorted by class, then by pixel, 
 byte-shuffled (byte planes one after the other, which lets zstd see the slowly varying
 high bytes):
 
-    sums frame
+    where frame
     run_class  u32 (runs,)   the class of each run of records of one class: its id minus
                              the previous run's (the first: minus 0)
     run_length u32 (runs,)   the records of each run
     pixel      u32 (r,)      y·width + x: the first record of a run as the zigzag-coded
                              difference from the previous run's first pixel (the first:
                              from 0), the others as the difference from the record before
-    merged:
+    light frame, merged:
     rgb        u16 (3, r)    channel-major: g, then r, then b (``RgbBins``: g is a code; r
                              and b, where g is a bin code, are code − g code − the class's
                              chroma (class table), modulo 2^16, else codes; EXACT in g
                              marks an exact record, whose r and b are 0)
     exact      f32 (e, 3)    the rgb of the exact records, in record order (e: the chunk
                              header's exact records)
-    records:
+    light frame, records:
     sample     u32 (r,)      the sample index
     rgb        f32 (r, 3)    the light exactly as the film added it
     (rgb is linear and not divided by spp: merged, the float64 sum of the contributions.)
@@ -89,8 +91,8 @@ clamped indirect light, N, the mode, norm names, units and bins, rgb bins, recor
 contribution and class counts), ``labels`` (every name an event carries), ``events`` (every
 distinct event as [type, scatter, [label ids], display name]), ``nonfinite_classes`` (ids
 of the classes with a NaN or infinite record), ``class_table`` (its frame's bytes and
-events), ``chunks`` (per chunk: offset, payload bytes, the sums frame's bytes, CRC,
-records, runs, exact records, its first and last class).
+events), ``chunks`` (per chunk: offset, payload bytes, the where and light frames' bytes,
+CRC, records, runs, exact records, its first and last class).
 
 The file is written under a temporary name and renamed only when complete: a file with
 the final name always has its trailer. Every chunk and the footer carry a CRC-32 the
@@ -118,8 +120,10 @@ HEADER_MAGIC = b"PXLIDX\r\n"
 TRAILER_MAGIC = b"PXLEND\r\n"
 CHUNK_MAGIC = b"CHNK"
 HEADER = struct.Struct("<8sII")
-CHUNK_HEADER = struct.Struct("<4sIIIIII")
-"""magic, payload bytes, CRC-32, records, class runs, exact records, sums frame bytes."""
+CHUNK_HEADER = struct.Struct("<4sIIIIIII")
+"""magic, payload bytes, CRC-32, records, class runs, exact records, where and light frame bytes."""
+FRAMES = ("where", "light", "covariance")
+"""A chunk's zstd frames, in file order (``column_layout``)."""
 TRAILER = struct.Struct("<QQQII8s")
 """footer offset, footer bytes, its JSON frame's bytes, CRC-32 of the footer, version, magic."""
 ZSTD_LEVEL = 3
@@ -186,25 +190,25 @@ Column = tuple[str, np.dtype, tuple[int, ...]]
 
 
 def column_layout(mode: str, records: int, norm_slots: int, sigma: bool, *, runs: int = 0,
-                  exact: int = 0) -> tuple[list[Column], list[Column]]:
+                  exact: int = 0) -> tuple[list[Column], list[Column], list[Column]]:
     """(name, dtype, shape) of each column of a chunk of `records` records in `runs` class
-    runs (`exact` of them exact: merged), in file order: the sums frame's columns, then the
-    covariance frame's (module docstring)."""
+    runs (`exact` of them exact: merged), in file order: the where frame's columns, the
+    light frame's, then the covariance frame's (module docstring)."""
     merged = mode == "merged"
-    sums = [
+    where = [
         ("run_class", np.dtype(np.uint32), (runs,)),
         ("run_length", np.dtype(np.uint32), (runs,)),
         ("pixel", np.dtype(np.uint32), (records,)),
     ]
     if merged:
-        sums += [("rgb", np.dtype(np.uint16), (3, records)), ("exact", np.dtype(np.float32), (exact, 3))]
+        light = [("rgb", np.dtype(np.uint16), (3, records)), ("exact", np.dtype(np.float32), (exact, 3))]
     else:
-        sums += [("sample", np.dtype(np.uint32), (records,)), ("rgb", np.dtype(np.float32), (records, 3))]
+        light = [("sample", np.dtype(np.uint32), (records,)), ("rgb", np.dtype(np.float32), (records, 3))]
     covariance = [("norms", np.dtype(np.uint8 if merged else NORM_DTYPE), (records, norm_slots, 3))]
     if sigma:
         covariance.append(("sigma", np.dtype(np.int16 if merged else np.float32),
                            (records, norm_slots, SIGMA_ENTRY_COUNT)))
-    return sums, covariance
+    return where, light, covariance
 
 
 TABLE_DTYPES = ("<u1", "<u2", "<u4")

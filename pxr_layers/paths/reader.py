@@ -65,7 +65,8 @@ RENDER_KEYS = {"stage": str, "stage_sha256": str, "camera": str, "frame": str, "
                "seed": int, "max_depth": int, "subdiv_level": int, "clampIndirect": str, "clamp_indirect": float}
 """Manifest keys that whoever wrote the index may give (PathIndexWriter stores its manifest
 as given) and that pxr-layers reads, with their types; checked when present."""
-CHUNK_KEYS = ("offset", "bytes", "sums_bytes", "crc32", "records", "runs", "exact", "first_class", "last_class")
+CHUNK_KEYS = ("offset", "bytes", "where_bytes", "light_bytes", "crc32", "records", "runs", "exact", "first_class",
+              "last_class")
 """A chunk's entry in the footer (paths/format.py): whole numbers >= 0."""
 RGB_TABLE = fmt.RgbBins.table()
 
@@ -115,7 +116,7 @@ class RecordChunk:
     """Records of one chunk (or the part of it in the classes asked for).
 
     class_id : (r,) int64; pixel : (r,) int64 (y·width + x)
-    sample : (r,) int64 sample index (records index), None (merged index)
+    sample : (r,) int64 sample index (records index), None (merged index, or the light not read)
     rgb : (r, 3) float32 as read (merged: paths/format.py's rule; records: as the film added it)
     norms : (r, N, 3) float32 C, T, R (merged: what each bin reads as, paths/format.py)
     sigma : (r, N, 10) float32 upper triangles of Σ, or None (an index without Σ)
@@ -360,8 +361,8 @@ class PathIndex:
             for key in CHUNK_KEYS:
                 if type(chunk.get(key)) is not int or chunk[key] < 0:
                     raise _Malformed(f"chunk {number}'s {key!r} is not a whole number >= 0")
-            if chunk["sums_bytes"] > chunk["bytes"]:
-                raise _Malformed(f"chunk {number}'s first frame is longer than the chunk")
+            if chunk["where_bytes"] + chunk["light_bytes"] > chunk["bytes"]:
+                raise _Malformed(f"chunk {number}'s first frames are longer than the chunk")
             if not (1 <= chunk["runs"] <= chunk["records"] and chunk["first_class"] <= chunk["last_class"]
                     < self.class_count and chunk["last_class"] - chunk["first_class"] + 1 >= chunk["runs"]
                     and chunk["exact"] <= (chunk["records"] if self.mode == "merged" else 0)):
@@ -379,15 +380,17 @@ class PathIndex:
     def record_count(self) -> int:
         return self.manifest["records"]
 
-    def records(self, classes: Iterable[int] | None = None, *, norms: bool = True, threads: int = 1,
-                whole_chunks: bool = False, chunks: Iterable[int] | None = None) -> Iterator[RecordChunk]:
+    def records(self, classes: Iterable[int] | None = None, *, norms: bool = True, light: bool = True,
+                threads: int = 1, whole_chunks: bool = False,
+                chunks: Iterable[int] | None = None) -> Iterator[RecordChunk]:
         """Stream the records of `classes` (ids; all if None), one chunk at a time, in the
         file's chunk order whatever `threads` is.
 
         Only the chunks whose classes may hold a wanted class are read and decompressed
         (``chunks_holding``), and in them only the runs of wanted classes are decoded.
         norms=False skips the covariance frame (RecordChunk.norms is then (r, 0, 3) and sigma
-        None). whole_chunks: those chunks are decoded and yielded whole, with the records of
+        None); light=False skips decoding the rgb (RecordChunk.rgb is then (r, 0): a pass
+        that looks for pixels only, half the work). whole_chunks: those chunks are decoded and yielded whole, with the records of
         the other classes they hold. chunks: only these chunk numbers (of those holding a
         wanted class), e.g. the ones an earlier pass found a pixel in.
 
@@ -408,20 +411,20 @@ class PathIndex:
             read = _ChunkReader(file)
             if threads <= 1 or len(numbers) <= 1:
                 for number, mixed in numbers:
-                    yield self._read_chunk(read, number, norms, wanted if mixed else None)
+                    yield self._read_chunk(read, number, norms, wanted if mixed else None, light)
                 return
             window = threads * CHUNKS_IN_FLIGHT_PER_THREAD
             with ThreadPoolExecutor(threads, thread_name_prefix="pxl-read") as pool:
                 queued = iter(numbers)
                 pending = collections.deque(
-                    pool.submit(self._read_chunk, read, number, norms, wanted if mixed else None)
+                    pool.submit(self._read_chunk, read, number, norms, wanted if mixed else None, light)
                     for number, mixed in itertools.islice(queued, window))
                 try:
                     while pending:
                         decoded = pending.popleft().result()
                         for number, mixed in itertools.islice(queued, 1):
                             pending.append(pool.submit(self._read_chunk, read, number, norms,
-                                                       wanted if mixed else None))
+                                                       wanted if mixed else None, light))
                         yield decoded
                 finally:  # an error, or the consumer stopped: read nothing more (the pool waits for the rest)
                     for future in pending:
@@ -492,26 +495,28 @@ class PathIndex:
         except OSError as error:
             raise PathIndexError(f"cannot read ({error.strerror or error})", file=str(self.shown_as)) from error
 
-    def _read_chunk(self, read: _ChunkReader, number: int, all_columns: bool,
-                    wanted: np.ndarray | None) -> RecordChunk:
-        """Chunk `number`, read and checked (all_columns: with its covariance frame), its runs
-        of the classes `wanted` marks decoded (None: all). Safe to call from several threads
-        at once with one `read`."""
+    def _read_chunk(self, read: _ChunkReader, number: int, all_columns: bool, wanted: np.ndarray | None,
+                    light: bool = True) -> RecordChunk:
+        """Chunk `number`, read and checked (all_columns: with its covariance frame; light:
+        with its rgb), its runs of the classes `wanted` marks decoded (None: all). Safe to
+        call from several threads at once with one `read`."""
         chunk = self.chunks[number]
         try:
             head, payload = read(chunk["offset"], fmt.CHUNK_HEADER.size, chunk["bytes"])
         except OSError as error:
             raise self._chunk_error(number, f"cannot be read ({error.strerror or error})") from error
-        stated = fmt.CHUNK_HEADER.unpack(head) if len(head) == fmt.CHUNK_HEADER.size else (b"",) + (0,) * 6
-        magic, length, crc, records, runs, exact, sums_bytes = stated
+        stated = fmt.CHUNK_HEADER.unpack(head) if len(head) == fmt.CHUNK_HEADER.size else (b"",) + (0,) * 7
+        magic, length, crc, records, runs, exact, where_bytes, light_bytes = stated
         if magic != fmt.CHUNK_MAGIC or length != chunk["bytes"] or len(payload) != length \
-                or (records, runs, exact, sums_bytes) != tuple(chunk[key] for key in
-                                                               ("records", "runs", "exact", "sums_bytes")):
+                or (records, runs, exact, where_bytes, light_bytes) != tuple(chunk[key] for key in (
+                    "records", "runs", "exact", "where_bytes", "light_bytes")):
             raise self._chunk_error(number, "has a bad header")
         if zlib.crc32(payload) != crc or crc != chunk["crc32"]:
             raise self._chunk_error(number, "fails its checksum")
-        sums_layout, covariance_layout = self._layout(chunk)
-        sums = self._frame(payload[:sums_bytes], sums_layout, number)
+        where_layout, light_layout, covariance_layout = self._layout(chunk)
+        sums = self._frame(payload[:where_bytes], where_layout, number)
+        if light:
+            sums.update(self._frame(payload[where_bytes:where_bytes + light_bytes], light_layout, number))
         run_class = np.cumsum(sums["run_class"], dtype=np.int64)
         run_length = sums["run_length"].astype(np.int64)
         if run_class[0] != chunk["first_class"] or run_class[-1] != chunk["last_class"] \
@@ -527,13 +532,19 @@ class PathIndex:
             rows = _run_rows(run_start[kept], run_length[kept])
             run_class, run_length, first_pixel = run_class[kept], run_length[kept], first_pixel[kept]
         class_id = np.repeat(run_class, run_length)
-        # The others: their steps within the run, summed from its first.
-        within = sums["pixel"].astype(np.int64) if rows is None else sums["pixel"][rows].astype(np.int64)
+        # The others: their steps within the run, summed from its first. In uint32, which wraps
+        # (the running sum over many runs may pass 2^32) but is exact for the differences within
+        # a run (pixels < MAX_PIXELS): half the memory traffic of int64, a third of the time.
+        within = sums["pixel"].copy() if rows is None else sums["pixel"][rows]
         starts = np.cumsum(run_length) - run_length
         within[starts] = 0
-        running = np.cumsum(within)
-        pixel = running + np.repeat(first_pixel - running[starts], run_length)
-        if self.mode == "merged":
+        running = np.cumsum(within, dtype=np.uint32)
+        pixel = running + np.repeat((first_pixel - running[starts]).astype(np.uint32), run_length)
+        pixel = pixel.astype(np.int64) if len(first_pixel) and 0 <= first_pixel.min() \
+            and first_pixel.max() < 1 << 31 else np.full(len(pixel), -1, np.int64)
+        if not light:
+            rgb, sample = np.zeros((len(class_id), 0), np.float32), None
+        elif self.mode == "merged":
             rgb = self._rgb_of(sums["rgb"], sums["exact"], class_id, rows, number)
             sample = None
         else:
@@ -541,7 +552,7 @@ class PathIndex:
             sample = (sums["sample"] if rows is None else sums["sample"][rows]).astype(np.int64)
         norms = sigma = None
         if all_columns:
-            covariance = self._frame(payload[sums_bytes:], covariance_layout, number)
+            covariance = self._frame(payload[where_bytes + light_bytes:], covariance_layout, number)
             norms, sigma = (None if name not in covariance else covariance[name] if rows is None
                             else covariance[name][rows] for name in ("norms", "sigma"))
             if self.mode == "merged":
@@ -564,13 +575,13 @@ class PathIndex:
                 raise self._chunk_error(number, "does not hold its records")
             data = zstandard.ZstdDecompressor().decompress(frame, allow_extra_data=False)
         except zstandard.ZstdError as error:
-            raise self._chunk_error(number, f"is not two zstd frames of its records ({error})") from None
+            raise self._chunk_error(number, f"is not three zstd frames of its records ({error})") from None
         return fmt.split_frame(data, layout)
 
     def _rgb_of(self, stored: np.ndarray, exact: np.ndarray, class_id: np.ndarray, rows: np.ndarray | None,
                 number: int) -> np.ndarray:
         """(r, 3) float32 rgb of the decoded records (`rows` of the chunk; None: all) from a
-        merged chunk's rgb (3, R) and exact (e, 3) columns (format.py)."""
+        merged chunk's light frame: rgb (3, R) and exact (e, 3) (format.py)."""
         flagged = stored[0] == fmt.RgbBins.EXACT  # of all the chunk's records
         count = int(flagged.sum())
         if count != len(exact):

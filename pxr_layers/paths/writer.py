@@ -246,9 +246,9 @@ class PathIndexWriter:
         return bounds
 
     def _write_chunk(self, columns: dict[str, np.ndarray]) -> None:
-        """One chunk of records sorted by class, then pixel: the sums frame (class runs,
-        pixels, rgb), then the covariance frame (norms, and Σ if kept), each column
-        byte-shuffled (paths/format.py)."""
+        """One chunk of records sorted by class, then pixel: the where frame (class runs,
+        pixels), the light frame (rgb) and the covariance frame (norms, and Σ if kept), each
+        column byte-shuffled (paths/format.py)."""
         class_id, pixel = columns["class"], columns["pixel"]
         run_starts = np.flatnonzero(np.r_[True, class_id[1:] != class_id[:-1]])
         run_class = class_id[run_starts]
@@ -258,36 +258,35 @@ class PathIndexWriter:
         # appeared near each other: the steps are small).
         steps = np.diff(pixel, prepend=0)
         steps[run_starts] = fmt.zigzag(np.diff(pixel[run_starts], prepend=0))
-        sums = [np.diff(run_class, prepend=0), run_length, steps]
+        where = [np.diff(run_class, prepend=0), run_length, steps]
         exact = 0
         if self.mode == "merged":
             exact_rows = columns["exact"]
             codes = columns["codes"]
             codes[exact_rows] = [0, fmt.RgbBins.EXACT, 0]  # an exact record: its g says so, r and b are 0
-            sums += [fmt.chroma_residuals(codes, self._chroma[class_id]), columns["rgb"][exact_rows]]
+            light = [fmt.chroma_residuals(codes, self._chroma[class_id]), columns["rgb"][exact_rows]]
             exact = int(exact_rows.sum())
         else:
-            sums += [columns["sample"], columns["rgb"]]
+            light = [columns["sample"], columns["rgb"]]
+        covariance = [columns[name] for name in ("norms", "sigma") if name in columns]
         layout = fmt.column_layout(self.mode, len(class_id), self.norm_slots, self.sigma, runs=len(run_class),
                                    exact=exact)
-        frames = []
-        for frame_layout, values in zip(layout, (sums, [columns[name] for name in ("norms", "sigma")
-                                                          if name in columns])):
-            frames.append(self._compressor.compress(b"".join(
-                fmt.shuffle(np.asarray(value).astype(dtype, copy=False)) for (_, dtype, _), value
-                in zip(frame_layout, values, strict=True))))
-        payload = frames[0] + frames[1]
+        frames = [self._compressor.compress(b"".join(
+            fmt.shuffle(np.asarray(value).astype(dtype, copy=False))
+            for (_, dtype, _), value in zip(frame_layout, values, strict=True)))
+            for frame_layout, values in zip(layout, (where, light, covariance))]
+        payload = b"".join(frames)
         crc = zlib.crc32(payload)
         try:
             offset = self._file.tell()
             self._file.write(fmt.CHUNK_HEADER.pack(fmt.CHUNK_MAGIC, len(payload), crc, len(class_id), len(run_class),
-                                                   exact, len(frames[0])))
+                                                   exact, len(frames[0]), len(frames[1])))
             self._file.write(payload)
         except OSError as error:  # a full disk mid-render: the caller aborts, nothing is left behind
             raise OutputError(f"{self.path}: cannot write the path index ({error.strerror or error})") from error
         self._chunks.append({
-            "offset": offset, "bytes": len(payload), "sums_bytes": len(frames[0]), "crc32": crc,
-            "records": len(class_id), "runs": len(run_class), "exact": exact,
+            "offset": offset, "bytes": len(payload), "where_bytes": len(frames[0]), "light_bytes": len(frames[1]),
+            "crc32": crc, "records": len(class_id), "runs": len(run_class), "exact": exact,
             "first_class": int(class_id[0]), "last_class": int(class_id[-1]),
         })
         self._records += len(class_id)

@@ -91,8 +91,9 @@ def select(index: PathIndex, x0: int, y0: int, x1: int, y1: int, *, threads: int
     """The records of pixels x0 ≤ x < x1, y0 ≤ y < y1 (image coordinates, top row 0),
     clipped to the image.
 
-    Two passes: the sums of every chunk find the chunks with records in the rectangle and
-    their classes (no covariance decoded), then only those chunks are read whole. A chunk
+    Two passes: the pixels of every chunk find the chunks with records in the rectangle and
+    their classes (no light nor covariance decoded), then only those chunks are read, and in
+    them only the runs of those classes. A chunk
     holds a run of a class's records in pixel order, so a click's records lie in a few.
     """
     width, height = index.manifest["resolution"]
@@ -113,7 +114,7 @@ def select(index: PathIndex, x0: int, y0: int, x1: int, y1: int, *, threads: int
 
     present: set[int] = set()
     hit_chunks = []
-    for number, chunk in enumerate(index.records(norms=False, threads=threads, whole_chunks=True)):  # every chunk
+    for number, chunk in enumerate(index.records(norms=False, light=False, threads=threads)):  # every chunk's pixels
         hit = inside(chunk.pixel)
         if hit.any():
             present.update(np.unique(chunk.class_id[hit]).tolist())
