@@ -171,14 +171,15 @@ def test_another_format_version_says_so(index_bytes, tmp_path):
 OLD_TRAILER = struct.Struct("<QQII8s")  # format 3's: footer offset, bytes, CRC-32, version, magic
 
 
-@pytest.mark.parametrize("command", [["index", "info"], ["extract", "--layer", "all=C.*", "--no-previews"]])
-def test_an_index_of_an_older_format_is_one_line_and_exit_1(tmp_path, command):
+@pytest.mark.parametrize("command, flags", [(["index", "info"], []),
+                                            (["extract"], ["--layer", "all=C.*", "--no-previews"])])
+def test_an_index_of_an_older_format_is_one_line_and_exit_1(tmp_path, command, flags):
     """An index written by an earlier pxr-layers (format 3: its header and trailer, a chunk's
     worth of bytes between) is refused by the commands in one line saying what to do."""
     old = tmp_path / "shot.pxlidx"
     body = fmt.HEADER.pack(fmt.HEADER_MAGIC, 3, 0) + bytes(64)
     old.write_bytes(body + OLD_TRAILER.pack(len(body), 0, 0, 3, fmt.TRAILER_MAGIC))
-    result = subprocess.run([SCRIPT, command[0], *command[1:2], str(old), *command[2:]], capture_output=True,
+    result = subprocess.run([SCRIPT, *command, str(old), *flags], capture_output=True,
                             text=True, check=False, cwd=tmp_path)
     assert result.returncode == 1 and not result.stdout, result
     assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
