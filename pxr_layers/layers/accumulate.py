@@ -100,10 +100,12 @@ class LayerSums:
         if len(pixel) and (pixel.min() < 0 or pixel.max() >= pixels or slot.min() < 0
                            or slot.max() >= len(offsets) - 1):
             raise AssertionError("records outside the image or their layer sets")
-        first, count = offsets[slot], offsets[slot + 1] - offsets[slot]
-        if (count == 1).all():  # the common case: each record feeds one layer
-            self._queue(layers[first] * pixels + pixel, rgb)
+        counts = np.diff(offsets)
+        if (counts == 1).all():  # the common case: each slot feeds one layer
+            layer = layers[offsets[:-1]]
+            self._queue(pixel if not layer.any() else np.take(layer, slot) * pixels + pixel, rgb)
             return
+        first, count = np.take(offsets, slot), np.take(counts, slot)
         record = np.repeat(np.arange(len(pixel)), count)
         entry = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(len(record))
         self._queue(layers[entry] * pixels + pixel[record], rgb[record])

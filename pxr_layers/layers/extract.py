@@ -34,7 +34,7 @@ from ..errors import PathIndexError
 from ..lpe.automaton import DEAD
 from ..lpe.labels import KnownNames, unknown_labels
 from ..paths.events import path_text
-from ..paths.reader import PathIndex, padded_event_ids
+from ..paths.reader import PathIndex
 from ..progress import Progress
 from .accumulate import LayerSums, distinct
 
@@ -192,22 +192,23 @@ def _class_outcomes(automaton: lpe.LayerAutomaton, index: PathIndex):
     whose events carry conditions).
     """
     symbols = [automaton.alphabet.classify(event) for event in index.events]
-    conditional = {event for event, (_, conditions) in enumerate(symbols) if conditions}
-    carries = [bool(conditional) and not conditional.isdisjoint(path_class.event_ids) for path_class in index.classes]
-    deferred = [path_class for path_class, carried in zip(index.classes, carries, strict=True) if carried]
-    plain = [path_class for path_class, carried in zip(index.classes, carries, strict=True) if not carried]
-    return _plain_walk(automaton.dfa, [outright for outright, _ in symbols], plain), \
+    conditional = [event for event, (_, conditions) in enumerate(symbols) if conditions]
+    events = index.event_matrix(-1)  # (classes, longest): built from arrays, no PathClass needed
+    carries = np.isin(events, conditional).any(axis=1) if conditional else np.zeros(len(events), bool)
+    deferred = [index.classes[class_id] for class_id in np.flatnonzero(carries).tolist()]
+    plain = np.flatnonzero(~carries)
+    return _plain_walk(automaton.dfa, [outright for outright, _ in symbols], events[plain], plain), \
         _conditional_walks(automaton, symbols, deferred)
 
 
-def _plain_walk(dfa, symbols: list[int], classes) -> dict[frozenset, np.ndarray]:
-    """{accepted layers: class ids} for classes without conditions: all walk the DFA
-    together, one event position at a time; each distinct (state, event) pair is stepped
-    once (an index has few distinct events and the DFA few states)."""
-    if not classes:
+def _plain_walk(dfa, symbols: list[int], events: np.ndarray, ids: np.ndarray) -> dict[frozenset, np.ndarray]:
+    """{accepted layers: class ids} for classes without conditions, given as the (k, longest)
+    rows of their event ids padded with −1 and their (k,) ids: all walk the DFA together,
+    one event position at a time; each distinct (state, event) pair is stepped once (an
+    index has few distinct events and the DFA few states)."""
+    if not len(ids):
         return {}
-    events = padded_event_ids(classes, -1)
-    state = np.full(len(classes), dfa.start, np.int64)
+    state = np.full(len(ids), dfa.start, np.int64)
     event_count = len(symbols)
     for position in range(events.shape[1]):
         moving = (events[:, position] >= 0) & (state != DEAD)
@@ -217,7 +218,6 @@ def _plain_walk(dfa, symbols: list[int], classes) -> dict[frozenset, np.ndarray]
         targets = np.array([dfa.step(pair // event_count, symbols[pair % event_count]) for pair in pairs.tolist()],
                            np.int64)
         state[moving] = targets[which]
-    ids = np.fromiter((path_class.id for path_class in classes), np.int64, len(classes))
     accepting: dict[frozenset, list] = {}
     for final in np.unique(state).tolist():
         if final != DEAD and dfa.accepts[final]:

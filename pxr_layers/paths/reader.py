@@ -26,7 +26,7 @@ import math
 import os
 import threading
 import zlib
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -90,15 +90,6 @@ class PathClass:
 
     def __repr__(self) -> str:
         return f"PathClass({self.id}, {self.event_ids}, records={self.records})"
-
-
-def padded_event_ids(classes: Sequence[PathClass], pad: int) -> np.ndarray:
-    """(classes, longest) int64: each class's event ids camera first, padded with `pad`
-    (at least one column), built without a Python loop over the events."""
-    lengths = np.fromiter((len(path_class.event_ids) for path_class in classes), np.int64, len(classes))
-    flat = np.fromiter(itertools.chain.from_iterable(path_class.event_ids for path_class in classes), np.int64,
-                       int(lengths.sum()))
-    return _padded(lengths, flat, pad)
 
 
 def _padded(lengths: np.ndarray, flat: np.ndarray, pad: int) -> np.ndarray:
@@ -289,7 +280,7 @@ class PathIndex:
 
     def event_matrix(self, pad: int) -> np.ndarray:
         """(classes, longest) int64: every class's event ids camera first, padded with `pad`
-        (``padded_event_ids`` of ``classes``, from the class table's arrays at once)."""
+        (built from the class table's arrays at once, not from ``classes``)."""
         lengths = self._class_lengths + 1
         flat = np.zeros(int(lengths.sum()), np.int64)
         starts = np.cumsum(lengths) - lengths
@@ -582,20 +573,17 @@ class PathIndex:
                 number: int) -> np.ndarray:
         """(r, 3) float32 rgb of the decoded records (`rows` of the chunk; None: all) from a
         merged chunk's light frame: rgb (3, R) and exact (e, 3) (format.py)."""
-        flagged = stored[0] == fmt.RgbBins.EXACT  # of all the chunk's records
-        count = int(flagged.sum())
-        if count != len(exact):
-            raise self._chunk_error(number, f"marks {count} exact records, its header {len(exact)}")
-        rank = None  # the exact column's row of each decoded record (where flagged)
+        exact_at = np.flatnonzero(stored[0] == fmt.RgbBins.EXACT)  # the chunk's exact records
+        if len(exact_at) != len(exact):
+            raise self._chunk_error(number, f"marks {len(exact_at)} exact records, its header {len(exact)}")
         if rows is not None:
-            rank = (np.cumsum(flagged) - 1)[rows] if count else None
-            stored, flagged = stored[:, rows], flagged[rows]
+            stored = np.take(stored, rows, axis=1)
         # np.take: 2-15x faster than the same fancy indexing, on rows as on values
         rgb = np.take(RGB_TABLE, fmt.codes_of_residuals(stored, np.take(self._chroma, class_id, axis=0)))
-        if count:
-            at = np.flatnonzero(flagged)
-            rows = exact if rank is None else np.take(exact, rank[at], axis=0)
-            _as_rows(rgb)[at] = _as_rows(np.ascontiguousarray(rows))  # whole rows: 3x faster than rgb[at] = rows
+        if len(exact):
+            at = np.flatnonzero(stored[0] == fmt.RgbBins.EXACT)
+            values = exact if rows is None else np.take(exact, np.searchsorted(exact_at, rows[at]), axis=0)
+            _as_rows(rgb)[at] = _as_rows(np.ascontiguousarray(values))  # whole rows: 3x faster than rgb[at] = values
         return rgb
 
     def _layout(self, chunk: dict):
