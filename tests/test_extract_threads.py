@@ -64,7 +64,7 @@ def test_layers_are_byte_identical_whatever_the_thread_count(indexed):
 
 
 def test_a_layer_without_conditions_is_byte_identical_on_threads(indexed):
-    """The path a new layer takes: the sums frames only, no covariance."""
+    """The path a new layer takes: the where and light frames only, no covariance."""
     lights, index = indexed
     expressions = {"new": f"C<RD>.*<L.'{lights[0]}'>"}
     one = extract(index, expressions, threads=1).layers["new"]

@@ -380,10 +380,11 @@ class PathIndex:
         Only the chunks whose classes may hold a wanted class are read and decompressed
         (``chunks_holding``), and in them only the runs of wanted classes are decoded.
         norms=False skips the covariance frame (RecordChunk.norms is then (r, 0, 3) and sigma
-        None); light=False skips decoding the rgb (RecordChunk.rgb is then (r, 0): a pass
-        that looks for pixels only, half the work). whole_chunks: those chunks are decoded and yielded whole, with the records of
-        the other classes they hold. chunks: only these chunk numbers (of those holding a
-        wanted class), e.g. the ones an earlier pass found a pixel in.
+        None); light=False skips the light frame (RecordChunk.rgb is then (r, 0) and sample
+        None: a pass that looks for pixels only, a third of the work). whole_chunks: those
+        chunks are decoded and yielded whole, with the records of the other classes they
+        hold. chunks: only these chunk numbers (of those holding a wanted class), e.g. the
+        ones an earlier pass found a pixel in.
 
         threads > 1: chunks are read, checked and decoded on that many threads (file reads,
         CRC-32, zstd and numpy's loops release the GIL), at most
@@ -505,18 +506,18 @@ class PathIndex:
         if zlib.crc32(payload) != crc or crc != chunk["crc32"]:
             raise self._chunk_error(number, "fails its checksum")
         where_layout, light_layout, covariance_layout = self._layout(chunk)
-        sums = self._frame(payload[:where_bytes], where_layout, number)
+        columns = self._frame(payload[:where_bytes], where_layout, number)
         if light:
-            sums.update(self._frame(payload[where_bytes:where_bytes + light_bytes], light_layout, number))
-        run_class = np.cumsum(sums["run_class"], dtype=np.int64)
-        run_length = sums["run_length"].astype(np.int64)
+            columns.update(self._frame(payload[where_bytes:where_bytes + light_bytes], light_layout, number))
+        run_class = np.cumsum(columns["run_class"], dtype=np.int64)
+        run_length = columns["run_length"].astype(np.int64)
         if run_class[0] != chunk["first_class"] or run_class[-1] != chunk["last_class"] \
                 or (np.diff(run_class) <= 0).any() or (run_length == 0).any() or run_length.sum() != records:
             raise self._chunk_error(number, "holds records of classes outside its footer entry's, or runs that "
                                     "do not add up to its records")
         run_start = np.cumsum(run_length) - run_length
         # Each run's first pixel: the zigzag steps between runs' firsts, summed.
-        first_pixel = np.cumsum(fmt.unzigzag(sums["pixel"][run_start]))
+        first_pixel = np.cumsum(fmt.unzigzag(columns["pixel"][run_start]))
         kept = None if wanted is None else wanted[run_class]
         rows = None  # the records decoded (None: all)
         if kept is not None and not kept.all():
@@ -526,7 +527,7 @@ class PathIndex:
         # The others: their steps within the run, summed from its first. In uint32, which wraps
         # (the running sum over many runs may pass 2^32) but is exact for the differences within
         # a run (pixels < MAX_PIXELS): half the memory traffic of int64, a third of the time.
-        within = sums["pixel"].copy() if rows is None else sums["pixel"][rows]
+        within = columns["pixel"].copy() if rows is None else columns["pixel"][rows]
         starts = np.cumsum(run_length) - run_length
         within[starts] = 0
         running = np.cumsum(within, dtype=np.uint32)
@@ -536,11 +537,11 @@ class PathIndex:
         if not light:
             rgb, sample = np.zeros((len(class_id), 0), np.float32), None
         elif self.mode == "merged":
-            rgb = self._rgb_of(sums["rgb"], sums["exact"], class_id, rows, number)
+            rgb = self._rgb_of(columns["rgb"], columns["exact"], class_id, rows, number)
             sample = None
         else:
-            rgb = sums["rgb"] if rows is None else sums["rgb"][rows]
-            sample = (sums["sample"] if rows is None else sums["sample"][rows]).astype(np.int64)
+            rgb = columns["rgb"] if rows is None else columns["rgb"][rows]
+            sample = (columns["sample"] if rows is None else columns["sample"][rows]).astype(np.int64)
         norms = sigma = None
         if all_columns:
             covariance = self._frame(payload[where_bytes + light_bytes:], covariance_layout, number)

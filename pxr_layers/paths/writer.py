@@ -195,7 +195,9 @@ class PathIndexWriter:
                    if column[0] is not None}
         buffer.columns.clear()
         classes = buffer.classes
-        if self.mode == "merged":  # per pixel: the buffer holds every record of its pixels (whole batches)
+        # Per pixel: a buffer holds whole batches, so every record of each of its pixels (were a
+        # pixel's records split between buffers, each part would carry its own rest: exact still).
+        if self.mode == "merged":
             columns["codes"], columns["exact"], columns["rgb"] = _coded_rgb(columns["pixel"], columns["rgb"])
         order = _class_pixel_order(columns["class"], columns["pixel"], classes)
         columns = {name: np.take(column, order, axis=0) for name, column in columns.items()}  # take: 3x faster on (r, N, 3)
