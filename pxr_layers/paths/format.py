@@ -32,7 +32,8 @@ What a merged index answers, exactly and within how much (the quantisation rule)
   exactly. A layer that holds no carrier is within a factor 2^(1/256) of its
   full-precision value; one that holds a carrier is within 2^(1/256) − 1 (0.27 %) of the
   rest of that pixel's light; every layer is within 0.27 % of the beauty, per pixel and
-  channel. Records of non-finite, negative or out-of-range light are stored exactly.
+  channel (of the sum of the records' magnitudes, should some light be negative). Records
+  of non-finite, negative or out-of-range light are stored exactly.
 
 Layout, little-endian throughout:
 
@@ -70,7 +71,8 @@ high bytes):
     light frame, records:
     sample     u32 (r,)      the sample index
     rgb        f32 (r, 3)    the light exactly as the film added it
-    (rgb is linear and not divided by spp: merged, the float64 sum of the contributions.)
+    (rgb is linear and not divided by spp; merged, what is coded is the float64 sum of the
+    contributions, rounded once to float32.)
     covariance frame
     norms   merged: u8 (r, N, 3) ``NormBins`` codes; records: f16 (r, N, 3) values (11
             significant bits, saturated at 65504) of C (1/m), T (cycles/m), R (cycles/rad)
@@ -82,8 +84,9 @@ high bytes):
 
 The class table (``class_table_layout``), shuffled columns in one zstd frame: ``length``
 (classes,) events after the camera; ``events`` (total,) their footer event ids, class after
-class (both u8, u16 or u32: the footer's ``class_table`` says); ``records`` u32 (classes,) records of each class; merged also
-``chroma`` u16 (classes, 2) the class's reference r − g and b − g codes.
+class (both u8, u16 or u32: the footer's ``class_table`` says); ``records`` u32 (classes,)
+records of each class; merged also ``chroma`` u16 (classes, 2) the class's reference r − g
+and b − g codes (those of its first record written with three bin codes, else 0).
 
 The footer's JSON (see ``PathIndexWriter._footer``): ``manifest`` (what was rendered: stage
 path and SHA-256, frame, camera, resolution, spp, seed, ``clamp_indirect`` when the render
