@@ -11,8 +11,9 @@ fifth of a second).
 
 Each record carries a slot; a slot names the layers its records feed (CSR: ``offsets`` and
 ``layers``), so a record feeding three layers is queued three times and no image per
-distinct key is kept: memory is the output's, (layers, pixels, 3) float64, plus the queue,
-however many distinct layer sets the records fall into.
+distinct key is kept: memory is the output's, (layers, pixels, 3) float64 (three channel
+arrays, made by the first flush), plus the queue, however many distinct layer sets the
+records fall into.
 
 Determinism: every image is the sum of its records in the order they are given (chunk
 order, then record order within a chunk), queued, then added in that order by each
@@ -46,7 +47,8 @@ class LayerSums:
 
     def __init__(self, plain_sets: np.ndarray, conditional_rows: list[int], pixels: int):
         self.plain_sets, self.conditional_rows = plain_sets, conditional_rows
-        self._sums = np.zeros((plain_sets.shape[1], pixels, 3))
+        self._layers, self._pixels = plain_sets.shape[1], pixels
+        self._channels: list[np.ndarray] | None = None  # r, g, b: (layers · pixels,) float64 sums, from a first flush
         self._pending: list[tuple[np.ndarray, np.ndarray]] = []  # (layer · pixels + pixel, rgb) to add
         self._queued = 0
         self._members: dict[int, np.ndarray] = {}  # key → (k,) int64 layer rows
@@ -90,12 +92,31 @@ class LayerSums:
     @property
     def sums(self) -> np.ndarray:
         """(layers, pixels, 3) float64: every record added so far."""
+        return np.stack(self._sums_by_channel(), axis=-1).reshape(self._layers, self._pixels, 3)
+
+    def images(self, height: int, width: int, spp: int) -> list[np.ndarray]:
+        """Each layer's sums / spp as an (height, width, 3) float32 image (pixels = height ·
+        width), rounded once from float64: the same values as ``sums`` divided, without
+        its (layers, pixels, 3) copy."""
+        channels = self._sums_by_channel()
+        images = []
+        for layer in range(self._layers):
+            image = np.empty((height, width, 3), np.float32)
+            for channel, sums in enumerate(channels):
+                np.divide(sums[layer * self._pixels:(layer + 1) * self._pixels].reshape(height, width), spp,
+                          out=image[..., channel])
+            images.append(image)
+        return images
+
+    def _sums_by_channel(self) -> list[np.ndarray]:
         self._flush()
-        return self._sums
+        if self._channels is None:
+            self._channels = [np.zeros(self._layers * self._pixels) for _ in range(3)]
+        return self._channels
 
     def _add(self, pixel, rgb, slot, offsets, layers) -> None:
         """Queue each record for every layer of its slot (offsets (S + 1,), layers (E,): CSR)."""
-        pixels = self._sums.shape[1]
+        pixels = self._pixels
         pixel, slot = np.asarray(pixel, np.int64), np.asarray(slot, np.int64)
         if len(pixel) and (pixel.min() < 0 or pixel.max() >= pixels or slot.min() < 0
                            or slot.max() >= len(offsets) - 1):
@@ -123,9 +144,13 @@ class LayerSums:
         place = np.concatenate([place for place, _ in self._pending])
         rgb = np.concatenate([rgb for _, rgb in self._pending])
         self._pending, self._queued = [], 0
-        flat = self._sums.reshape(-1, 3)
-        for channel in range(3):
-            flat[:, channel] += np.bincount(place, weights=rgb[:, channel], minlength=len(flat))
+        added = [np.bincount(place, weights=rgb[:, channel], minlength=self._layers * self._pixels)
+                 for channel in range(3)]
+        if self._channels is None:  # the first flush: its sums are the sums (no zeros to add to)
+            self._channels = added
+        else:
+            for sums, more in zip(self._channels, added):
+                sums += more
 
 
 def _csr(members: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -165,10 +165,10 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
                 accumulator.add_to_layer(row, chunk.pixel[matching], chunk.rgb[matching])
         accumulator.add(key, chunk.pixel, chunk.rgb)
         progress.advance(len(chunk.class_id))
-    sums = accumulator.sums
+    images = dict(zip(names, accumulator.images(height, width, index.manifest["spp"])))
     log.info("extracted %d layers from %d of %d records (%d of %d classes)", len(names), records_read,
              index.record_count, len(wanted), class_count)
-    return Extraction(_images(sums, names, index), records_read, len(wanted), tuple(warnings))
+    return Extraction(images, records_read, len(wanted), tuple(warnings))
 
 
 def _automata(expressions: dict[str, str]) -> list[lpe.LayerAutomaton]:
