@@ -17,12 +17,14 @@ live regrade, and the time from "add layer" to the new layer's picture (issue 20
    "add layer" click to the new layer's picture drawn (it is soloed) and done on the GPU, as
    the page measures it (``pxrViewer.timings.layer``: the server's extraction request, the image's
    fetch, the upload and the frame), best and median of ``--repeats`` new layers. Also the time
-   of a click on a pixel to its classes listed (one pass over the index on the server).
+   of a click on a pixel to its classes listed (a pass over the pixels of the index on the
+   server, then a read of the chunks holding them), best and median of ``--repeats`` clicks.
 3. ``--screenshot PNG``: the page on a Cornell box demo output (``--screenshot-of``, default the
    regrade's) after a click on the red wall and a layer made from it, at 1600×900:
    docs/inspector.png is ``--screenshot docs/inspector.png --screenshot-of demo`` (``make demo``).
 
-Target: click to picture ≤ 1 s at 1080p, 64 spp (a miss is printed as missed). The regrade's
+Targets: click to picture ≤ 1 s at 1080p, 64 spp; a click on a pixel to its classes listed
+≤ 0.2 s (best of ``--repeats`` clicks on other pixels); a miss is printed as missed. The regrade's
 frames per second are a figure to report, with the WebGL renderer that drew them.
 """
 
@@ -48,6 +50,8 @@ EXTRA_LAYERS = ("C<RD'redWall'>.*", "C<RD'greenWall'>.*", "C<RD'floor'>.*", "C<R
 NEW_LAYER = "C<RD>.*<L.'key'>"
 """The layer made at 1080p, as benchmarks/bench_extract.py times it on the command line."""
 CLICK_TO_PICTURE_TARGET = 1.0
+CLICK_TO_PATHS_TARGET = 0.2
+"""A click on a pixel to its classes listed at 1080p (issue 38), in seconds."""
 REGRADE_VIEWPORT = {"width": 1760, "height": 720}  # a canvas wider and taller than 960×540 between the panels
 HD_VIEWPORT = {"width": 1600, "height": 900}
 SCREENSHOT_VIEWPORT = {"width": 1600, "height": 900}
@@ -105,11 +109,14 @@ def click_to_layer(context, url: str, repeats: int) -> None:
     page = open_inspector(context, url)
     state = page.evaluate("pxrViewer.state()")
     page.keyboard.press("f")
-    start = time.perf_counter()
-    centre = [state["width"] // 2, state["height"] // 2]
-    page.mouse.click(*page.evaluate("([x, y]) => pxrViewer.imageToClient(x, y)", centre))
-    page.wait_for_selector("#tab-body tr[data-path]", timeout=120_000)
-    inspected = time.perf_counter() - start
+    clicks = []
+    for n in range(repeats):  # a click on another pixel each time, the last one's classes listed
+        start = time.perf_counter()
+        pixel = [state["width"] * (n + 2) // (repeats + 3), state["height"] * (n + 2) // (repeats + 3)]
+        page.evaluate("document.querySelectorAll('#tab-body tr[data-path]').forEach(row => row.remove())")
+        page.mouse.click(*page.evaluate("([x, y]) => pxrViewer.imageToClient(x, y)", pixel))
+        page.wait_for_selector("#tab-body tr[data-path]", timeout=120_000)
+        clicks.append(time.perf_counter() - start)
     runs = []
     for n in range(repeats):
         start = time.perf_counter()
@@ -124,7 +131,9 @@ def click_to_layer(context, url: str, repeats: int) -> None:
     print(f"  best: extraction request {best['extract'] / 1000:.3f} s (server's own {best['server_seconds']:.3f} s), "
           f"image fetch {best['fetch'] / 1000:.3f} s, upload + frame {best['show'] / 1000:.3f} s; "
           f"Playwright's wall time {best['wall']:.3f} s")
-    print(f"  a click on a pixel to its classes listed: {inspected:.3f} s", flush=True)
+    print(f"  a click on a pixel to its classes listed: best {min(clicks):.3f} s, median "
+          f"{statistics.median(clicks):.3f} s of {len(clicks)} (target ≤ {CLICK_TO_PATHS_TARGET} s: "
+          f"{verdict(min(clicks) <= CLICK_TO_PATHS_TARGET)})", flush=True)
     page.close()
 
 

@@ -64,7 +64,7 @@ def test_layers_are_byte_identical_whatever_the_thread_count(indexed):
 
 
 def test_a_layer_without_conditions_is_byte_identical_on_threads(indexed):
-    """The path a new layer takes: the sums frames only, no covariance."""
+    """The path a new layer takes: the where and light frames only, no covariance."""
     lights, index = indexed
     expressions = {"new": f"C<RD>.*<L.'{lights[0]}'>"}
     one = extract(index, expressions, threads=1).layers["new"]
@@ -106,9 +106,9 @@ def test_a_bounded_number_of_chunks_is_in_flight(indexed, monkeypatch):
     started = []
     read_chunk = PathIndex._read_chunk
 
-    def counted(self, read, number, all_columns):
+    def counted(self, read, number, *rest):
         started.append(number)
-        return read_chunk(self, read, number, all_columns)
+        return read_chunk(self, read, number, *rest)
 
     monkeypatch.setattr(PathIndex, "_read_chunk", counted)
     threads = 2
@@ -125,7 +125,7 @@ def test_stopping_early_reads_no_further(indexed, monkeypatch):
     started = []
     read_chunk = PathIndex._read_chunk
     monkeypatch.setattr(PathIndex, "_read_chunk",
-                        lambda self, read, number, columns: started.append(number) or read_chunk(self, read, number, columns))
+                        lambda self, read, number, *rest: started.append(number) or read_chunk(self, read, number, *rest))
     stream = index.records(threads=2)
     next(stream)
     stream.close()

@@ -15,6 +15,7 @@ import contextlib
 import copy
 import dataclasses
 import io
+import itertools
 import json
 import re
 import zlib
@@ -40,18 +41,17 @@ NORM_BOUNCES = 2
 CHUNK_RECORDS = 48  # nine chunks: damage can land in any of them
 LAYERS = {"beauty": lpe.BEAUTY, "diffuse": "C<RD>.*", "flat": "C<R.>@(|S_C| = 0).*"}  # the last reads the norms
 PROPERTY = settings(deadline=None, derandomize=True, database=None)  # reproducible, leaves no .hypothesis/
-LAYOUT = fmt.column_layout("merged", 1, NORM_BOUNCES, False)
-SUMS_BYTES = fmt.frame_bytes(LAYOUT[0])  # of one record, in each frame
-RECORD_BYTES = SUMS_BYTES + fmt.frame_bytes(LAYOUT[1])
 
 
 @dataclasses.dataclass(frozen=True)
 class Intact:
-    """The undamaged index: its bytes, footer tables, chunk columns and layers."""
+    """The undamaged index: its bytes, footer (JSON tables and class table columns), chunk
+    columns and layers."""
 
     data: bytes
     tables: dict
-    columns: list[bytes]  # per chunk, its decompressed columns (both frames, one after the other)
+    arrays: dict[str, np.ndarray]
+    columns: list[bytes]  # per chunk, its decompressed columns (its three frames, one after the other)
     layers: dict[str, np.ndarray]
 
     def __repr__(self) -> str:  # pytest and hypothesis print the arguments of a failing example
@@ -69,14 +69,15 @@ def cornell_index(shipped_scene, tmp_path_factory) -> Intact:
     with index_writer(chunk_records=CHUNK_RECORDS):
         path = render_frame(request, output=tmp_path_factory.mktemp("intact"), threads=2).index_path
     data = path.read_bytes()
-    tables = footer_of(data)
+    tables, arrays = footer_of(data)
     columns = []
     for chunk in tables["chunks"]:
         payload = data[chunk["offset"] + fmt.CHUNK_HEADER.size:][:chunk["bytes"]]
-        columns.append(b"".join(zstandard.ZstdDecompressor().decompress(frame) for frame in
-                                (payload[:chunk["sums_bytes"]], payload[chunk["sums_bytes"]:])))
+        ends = np.cumsum([0, chunk["where_bytes"], chunk["light_bytes"], len(payload)]).tolist()
+        columns.append(b"".join(zstandard.ZstdDecompressor().decompress(payload[start:end])
+                                for start, end in itertools.pairwise(ends)))
     assert len(columns) >= 6, len(columns)
-    return Intact(data, tables, columns, extract(PathIndex(path), LAYERS).layers)
+    return Intact(data, tables, arrays, columns, extract(PathIndex(path), LAYERS).layers)
 
 
 @pytest.fixture(scope="module")
@@ -84,45 +85,65 @@ def folder(tmp_path_factory):
     return tmp_path_factory.mktemp("damaged")
 
 
-def footer_of(data: bytes):
-    """The footer tables of an index's bytes."""
-    offset, length, *_ = fmt.TRAILER.unpack(data[-fmt.TRAILER.size:])
-    return json.loads(zstandard.ZstdDecompressor().decompress(data[offset:offset + length]))
+def footer_of(data: bytes) -> tuple[dict, dict[str, np.ndarray]]:
+    """The footer of an index's bytes: its JSON tables and its class table's columns."""
+    offset, length, json_bytes, *_ = fmt.TRAILER.unpack(data[-fmt.TRAILER.size:])
+    tables = json.loads(zstandard.ZstdDecompressor().decompress(data[offset:offset + json_bytes]))
+    entry = tables["class_table"]
+    layout = fmt.class_table_layout(tables["manifest"]["mode"], tables["manifest"]["classes"], entry["events"],
+                                    entry["length_dtype"], entry["event_dtype"])
+    table = zstandard.ZstdDecompressor().decompress(data[offset + json_bytes:offset + length])
+    return tables, {name: values.copy() for name, values in fmt.split_frame(table, layout).items()}
 
 
-def with_footer(data: bytes, tables) -> bytes:
-    """`data` with its footer replaced by `tables` (any JSON value), its trailer made to agree."""
-    offset, *_ = fmt.TRAILER.unpack(data[-fmt.TRAILER.size:])
-    footer = zstandard.ZstdCompressor().compress(json.dumps(tables).encode())
-    return data[:offset] + footer + fmt.TRAILER.pack(offset, len(footer), zlib.crc32(footer), fmt.FORMAT_VERSION,
-                                                     fmt.TRAILER_MAGIC)
+def with_footer(data: bytes, tables, arrays: dict[str, np.ndarray] | None = None) -> bytes:
+    """`data` with its footer replaced by `tables` (any JSON value) and, given, class table
+    `arrays` (else the file's own class table frame), its trailer made to agree."""
+    offset, length, json_bytes, *_ = fmt.TRAILER.unpack(data[-fmt.TRAILER.size:])
+    table = data[offset + json_bytes:offset + length]
+    if arrays is not None:
+        entry = tables["class_table"]
+        layout = fmt.class_table_layout(tables["manifest"]["mode"], tables["manifest"]["classes"], entry["events"],
+                                        entry["length_dtype"], entry["event_dtype"])
+        table = zstandard.ZstdCompressor().compress(
+            b"".join(fmt.shuffle(arrays[name].astype(dtype)) for name, dtype, _ in layout))
+        entry["bytes"] = len(table)
+    text = zstandard.ZstdCompressor().compress(json.dumps(tables).encode())
+    footer = text + table
+    return data[:offset] + footer + fmt.TRAILER.pack(offset, len(footer), len(text), zlib.crc32(footer),
+                                                     fmt.FORMAT_VERSION, fmt.TRAILER_MAGIC)
 
 
-def forged(tables: dict, columns: list[bytes], *, compress=None) -> bytes:
-    """An index of these tables and chunk columns with every offset, size and CRC-32 made
-    to agree: damage no checksum can catch. compress: (chunk number, frame 0 or 1, its
-    columns' bytes) -> the frame as stored."""
+def layout_of(chunk: dict):
+    return fmt.column_layout("merged", chunk["records"], NORM_BOUNCES, False, runs=chunk["runs"],
+                             exact=chunk["exact"])
+
+
+def forged(tables: dict, arrays: dict[str, np.ndarray], columns: list[bytes], *, compress=None) -> bytes:
+    """An index of these tables, class table columns and chunk columns with every offset,
+    size and CRC-32 made to agree: damage no checksum can catch. compress: (chunk number,
+    frame 0, 1 or 2, its columns' bytes) -> the frame as stored."""
     default = zstandard.ZstdCompressor(level=fmt.ZSTD_LEVEL).compress
     compress = compress or (lambda number, frame, data: default(data))
     tables = copy.deepcopy(tables)
     data = bytearray(fmt.HEADER.pack(fmt.HEADER_MAGIC, fmt.FORMAT_VERSION, 0))
     for number, (chunk, chunk_columns) in enumerate(zip(tables["chunks"], columns, strict=True)):
-        split = chunk["records"] * SUMS_BYTES
-        sums = compress(number, 0, chunk_columns[:split])
-        payload = sums + compress(number, 1, chunk_columns[split:])
-        chunk.update(offset=len(data), bytes=len(payload), sums_bytes=len(sums), crc32=zlib.crc32(payload))
-        data += fmt.CHUNK_HEADER.pack(fmt.CHUNK_MAGIC, len(payload), chunk["crc32"], chunk["records"],
-                                      len(sums)) + payload
-    data += fmt.TRAILER.pack(len(data), 0, 0, fmt.FORMAT_VERSION, fmt.TRAILER_MAGIC)  # where the footer goes
-    return with_footer(bytes(data), tables)
+        ends = np.cumsum([0, *(fmt.frame_bytes(frame) for frame in layout_of(chunk)[:2]), len(chunk_columns)])
+        frames = [compress(number, frame, chunk_columns[start:end])
+                  for frame, (start, end) in enumerate(itertools.pairwise(ends.tolist()))]
+        payload = b"".join(frames)
+        chunk.update(offset=len(data), bytes=len(payload), where_bytes=len(frames[0]), light_bytes=len(frames[1]),
+                     crc32=zlib.crc32(payload))
+        data += fmt.CHUNK_HEADER.pack(fmt.CHUNK_MAGIC, len(payload), chunk["crc32"], chunk["records"], chunk["runs"],
+                                      chunk["exact"], len(frames[0]), len(frames[1])) + payload
+    data += fmt.TRAILER.pack(len(data), 0, 0, 0, fmt.FORMAT_VERSION, fmt.TRAILER_MAGIC)  # where the footer goes
+    return with_footer(bytes(data), tables, arrays)
 
 
-def with_column(columns: list[bytes], number: int, name: str, change) -> list[bytes]:
+def with_column(columns: list[bytes], tables: dict, number: int, name: str, change) -> list[bytes]:
     """`columns` with chunk `number`'s column `name` replaced by change(values) (a copy)."""
-    records = len(columns[number]) // RECORD_BYTES
     start = 0
-    sums, covariance = fmt.column_layout("merged", records, NORM_BOUNCES, False)
-    for column, dtype, shape in sums + covariance:
+    for column, dtype, shape in itertools.chain(*layout_of(tables["chunks"][number])):
         size = int(np.prod(shape)) * dtype.itemsize
         if column == name:
             values = change(fmt.unshuffle(columns[number][start:start + size], dtype, shape).copy())
@@ -175,7 +196,7 @@ def test_info_says_chunks_are_not_verified_and_verify_reads_them(cornell_index, 
     path = folder / "intact.pxlidx"
     path.write_bytes(cornell_index.data)
     code, out, _ = cli("index", "info", str(path))
-    assert code == 0 and "chunks       not verified (--verify reads every chunk)" in out
+    assert code == 0 and "chunks       light read, not verified (--verify checks all of every chunk)" in out
     code, out, _ = cli("index", "info", "--verify", "-q", str(path))
     chunks = len(cornell_index.tables["chunks"])
     assert code == 0 and f"chunks       verified: {chunks} chunks, CRC-32 and contents ok" in out
@@ -190,10 +211,11 @@ def test_verify_names_the_chunk_of_a_flipped_payload_byte(cornell_index, folder,
     data[chunk["offset"] + fmt.CHUNK_HEADER.size + chunk["bytes"] // 2] ^= 0x10
     path = folder / "flipped.pxlidx"
     path.write_bytes(bytes(data))
-    assert cli("index", "info", str(path))[0] == 0  # the tables are intact: only reading chunks finds it
-    code, out, stderr = cli("index", "info", "--verify", str(path))
-    assert_one_line_naming(path, code, stderr)
-    assert f"chunk {number} at byte {chunk['offset']} fails its checksum" in stderr and not out
+    PathIndex(path)  # the tables are intact: only reading chunks finds it (info reads their light)
+    for flags in ([], ["--verify"]):
+        code, out, stderr = cli("index", "info", *flags, str(path))
+        assert_one_line_naming(path, code, stderr)
+        assert f"chunk {number} at byte {chunk['offset']} fails its checksum" in stderr and not out
 
 
 @pytest.mark.parametrize("keep", [0.9, 0.5, 0.02])
@@ -208,35 +230,36 @@ def test_verify_refuses_a_truncated_file(cornell_index, folder, keep):
 # -- forged chunks: the checksums agree, the contents do not
 
 
-def unlisted_class(tables: dict, number: int) -> int:
-    """A class of the index that chunk `number` does not hold."""
-    return min(set(range(len(tables["classes"]))) - set(tables["chunks"][number]["classes"]))
+def first_record_nan(stored: np.ndarray) -> np.ndarray:
+    """A merged chunk's rgb column (3, r) with its first record's g a code that reads as NaN."""
+    stored[0, 0] = fmt.RgbBins.EXACT + 1
+    stored[1:, 0] = 0
+    return stored
 
 
-def first_record_nan(rgb: np.ndarray) -> np.ndarray:
-    return np.where(np.arange(len(rgb))[:, None] == 0, np.float32("nan"), rgb)
-
-
-FORGED_CHUNKS = {  # damage: (column, tables -> change of its values, what the error says)
-    "a class id past the table": ("class", lambda t: lambda ids: np.full_like(ids, len(t["classes"])),
-                                  "holds records of classes its footer entry does not list"),
-    "a class its footer entry does not list": (
-        "class", lambda t: lambda ids: np.full_like(ids, unlisted_class(t, 2)),
-        "holds records of classes its footer entry does not list"),
-    "a pixel past the image": ("pixel", lambda t: lambda deltas: deltas + np.int32(RESOLUTION[0] * RESOLUTION[1]),
-                               f"outside the image's {RESOLUTION[0] * RESOLUTION[1]} pixels"),
-    "a negative pixel": ("pixel", lambda t: lambda deltas: np.r_[np.int32(-1), deltas[1:]], "holds pixel -"),
-    "NaN rgb in a class of finite sum": ("rgb", lambda t: first_record_nan,
-                                         "NaN or infinite rgb in a class whose footer sum is finite"),
+PIXELS = RESOLUTION[0] * RESOLUTION[1]
+FORGED_CHUNKS = {  # damage: (column, change of its values, what the error says)
+    "a class past the chunk's last": ("run_class", lambda deltas: np.r_[deltas[:-1], deltas[-1] + 1],
+                                      "holds records of classes outside its footer entry's"),
+    "a class past the table": ("run_class", lambda deltas: np.r_[deltas[:1] + 10**6, deltas[1:]],
+                               "holds records of classes outside its footer entry's"),
+    "runs of other lengths": ("run_length", lambda lengths: lengths + 1, "runs that do not add up to its records"),
+    "a pixel past the image": ("pixel", lambda steps: np.r_[steps[:1] + 2 * PIXELS, steps[1:]],
+                               f"outside the image's {PIXELS} pixels"),
+    "a negative pixel": ("pixel", lambda steps: np.r_[np.uint32(1), steps[1:]], "holds pixel -"),
+    "NaN rgb in a finite class": ("rgb", first_record_nan,
+                                  "NaN or infinite rgb in a class the footer does not list as such"),
+    "an exact record unmarked": ("rgb", lambda stored: np.where(stored == fmt.RgbBins.EXACT, 0, stored),
+                                 "exact records, its header"),
 }
 
 
 @pytest.mark.parametrize("damage", list(FORGED_CHUNKS))
 def test_forged_records_are_refused_naming_the_chunk(cornell_index, folder, damage):
     column, change, message = FORGED_CHUNKS[damage]
-    change = change(cornell_index.tables)
     path = folder / "forged.pxlidx"
-    path.write_bytes(forged(cornell_index.tables, with_column(cornell_index.columns, 2, column, change)))
+    path.write_bytes(forged(cornell_index.tables, cornell_index.arrays,
+                            with_column(cornell_index.columns, cornell_index.tables, 2, column, change)))
     offset = PathIndex(path).chunks[2]["offset"]
     for read in (lambda index: index.verify(), lambda index: extract(index, LAYERS),
                  lambda index: list(index.records(norms=False))):
@@ -249,13 +272,13 @@ def test_forged_records_are_refused_naming_the_chunk(cornell_index, folder, dama
 @pytest.mark.parametrize("payload, message", [
     (lambda columns: zstandard.ZstdCompressor().compress(columns[:-1]), "does not hold its"),
     (lambda columns: zstandard.ZstdCompressor(write_content_size=False).compress(columns), "does not hold its"),
-    (lambda columns: b"not zstd" + columns[:50], "is not two zstd frames of its records"),
-    (lambda columns: zstandard.ZstdCompressor().compress(columns) + b"extra", "is not two zstd frames of its records"),
+    (lambda columns: b"not zstd" + columns[:50], "is not three zstd frames of its records"),
+    (lambda columns: zstandard.ZstdCompressor().compress(columns) + b"extra", "is not three zstd frames of its records"),
 ])
 def test_a_payload_of_other_sizes_is_refused_naming_the_chunk(cornell_index, folder, payload, message):
     columns = cornell_index.columns
     path = folder / "sizes.pxlidx"
-    path.write_bytes(forged(cornell_index.tables, columns,
+    path.write_bytes(forged(cornell_index.tables, cornell_index.arrays, columns,
                             compress=lambda number, frame, data: payload(data) if (number, frame) == (1, 0) else
                             zstandard.ZstdCompressor().compress(data)))
     index = PathIndex(path)
@@ -274,39 +297,30 @@ def test_a_chunk_header_of_other_record_count_is_refused(cornell_index, folder):
 
 
 def test_verify_counts_each_classes_records(cornell_index, folder):
-    tables = copy.deepcopy(cornell_index.tables)
-    counts = tables["class_records"]
+    arrays = copy.deepcopy(cornell_index.arrays)
+    counts = arrays["records"].astype(np.int64)
     first, second = [c for c in range(len(counts)) if counts[c] > 1][:2]
     counts[first] += 1
     counts[second] -= 1  # the total still agrees
+    arrays["records"] = counts
     path = folder / "counts.pxlidx"
-    path.write_bytes(forged(tables, cornell_index.columns))
+    path.write_bytes(forged(cornell_index.tables, arrays, cornell_index.columns))
     extract(PathIndex(path), LAYERS)  # reading does not count per class...
     with pytest.raises(PathIndexError, match=f"class {first} has {counts[first] - 1} records in the chunks, "
                                              f"the footer says {counts[first]}"):
         PathIndex(path).verify()  # ...verify does
 
 
-def test_verify_sums_each_classes_rgb(cornell_index, folder):
-    tables = copy.deepcopy(cornell_index.tables)
-    tables["class_rgb"][5][1] *= 1.001
-    path = folder / "sums.pxlidx"
-    path.write_bytes(forged(tables, cornell_index.columns))
-    holders = [str(n) for n, chunk in enumerate(tables["chunks"]) if 5 in chunk["classes"]]
-    with pytest.raises(PathIndexError, match=rf"class 5's records sum to rgb \(.*\), the footer says \(.*\) "
-                                             rf"\(held by chunks {', '.join(holders)}\)$"):
-        PathIndex(path).verify()
-
-
 def test_a_render_with_nan_contributions_is_read_but_does_not_verify(cornell_index, folder):
-    """NaN records whose class sum is NaN too are what the render made (the jobs name the
-    paths of a NaN beauty from them): read as they are, and --verify says so, not 'corrupted'."""
+    """NaN records of a class the footer lists as non-finite are what the render made (the
+    jobs name the paths of a NaN beauty from them): read as they are, and --verify says so,
+    not 'corrupted'."""
     tables = copy.deepcopy(cornell_index.tables)
-    culprit = tables["chunks"][2]["classes"][0]
-    tables["class_rgb"][culprit] = [float("nan")] * 3
-    columns = with_column(cornell_index.columns, 2, "rgb", first_record_nan)
+    culprit = tables["chunks"][2]["first_class"]
+    tables["nonfinite_classes"] = [culprit]
+    columns = with_column(cornell_index.columns, tables, 2, "rgb", first_record_nan)
     path = folder / "nan.pxlidx"
-    path.write_bytes(forged(tables, columns))
+    path.write_bytes(forged(tables, cornell_index.arrays, columns))
     index = PathIndex(path)
     rgb = np.concatenate([chunk.rgb for chunk in index.records(norms=False)])
     assert np.isnan(rgb).any(axis=1).sum() == 1
@@ -332,32 +346,40 @@ def set_key(table: dict, key: str, value):
     table[key] = value
 
 
-FORGED_FOOTERS = {
-    "class event id past the table": lambda t: t["classes"][3].append(len(t["events"])),
-    "negative label id": lambda t: t["events"][1][2].append(-1),
-    "unknown event type": lambda t: t["events"][1].__setitem__(0, "Q"),
-    "class count mismatch": lambda t: t["class_records"].pop(),
-    "ragged class rgb": lambda t: t["class_rgb"][0].pop(),
-    "records disagree": lambda t: set_key(t["manifest"], "records", t["manifest"]["records"] + 1),
-    "zero spp": lambda t: set_key(t["manifest"], "spp", 0),
-    "resolution past MAX_PIXELS": lambda t: set_key(t["manifest"], "resolution", [1 << 20, 1 << 20]),
-    "resolution of text": lambda t: set_key(t["manifest"], "resolution", ["16", 12]),
-    "frame not a number": lambda t: set_key(t["manifest"], "frame", "tomorrow"),
-    "norm slots of text": lambda t: set_key(t["manifest"], "norm_slots", "2"),
-    "chunk classes past the table": lambda t: t["chunks"][1]["classes"].append(len(t["classes"])),
-    "a huge chunk": lambda t: set_key(t["chunks"][1], "records", MAX_CHUNK_BYTES),
-    "overlapping chunks": lambda t: set_key(t["chunks"][2], "offset", t["chunks"][1]["offset"] + 1),
-    "chunk without offset": lambda t: t["chunks"][1].pop("offset"),
-    "tables not an object": lambda t: [1, 2],
+def set_item(array: np.ndarray, at: int, value) -> None:
+    array[at] = value
+
+
+FORGED_FOOTERS = {  # damage: a change of (tables, class table arrays)
+    "class event id past the table": lambda t, a: set_item(a["events"], 3, len(t["events"])),
+    "class event id of the camera": lambda t, a: set_item(a["events"], 3, 0),
+    "negative label id": lambda t, a: t["events"][1][2].append(-1),
+    "unknown event type": lambda t, a: t["events"][1].__setitem__(0, "Q"),
+    "class count mismatch": lambda t, a: set_key(t["manifest"], "classes", t["manifest"]["classes"] - 1),
+    "class lengths past the events": lambda t, a: set_item(a["length"], 0, a["length"][0] + 1),
+    "non-finite class past the table": lambda t, a: set_key(t, "nonfinite_classes", [t["manifest"]["classes"]]),
+    "records disagree": lambda t, a: set_key(t["manifest"], "records", t["manifest"]["records"] + 1),
+    "zero spp": lambda t, a: set_key(t["manifest"], "spp", 0),
+    "resolution past MAX_PIXELS": lambda t, a: set_key(t["manifest"], "resolution", [1 << 20, 1 << 20]),
+    "resolution of text": lambda t, a: set_key(t["manifest"], "resolution", ["16", 12]),
+    "frame not a number": lambda t, a: set_key(t["manifest"], "frame", "tomorrow"),
+    "norm slots of text": lambda t, a: set_key(t["manifest"], "norm_slots", "2"),
+    "chunk classes past the table": lambda t, a: set_key(t["chunks"][1], "last_class", t["manifest"]["classes"]),
+    "a huge chunk": lambda t, a: set_key(t["chunks"][1], "records", MAX_CHUNK_BYTES),
+    "overlapping chunks": lambda t, a: set_key(t["chunks"][2], "offset", t["chunks"][1]["offset"] + 1),
+    "chunk without offset": lambda t, a: t["chunks"][1].pop("offset"),
+    "class table of another width": lambda t, a: set_key(t["class_table"], "event_dtype", "<u8"),
+    "tables not an object": lambda t, a: [1, 2],
 }
 
 
 @pytest.mark.parametrize("damage", list(FORGED_FOOTERS))
 def test_a_forged_footer_is_refused_at_open(cornell_index, folder, damage):
-    tables = copy.deepcopy(cornell_index.tables)
-    replaced = FORGED_FOOTERS[damage](tables)
+    tables, arrays = copy.deepcopy(cornell_index.tables), copy.deepcopy(cornell_index.arrays)
+    replaced = FORGED_FOOTERS[damage](tables, arrays)
     path = folder / "footer.pxlidx"
-    path.write_bytes(with_footer(cornell_index.data, tables if replaced is None else replaced))
+    path.write_bytes(with_footer(cornell_index.data, tables, arrays) if replaced is None
+                     else with_footer(cornell_index.data, replaced))
     code, _, stderr = cli("index", "info", str(path))
     assert_one_line_naming(path, code, stderr)
     assert "corrupted footer" in stderr
@@ -368,7 +390,7 @@ def test_an_index_without_a_resolution_is_refused_when_extracting(cornell_index,
     reading its records works, extracting layers (which needs the image size) is one error."""
     tables = changed(cornell_index.tables, lambda t: t["manifest"].pop("resolution"))
     path = folder / "bare.pxlidx"
-    path.write_bytes(forged(tables, cornell_index.columns))
+    path.write_bytes(forged(tables, cornell_index.arrays, cornell_index.columns))
     index = PathIndex(path)
     assert index.verify() == len(index.chunks)
     with pytest.raises(PathIndexError, match=f"^{re.escape(str(path))}: its manifest has no 'resolution'"):
@@ -407,7 +429,7 @@ def test_flipped_bytes_anywhere_are_refused_or_change_nothing(cornell_index, fol
     st.binary(max_size=2048).map(lambda tail: fmt.HEADER.pack(fmt.HEADER_MAGIC, fmt.FORMAT_VERSION, 0) + tail),
     st.tuples(st.binary(max_size=2048), st.integers(0, 4096), st.integers(0, 4096)).map(
         lambda parts: fmt.HEADER.pack(fmt.HEADER_MAGIC, fmt.FORMAT_VERSION, 0) + parts[0] + fmt.TRAILER.pack(
-            parts[1], parts[2], 0, fmt.FORMAT_VERSION, fmt.TRAILER_MAGIC)),
+            parts[1], parts[2], parts[2] // 2, 0, fmt.FORMAT_VERSION, fmt.TRAILER_MAGIC)),
 ))
 def test_garbage_is_refused(cornell_index, folder, garbage):
     assert_refused_or_intact(garbage, cornell_index, folder)
@@ -426,8 +448,8 @@ def test_forged_chunk_contents_never_crash_the_reader(cornell_index, folder, dat
     for offset, xor in flips:
         columns[offset] ^= xor
     path = folder / "forged.pxlidx"
-    path.write_bytes(forged(cornell_index.tables, [*cornell_index.columns[:number], bytes(columns),
-                                                   *cornell_index.columns[number + 1:]]))
+    path.write_bytes(forged(cornell_index.tables, cornell_index.arrays,
+                            [*cornell_index.columns[:number], bytes(columns), *cornell_index.columns[number + 1:]]))
     for flags in ([], ["--verify"]):
         code, _, stderr = cli("index", "info", "-q", *flags, str(path))
         if code:  # a class id moved to another class of the chunk shows only in the counts

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
+
+from ..cores import available_cores
 from ..paths.events import path_text
 from ..paths.reader import PathIndex
 from . import logging_flags
@@ -22,8 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     info = actions.add_parser(
         "info", help="records, classes, labels, size, and the top path classes by energy",
         description="Print what INDEX holds: records, path classes, labels, size on disk, bytes per "
-        "record, the render it came from, and the path classes carrying the most energy. Only the "
-        "header, trailer and tables are read: --verify reads and checks every chunk too.",
+        "record, the render it came from, and the path classes carrying the most energy. The header, "
+        "trailer and tables are read, and the light of every chunk (to rank the classes; the chunks' "
+        "checksums are checked): --verify checks all of every chunk too.",
         parents=[logging_flags(nested=True)],
     )
     info.add_argument("index", type=nonempty_path, metavar="INDEX", help="a .pxlidx file")
@@ -31,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help=f"how many path classes to list (default {TOP_CLASSES})")
     info.add_argument("--verify", action="store_true",
                       help="read every chunk and check its CRC-32 and contents (sizes, class ids, pixels, "
-                      "finite rgb, each class's records and rgb sum): exit 1 naming the first bad chunk and "
+                      "finite rgb, each class's records): exit 1 naming the first bad chunk and "
                       "its byte offset")
 
 
@@ -72,13 +76,13 @@ def info_lines(index: PathIndex, top: int, verified: int | None = None) -> list[
         f"labels       {len(index.labels):,}",
         (f"size         {index.size:,} bytes ({index.size / max(records, 1):.2f} bytes per record, "
         f"{_per_pixel(index)}{len(index.chunks)} chunks)"),
-        ("chunks       not verified (--verify reads every chunk)" if verified is None
+        ("chunks       light read, not verified (--verify checks all of every chunk)" if verified is None
          else f"chunks       verified: {verified} chunks, CRC-32 and contents ok"),
         "",
     ]
-    energy = [sum(path_class.rgb) for path_class in index.classes]
-    total = sum(energy) or 1.0
-    ranked = sorted(range(len(energy)), key=lambda i: -energy[i])[:top]
+    energy = class_energy(index)
+    total = float(energy.sum()) or 1.0
+    ranked = np.argsort(-energy, kind="stable")[:top].tolist()
     lines.append(f"top {len(ranked)} path classes by share of the energy (R + G + B):")
     lines.append(f"  {'share':>7}  {'records':>10}  path")
     for rank in ranked:
@@ -87,15 +91,27 @@ def info_lines(index: PathIndex, top: int, verified: int | None = None) -> list[
     return lines
 
 
+def class_energy(index: PathIndex) -> np.ndarray:
+    """(classes,) float64: the light (R + G + B, summed over the image) of each class, from
+    the sums of every chunk (the footer keeps no light per class: it would be a tenth of a
+    small index)."""
+    energy = np.zeros(index.class_count)
+    for chunk in index.records(norms=False, threads=available_cores()):
+        energy += np.bincount(chunk.class_id, weights=chunk.rgb.sum(axis=1, dtype=np.float64),
+                              minlength=index.class_count)
+    return energy
+
+
 def _mode(manifest) -> str:
     """How the index keeps the light, and its bins."""
     if manifest["mode"] != "merged":
         return "records: one per contribution, norms as float16"
-    bins = manifest.get("bins", {})
-    per_octave = bins.get("bins_per_octave", "?")
-    width = f" (×{2 ** (1 / per_octave):.3f} per bin)" if isinstance(per_octave, int) and per_octave > 0 else ""
-    return (f"merged: one record per pixel, path class and covariance bin; {bins.get('kind', '?')} bins, "
-            f"{per_octave} per octave{width}, 0 exact, read as each bin's {bins.get('reads_as', '?')}")
+    bins, rgb = manifest.get("bins", {}), manifest.get("rgb", {})
+    per_octave = rgb.get("bins_per_octave", "?")
+    width = f" (×{2 ** (1 / per_octave):.4f})" if isinstance(per_octave, int) and per_octave > 0 else ""
+    return (f"merged: one record per pixel, path class and covariance bin; covariance in {bins.get('kind', '?')}, "
+            f"exact at {bins.get('exact', '?')}; rgb in {per_octave} bins an octave{width}, one exact record per "
+            "pixel and channel carrying the rest")
 
 
 def _per_pixel(index: PathIndex) -> str:

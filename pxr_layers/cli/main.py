@@ -29,12 +29,22 @@ ENVIRONMENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.E
 disk, a quota, a permission; a name too long for the file system, a loop of links)."""
 
 
+def subcommand(name: str):
+    """The module of subcommand `name` (imported on first use: they pull in numpy, USD, Embree)."""
+    return importlib.import_module(f"{__package__}.{name}")
+
+
 def subcommands() -> dict:
-    """Subcommand name → its module (imported on first use: they pull in numpy, USD, Embree)."""
-    return {name: importlib.import_module(f"{__package__}.{name}") for name in SUBCOMMAND_NAMES}
+    """Subcommand name → its module, every one imported."""
+    return {name: subcommand(name) for name in SUBCOMMAND_NAMES}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The command's parser. When `argv` names a subcommand first, only that one's module is
+    imported (the others get empty parsers, never used): `pxr-layers extract` must not pay
+    for importing the renderer (numba, USD, Embree: half a second). Otherwise (``--help``,
+    a typo) every subcommand is imported, for the list of them and their help."""
+    chosen = argv[0] if argv and argv[0] in SUBCOMMAND_NAMES else None
     parser = argparse.ArgumentParser(
         prog="pxr-layers",
         description="Path-trace a USD stage with Embree and write a beauty EXR. "
@@ -42,7 +52,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"pxr-layers {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name, module in subcommands().items():
+    for name in SUBCOMMAND_NAMES:
+        if chosen not in (None, name):
+            commands.add_parser(name)
+            continue
+        module = subcommand(name)
         sub = commands.add_parser(name, help=module.HELP, description=module.DESCRIPTION, parents=[logging_flags()])
         module.add_arguments(sub)
     return parser
@@ -71,9 +85,10 @@ def main(argv: list[str] | None = None) -> int:
 
 def _command(argv: list[str] | None) -> int:
     try:
-        parser = build_parser()
+        arguments = sys.argv[1:] if argv is None else argv
+        parser = build_parser(arguments)
         try:
-            args = parser.parse_args(argv)
+            args = parser.parse_args(arguments)
         except SystemExit as exit_:  # argparse: 0 for --help/--version, 2 for bad usage
             return int(exit_.code or 0)
     except KeyboardInterrupt as interrupt:  # during start-up (the imports): nothing was begun
@@ -89,7 +104,7 @@ def _command(argv: list[str] | None) -> int:
 
     forget_committed()  # what this command writes, not an earlier one in the same process
     try:
-        return subcommands()[args.command].run(args)
+        return subcommand(args.command).run(args)
     except PxrLayersError as error:
         print(f"pxr-layers: error: {error}", file=sys.stderr)
         return EXIT_USER_ERROR

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..scene import REC709_LUMINANCE
+from ..colour import REC709_LUMINANCE
 
 log = logging.getLogger(__name__)
 

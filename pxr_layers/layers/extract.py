@@ -34,7 +34,7 @@ from ..errors import PathIndexError
 from ..lpe.automaton import DEAD
 from ..lpe.labels import KnownNames, unknown_labels
 from ..paths.events import path_text
-from ..paths.reader import PathIndex, padded_event_ids
+from ..paths.reader import PathIndex
 from ..progress import Progress
 from .accumulate import LayerSums, distinct
 
@@ -45,8 +45,8 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class Extraction:
     """layers : name → (h, w, 3) float32 linear images (same scale as the beauty)
-    records_read : records of the classes some layer can use (the chunks holding them are
-    read whole: their other records are decoded too, and skipped); classes_matched : those classes
+    records_read : records of the classes some layer can use (only those are decoded);
+    classes_matched : those classes
     warnings : one line per quoted label that names nothing in the index (logged too:
     lpe.labels.unknown_labels), for callers that show them elsewhere (the inspector)
     """
@@ -139,13 +139,12 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     class_set = class_set << len(keyed)
     width, height = index.manifest["resolution"]
     accumulator = LayerSums(plain_sets, keyed, width * height)
-    records_read = sum(index.classes[c].records for c in wanted.tolist())
-    # Chunks holding a wanted class are read whole: the records of other classes in them
-    # have the empty plain set and no group, and feed nothing (cheaper than cutting them out).
+    records_read = int(index.class_records()[wanted].sum())
+    # Only the runs of wanted classes are decoded (PathIndex.records): a chunk's other
+    # records cost their share of its decompression only.
     selected = None if len(wanted) == class_count else wanted.tolist()
-    progress = Progress(sum(index.chunks[number]["records"] for number in index.chunks_holding(selected)),
-                        "extract", enabled=show_progress)
-    for chunk in index.records(selected, norms=bool(groups), threads=threads, whole_chunks=True):
+    progress = Progress(records_read, "extract", enabled=show_progress)
+    for chunk in index.records(selected, norms=bool(groups), threads=threads):
         key = class_set[chunk.class_id]
         for bit, row in enumerate(conditional_rows):
             # The chunk's records of each group of the layer, from one sort by group.
@@ -166,10 +165,10 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
                 accumulator.add_to_layer(row, chunk.pixel[matching], chunk.rgb[matching])
         accumulator.add(key, chunk.pixel, chunk.rgb)
         progress.advance(len(chunk.class_id))
-    sums = accumulator.sums
+    images = dict(zip(names, accumulator.images(height, width, index.manifest["spp"])))
     log.info("extracted %d layers from %d of %d records (%d of %d classes)", len(names), records_read,
              index.record_count, len(wanted), class_count)
-    return Extraction(_images(sums, names, index), records_read, len(wanted), tuple(warnings))
+    return Extraction(images, records_read, len(wanted), tuple(warnings))
 
 
 def _automata(expressions: dict[str, str]) -> list[lpe.LayerAutomaton]:
@@ -193,22 +192,23 @@ def _class_outcomes(automaton: lpe.LayerAutomaton, index: PathIndex):
     whose events carry conditions).
     """
     symbols = [automaton.alphabet.classify(event) for event in index.events]
-    conditional = {event for event, (_, conditions) in enumerate(symbols) if conditions}
-    carries = [bool(conditional) and not conditional.isdisjoint(path_class.event_ids) for path_class in index.classes]
-    deferred = [path_class for path_class, carried in zip(index.classes, carries, strict=True) if carried]
-    plain = [path_class for path_class, carried in zip(index.classes, carries, strict=True) if not carried]
-    return _plain_walk(automaton.dfa, [outright for outright, _ in symbols], plain), \
+    conditional = [event for event, (_, conditions) in enumerate(symbols) if conditions]
+    events = index.event_matrix(-1)  # (classes, longest): built from arrays, no PathClass needed
+    carries = np.isin(events, conditional).any(axis=1) if conditional else np.zeros(len(events), bool)
+    deferred = [index.classes[class_id] for class_id in np.flatnonzero(carries).tolist()]
+    plain = np.flatnonzero(~carries)
+    return _plain_walk(automaton.dfa, [outright for outright, _ in symbols], events[plain], plain), \
         _conditional_walks(automaton, symbols, deferred)
 
 
-def _plain_walk(dfa, symbols: list[int], classes) -> dict[frozenset, np.ndarray]:
-    """{accepted layers: class ids} for classes without conditions: all walk the DFA
-    together, one event position at a time; each distinct (state, event) pair is stepped
-    once (an index has few distinct events and the DFA few states)."""
-    if not classes:
+def _plain_walk(dfa, symbols: list[int], events: np.ndarray, ids: np.ndarray) -> dict[frozenset, np.ndarray]:
+    """{accepted layers: class ids} for classes without conditions, given as the (k, longest)
+    rows of their event ids padded with −1 and their (k,) ids: all walk the DFA together,
+    one event position at a time; each distinct (state, event) pair is stepped once (an
+    index has few distinct events and the DFA few states)."""
+    if not len(ids):
         return {}
-    events = padded_event_ids(classes, -1)
-    state = np.full(len(classes), dfa.start, np.int64)
+    state = np.full(len(ids), dfa.start, np.int64)
     event_count = len(symbols)
     for position in range(events.shape[1]):
         moving = (events[:, position] >= 0) & (state != DEAD)
@@ -218,7 +218,6 @@ def _plain_walk(dfa, symbols: list[int], classes) -> dict[frozenset, np.ndarray]
         targets = np.array([dfa.step(pair // event_count, symbols[pair % event_count]) for pair in pairs.tolist()],
                            np.int64)
         state[moving] = targets[which]
-    ids = np.fromiter((path_class.id for path_class in classes), np.int64, len(classes))
     accepting: dict[frozenset, list] = {}
     for final in np.unique(state).tolist():
         if final != DEAD and dfa.accepts[final]:

@@ -30,7 +30,7 @@ from .trie import ClassTrie, class_events
 log = logging.getLogger(__name__)
 
 BUFFER_RECORDS = 1 << 18
-"""Records taken in before a buffer goes to the writer's thread (some 12 MB merged, with N = 5).
+"""Records taken in before a buffer goes to the writer's thread (some 10 MB merged, with N = 5).
 Small, so that the last flush, in ``close``, is short; each flush cuts its own chunks, so a
 class appears in up to one chunk per flush (smaller buffers: more, smaller chunks)."""
 QUEUED_BUFFERS = 2
@@ -53,12 +53,13 @@ class PathIndexWriter:
     carry it).
 
     Class ids are given in order of first appearance, and each flush sorts its records by
-    class keeping the tracer's order within a class, so the same render (same settings
-    and batch size) gives a byte-identical file whatever the thread count.
+    class, then pixel (stable), so the same render (same settings and batch size) gives a
+    byte-identical file whatever the thread count.
 
     ``add`` numbers a batch's classes on the caller's thread (that order is the file's);
     every ``buffer_records`` records, the buffer goes (FIFO, at most QUEUED_BUFFERS waiting)
-    to the writer's own thread, which sorts, sums, compresses and writes it. An error
+    to the writer's own thread, which codes (merged: ``_coded_rgb``; a buffer holds whole
+    batches, so every record of each of its pixels), sorts, compresses and writes it. An error
     there (a full disk: OutputError naming the file) is raised by the next ``add`` or by
     ``close``, which then remove the temporary file. ``close`` and ``abort`` end the thread.
     """
@@ -83,19 +84,21 @@ class PathIndexWriter:
         self._buffered = 0
         # written by the writer's thread only, read once it has ended:
         self._class_records = np.zeros(0, np.int64)  # (classes,) records so far
-        self._class_rgb = np.zeros((0, 3))  # (classes, 3) float64 summed rgb
+        self._chroma = np.zeros((0, 2), np.uint16)  # (classes, 2) merged: each class's chroma (format.py)
+        self._chroma_known = np.zeros(0, bool)  # (classes,) its chroma is set: by its first flush
+        self._nonfinite: set[int] = set()  # classes with a NaN or infinite record
         self._chunks: list[dict] = []
         self._records = 0
-        # The footer's tables as the flushes meet new classes, so that closing costs only the
-        # class sums: the footer's events after the camera (the tracer's event ids, in order of
-        # first appearance: footer id = position + 1), each class's footer event ids camera
-        # first, and the JSON text of the classes and chunks listed so far (each flush's items,
-        # comma-separated).
+        # The footer's tables as the flushes meet new classes, so that closing costs only
+        # concatenating them: the footer's events after the camera (the tracer's event ids, in
+        # order of first appearance: footer id = position + 1), and per flush the events after
+        # the camera of each class it met first (their count, and their footer ids one class
+        # after the other).
         self._footer_events = np.zeros(0, np.int64)
-        self._footer_classes: list[list[int]] = []
-        self._footer_json: dict[str, list[str]] = {"classes": [], "chunks": []}
+        self._class_lengths: list[np.ndarray] = []
+        self._class_events: list[np.ndarray] = []
         self._compressor = zstandard.ZstdCompressor(level=fmt.ZSTD_LEVEL)
-        self._closed: tuple[Path, dict, int, int] | None = None  # after close: (where, footer tables, its offset, size)
+        self._closed: tuple | None = None  # after close: (where, footer tables, class table, its offset, size)
         handle, self._temporary = temporary_beside(self.path)
         self._file = os.fdopen(handle, "wb")
         self._file.write(fmt.HEADER.pack(fmt.HEADER_MAGIC, fmt.FORMAT_VERSION, 0))
@@ -129,8 +132,9 @@ class PathIndexWriter:
         if self.sigma and sigma is None:
             raise ValueError("the index keeps Σ but the records carry none (TraceSettings.record_sigma)")
         class_id = self._global_classes(records)
-        count = records.count if merged else records.sample
-        columns = (class_id, records.pixel.astype(np.int64, copy=False), count.astype(np.uint32, copy=False),
+        # merged: the count of contributions is not stored (the manifest has their total)
+        sample = None if merged else records.sample.astype(np.uint32, copy=False)
+        columns = (class_id, records.pixel.astype(np.int64, copy=False), sample,
                    records.rgb.astype(np.float32, copy=False), norms)
         if sigma is not None:
             columns += (sigma if merged else sigma.astype(np.float32, copy=False),)
@@ -184,28 +188,36 @@ class PathIndexWriter:
             self._thread.join()
 
     def _flush(self, buffer: _FullBuffer) -> None:
-        """Sort a buffer's records by class, add them to the class sums and write them as
-        chunks. Runs on the writer's thread."""
-        columns = [np.concatenate(column) for column in zip(*buffer.columns)]
+        """Code a buffer's rgb (merged), sort its records by class, then pixel, add them to
+        the class table and write them as chunks. Runs on the writer's thread."""
+        names = ("class", "pixel", "sample", "rgb", "norms", "sigma")
+        columns = {name: np.concatenate(column) for name, column in zip(names, zip(*buffer.columns))
+                   if column[0] is not None}
         buffer.columns.clear()
         classes = buffer.classes
-        order = _stable_order(columns[0], classes)
-        columns = [np.take(column, order, axis=0) for column in columns]  # take: 3x faster than [order] on (r, N, 3)
-        class_id, rgb = columns[0], columns[3]
+        # Per pixel: a buffer holds whole batches, so every record of each of its pixels (were a
+        # pixel's records split between buffers, each part would carry its own rest: exact still).
+        if self.mode == "merged":
+            columns["codes"], columns["exact"], columns["rgb"] = _coded_rgb(columns["pixel"], columns["rgb"])
+        order = _class_pixel_order(columns["class"], columns["pixel"], classes)
+        columns = {name: np.take(column, order, axis=0) for name, column in columns.items()}  # take: 3x faster on (r, N, 3)
+        class_id = columns["class"]
         self._class_records = _grown(self._class_records, classes)
-        self._class_rgb = _grown(self._class_rgb, classes)
         self._class_records += np.bincount(class_id, minlength=classes)
-        for channel in range(3):
-            self._class_rgb[:, channel] += np.bincount(class_id, weights=rgb[:, channel], minlength=classes)
-        chunks_before = len(self._chunks)
+        finite = np.isfinite(columns["rgb"]).all(axis=1)
+        if not finite.all():
+            self._nonfinite.update(np.unique(class_id[~finite]).tolist())
+        if self.mode == "merged":
+            self._chroma = _grown(self._chroma, classes)
+            self._chroma_known = _grown(self._chroma_known, classes)
+            _learn_chroma(class_id, columns["codes"], columns["exact"], self._chroma, self._chroma_known)
         for start, stop in self._chunk_bounds(class_id):
-            self._write_chunk(*(column[start:stop] for column in columns))
-        self._footer_grown(buffer.new_class_nodes, self._chunks[chunks_before:])
+            self._write_chunk({name: column[start:stop] for name, column in columns.items()})
+        self._footer_grown(buffer.new_class_nodes)
 
-    def _footer_grown(self, new_class_nodes: list[np.ndarray], chunks: list[dict]) -> None:
+    def _footer_grown(self, new_class_nodes: list[np.ndarray]) -> None:
         """The footer's class table extended by the classes of `new_class_nodes` (trie nodes,
-        in id order), and the JSON text of those classes and of a flush's `chunks` added.
-        Vectorised: Python loops here would hold the GIL the tracer's threads need."""
+        in id order). Vectorised: Python loops here would hold the GIL the tracer's threads need."""
         nodes = np.concatenate(new_class_nodes) if new_class_nodes else np.zeros(0, np.int64)
         # The caller's thread may be merging a batch into the trie meanwhile: it only adds
         # nodes (beyond these) and replaces its arrays by larger copies, so these read the same.
@@ -216,13 +228,9 @@ class PathIndexWriter:
         unseen = ~np.isin(unique, self._footer_events)
         self._footer_events = np.concatenate([self._footer_events, unique[unseen][np.argsort(first[unseen])]])
         by_event = np.argsort(self._footer_events)
-        ids = np.zeros((len(nodes), events.shape[1] + 1), np.int64)  # column 0: the camera, event 0
-        ids[:, 1:][listed] = by_event[np.searchsorted(self._footer_events, flat, sorter=by_event)] + 1
-        new = [row[:length] for row, length in zip(ids.tolist(), (listed.sum(axis=1) + 1).tolist())]
-        self._footer_classes.extend(new)
-        for name, items in (("classes", new), ("chunks", chunks)):
-            if items:
-                self._footer_json[name].append(_json(items)[1:-1])
+        # listed is a prefix of each row: its True entries, row-major, are the classes' events in order
+        self._class_events.append(by_event[np.searchsorted(self._footer_events, flat, sorter=by_event)] + 1)
+        self._class_lengths.append(listed.sum(axis=1))
 
     def _chunk_bounds(self, class_id: np.ndarray) -> list[tuple[int, int]]:
         """Cut sorted records into chunks: whole small classes together, large ones split."""
@@ -239,23 +247,49 @@ class PathIndexWriter:
             bounds.append((chunk_start, len(class_id)))
         return bounds
 
-    def _write_chunk(self, class_id, pixel, count, rgb, *covariance) -> None:
-        """One chunk: the sums frame (class, pixel deltas, count, rgb), then the covariance
-        frame (norms, and Σ if kept), each column byte-shuffled (paths/format.py)."""
-        pixel_delta = np.diff(pixel, prepend=0).astype(np.int32)
-        sums = self._compressor.compress(b"".join(
-            fmt.shuffle(column) for column in (class_id.astype(np.uint32), pixel_delta, count, rgb)))
-        payload = sums + self._compressor.compress(b"".join(fmt.shuffle(column) for column in covariance))
+    def _write_chunk(self, columns: dict[str, np.ndarray]) -> None:
+        """One chunk of records sorted by class, then pixel: the where frame (class runs,
+        pixels), the light frame (rgb) and the covariance frame (norms, and Σ if kept), each
+        column byte-shuffled (paths/format.py)."""
+        class_id, pixel = columns["class"], columns["pixel"]
+        run_starts = np.flatnonzero(np.r_[True, class_id[1:] != class_id[:-1]])
+        run_class = class_id[run_starts]
+        run_length = np.diff(np.r_[run_starts, len(class_id)])
+        # Pixels: within a run, the step from the record before (>= 0: sorted); a run's first,
+        # the zigzag-coded step from the run before's first (classes numbered together first
+        # appeared near each other: the steps are small).
+        steps = np.diff(pixel, prepend=0)
+        steps[run_starts] = fmt.zigzag(np.diff(pixel[run_starts], prepend=0))
+        where = [np.diff(run_class, prepend=0), run_length, steps]
+        exact = 0
+        if self.mode == "merged":
+            exact_rows = columns["exact"]
+            codes = columns["codes"]
+            codes[exact_rows] = [0, fmt.RgbBins.EXACT, 0]  # an exact record: its g says so, r and b are 0
+            light = [fmt.chroma_residuals(codes, self._chroma[class_id]), columns["rgb"][exact_rows]]
+            exact = int(exact_rows.sum())
+        else:
+            light = [columns["sample"], columns["rgb"]]
+        covariance = [columns[name] for name in ("norms", "sigma") if name in columns]
+        layout = fmt.column_layout(self.mode, len(class_id), self.norm_slots, self.sigma, runs=len(run_class),
+                                   exact=exact)
+        frames = [self._compressor.compress(b"".join(
+            fmt.shuffle(np.asarray(value).astype(dtype, copy=False))
+            for (_, dtype, _), value in zip(frame_layout, values, strict=True)))
+            for frame_layout, values in zip(layout, (where, light, covariance))]
+        payload = b"".join(frames)
         crc = zlib.crc32(payload)
         try:
             offset = self._file.tell()
-            self._file.write(fmt.CHUNK_HEADER.pack(fmt.CHUNK_MAGIC, len(payload), crc, len(class_id), len(sums)))
+            self._file.write(fmt.CHUNK_HEADER.pack(fmt.CHUNK_MAGIC, len(payload), crc, len(class_id), len(run_class),
+                                                   exact, len(frames[0]), len(frames[1])))
             self._file.write(payload)
         except OSError as error:  # a full disk mid-render: the caller aborts, nothing is left behind
             raise OutputError(f"{self.path}: cannot write the path index ({error.strerror or error})") from error
         self._chunks.append({
-            "offset": offset, "bytes": len(payload), "sums_bytes": len(sums), "crc32": crc, "records": len(class_id),
-            "classes": class_id[np.r_[True, class_id[1:] != class_id[:-1]]].tolist(),  # sorted: its runs' heads
+            "offset": offset, "bytes": len(payload), "where_bytes": len(frames[0]), "light_bytes": len(frames[1]),
+            "crc32": crc, "records": len(class_id), "runs": len(run_class), "exact": exact,
+            "first_class": int(class_id[0]), "last_class": int(class_id[-1]),
         })
         self._records += len(class_id)
 
@@ -271,18 +305,18 @@ class PathIndexWriter:
             self._end_thread()
             if self._failure is not None:
                 raise self._failure
-            tables = self._footer(vocabulary)
-            footer = self._compressor.compress(self._footer_text(tables).encode())
+            tables, arrays = self._footer(vocabulary)
+            footer = fmt.footer(tables, arrays, self._compressor)
             offset = self._file.tell()
-            self._file.write(footer)
-            self._file.write(fmt.TRAILER.pack(offset, len(footer), zlib.crc32(footer), fmt.FORMAT_VERSION,
-                                              fmt.TRAILER_MAGIC))
+            self._file.write(footer.data)
+            self._file.write(fmt.TRAILER.pack(offset, len(footer.data), footer.json_bytes, zlib.crc32(footer.data),
+                                              fmt.FORMAT_VERSION, fmt.TRAILER_MAGIC))
             self._file.flush()
             os.fsync(self._file.fileno())
             self._file.close()
             where = finish(self._temporary, self.path, last=True)
-            size = offset + len(footer) + fmt.TRAILER.size
-            self._closed = (where, tables, offset, size)
+            size = offset + len(footer.data) + fmt.TRAILER.size
+            self._closed = (where, footer.tables, arrays, offset, size)
         except OSError as error:
             self.abort()
             raise OutputError(f"{self.path}: cannot write the path index ({error.strerror or error})") from error
@@ -309,41 +343,40 @@ class PathIndexWriter:
             self._file.close()
         self._temporary.unlink(missing_ok=True)
 
-    def _footer(self, vocabulary: EventVocabulary) -> dict:
-        """The footer's tables, as a reader parses them (paths/format.py)."""
+    def _footer(self, vocabulary: EventVocabulary) -> tuple[dict, dict[str, np.ndarray]]:
+        """The footer's JSON tables and its class table's columns, as a reader parses them
+        (paths/format.py)."""
         labels: dict[str, int] = {}
         events = [["C", "", []]]
         for key in self._footer_events.tolist():
             event = vocabulary.event(key)
             ids = sorted(labels.setdefault(label, len(labels)) for label in sorted(event.labels))
             events.append([event.type, event.scatter, ids, event.name])
+        lengths = np.concatenate([np.zeros(0, np.int64), *self._class_lengths])
+        arrays = {"length": lengths, "events": np.concatenate([np.zeros(0, np.int64), *self._class_events]),
+                  "records": _grown(self._class_records, len(lengths))}
+        if self.mode == "merged":
+            arrays["chroma"] = _grown(self._chroma, len(lengths))
         manifest = {
             **json.loads(json.dumps(self.manifest)),  # as a reader parses it (a tuple becomes a list)
             "format_version": fmt.FORMAT_VERSION,
             "norm_slots": self.norm_slots,
             "norms": {name: fmt.NORM_UNITS[name] for name in fmt.NORM_NAMES},
             "mode": self.mode,
-            **({"bins": fmt.NormBins.manifest()} if self.mode == "merged" else {}),
+            **({"bins": fmt.NormBins.manifest(), "rgb": fmt.RgbBins.manifest()} if self.mode == "merged" else {}),
             "covariance": "sigma" if self.sigma else "norms",
             "contributions": self._contributions,
             "records": self._records,
-            "classes": len(self._footer_classes),
+            "classes": len(lengths),
         }
-        return {"manifest": manifest, "labels": list(labels), "events": events, "classes": self._footer_classes,
-                "class_records": self._class_records.tolist(), "class_rgb": self._class_rgb.tolist(),
-                "chunks": self._chunks}
-
-    def _footer_text(self, tables: dict) -> str:
-        """The very text of ``json.dumps(tables)`` (compact), with the classes and chunks from
-        the JSON the flushes made of them."""
-        return "{" + ",".join(
-            f'"{name}":' + (f"[{','.join(self._footer_json[name])}]" if name in self._footer_json else _json(value))
-            for name, value in tables.items()) + "}"
+        tables = {"manifest": manifest, "labels": list(labels), "events": events,
+                  "nonfinite_classes": sorted(self._nonfinite), "chunks": self._chunks}
+        return tables, arrays
 
 
 class _FullBuffer(NamedTuple):
     """A buffer handed to the writer's thread: its records' columns batch by batch (class id,
-    pixel, count, rgb, norms[, Σ]), the number of classes numbered by then, and the trie
+    pixel, sample (records mode; merged: None), rgb, norms[, Σ]), the number of classes numbered by then, and the trie
     nodes of the classes first met in it, in id order."""
 
     columns: list[tuple[np.ndarray, ...]]
@@ -351,9 +384,72 @@ class _FullBuffer(NamedTuple):
     new_class_nodes: list[np.ndarray]
 
 
-def _json(value) -> str:
-    """The footer's JSON text of `value` (compact)."""
-    return json.dumps(value, separators=(",", ":"))
+_RGB_TABLE = fmt.RgbBins.table()
+
+
+def _coded_rgb(pixel: np.ndarray, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rgb of a merged buffer's records as stored (paths/format.py, ``RgbBins``).
+
+    pixel (r,) int64; rgb (r, 3) float32, every record of each pixel present. Returns codes
+    (r, 3) int64, exact (r,) bool (kept as float32: the carriers, and records a code cannot
+    hold) and the rgb as a reader reads it (r, 3) float32: the codes' values, and for each
+    pixel and channel the record with the most light (its carrier) holding the pixel's sum
+    minus the others as read, so that a pixel's records, as read, sum to what they summed to.
+    """
+    codes = fmt.RgbBins.code(rgb)
+    exact = (codes == fmt.RgbBins.EXACT).any(axis=1)
+    values = rgb.astype(np.float64)
+    order = np.argsort(pixel, kind="stable")
+    in_order = values[order]
+    starts = np.flatnonzero(np.r_[True, pixel[order][1:] != pixel[order][:-1]])
+    sizes = np.diff(np.r_[starts, len(order)])
+    group = np.repeat(np.arange(len(starts)), sizes)  # of each record in pixel order
+    finite = np.isfinite(in_order)
+    sums = np.add.reduceat(in_order, starts, axis=0) if len(order) else np.zeros((0, 3))
+    carried = np.isfinite(sums)  # (pixels, 3): a NaN or infinite sum has no rest to carry
+    carrier = np.full((len(starts), 3), -1, np.int64)  # its place in pixel order
+    for channel in range(3):
+        light = np.where(finite[:, channel], in_order[:, channel], -np.inf)
+        peak = np.maximum.reduceat(light, starts) if len(order) else light
+        at_peak = np.flatnonzero(light == peak[group])
+        first = at_peak[np.r_[True, group[at_peak][1:] != group[at_peak][:-1]]]  # the first at each pixel's peak
+        chosen = carried[group[first], channel] & (light[first] > 0)  # all 0: nothing to carry
+        carrier[group[first[chosen]], channel] = first[chosen]
+        exact[order[first[chosen]]] = True
+    read = np.where(exact[:, None], values, _RGB_TABLE[codes & 0xFFFF].astype(np.float64))
+    with np.errstate(invalid="ignore"):  # pixels of NaN or infinite light: no carrier reads their rest
+        rest = sums - (np.add.reduceat(read[order], starts, axis=0) if len(order) else sums)
+    for channel in range(3):
+        has = carrier[:, channel] >= 0
+        at = order[carrier[has, channel]]
+        read[at, channel] += rest[has, channel]
+    return codes, exact, read.astype(np.float32)
+
+
+def _learn_chroma(class_id: np.ndarray, codes: np.ndarray, exact: np.ndarray, chroma: np.ndarray,
+                  known: np.ndarray) -> None:
+    """Set the chroma (format.py) of the classes of `class_id` not `known` yet: r − g and
+    b − g codes of the first of their records (sorted) whose three channels are bin codes
+    (0, 0 if none), modulo 2^16. chroma (classes, 2) uint16 and known (classes,) bool are
+    updated in place; codes (r, 3) int64, exact (r,) bool."""
+    new = ~known[class_id]
+    binned = new & ~exact & ((codes >= 1) & (codes <= fmt.RgbBins.LARGEST_CODE)).all(axis=1)
+    rows = np.flatnonzero(binned)
+    classes, first = np.unique(class_id[rows], return_index=True)
+    rows = rows[first]
+    chroma[classes] = (codes[rows][:, [0, 2]] - codes[rows][:, 1:2]) & 0xFFFF
+    known[class_id[new]] = True
+
+
+def _class_pixel_order(class_id: np.ndarray, pixel: np.ndarray, classes: int) -> np.ndarray:
+    """The permutation that sorts records by class, then pixel (stable): a stable sort by
+    class, which is enough when each class's records come in pixel order (merged batches
+    do), else a sort by both."""
+    order = _stable_order(class_id, classes)
+    sorted_class, sorted_pixel = class_id[order], pixel[order]
+    if ((np.diff(sorted_pixel) >= 0) | (np.diff(sorted_class) != 0)).all():
+        return order
+    return np.lexsort((pixel, class_id))
 
 
 def _stable_order(class_id: np.ndarray, classes: int) -> np.ndarray:

@@ -131,7 +131,7 @@ def _frame_atoms(index: PathIndex, covariance: bool, threads: int) -> _FrameAtom
                   + (np.arange(width) * TILES // width)[None, :]).reshape(-1)
     bins = len(groups) * COVARIANCE_BITS * tiles
     sums = np.zeros((3, bins))
-    for chunk in index.records(norms=covariance, threads=threads, whole_chunks=True):
+    for chunk in index.records(norms=covariance, threads=threads):
         group = class_group[chunk.class_id]
         local = group * COVARIANCE_BITS
         if covariance:

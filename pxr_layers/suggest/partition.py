@@ -21,7 +21,7 @@ import numpy as np
 from .. import lpe
 from ..errors import PxrLayersError
 from ..paths.events import path_text
-from ..paths.reader import PathIndex, padded_event_ids
+from ..paths.reader import PathIndex
 
 
 class SuggestError(PxrLayersError):
@@ -70,6 +70,6 @@ def _distinct_sequences(index: PathIndex, event_symbol: np.ndarray) -> np.ndarra
     symbol, its last entry the padding), the first of each in class order."""
     if not index.classes:
         return np.zeros(0, np.int64)
-    padded = padded_event_ids(index.classes, len(event_symbol) - 1)
+    padded = index.event_matrix(len(event_symbol) - 1)
     _, first = np.unique(event_symbol[padded], axis=0, return_index=True)
     return np.sort(first)

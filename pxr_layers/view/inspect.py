@@ -9,7 +9,6 @@ chunks it found them in (:func:`select`).
 
 from __future__ import annotations
 
-import math
 from collections import defaultdict
 from dataclasses import dataclass
 from typing import Iterable, Sequence
@@ -18,15 +17,14 @@ import numpy as np
 
 from ..layers.previews import LUMINANCE_WEIGHTS as LUMINANCE
 from ..paths.events import SCATTERING_TYPES, Event, path_text
-from ..paths.format import NormBins
 from ..paths.reader import PathClass, PathIndex
 
 TOP_CLASSES = 50
 """Classes listed for a selection, by share."""
-NORM_OCTAVES = (int(math.log2(NormBins.LOWEST)),
-                int(math.ceil(math.log2(NormBins.LOWEST) + (NormBins.CODES - 2) / NormBins.BINS_PER_OCTAVE)))
-"""The norm histograms' range, as powers of 2: NormBins' range (2^-32 to 2^31.5), one bin an
-octave, values outside counted in the first and last bins, 0 on its own."""
+NORM_OCTAVES = (-32, 32)
+"""The norm histograms' range, as powers of 2 (2^-32 to 2^32: norms of real scenes lie well
+inside), one bin an octave, values outside counted in the first and last bins, 0 on its own.
+A merged index keeps norms by octave (paths.format.NormBins): these bins hold exactly its values."""
 NORM_QUANTITIES = ("C", "T", "R")
 ASPECTS = ("light", "first_object", "first_material", "first_scattering", "scattering", "bounces")
 """What :func:`generalise` can keep of the classes it is given."""
@@ -93,8 +91,9 @@ def select(index: PathIndex, x0: int, y0: int, x1: int, y1: int, *, threads: int
     """The records of pixels x0 ≤ x < x1, y0 ≤ y < y1 (image coordinates, top row 0),
     clipped to the image.
 
-    Two passes: the sums of every chunk find the chunks with records in the rectangle and
-    their classes (no covariance decoded), then only those chunks are read whole. A chunk
+    Two passes: the pixels of every chunk find the chunks with records in the rectangle and
+    their classes (no light nor covariance decoded), then only those chunks are read, and in
+    them only the runs of those classes. A chunk
     holds a run of a class's records in pixel order, so a click's records lie in a few.
     """
     width, height = index.manifest["resolution"]
@@ -115,7 +114,7 @@ def select(index: PathIndex, x0: int, y0: int, x1: int, y1: int, *, threads: int
 
     present: set[int] = set()
     hit_chunks = []
-    for number, chunk in enumerate(index.records(norms=False, threads=threads, whole_chunks=True)):  # every chunk
+    for number, chunk in enumerate(index.records(norms=False, light=False, threads=threads)):  # every chunk's pixels
         hit = inside(chunk.pixel)
         if hit.any():
             present.update(np.unique(chunk.class_id[hit]).tolist())

@@ -212,8 +212,9 @@ class Session:
         return {"file": index.path.name, "spp": index.manifest["spp"], "records": index.record_count,
                 "classes": index.class_count, "bounces": index.norm_slots, "has_sigma": index.has_sigma,
                 "labels": sorted(index.labels), "lights": lights, "objects": objects, "materials": materials,
-                "norm_bins": {"min": NormBins.LOWEST, "max": NormBins.LOWEST * NormBins.WIDTH ** (NormBins.CODES - 2),
-                              "per_octave": NormBins.BINS_PER_OCTAVE}}
+                "norm_bins": {"min": 2.0 ** NormBins.LOWEST_EXPONENT,
+                              "max": 2.0 ** (NormBins.LOWEST_EXPONENT + NormBins.EDGES - 1),
+                              "per_octave": 1, "exact": "0 and powers of two"}}
 
     # -- inspect
 
