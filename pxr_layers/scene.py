@@ -23,12 +23,11 @@ import numpy as np
 
 from .recipe.model import DEFAULT_CONFORM_POLICY, DEFAULT_PIXEL_ASPECT_RATIO, Recipe
 from .request import DEFAULT_RESOLUTION
+from .colour import REC709_LUMINANCE  # noqa: F401 (part of the plain data: the rendering colour space's)
 from .shader_nodes import ShaderNode, WrapMode  # noqa: F401 (WrapMode: part of the plain data)
 
 FLOAT = np.float32
 INDEX = np.int32
-REC709_LUMINANCE = (0.2126, 0.7152, 0.0722)
-"""Luminance weights of linear Rec.709 RGB (the rendering colour space, see above)."""
 
 
 
