@@ -122,9 +122,14 @@ class LayerSums:
                            or slot.max() >= len(offsets) - 1):
             raise AssertionError("records outside the image or their layer sets")
         counts = np.diff(offsets)
-        if (counts == 1).all():  # the common case: each slot feeds one layer
-            layer = layers[offsets[:-1]]
-            self._queue(pixel if not layer.any() else np.take(layer, slot) * pixels + pixel, rgb)
+        if (counts <= 1).all():  # the common case: each slot feeds one layer, or none
+            layer = np.full(len(counts), -1, np.int64)
+            layer[counts == 1] = layers[offsets[:-1][counts == 1]]
+            record_layer = np.take(layer, slot)
+            if (counts == 0).any() and (record_layer < 0).any():
+                keep = record_layer >= 0
+                pixel, rgb, record_layer = pixel[keep], rgb[keep], record_layer[keep]
+            self._queue(pixel if not layer.any() else record_layer * pixels + pixel, rgb)
             return
         first, count = np.take(offsets, slot), np.take(counts, slot)
         record = np.repeat(np.arange(len(pixel)), count)
