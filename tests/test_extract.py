@@ -146,3 +146,25 @@ def test_flat_condition_excludes_the_sphere(showcase_index):
 def test_an_unknown_label_warns_with_the_closest_names(showcase_index, caplog):
     extract(showcase_index, {"typo": "C<R.'curvedSpher'>.*"})
     assert "curvedSpher" in caplog.text and "'curvedSphere'" in caplog.text
+
+
+def test_the_luminance_weights_extract_imports_are_the_renderers():
+    """pxr_layers.colour holds the Rec.709 weights for the tools that must not import the
+    renderer; scene.py keeps its own copy until it imports them from there."""
+    from pxr_layers.colour import REC709_LUMINANCE
+    from pxr_layers.scene import REC709_LUMINANCE as SCENE_LUMINANCE
+
+    assert REC709_LUMINANCE == SCENE_LUMINANCE
+
+
+def test_extract_imports_no_compiled_kernel_nor_the_renderer():
+    """`pxr-layers extract` starts without numba, the tracer or USD (a fifth of a second and more)."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from pxr_layers.cli.main import build_parser; build_parser(['extract']); "
+            "import pxr_layers.layers.deliver, pxr_layers.layers.extract, pxr_layers.paths.reader; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numba', 'pxr', 'embree') "
+            "or m.startswith(('pxr_layers.trace', 'pxr_layers.stage', 'pxr_layers.scene'))))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert loaded.strip() == "[]"

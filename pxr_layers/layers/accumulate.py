@@ -1,33 +1,28 @@
 """Per-pixel float64 sums of many layers, from records keyed by the set of layers they feed.
 
-Why this shape (measured on a 1920×1080, 64 spp showcase index, 17.6 M merged records,
+Why this shape (measured on a 1920×1080, 64 spp showcase index, 18.8 M merged records,
 6.2 M of them in the classes of a new layer ``C<RD>.*<L.'key'>``): an accumulator that ran
 one ``bincount`` over (key, pixel) per chunk did O(pixels) work per chunk whatever the
-chunk held, and then added whole images per key: 2.0 s of a 2.9 s extraction. Here records
-are queued as (layer · pixels + pixel, rgb) pairs, and every PENDING_RECORDS of them are
-added by one ``bincount`` per channel: O(records + layers × pixels per flush), in numpy
-alone (a compiled loop was as fast, but importing numba costs `pxr-layers extract` a
-fifth of a second).
+chunk held, and then added whole images per key: 2.0 s of a 2.9 s extraction. Here each
+chunk's records are added where they go, ``np.add.at`` on each channel's (layers · pixels,)
+float64 sums: O(records), some 7 ns a record and channel, in numpy alone (a compiled loop
+was faster, but importing numba costs `pxr-layers extract` a fifth of a second; queueing
+the records for one ``bincount`` was as fast, with 300 MB more memory at 1080p).
 
 Each record carries a slot; a slot names the layers its records feed (CSR: ``offsets`` and
-``layers``), so a record feeding three layers is queued three times and no image per
-distinct key is kept: memory is the output's, (layers, pixels, 3) float64 (three channel
-arrays, made by the first flush), plus the queue, however many distinct layer sets the
-records fall into.
+``layers``), so a record feeding three layers is added three times and no image per
+distinct key is kept: memory is the output's, (layers, pixels, 3) float64 as three channel
+arrays, however many distinct layer sets the records fall into.
 
 Determinism: every image is the sum of its records in the order they are given (chunk
-order, then record order within a chunk), queued, then added in that order by each
-flush's ``bincount`` (in float64). The callers give chunks in file order whatever the number
-of threads that decoded them, so the images are byte-identical for any thread count.
+order, then record order within a chunk), one addition at a time in float64. The callers
+give chunks in file order whatever the number of threads that decoded them, so the images
+are byte-identical for any thread count.
 """
 
 from __future__ import annotations
 
 import numpy as np
-
-PENDING_RECORDS = 1 << 22
-"""Queued (record, layer) pairs before they are added to the sums: 4 M, some 80 MB, and a
-flush costs a pass over every layer's pixels (8 ms a layer at 1080p)."""
 
 
 class LayerSums:
@@ -48,9 +43,7 @@ class LayerSums:
     def __init__(self, plain_sets: np.ndarray, conditional_rows: list[int], pixels: int):
         self.plain_sets, self.conditional_rows = plain_sets, conditional_rows
         self._layers, self._pixels = plain_sets.shape[1], pixels
-        self._channels: list[np.ndarray] | None = None  # r, g, b: (layers · pixels,) float64 sums, from a first flush
-        self._pending: list[tuple[np.ndarray, np.ndarray]] = []  # (layer · pixels + pixel, rgb) to add
-        self._queued = 0
+        self._channels = [np.zeros(self._layers * pixels) for _ in range(3)]  # r, g, b: (layers · pixels,) sums
         self._members: dict[int, np.ndarray] = {}  # key → (k,) int64 layer rows
         # Keys without conditional bits are the plain set ids: their CSR, built once.
         self._plain_offsets, self._plain_layers = _csr([np.flatnonzero(row) for row in plain_sets])
@@ -92,65 +85,47 @@ class LayerSums:
     @property
     def sums(self) -> np.ndarray:
         """(layers, pixels, 3) float64: every record added so far."""
-        return np.stack(self._sums_by_channel(), axis=-1).reshape(self._layers, self._pixels, 3)
+        return np.stack(self._channels, axis=-1).reshape(self._layers, self._pixels, 3)
 
     def images(self, height: int, width: int, spp: int) -> list[np.ndarray]:
         """Each layer's sums / spp as an (height, width, 3) float32 image (pixels = height ·
         width), rounded once from float64: the same values as ``sums`` divided, without
         its (layers, pixels, 3) copy."""
-        channels = self._sums_by_channel()
         images = []
         for layer in range(self._layers):
             image = np.empty((height, width, 3), np.float32)
-            for channel, sums in enumerate(channels):
+            for channel, sums in enumerate(self._channels):
                 np.divide(sums[layer * self._pixels:(layer + 1) * self._pixels].reshape(height, width), spp,
                           out=image[..., channel])
             images.append(image)
         return images
 
-    def _sums_by_channel(self) -> list[np.ndarray]:
-        self._flush()
-        if self._channels is None:
-            self._channels = [np.zeros(self._layers * self._pixels) for _ in range(3)]
-        return self._channels
-
     def _add(self, pixel, rgb, slot, offsets, layers) -> None:
-        """Queue each record for every layer of its slot (offsets (S + 1,), layers (E,): CSR)."""
+        """Add each record to every layer of its slot (offsets (S + 1,), layers (E,): CSR)."""
         pixels = self._pixels
         pixel, slot = np.asarray(pixel, np.int64), np.asarray(slot, np.int64)
         if len(pixel) and (pixel.min() < 0 or pixel.max() >= pixels or slot.min() < 0
                            or slot.max() >= len(offsets) - 1):
             raise AssertionError("records outside the image or their layer sets")
         counts = np.diff(offsets)
-        if (counts == 1).all():  # the common case: each slot feeds one layer
-            layer = layers[offsets[:-1]]
-            self._queue(pixel if not layer.any() else np.take(layer, slot) * pixels + pixel, rgb)
+        if (counts <= 1).all():  # the common case: each slot feeds one layer, or none
+            layer = np.full(len(counts), -1, np.int64)
+            layer[counts == 1] = layers[offsets[:-1][counts == 1]]
+            record_layer = np.take(layer, slot)
+            if (counts == 0).any() and (record_layer < 0).any():
+                keep = record_layer >= 0
+                pixel, rgb, record_layer = pixel[keep], rgb[keep], record_layer[keep]
+            self._add_at(pixel if not layer.any() else record_layer * pixels + pixel, rgb)
             return
         first, count = np.take(offsets, slot), np.take(counts, slot)
         record = np.repeat(np.arange(len(pixel)), count)
         entry = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(len(record))
-        self._queue(layers[entry] * pixels + pixel[record], rgb[record])
+        self._add_at(layers[entry] * pixels + pixel[record], rgb[record])
 
-    def _queue(self, place: np.ndarray, rgb: np.ndarray) -> None:
-        self._pending.append((place, rgb))
-        self._queued += len(place)
-        if self._queued >= PENDING_RECORDS:
-            self._flush()
-
-    def _flush(self) -> None:
-        """Add the queued records to the sums, in the order they were queued."""
-        if not self._pending:
-            return
-        place = np.concatenate([place for place, _ in self._pending])
-        rgb = np.concatenate([rgb for _, rgb in self._pending])
-        self._pending, self._queued = [], 0
-        added = [np.bincount(place, weights=rgb[:, channel], minlength=self._layers * self._pixels)
-                 for channel in range(3)]
-        if self._channels is None:  # the first flush: its sums are the sums (no zeros to add to)
-            self._channels = added
-        else:
-            for sums, more in zip(self._channels, added):
-                sums += more
+    def _add_at(self, place: np.ndarray, rgb: np.ndarray) -> None:
+        """Add rgb (r, 3) to the sums at place (r,) (layer · pixels + pixel), in order."""
+        for channel, sums in enumerate(self._channels):
+            np.add.at(sums, place, rgb[:, channel].astype(np.float64))  # float64 values: numpy's fast path
 
 
 def _csr(members: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
