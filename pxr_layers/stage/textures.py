@@ -38,6 +38,7 @@ from __future__ import annotations
 import dataclasses
 import glob
 import logging
+import math
 import os
 import tempfile
 import threading
@@ -367,8 +368,7 @@ def _read_file(path: str, name: str | None = None) -> _DecodedFile:
     MAX_TEXTURE_TEXELS); ``name`` is what log lines call it (default ``path``)."""
     header = read_header(path)
     level = 0
-    while level_size(header.width, header.height, level)[0] * level_size(header.width, header.height, level)[1] \
-            > MAX_TEXTURE_TEXELS:
+    while math.prod(level_size(header.width, header.height, level)) > MAX_TEXTURE_TEXELS:
         level += 1
     _, pixels = read_level(path, level, "float")
     logger.debug("decoded %s: %dx%d, %d channels of %s", name or path, header.width, header.height,
