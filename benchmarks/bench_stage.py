@@ -47,7 +47,7 @@ SYNTHETIC_CACHE/<its parameters> and reused by later runs (the PNGs take minutes
 index on) in a fresh process and prints its wall time and peak memory (ru_maxrss, from
 wait4). Target: peak ≤ SYNTHETIC_RENDER_BYTES.
 
-The default stage is the OpenChessSet (21 mesh prims placed 49 times, 1.7 M triangles at the
+The default stage is the OpenChessSet (21 mesh prims placed 49 times, 2.8 M triangles at the
 automatic subdivision levels at 640 px, payloads, PointInstancers, MaterialX looks); the script prints a
 message and exits 0 when the asset is absent. Stages are read as shipped: one without a
 camera gets load_stage's automatic camera (its framing is part of our read), and a load_stage
