@@ -189,3 +189,37 @@ def srgb_to_linear(values: np.ndarray) -> np.ndarray:
     # np.maximum keeps the power's base positive so negative inputs cannot produce NaN.
     curved = ((np.maximum(values, 0.04045) + 0.055) / 1.055) ** 2.4
     return np.where(values <= 0.04045, values / 12.92, curved).astype(FLOAT)
+
+
+def linear(pixels: np.ndarray, color_space: str) -> np.ndarray:
+    """(h, w, c) stored values (float, 0–1 for integer files) → a new (h, w, min(c, 4)) linear
+    float32 array: through the sRGB EOTF when `color_space` is "sRGB" (never alpha), a band of
+    rows at a time so that the EOTF's temporaries stay small beside a large image."""
+    channels = min(pixels.shape[2], 4)
+    values = np.array(pixels[:, :, :channels], dtype=FLOAT)  # a copy: the decoded file stays as stored
+    if color_space == "sRGB":
+        colour = 3 if channels >= 3 else 1
+        rows = max(1, BAND_BYTES // (4 * values.shape[1] * colour))
+        for top in range(0, values.shape[0], rows):
+            band = values[top:top + rows, :, :colour]
+            band[...] = srgb_to_linear(band)
+    return values
+
+
+def repaired(pixels: np.ndarray, light_ceiling: float | None = None) -> int:
+    """Replace, in the (h, w, c) float ``pixels``, the values no lookup can use by 0: NaN and
+    infinities, and for the image of a light (``light_ceiling`` given) negative values too,
+    lowering those above the ceiling to it. Returns how many texels (pixels, any channel)
+    changed."""
+    unusable = ~np.isfinite(pixels)
+    too_bright = None
+    if light_ceiling is not None:
+        unusable |= pixels < 0.0
+        too_bright = ~unusable & (pixels > light_ceiling)
+    changed = unusable if too_bright is None else unusable | too_bright
+    count = int(np.count_nonzero(changed.any(axis=2)))
+    if count:
+        pixels[unusable] = 0.0
+        if too_bright is not None:
+            pixels[too_bright] = light_ceiling
+    return count

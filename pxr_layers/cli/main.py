@@ -34,11 +34,6 @@ def subcommand(name: str):
     return importlib.import_module(f"{__package__}.{name}")
 
 
-def subcommands() -> dict:
-    """Subcommand name → its module, every one imported."""
-    return {name: subcommand(name) for name in SUBCOMMAND_NAMES}
-
-
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The command's parser. When `argv` names a subcommand first, only that one's module is
     imported (the others get empty parsers, never used): `pxr-layers extract` must not pay

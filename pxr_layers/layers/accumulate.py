@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..paths.format import run_rows
+
 
 class LayerSums:
     """(layers, pixels, 3) float64 sums, added to one chunk of records at a time.
@@ -119,7 +121,7 @@ class LayerSums:
             return
         first, count = np.take(offsets, slot), np.take(counts, slot)
         record = np.repeat(np.arange(len(pixel)), count)
-        entry = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(len(record))
+        entry = run_rows(first, count)
         self._add_at(layers[entry] * pixels + pixel[record], rgb[record])
 
     def _add_at(self, place: np.ndarray, rgb: np.ndarray) -> None:

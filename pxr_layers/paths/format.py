@@ -104,6 +104,7 @@ reader checks before using them.
 
 from __future__ import annotations
 
+import functools
 import json
 import struct
 import sys
@@ -125,8 +126,6 @@ CHUNK_MAGIC = b"CHNK"
 HEADER = struct.Struct("<8sII")
 CHUNK_HEADER = struct.Struct("<4sIIIIIII")
 """magic, payload bytes, CRC-32, records, class runs, exact records, where and light frame bytes."""
-FRAMES = ("where", "light", "covariance")
-"""A chunk's zstd frames, in file order (``column_layout``)."""
 TRAILER = struct.Struct("<QQQII8s")
 """footer offset, footer bytes, its JSON frame's bytes, CRC-32 of the footer, version, magic."""
 ZSTD_LEVEL = 3
@@ -384,14 +383,17 @@ class RgbBins:
         return np.where(coded, codes, np.where(values == 0, cls.ZERO, cls.EXACT)).astype(np.int64)
 
     @classmethod
+    @functools.cache
     def table(cls) -> np.ndarray:
-        """(65536,) float32: the value of each uint16 code; NaN for EXACT and the codes
-        above it, which no writer stores (a reader finds them by their NaN)."""
+        """(65536,) float32, read-only, built once: the value of each uint16 code; NaN for
+        EXACT and the codes above it, which no writer stores (a reader finds them by their NaN)."""
         codes = np.arange(1 << 16, dtype=np.float64)
         values = 2.0 ** ((codes - cls.OFFSET) / cls.BINS_PER_OCTAVE)
         values[0] = 0.0
         values[cls.EXACT:] = np.nan
-        return values.astype(np.float32)
+        table = values.astype(np.float32)
+        table.flags.writeable = False
+        return table
 
     @classmethod
     def manifest(cls) -> dict:
@@ -424,3 +426,10 @@ def codes_of_residuals(stored: np.ndarray, chroma: np.ndarray) -> np.ndarray:
         shifted = stored[row] + green + chroma[:, row - 1]  # uint16 arithmetic: modulo 2^16
         codes[:, channel] = np.where(binned, shifted, stored[row])
     return codes
+
+
+def run_rows(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """(Σ lengths,) int64: the numbers of the rows of runs of `lengths` rows from `starts`
+    (the reader's class runs, the accumulator's layer lists), in order."""
+    before = np.cumsum(lengths) - lengths
+    return np.arange(int(lengths.sum())) + np.repeat(starts - before, lengths)

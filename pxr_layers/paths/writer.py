@@ -384,9 +384,6 @@ class _FullBuffer(NamedTuple):
     new_class_nodes: list[np.ndarray]
 
 
-_RGB_TABLE = fmt.RgbBins.table()
-
-
 def _coded_rgb(pixel: np.ndarray, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rgb of a merged buffer's records as stored (paths/format.py, ``RgbBins``).
 
@@ -416,7 +413,7 @@ def _coded_rgb(pixel: np.ndarray, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarr
         chosen = carried[group[first], channel] & (light[first] > 0)  # all 0: nothing to carry
         carrier[group[first[chosen]], channel] = first[chosen]
         exact[order[first[chosen]]] = True
-    read = np.where(exact[:, None], values, _RGB_TABLE[codes & 0xFFFF].astype(np.float64))
+    read = np.where(exact[:, None], values, fmt.RgbBins.table()[codes & 0xFFFF].astype(np.float64))
     with np.errstate(invalid="ignore"):  # pixels of NaN or infinite light: no carrier reads their rest
         rest = sums - (np.add.reduceat(read[order], starts, axis=0) if len(order) else sums)
     for channel in range(3):

@@ -1010,15 +1010,6 @@ class _Ring:
         return _Ring(edge, np.take(columns, level.following_vertex(2), axis=1))
 
 
-def _scatter_rows(index: np.ndarray, rows: np.ndarray, size: int) -> np.ndarray:
-    """(size, m) sums of the columns of ``rows`` (m, n) grouped by ``index`` (n,): _scatter
-    of the transposed values."""
-    out = np.empty((size, len(rows)))
-    for column, row in enumerate(rows):
-        out[:, column] = np.bincount(index, weights=row, minlength=size)
-    return out
-
-
 def _limit_positions(level: _Level, data: np.ndarray, scheme: str, ring: _Ring) -> np.ndarray:
     """(v, m) data pushed to the limit surface (OpenSubdiv's limit position masks)."""
     ends = level.edge_vertices
@@ -1033,14 +1024,14 @@ def _limit_positions(level: _Level, data: np.ndarray, scheme: str, ring: _Ring) 
         # Regular: (1/36) [1 4 1; 4 16 4; 1 4 1]; valence n: 1/(n(n+5)) per diagonal vertex.
         diagonal_weight = 1.0 / (n * (n + 5.0))
         self_weight = 1.0 - 5.0 * n * diagonal_weight
-        ring_sum = _scatter_rows(corner_vertex, 4.0 * ring.edge + ring.diagonal, size)
+        ring_sum = _scatter(corner_vertex, (4.0 * ring.edge + ring.diagonal).T, size)
         smooth = self_weight[:, None] * data + diagonal_weight[:, None] * ring_sum
         smooth = np.where((face_counts == 2)[:, None], data, smooth)  # OpenSubdiv: a corner
     else:
         # Loop's beta is positive for every valence, so the division is safe.
         loop_edge_weight, _ = _loop_vertex_weights(face_counts)
         edge_weight = 1.0 / (n + 3.0 / (8.0 * loop_edge_weight))
-        neighbour_sum = _scatter_rows(corner_vertex, ring.edge, size)
+        neighbour_sum = _scatter(corner_vertex, ring.edge.T, size)
         smooth = (1.0 - n * edge_weight)[:, None] * data + edge_weight[:, None] * neighbour_sum
     crease = (4.0 * data + _crease_neighbour_sum(ends, data, sharp, sharp, size)) / 6.0
     return np.where(

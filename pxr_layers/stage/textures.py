@@ -20,7 +20,7 @@ are decoded here, bounded as texture_files.py says (a file of more than MAX_TEXT
 is read at its first MIP level within it, with a warning naming it).
 
 Texels no lookup can use are replaced by 0 when a file is decoded, with one warning naming
-the file and how many texels changed (_repaired): NaN and infinite ones in every texture
+the file and how many texels changed (texture_files.repaired): NaN and infinite ones in every texture
 (a NaN roughness or albedo makes NaN pixels, and an infinite one NaN as soon as it is
 multiplied by 0), and in the images of lights (``light=True``: a dome's lat-long image, a
 rect light's colour map) negative ones too, which would be negative radiance, while texels
@@ -49,15 +49,8 @@ import numpy as np
 from pxr import Ar, Sdf, Usd
 
 from pxr_layers.inputs import input_problem
-from pxr_layers.scene import FLOAT, TextureHeader, TextureImage, WrapMode
-from pxr_layers.texture_files import (
-    BAND_BYTES,
-    MAX_TEXTURE_TEXELS,
-    level_size,
-    read_header,
-    read_level,
-    srgb_to_linear,
-)
+from pxr_layers.scene import TextureHeader, TextureImage, WrapMode
+from pxr_layers.texture_files import MAX_TEXTURE_TEXELS, level_size, linear, read_header, read_level, repaired
 
 from .diagnostics import Diagnostics
 from .values import MAX_RADIANCE
@@ -65,7 +58,7 @@ from .values import MAX_RADIANCE
 logger = logging.getLogger(__name__)
 
 ColorSpace = Literal["raw", "sRGB"]
-# An image as a read uses it: its colour space, and whether a light emits it (_repaired).
+# An image as a read uses it: its colour space, and whether a light emits it (texture_files.repaired).
 _Use = tuple[ColorSpace, bool]
 MAX_LIGHT_TEXEL = MAX_RADIANCE
 """Light texels above this are lowered to it: a light's texel is a radiance (values.MAX_RADIANCE:
@@ -99,7 +92,7 @@ class _FileTexture:
     reduced_from: tuple[int, int] | None  # _DecodedFile.reduced_from
     decoded: _DecodedFile | None = None
     images: dict[_Use, np.ndarray] = field(default_factory=dict)  # (h, w, c) read-only
-    repaired: dict[_Use, int] = field(default_factory=dict)  # texels _repaired in images[use]
+    repaired: dict[_Use, int] = field(default_factory=dict)  # texels repaired in images[use]
 
 
 _REMEMBERED: dict[tuple, _FileTexture] = {}
@@ -253,8 +246,8 @@ class TextureLibrary:
         if use not in texture.images:
             if texture.decoded is None:  # remembered from an earlier read in another use
                 texture.decoded = _read_texture(path)
-            pixels = _linear(texture.decoded.pixels, color_space)
-            texture.repaired[use] = _repaired(pixels, light)
+            pixels = linear(texture.decoded.pixels, color_space)
+            texture.repaired[use] = repaired(pixels, MAX_LIGHT_TEXEL if light else None)
             pixels.flags.writeable = False
             texture.images[use] = pixels
         pixels = texture.images[use]
@@ -375,35 +368,3 @@ def _read_file(path: str, name: str | None = None) -> _DecodedFile:
                  header.channels, header.stored)
     return _DecodedFile(pixels=pixels, is_uint8=header.stored == "uint8", wrap_modes=header.wrap_modes,
                         reduced_from=(header.width, header.height) if level else None)
-
-
-def _repaired(pixels: np.ndarray, light: bool) -> int:
-    """Replace, in the (h, w, c) float32 ``pixels``, the values no lookup can use by 0: NaN and
-    infinities, and with ``light`` negative values too (and lower those above MAX_LIGHT_TEXEL
-    to it). Returns how many texels (pixels, any channel) changed."""
-    unusable = ~np.isfinite(pixels)
-    too_bright = None
-    if light:
-        unusable |= pixels < 0.0
-        too_bright = ~unusable & (pixels > MAX_LIGHT_TEXEL)
-    changed = unusable if too_bright is None else unusable | too_bright
-    count = int(np.count_nonzero(changed.any(axis=2)))
-    if count:
-        pixels[unusable] = 0.0
-        if too_bright is not None:
-            pixels[too_bright] = MAX_LIGHT_TEXEL
-    return count
-
-
-def _linear(pixels: np.ndarray, color_space: ColorSpace) -> np.ndarray:
-    """(h, w, c) stored values → (h, w, min(c, 4)) linear float32; the EOTF never touches alpha."""
-    channels = min(pixels.shape[2], 4)
-    linear = np.array(pixels[:, :, :channels], dtype=FLOAT)  # a copy: the decoded file stays as stored
-    if color_space == "sRGB":
-        colour = 3 if channels >= 3 else 1
-        # A band of rows at a time: the EOTF's temporaries stay small beside a large image.
-        rows = max(1, BAND_BYTES // (4 * linear.shape[1] * colour))
-        for top in range(0, linear.shape[0], rows):
-            band = linear[top:top + rows, :, :colour]
-            band[...] = srgb_to_linear(band)
-    return linear

@@ -108,8 +108,7 @@ class BounceNorms:
         self.material_uv = np.array([np.eye(3)[:2] if found is None else np.reshape(found[1], (2, 3))
                                      for found in driving] + [np.eye(3)[:2]])
         # each texture's spectrum of its finest resident level (texture units, as T's lookups)
-        rows = {index: row for row, index in enumerate(materials.textures)}
-        resident = materials.resident
+        rows, resident = materials.texture_rows, materials.resident
         self.spectra = {}
         for index in sorted(set(textured) & set(rows)):  # one linear copy of a level at a time
             pixels = resident.finest_linear(rows[index])

@@ -124,14 +124,14 @@ def _texture_levels(scene: SceneData, spec: RenderSpec, settings: TraceSettings,
     size = (-(-width >> shrink), -(-height >> shrink))
     spp = max(1, min(settings.spp, PREPASS_PATHS // (size[0] * size[1])))
     pre_pass = TraceSettings(spp=spp, max_depth=settings.max_depth, seed=settings.seed,
-                             roulette_depth=settings.roulette_depth, texture_memory=settings.texture_memory)
+                             roulette_depth=settings.roulette_depth)
     integrator = _integrator(scene, size, pre_pass, world, geometry, camera, probe, lanes, slots)
     paths = size[0] * size[1] * spp
     for first in range(0, paths, DEFAULT_BATCH_PATHS):
         integrator.trace(first, min(first + DEFAULT_BATCH_PATHS, paths))
     finest: dict[int, int | None] = dict(decoded)
     of_norms = {found[0] for found in map(diffuse_texture, scene.materials) if found} if settings.norm_bounces else set()
-    for row, index in enumerate(probe.textures):
+    for index, row in probe.texture_rows.items():
         asked = int(probe.arrays.texture_wanted[row])
         if index in finest or asked == NOT_WANTED:
             continue

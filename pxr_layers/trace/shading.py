@@ -129,11 +129,10 @@ class MaterialTable:
         # Whether any material lets light through (presence below 1 somewhere).
         self.see_through = any(isinstance(material.opacity, ShaderNode) or material.opacity < 1
                                for material in materials)
-        # SceneData.textures indices in the order of the kernels' texture rows
-        self.textures = list(compiler.atlas)
-        images = [scene.textures[texture] for texture in self.textures]
+        self.texture_rows = compiler.atlas  # SceneData.textures index → the kernels' texture row
+        images = [scene.textures[texture] for texture in compiler.atlas]
         self.resident = resident_textures(
-            images, None if finest is None else [finest.get(texture) for texture in self.textures], texture_memory)
+            images, None if finest is None else [finest.get(texture) for texture in compiler.atlas], texture_memory)
         self.arrays = MaterialArrays(
             constants=constants, program=np.array(compiler.program, np.int32).reshape(-1, _INSTRUCTION),
             parameters=np.array(compiler.parameters + [0.0], np.float32), program_range=program_range,

@@ -66,7 +66,9 @@ from ..texture_files import (
     block_means,
     level_count,
     level_size,
+    linear,
     read_level,
+    repaired,
     srgb_to_linear,
 )
 
@@ -244,7 +246,7 @@ def _pyramid(image: TextureImage, finest: int) -> tuple[list[np.ndarray], int]:
     """`image`'s levels from `finest` to 1 × 1, (h, w, c) arrays of its stored type (float32
     linear for the f32 pool), and how many texels of the first were NaN or infinite (read
     as 0); OSError when its file cannot be read."""
-    repaired = 0
+    fixed = 0
     if image.pixels is not None:
         top = np.asarray(image.pixels[..., :4], FLOAT)
         for _ in range(finest):
@@ -255,20 +257,18 @@ def _pyramid(image: TextureImage, finest: int) -> tuple[list[np.ndarray], int]:
         stored = image.header.stored
         if (header.width, header.height, header.stored) != (image.header.width, image.header.height, stored):
             raise OSError("the file changed since the stage was read")
-        if stored in ("half", "float"):
+        if stored == "half":
             top = np.array(top)
-            unusable = ~np.isfinite(top)
-            repaired = int(np.count_nonzero(unusable.any(axis=2)))
-            top[unusable] = 0
-            if stored == "float" and image.color_space == "sRGB":
-                colour = 3 if top.shape[2] >= 3 else 1
-                top[..., :colour] = srgb_to_linear(top[..., :colour])
+            fixed = repaired(top)
+        elif stored == "float":  # held linear
+            top = linear(top, image.color_space)
+            fixed = repaired(top)
     levels = [top]
     while levels[-1].shape[0] > 1 or levels[-1].shape[1] > 1:
         levels.append(as_stored(block_means(levels[-1], 2), stored))
     for level in levels:
         level.flags.writeable = False
-    return levels, repaired
+    return levels, fixed
 
 
 def resident_textures(images: Sequence[TextureImage], finest: Sequence[int | None] | None = None,
@@ -289,16 +289,16 @@ def resident_textures(images: Sequence[TextureImage], finest: Sequence[int | Non
         image = images[index]
         key = None if image.pixels is not None else _pyramid_key(image, chosen[index])
         try:
-            levels, repaired = last[key] if key in last else _pyramid(image, chosen[index])
+            levels, fixed = last[key] if key in last else _pyramid(image, chosen[index])
         except OSError as error:
             log.warning("cannot read texture %s%s: %s; using the fallback value instead", image.path,
                         used_by(image), error)
             return None
         if key is not None:
-            kept[key] = levels, repaired
-        if repaired:
+            kept[key] = levels, fixed
+        if fixed:
             log.warning("texture %s%s: %d of %d texels are NaN or infinite (read as 0)", image.path, used_by(image),
-                        repaired, levels[0].shape[0] * levels[0].shape[1])
+                        fixed, levels[0].shape[0] * levels[0].shape[1])
         return levels
 
     with ThreadPoolExecutor(max(1, min(available_cores(), len(work)))) as pool:

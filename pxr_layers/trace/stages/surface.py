@@ -182,7 +182,8 @@ def bent_normal(nx, ny, nz, gx, gy, gz, wx, wy, wz):
 
 @kernel
 def _surface_kernel(alive, key, pixel, sample, frame_key, spp, presence_dimension, triangle, bary_u, bary_v, t_hit,
-                    direction, depth, travelled, pixel_angle, lens_radius, focus_distance, max_depth, geometry, materials, curvature, point, normal, registers, inputs, position_out,
+                    direction, depth, travelled, pixel_angle, lens_radius, focus_distance, max_depth, geometry,
+                    materials, curvature, point, normal, registers, inputs, position_out,
                     facing_out, frame_out, wo_out, lobes_out, cut_out, scatters_out, st_out, curvature_out,
                     through_out):
     has_curvature = len(curvature) > 0
