@@ -85,6 +85,7 @@ def make_app(session: Session, token: str, allowed_hosts: frozenset[str] | None)
     app.router.add_post("/api/layer", _layer)
     app.router.add_post("/api/suggest", _suggest)
     app.router.add_post("/api/save", _save)
+    app.router.add_put("/api/document", _document)
     return app
 
 
@@ -258,8 +259,13 @@ async def _save(request: web.Request) -> web.Response:
     if not isinstance(overwrite, bool):
         raise ViewError(f"overwrite must be true or false, not {overwrite!r}")
     written = await _blocking(request, session.save, body.get("name"), body.get("layers"),
-                              body.get("exposure", 0.0), overwrite)
+                              body.get("exposure", 0.0), overwrite, body.get("document"))
     return web.json_response(written)
+
+
+async def _document(request: web.Request) -> web.Response:
+    body = await _json_body(request)
+    return web.json_response(await _blocking(request, request.app[SESSION_KEY].put_document, body))
 
 
 async def _folder_file(request: web.Request) -> web.StreamResponse:

@@ -17,6 +17,7 @@ the session's folder.
 
 from __future__ import annotations
 
+import json
 import logging
 import re
 import threading
@@ -54,6 +55,7 @@ from ..recipe.model import (
     Product,
     Recipe,
 )
+from . import document as documents
 from . import inspect
 
 log = logging.getLogger(__name__)
@@ -132,6 +134,8 @@ class Session:
         self._lock = threading.Lock()
         self._event_paths = event_paths(index.events) if index else []
         self._infos = [inspect.describe(path_class, self._event_paths) for path_class in index.classes] if index else []
+        self.document_path = documents.document_path(folder, title)
+        self.document = self._restored(documents.load(self.document_path))
 
     # -- opening
 
@@ -184,6 +188,7 @@ class Session:
         return {"title": self.title, "width": self.width, "height": self.height,
                 "layers": [layer.description() for layer in self.layers.values()],
                 "denoised": self.guides is not None,
+                "document": self.document, "document_file": self.document_path.name,
                 "partition": self._partition(layers), "index": self._index_description(),
                 "alphabet": {"types": list(zip(SCATTERING_TYPES, SCATTERING_TYPE_NAMES, strict=True)),
                              "scatterings": list(zip(SCATTERINGS, SCATTERING_NAMES, strict=True))},
@@ -215,6 +220,58 @@ class Session:
                 "norm_bins": {"min": 2.0 ** NormBins.LOWEST_EXPONENT,
                               "max": 2.0 ** (NormBins.LOWEST_EXPONENT + NormBins.EDGES - 1),
                               "per_octave": 1, "exact": "0 and powers of two"}}
+
+    # -- the working state (view/document.py)
+
+    def put_document(self, document) -> dict:
+        """/api/document: keep the page's working state beside the render. Every layer it
+        shows must be one of the session's."""
+        try:
+            document = documents.checked(document)
+        except documents.DocumentError as error:
+            raise ViewError(f"document: {error}") from None
+        with self._lock:
+            unknown = sorted(set(documents.sources(document)) - set(self.layers))
+            if unknown:
+                raise ViewError(f"document: no layer {unknown[0]!r} in this session", 404)
+            documents.write(self.document_path, document)
+            self.document = document
+        return {"file": self.document_path.name}
+
+    def _restored(self, document: dict | None) -> dict | None:
+        """`document` with the layers it shows that the render's products do not hold (made on
+        the page) extracted again from their expressions; entries of layers that cannot be
+        (no index, no expression, an expression that no longer compiles) are dropped, with a
+        warning naming them."""
+        if document is None:
+            return None
+        missing = {source: expression for source, expression in documents.sources(document).items()
+                   if source not in self.layers}
+        restorable = {source: expression for source, expression in missing.items() if expression and self.index}
+        if restorable:
+            names = {f"restored_{number}": source for number, source in enumerate(restorable)}
+            try:
+                extraction = extract(self.index, {name: restorable[source] for name, source in names.items()},
+                                     threads=self.threads)
+            except PxrLayersError as error:
+                log.warning("%s: its page-made layers are not restored (%s)", self.document_path.name,
+                            str(error).splitlines()[0])
+                restorable = {}
+            else:
+                shares = energy_shares(self.beauty, extraction.layers)
+                denoised = self._denoised(extraction.layers)
+                for name, source in names.items():
+                    self.layers[source] = ViewLayer(source, source, "layer", "", restorable[source],
+                                                    extraction.layers[name], shares[name], denoised=denoised.get(name))
+        lost = sorted(set(missing) - set(restorable))
+        if lost:
+            log.warning("%s: %d layers it shows are gone and left out: %s", self.document_path.name, len(lost),
+                        ", ".join(lost[:5]))
+            for look in (document, *document["snapshots"], *([document["saved"]] if document["saved"] else [])):
+                look["entries"] = [entry for entry in look["entries"] if entry["source"] not in lost]
+        log.info("%s: the working state restored (%d entries, %d snapshots)", self.document_path.name,
+                 len(document["entries"]) - 1, len(document["snapshots"]))
+        return document
 
     # -- inspect
 
@@ -332,9 +389,12 @@ class Session:
 
     # -- save
 
-    def save(self, name: str, stack: list[dict], exposure: float = 0.0, overwrite: bool = False) -> dict:
+    def save(self, name: str, stack: list[dict], exposure: float = 0.0, overwrite: bool = False,
+             document: dict | None = None) -> dict:
         """/api/save: NAME.usda (the recipe), NAME.exr and its previews (extracted from the
-        index), NAME.nk (the grade), all in the folder, together or not at all."""
+        index), NAME.nk (the grade), and with the page's `document`, NAME.view.json (the
+        look's working state: opening NAME.exr shows exactly this), all in the folder,
+        together or not at all."""
         from ..stage.recipe_writer import write_recipe  # USD is imported only when saving
 
         index = self._need_index("save the stack (its layers are extracted from it)")
@@ -343,11 +403,14 @@ class Session:
                             "not starting with a digit or -")
         exposure = _stops(exposure, "exposure")
         chosen, grades = self._stack(stack)
+        look = self._look_document(document, stack, chosen, exposure, name)
         # the raw stack (its grades are the look's; a render with --denoise makes the twin)
         recipe = Recipe((replace(self.base_product, name=name.replace("-", "_"), output_name=f"{name}.exr", prim_path="",
                                  layers=tuple(chosen), per_light="none", denoise=False),))
         paths = {"recipe": self.folder / f"{name}.usda", "exr": self.folder / f"{name}.exr",
                  "nuke": self.folder / f"{name}.nk"}
+        if look is not None:
+            paths["document"] = documents.document_path(self.folder, name)
         partition = self._partition([self.layers[entry["id"]] for entry in stack if entry["id"] != "beauty"])
         # The check and the writes together: of two saves of one name, one is refused. A save
         # named after the render (overwrite: true) does not replace the index and EXR it reads.
@@ -362,11 +425,15 @@ class Session:
             write_nuke_script(paths["nuke"], paths["exr"], [layer.name for layer in chosen], grades,
                               resolution=(self.width, self.height), exposure=float(exposure), partition=partition,
                               pixel_aspect_ratio=self.base_product.pixel_aspect_ratio)
+            if look is not None:
+                documents.write(paths["document"], look)
         log.info("saved %s", ", ".join(str(path) for path in paths.values()))
         return {key: path.name for key, path in paths.items()}
 
     def _stack(self, stack: list[dict]) -> tuple[list[Layer], dict[str, LayerGrade]]:
-        """The recipe layers and the grades of the page's stack entries ({id, stops, tint, mute, solo})."""
+        """The recipe layers and the grades of the page's stack entries ({id: the server
+        layer, name: the layer's name in the look (default: the server layer's), group, stops,
+        tint, mute, solo}): one entry may rename a layer, two may show one layer."""
         if not isinstance(stack, list) or not stack:
             raise ViewError("the stack to save holds no layers")
         layers, grades = [], {}
@@ -378,8 +445,16 @@ class Session:
             layer = self.layer(entry.get("id"))
             if layer.kind == "beauty":
                 continue
-            if layer.name in grades:
-                raise ViewError(f"two layers of the stack are named {layer.name!r}")
+            layer_name = entry.get("name", layer.name)
+            if not isinstance(layer_name, str) or len(layer_name) > MAX_NAME_CHARS or not LAYER_NAME.fullmatch(layer_name) \
+                    or layer_name in NUKE_RESERVED_LAYERS:
+                raise ViewError(f"layer name {_shown(layer_name)}: at most {MAX_NAME_CHARS} letters, digits and _, "
+                                "not starting with a digit, and not a layer Nuke keeps for itself")
+            if layer_name in grades:
+                raise ViewError(f"two layers of the stack are named {layer_name!r}")
+            group = entry.get("group") or "inspector"
+            if not isinstance(group, str) or len(group) > documents.MAX_TEXT:
+                raise ViewError(f"layer {layer_name!r}: group is a name of at most {documents.MAX_TEXT} characters")
             tint = entry.get("tint", [1, 1, 1])
             if not isinstance(tint, list) or len(tint) != 3:
                 raise ViewError(f"layer {layer.name!r}: tint is three numbers >= 0, not {_shown(tint)}")
@@ -387,14 +462,41 @@ class Session:
             try:
                 grade = LayerGrade(stops=_stops(entry.get("stops", 0.0), f"layer {layer.name!r}: stops"), tint=tint,
                                    mute=bool(entry.get("mute", False)), solo=bool(entry.get("solo", False)))
-                layers.append(Layer(layer.name, "lpe", layer.expression, exposure=grade.stops, tint=grade.tint,
-                                    group="inspector"))
+                layers.append(Layer(layer_name, "lpe", layer.expression, exposure=grade.stops, tint=grade.tint,
+                                    group=group))
             except (TypeError, ValueError, RecipeError) as error:
-                raise ViewError(f"layer {layer.name!r}: {error}") from None
-            grades[layer.name] = grade
+                raise ViewError(f"layer {layer_name!r}: {error}") from None
+            grades[layer_name] = grade
         if not layers:
             raise ViewError("the stack to save holds no layers (the beauty is always part 0)")
         return layers, grades
+
+    def _look_document(self, document, stack: list[dict], chosen: list[Layer], exposure: float,
+                       name: str) -> dict | None:
+        """The document a saved look opens with (view/document.py): the page's `document` with
+        each saved entry showing its part of NAME.exr (source = its layer name), the saved
+        grades as the look's "saved" state. None without a document."""
+        if document is None:
+            return None
+        try:
+            document = documents.checked(json.loads(json.dumps(document)))
+        except (documents.DocumentError, ValueError) as error:
+            raise ViewError(f"document: {error}") from None
+        saved = {layer.name for layer in chosen}
+        renamed = {}  # a source of the render → the first saved entry's name showing it
+        for entry in stack:
+            if entry.get("name") in saved:
+                renamed.setdefault(entry["id"], entry["name"])
+        for entry in document["entries"]:
+            if entry["kind"] == "layer" and entry["name"] in saved:
+                entry["source"] = entry["name"]
+        for snapshot in document["snapshots"]:
+            for entry in snapshot["entries"]:
+                entry["source"] = renamed.get(entry["source"], entry["source"])
+        document["exposure"] = exposure
+        document["saved"] = {"name": name, "exposure": exposure,
+                             "entries": [entry for entry in document["entries"] if entry["kind"] == "layer"]}
+        return json.loads(json.dumps(document))
 
     def _need_index(self, what: str) -> PathIndex:
         if self.index is None:
