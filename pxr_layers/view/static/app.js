@@ -239,15 +239,17 @@ function resizeCanvas() {
     canvas.width = width;
     canvas.height = height;
   }
-  if (state.view.fit) fit();
+  if (state.width) restoreView();
   requestDraw();
 }
+
+let restoring = false;  // showing the document's view: not a change of it
 
 function setView(x, y, scale, fitted = false) {
   Object.assign(state.view, { x, y, scale, fit: fitted });
   const shown = scale * 100 / dpr();
   $('#zoom').textContent = `${shown >= 10 ? Math.round(shown) : shown.toFixed(1)} %`;
-  if (state.width) {  // kept in the document as the image point at the centre: the canvas may change size
+  if (state.width && !restoring) {  // kept in the document as the image point at the centre: the canvas may change size
     state.doc.view = {
       fit: fitted, scale,
       cx: (panelWidth() / 2 - x) / scale / state.width, cy: (canvas.height / 2 - y) / scale / state.height,
@@ -261,8 +263,10 @@ function setView(x, y, scale, fitted = false) {
 /** The view the document holds (on reload): fitted, or its scale around its centre. */
 function restoreView() {
   const { fit: fitted, scale, cx, cy } = state.doc.view;
+  restoring = true;
   if (fitted) fit();
-  else setView(panelWidth() / 2 - cx * state.width * scale, canvas.height / 2 - cy * state.height * scale, scale);
+  else setView(Math.round(panelWidth() / 2 - cx * state.width * scale), Math.round(canvas.height / 2 - cy * state.height * scale), scale);
+  restoring = false;
 }
 
 /** The whole image; enlarged by a whole factor only, so that pixels stay equal squares. */
@@ -1706,7 +1710,6 @@ async function start() {
   $('#layer-name').placeholder = freeLayerName();
   showTab('classes');
   resizeCanvas();
-  restoreView();
   scheduleChecks(true);
   await nextFrame();
   loading.hidden = true;
