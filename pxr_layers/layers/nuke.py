@@ -68,7 +68,7 @@ from pathlib import Path
 from .. import __version__
 from ..errors import OutputError
 from ..outputs import check_output, write_atomically
-from ..recipe.model import BEAUTY_PART, LAYER_NAME, MAX_CRYPTOMATTE_DEPTH, cryptomatte_parts
+from ..recipe.model import BEAUTY_PART, CRYPTOMATTE_KINDS, LAYER_NAME, MAX_CRYPTOMATTE_DEPTH, cryptomatte_parts
 from .previews import layers_partition
 
 logger = logging.getLogger(__name__)
@@ -86,6 +86,30 @@ _ROW = 80
 
 
 @dataclass(frozen=True)
+class LayerMask:
+    """Where a layer's grade applies: the objects, materials or assets ``names`` (as the
+    Cryptomatte manifest of ``kind`` names them: prim paths, material paths, model roots),
+    keyed from the render's Cryptomatte of that kind (CRYPTOMATTE_KINDS: object, material,
+    asset). Its matte m (layers.cryptomatte.coverage) makes the layer's weight
+    1 + m·(gain·tint − 1): the grade inside, unity outside (view/composite.py)."""
+
+    kind: str
+    names: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        if self.kind not in CRYPTOMATTE_KINDS:
+            raise ValueError(f"a mask's kind is one of {', '.join(CRYPTOMATTE_KINDS)}, not {self.kind!r}")
+        if isinstance(self.names, str) or not self.names or not all(isinstance(n, str) and n for n in self.names):
+            raise ValueError(f"a mask names at least one {self.kind} (non-empty strings), not {self.names!r}")
+        object.__setattr__(self, "names", tuple(self.names))
+
+    @property
+    def source(self) -> str:
+        """The Cryptomatte source of the kind (``CryptoObject``, ...): the layer a saved look writes."""
+        return CRYPTOMATTE_KINDS[self.kind]
+
+
+@dataclass(frozen=True)
 class LayerGrade:
     """How the inspector shows one layer.
 
@@ -93,12 +117,14 @@ class LayerGrade:
     tint  : linear RGB multiplier, each >= 0
     mute  : the layer counts with gain 0
     solo  : when any layer is soloed, only the soloed layers (not muted) are shown
+    mask  : the grade applies where the mask's names are (their Cryptomatte coverage m), unity elsewhere
     """
 
     stops: float = 0.0
     tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     mute: bool = False
     solo: bool = False
+    mask: LayerMask | None = None
 
     @property
     def multiply(self) -> tuple[float, float, float]:
