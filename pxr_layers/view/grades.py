@@ -54,9 +54,9 @@ def grade_from_json(entry: dict, what: str, *, known: Mapping[str, Collection[st
         flags[field] = value
     extra = {}
     if entry.get("kelvin") is not None:
+        extra["kelvin"] = _kelvin(entry["kelvin"], what)
         if "kelvin" not in {f.name for f in fields(LayerGrade)}:
             raise ViewError(f"{what}: kelvin: this version of pxr-layers does not grade by colour temperature")
-        extra["kelvin"] = _kelvin(entry["kelvin"], what)
     mask = mask_from_json(entry.get("mask"), f"{what}: mask", known)
     return LayerGrade(stops=stops, tint=tint, mask=mask, **flags, **extra)
 
