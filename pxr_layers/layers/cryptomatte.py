@@ -22,7 +22,8 @@ a type are keyed by the first 7 of those digits of its type name's id (``CryptoO
     cryptomatte/<key>/conversion = uint32_to_float32
     cryptomatte/<key>/manifest   = the manifest as JSON
 
-The encoder lives here; decoding (a matte from a list of names) is the compositor's, and
+The encoder lives here, and the one decoder the inspector's masks need (:func:`coverage`:
+the matte of a list of names, as a compositor keys it; :func:`names_at`: what a click picks);
 the tests decode with their own implementation of the specification.
 """
 

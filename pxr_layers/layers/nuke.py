@@ -24,20 +24,21 @@ it again)::
 Each layer is added by its own ``Merge2 operation plus``; a muted layer, and when some
 layer is soloed every other layer and the rest branch, has that Merge disabled (a disabled
 Merge passes B, the trunk, through): its Grade keeps the artist's values and enabling the
-Merge brings it back.
-
-A masked layer (LayerGrade.mask) gets a Cryptomatte gizmo of its own on the Read,
-``Mask_<layer>`` (``cryptoLayer`` the mask kind's Cryptomatte layer, ``matteList`` the
-mask's names), wired to its Grade's mask input (``inputs 1+1``, ``maskChannelInput
-rgba.alpha``): Nuke's Grade blends graded and ungraded by the mask, layer + m·(g·layer −
-layer) = w·layer, exactly the composite's weight. Its Merge stays as any other; a muted
-masked layer keeps its Merge enabled and has its Grade multiply 0 (the layer taken away
-inside the mask only, as the composite does). When the layers partition the beauty there is no rest branch (their
+Merge brings it back. When the layers partition the beauty there is no rest branch (their
 sum is the beauty, :func:`pxr_layers.layers.previews.layers_partition`); otherwise the rest
 makes unit gains give the beauty again (exactly but for float32 rounding of the
 subtraction and the sums). The trunk starts from the beauty with black RGB, so the result
 carries the beauty's alpha (every layer's alpha is black) and a disabled first Merge still
 leaves a black base.
+
+A masked layer (LayerGrade.mask) gets a Cryptomatte gizmo of its own on the Read,
+``Mask_<layer>`` (``cryptoLayer`` the mask kind's Cryptomatte layer, ``matteList`` the
+mask's names, :func:`matte_list`), wired to its Grade's mask input (``inputs 1+1``,
+``maskChannelInput rgba.alpha``): Nuke's Grade blends graded and ungraded by the mask,
+layer + m·(g·layer − layer) = w·layer, the composite's weight. Its Merge is as any other's,
+but a muted masked layer keeps its Merge enabled and grades by 0 (the layer taken away
+inside its mask only, as the composite does). The keyer reads the Cryptomatte from the same
+Read: a look saved with masks writes the Cryptomattes they key into its EXR.
 
 Knobs and node types are those of every Nuke since 12.0 (the classic Shuffle, not
 Shuffle2). Every Grade has ``black_clamp false`` (Nuke's default clamps negatives to 0,

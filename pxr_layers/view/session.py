@@ -353,7 +353,7 @@ class Session:
         """(h, w) float32: the coverage of ``names`` in the Cryptomatte of ``kind``
         (layers.cryptomatte.coverage). ViewError (400) for an unknown kind or name, one line
         naming it and the nearest known."""
-        from .grades import mask_from_json
+        from .grades import mask_from_json  # grades.py builds on this module's ViewError
 
         mask = mask_from_json({"kind": kind, "names": names}, "mask", self.mask_names())
         return coverage(self.cryptomattes[mask.kind][1], mask.names)
