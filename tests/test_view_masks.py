@@ -184,6 +184,8 @@ def test_api_mask_serves_the_coverage(server, render):
     ("kind=object", "mask names are a list of 1 to"),
     ("kind=object&names=[1]", "mask names are a list of 1 to"),
     ("kind=object&names=[%22%2Fa%22", "names is a JSON array of names, or names= repeated"),
+    ("kind=object&names=[NaN]", "names is a JSON array of names, or names= repeated"),
+    ("kind=object&names=" + "[" * 2000 + "]" * 2000, "names is a JSON array of names, or names= repeated"),
 ])
 def test_api_mask_refuses_unknown_kinds_and_names_in_one_line(server, query, message):
     status, body, _ = server.request("/api/mask?" + query)
