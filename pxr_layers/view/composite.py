@@ -12,7 +12,8 @@ layer's mask (LayerGrade.mask: the Cryptomatte coverage of its names at the pixe
 unity outside. At unit gains the first form is the beauty itself, bit for bit, whether or
 not the layers partition it; when they do, it is the sum of the graded layers.
 
-In float32, in this order (the shader's): an unmasked layer adds (g − 1) · layer, or g · layer
+In float32, in this order (the shader's; static/app.js does not key masks yet and is to
+follow it when it does): an unmasked layer adds (g − 1) · layer, or g · layer
 when soloed; a masked one (m · (g − 1)) · layer, or (m · g + (1 − m)) · layer when soloed, both
 exact where m is 0 (the layer as it is) or 1 (as if unmasked).
 """
