@@ -22,6 +22,7 @@ import logging
 import re
 import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -31,6 +32,7 @@ from .. import lpe
 from ..errors import LpeSyntaxError, PxrLayersError, RecipeError
 from ..layers.deliver import (DENOISED_SUFFIX, GUIDE_SOURCES, at_index_view, beauty_beside, deliver, denoised_path,
                                index_inputs, index_metadata)
+from ..layers.cryptomatte import Cryptomatte, coverage, names_at
 from ..layers.display_lut import DisplayLut, bake_display_lut, lut_bytes, lut_description
 from ..layers.extract import extract
 from ..layers.multipart import MultipartImage, read_multipart
@@ -47,6 +49,7 @@ from ..paths.events import (
 from ..paths.format import SUFFIX as INDEX_SUFFIX, NormBins
 from ..paths.reader import PathIndex
 from ..recipe.model import (
+    CRYPTOMATTE_KINDS,
     DEFAULT_CAMERA_PATH,
     LAYER_NAME,
     MAX_PREVIEW_STOPS,
@@ -70,6 +73,8 @@ MAX_SUGGESTED = 32
 """Most layers /api/suggest makes at once."""
 VERSIONS = ("raw", "denoised")
 """The versions of a layer's pixels /api/image serves: as rendered, and from the denoised twin."""
+MASKS_CACHED = 32
+"""Masks (/api/mask answers) a session keeps, the most recently asked."""
 
 
 class ViewError(PxrLayersError):
@@ -121,9 +126,12 @@ class Session:
 
     def __init__(self, folder: Path, title: str, beauty: np.ndarray, layers: list[ViewLayer],
                  index: PathIndex | None, product: Product, threads: int,
-                 guides: tuple[np.ndarray, np.ndarray] | None = None):
+                 guides: tuple[np.ndarray, np.ndarray] | None = None,
+                 cryptomattes: dict[str, tuple[str, Cryptomatte]] | None = None):
         """guides: the denoiser's (albedo, normal) of a render with denoised twins, whose
-        layers then carry their denoised versions (ViewLayer.denoised); None without."""
+        layers then carry their denoised versions (ViewLayer.denoised); None without.
+        cryptomattes: mask kind (object, material, asset) → (its EXR layer, its Cryptomatte),
+        what masks are keyed from (:meth:`mask`)."""
         self.folder, self.title, self.beauty, self.index, self.threads = folder, title, beauty, index, threads
         self.guides = guides
         self.base_product = product
@@ -132,6 +140,9 @@ class Session:
         self.lut: DisplayLut = bake_display_lut(product.ocio_config, product.display, product.view,
                                                 product.rendering_space)
         self._lock = threading.Lock()
+        self.cryptomattes = dict(cryptomattes or {})
+        self._masks: OrderedDict[tuple[str, tuple[str, ...]], bytes] = OrderedDict()
+        self._masks_lock = threading.Lock()
         self._event_paths = event_paths(index.events) if index else []
         self._infos = [inspect.describe(path_class, self._event_paths) for path_class in index.classes] if index else []
         self.document_path = documents.document_path(folder, title)
@@ -178,7 +189,7 @@ class Session:
         log.info("%s: %d layers, %s%s", folder, len(layers) - 1,
                  f"index {index.path.name} ({index.record_count:,} records)" if index else "no index",
                  ", denoised twins" if guides else "")
-        return cls(folder, title, beauty, layers, index, product, threads, guides)
+        return cls(folder, title, beauty, layers, index, product, threads, guides, _product_cryptomattes(products))
 
     # -- what the page reads
 
@@ -190,6 +201,8 @@ class Session:
                 "denoised": self.guides is not None,
                 "document": self.document, "document_file": self.document_path.name,
                 "partition": self._partition(layers), "index": self._index_description(),
+                "cryptomattes": {kind: {"layer": layer, "names": sorted(matte.manifest)}
+                                 for kind, (layer, matte) in self.cryptomattes.items()},
                 "alphabet": {"types": list(zip(SCATTERING_TYPES, SCATTERING_TYPE_NAMES, strict=True)),
                              "scatterings": list(zip(SCATTERINGS, SCATTERING_NAMES, strict=True))},
                 "display": {"config": self.lut.config, "display": self.lut.display, "view": self.lut.view,
@@ -386,6 +399,62 @@ class Session:
         while f"{name}_{number}" in taken or f"{name}_{number}" in others:
             number += 1
         return f"{name}_{number}"
+
+    # -- masks
+
+    def mask_names(self) -> dict[str, frozenset[str]]:
+        """kind → the names its Cryptomatte's manifest has (what a mask may name)."""
+        return {kind: frozenset(matte.manifest) for kind, (_, matte) in self.cryptomattes.items()}
+
+    def mask_coverage(self, kind, names) -> np.ndarray:
+        """(h, w) float32: the coverage of ``names`` in the Cryptomatte of ``kind``
+        (layers.cryptomatte.coverage). ViewError (400) for an unknown kind or name, one line
+        naming it and the nearest known."""
+        from .grades import mask_from_json  # grades.py builds on this module's ViewError
+
+        mask = mask_from_json({"kind": kind, "names": names}, "mask", self.mask_names())
+        return coverage(self.cryptomattes[mask.kind][1], mask.names)
+
+    def mask(self, kind, names) -> bytes:
+        """/api/mask: :meth:`mask_coverage` as little-endian float32 h × w, top row first;
+        the last MASKS_CACHED answers are kept, per kind and set of names."""
+        key = (kind, tuple(sorted(set(names)))) if isinstance(kind, str) and isinstance(names, list) and \
+            all(isinstance(name, str) for name in names) else None
+        with self._masks_lock:
+            if key in self._masks:
+                self._masks.move_to_end(key)
+                return self._masks[key]
+        pixels = np.ascontiguousarray(self.mask_coverage(kind, names), dtype="<f4").tobytes()
+        with self._masks_lock:
+            self._masks[key] = pixels
+            while len(self._masks) > MASKS_CACHED:
+                self._masks.popitem(last=False)
+        return pixels
+
+    def pick(self, x, y) -> dict:
+        """/api/pick: the names under pixel (x, y) (x from the left, y from the top) in each
+        kind's Cryptomatte, highest coverage first: {kind: [{"name", "coverage"}, ...]}."""
+        if isinstance(x, bool) or isinstance(y, bool) or not isinstance(x, int) or not isinstance(y, int) \
+                or not (0 <= x < self.width and 0 <= y < self.height):
+            raise ViewError(f"pick needs a pixel x from 0 to {self.width - 1}, y from 0 to {self.height - 1}, "
+                            f"not ({_shown(x)}, {_shown(y)})")
+        return {kind: [{"name": name, "coverage": weight} for name, weight in names_at(matte, x, y)]
+                for kind, (_, matte) in self.cryptomattes.items()}
+
+    def look_cryptomattes(self, grades: dict[str, LayerGrade]) -> dict[str, Cryptomatte]:
+        """The Cryptomattes a saved look needs for its masked grades, by source (CryptoObject,
+        ...): a masked save writes them into its EXR (Recipe.with_cryptomattes of their
+        sources, ``deliver(data=...)``), layers named after their source as the Nuke script's
+        keyers expect (layers.nuke, ``mask_layers`` by default), so the look is whole without
+        the render's EXR. ViewError for a mask of a kind the render has no Cryptomatte of."""
+        needed = {}
+        for grade in grades.values():
+            if grade.mask is None:
+                continue
+            if grade.mask.kind not in self.cryptomattes:
+                raise ViewError(f"a mask of {grade.mask.kind}s, but the render wrote no {grade.mask.kind} Cryptomatte")
+            needed[grade.mask.source] = self.cryptomattes[grade.mask.kind][1]
+        return needed
 
     # -- save
 
@@ -610,6 +679,19 @@ def _product_layers(products: list[MultipartImage], beauty: np.ndarray) -> list[
                                     shares[name], recipe_layer.exposure if recipe_layer else 0.0,
                                     recipe_layer.tint if recipe_layer else (1.0, 1.0, 1.0)))
     return layers
+
+
+def _product_cryptomattes(products: list[MultipartImage]) -> dict[str, tuple[str, Cryptomatte]]:
+    """mask kind → (EXR layer, Cryptomatte) of the products' Cryptomatte layers, by their
+    source (CRYPTOMATTE_KINDS); of two of one source, the first product's."""
+    kinds = {source: kind for kind, source in CRYPTOMATTE_KINDS.items()}
+    found: dict[str, tuple[str, Cryptomatte]] = {}
+    for product in products:
+        for name, matte in product.cryptomattes.items():
+            kind = kinds.get(product.metadata.get(name, {}).get("source", name))
+            if kind is not None and kind not in found:
+                found[kind] = (name, matte)
+    return found
 
 
 def _denoised_twins(products: list[MultipartImage], layers: list[ViewLayer]) -> tuple[np.ndarray, np.ndarray] | None:
