@@ -10,6 +10,7 @@ each other's edits.
 
 from __future__ import annotations
 
+import base64
 import json
 import subprocess
 from pathlib import Path
@@ -18,9 +19,11 @@ import numpy as np
 import pytest
 from test_view_browser import (
     CORNELL,
+    RED_DIRECT,
     RESOLUTION,
     SCRIPT,
     _sync_playwright,
+    brightest_pixel,
     canvas_image,
     launch,
     layer_pixels,
@@ -47,10 +50,12 @@ def browser(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory) -> Path:
-    """The Cornell light passes at 128², 16 spp, with the index: copied for each test."""
+    """The Cornell light passes at 128², 16 spp, with the index and the object Cryptomatte:
+    copied for each test."""
     folder = tmp_path_factory.mktemp("document-render")
     result = subprocess.run([SCRIPT, "render", str(CORNELL), "--recipe", "light_passes", "-o", str(folder),
-                             "--resolution", str(RESOLUTION), str(RESOLUTION), "--spp", "16", "--quiet"],
+                             "--resolution", str(RESOLUTION), str(RESOLUTION), "--spp", "16", "--quiet",
+                             "--cryptomatte", "object"],
                             capture_output=True, text=True, check=False)
     assert result.returncode == 0, result.stderr
     return folder
@@ -178,7 +183,7 @@ def test_the_working_state_is_restored_on_reload(opened, folder):
     assert json.loads((folder / "light_passes.view.json").read_text()) == before
 
     page.reload()
-    page.wait_for_function("pxrViewer.ready")
+    page.wait_for_function("window.pxrViewer && pxrViewer.ready")
     assert page.evaluate("pxrViewer.document()") == before
     assert page.evaluate("pxrViewer.state().snapshots") == ["snapshot 1"]
     np.testing.assert_array_equal(layer_pixels(page, "red_wall"), made)  # extracted again from its expression
@@ -311,3 +316,34 @@ def test_the_accessibility_audit_finds_nothing_serious(opened, state):
     serious = [(violation["id"], violation["impact"], [node["target"] for node in violation["nodes"]][:3])
                for violation in violations if violation["impact"] in SERIOUS]
     assert not serious, serious
+
+
+def test_a_mask_picked_in_the_image_limits_the_grade_to_it(opened, folder):
+    """Pick the red wall in the image for diffuse_direct's mask, grade the layer: the canvas
+    is the numpy composite with that mask (the Cryptomatte's coverage) within 1/255, and
+    differs from the unmasked grade."""
+    page, _ = opened
+    x, y, _, _ = brightest_pixel(folder / "cornell.pxlidx", RED_DIRECT)
+    row = more(page, "diffuse_direct")
+    row.locator("select.mask-kind").select_option("object")
+    more(page, "diffuse_direct").locator("button.pick").click()
+    page.click("#fit")
+    page.mouse.click(*page.evaluate("([x, y]) => pxrViewer.imageToClient(x, y)", [x, y]))
+    page.wait_for_function("pxrViewer.state().layers.find(l => l.id === 'diffuse_direct').mask?.names.length === 1")
+    mask = next(layer for layer in stack(page) if layer["id"] == "diffuse_direct")["mask"]
+    assert mask["kind"] == "object" and "redWall" in mask["names"][0], mask
+    page.evaluate("pxrViewer.setGrade('diffuse_direct', {stops: 2, tint: [0.5, 1, 1]})")
+    page.wait_for_function("mask => pxrViewer.maskData(mask) !== null", arg=mask)
+    coverage = np.frombuffer(base64.b64decode(page.evaluate("mask => pxrViewer.maskData(mask)", mask)), "<f4")
+    coverage = coverage.reshape(RESOLUTION, RESOLUTION)
+    assert coverage[y, x] > 0.9 and coverage.mean() < 0.5
+
+    ids = [layer["id"] for layer in stack(page)]
+    grades = [LayerGrade(stops=2, tint=(0.5, 1, 1)) if entry == "diffuse_direct" else LayerGrade() for entry in ids[1:]]
+    layers = [layer_pixels(page, entry) for entry in ids[1:]]
+    masks = [coverage if entry == "diffuse_direct" else None for entry in ids[1:]]
+    beauty = layer_pixels(page, "beauty")
+    expected = to_display(composite(beauty, layers, grades, masks=masks)).astype(int)
+    shown = canvas_image(page).astype(int)
+    assert np.abs(shown - expected).max() <= 1
+    assert np.abs(to_display(composite(beauty, layers, grades)).astype(int) - expected).max() > 8

@@ -31,6 +31,7 @@ from pathlib import Path
 from ..errors import PxrLayersError
 from ..outputs import write_atomically
 from ..recipe.model import LAYER_NAME, MAX_PREVIEW_STOPS
+from .grades import MAX_KELVIN, MAX_TINT, MIN_KELVIN
 
 log = logging.getLogger(__name__)
 
@@ -41,8 +42,6 @@ MAX_SNAPSHOTS = 64
 MAX_TEXT = 200
 """Longest id, source, snapshot or group name (characters)."""
 MAX_EXPRESSION = 4096
-MAX_TINT = 1e6
-MIN_KELVIN, MAX_KELVIN = 1000.0, 40000.0
 COMPARE_MODES = ("one", "wipe", "side")
 ENTRY_KEYS = {"id", "source", "name", "kind", "expression", "group", "stops", "tint", "kelvin", "mute", "solo", "mask"}
 DOCUMENT_KEYS = {"format", "exposure", "entries", "snapshots", "saved", "view", "compare", "denoised"}

@@ -22,8 +22,8 @@ from dataclasses import fields
 
 from ..layers.nuke import LayerGrade, LayerMask
 from ..lpe.labels import closest_labels
-from ..recipe.model import CRYPTOMATTE_KINDS
-from .session import ViewError, _number, _shown, _stops
+from ..errors import PxrLayersError
+from ..recipe.model import CRYPTOMATTE_KINDS, MAX_PREVIEW_STOPS
 
 MAX_TINT = 1e6
 """Largest tint channel a page may send."""
@@ -31,6 +31,32 @@ MIN_KELVIN, MAX_KELVIN = 1000.0, 40000.0
 """The colour temperatures a grade's ``kelvin`` may take (candle light to deep blue sky)."""
 MAX_MASK_NAMES = 10_000
 """Most names one mask may list."""
+
+
+class ViewError(PxrLayersError):
+    """A request the session cannot serve: ``status`` is its HTTP status (400 a bad request,
+    404 an unknown layer, 409 a conflict with what is there); ``position`` the LPE position."""
+
+    def __init__(self, message: str, status: int = 400, position: int | None = None):
+        super().__init__(message)
+        self.status, self.position = status, position
+
+
+def _shown(value) -> str:
+    """repr(value), cut short: an error message stays one readable line."""
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _number(value, what: str, low: float, high: float) -> float:
+    """`value` as a float within [low, high] (a number of the JSON body, not a bool or a string)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
+        raise ViewError(f"{what} must be a number from {low:g} to {high:g}, not {_shown(value)}")
+    return float(value)
+
+
+def _stops(value, what: str) -> float:
+    return _number(value, f"{what} (stops)", -MAX_PREVIEW_STOPS, MAX_PREVIEW_STOPS)
 
 
 def grade_from_json(entry: dict, what: str, *, known: Mapping[str, Collection[str]] | None = None) -> LayerGrade:

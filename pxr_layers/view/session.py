@@ -52,7 +52,6 @@ from ..recipe.model import (
     CRYPTOMATTE_KINDS,
     DEFAULT_CAMERA_PATH,
     LAYER_NAME,
-    MAX_PREVIEW_STOPS,
     IndexSettings,
     Layer,
     Product,
@@ -60,6 +59,7 @@ from ..recipe.model import (
 )
 from . import document as documents
 from . import inspect
+from .grades import ViewError, _shown, _stops, grade_from_json
 
 log = logging.getLogger(__name__)
 
@@ -75,15 +75,6 @@ VERSIONS = ("raw", "denoised")
 """The versions of a layer's pixels /api/image serves: as rendered, and from the denoised twin."""
 MASKS_CACHED = 32
 """Masks (/api/mask answers) a session keeps, the most recently asked."""
-
-
-class ViewError(PxrLayersError):
-    """A request the session cannot serve: ``status`` is its HTTP status (400 a bad request,
-    404 an unknown layer, 409 a conflict with what is there); ``position`` the LPE position."""
-
-    def __init__(self, message: str, status: int = 400, position: int | None = None):
-        super().__init__(message)
-        self.status, self.position = status, position
 
 
 @dataclass
@@ -473,9 +464,11 @@ class Session:
         exposure = _stops(exposure, "exposure")
         chosen, grades = self._stack(stack)
         look = self._look_document(document, stack, chosen, exposure, name)
-        # the raw stack (its grades are the look's; a render with --denoise makes the twin)
+        # the raw stack (its grades are the look's; a render with --denoise makes the twin), with
+        # the Cryptomattes its masked grades key, so that the look stands without the render's EXR
+        cryptomattes = self.look_cryptomattes(grades)
         recipe = Recipe((replace(self.base_product, name=name.replace("-", "_"), output_name=f"{name}.exr", prim_path="",
-                                 layers=tuple(chosen), per_light="none", denoise=False),))
+                                 layers=tuple(chosen), per_light="none", denoise=False),)).with_cryptomattes(cryptomattes)
         paths = {"recipe": self.folder / f"{name}.usda", "exr": self.folder / f"{name}.exr",
                  "nuke": self.folder / f"{name}.nk"}
         if look is not None:
@@ -488,12 +481,13 @@ class Session:
             if existing and not overwrite:
                 raise ViewError(f"{', '.join(existing)} exist in {self.folder}: save under another name, "
                                 "or overwrite", 409)
-            deliver(index, recipe, self.beauty, {recipe.products[0].name: paths["exr"]},
+            deliver(index, recipe, self.beauty, {recipe.products[0].name: paths["exr"]}, data=cryptomattes,
                     metadata=index_metadata(index, self.folder))
             write_recipe(paths["recipe"], recipe)
             write_nuke_script(paths["nuke"], paths["exr"], [layer.name for layer in chosen], grades,
                               resolution=(self.width, self.height), exposure=float(exposure), partition=partition,
-                              pixel_aspect_ratio=self.base_product.pixel_aspect_ratio)
+                              pixel_aspect_ratio=self.base_product.pixel_aspect_ratio,
+                              cryptomattes={source: matte.depth for source, matte in cryptomattes.items()})
             if look is not None:
                 documents.write(paths["document"], look)
         log.info("saved %s", ", ".join(str(path) for path in paths.values()))
@@ -524,13 +518,8 @@ class Session:
             group = entry.get("group") or "inspector"
             if not isinstance(group, str) or len(group) > documents.MAX_TEXT:
                 raise ViewError(f"layer {layer_name!r}: group is a name of at most {documents.MAX_TEXT} characters")
-            tint = entry.get("tint", [1, 1, 1])
-            if not isinstance(tint, list) or len(tint) != 3:
-                raise ViewError(f"layer {layer.name!r}: tint is three numbers >= 0, not {_shown(tint)}")
-            tint = tuple(_number(channel, f"layer {layer.name!r}: tint", 0.0, 1e6) for channel in tint)
+            grade = grade_from_json(entry, f"layer {layer_name!r}", known=self.mask_names())
             try:
-                grade = LayerGrade(stops=_stops(entry.get("stops", 0.0), f"layer {layer.name!r}: stops"), tint=tint,
-                                   mute=bool(entry.get("mute", False)), solo=bool(entry.get("solo", False)))
                 layers.append(Layer(layer_name, "lpe", layer.expression, exposure=grade.stops, tint=grade.tint,
                                     group=group))
             except (TypeError, ValueError, RecipeError) as error:
@@ -572,23 +561,6 @@ class Session:
             raise ViewError(f"cannot {what}: {self.folder} has no path index of this render "
                             "(render with an index, and view its folder)", 409)
         return self.index
-
-
-def _shown(value) -> str:
-    """repr(value), cut short: an error message stays one readable line."""
-    text = repr(value)
-    return text if len(text) <= 80 else text[:77] + "..."
-
-
-def _number(value, what: str, low: float, high: float) -> float:
-    """`value` as a float within [low, high] (a number of the JSON body, not a bool or a string)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
-        raise ViewError(f"{what} must be a number from {low:g} to {high:g}, not {_shown(value)}")
-    return float(value)
-
-
-def _stops(value, what: str) -> float:
-    return _number(value, f"{what} (stops)", -MAX_PREVIEW_STOPS, MAX_PREVIEW_STOPS)
 
 
 # --- opening helpers ----------------------------------------------------------------------

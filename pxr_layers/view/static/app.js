@@ -641,7 +641,7 @@ function groupRow(group) {
 function layerRow(entry) {
   const { id } = entry;
   const head = el('div', { class: 'layer-head' });
-  const row = el('li', { dataset: { id }, class: entry.kind === 'beauty' ? 'beauty' : 'layer' }, head);
+  const row = el('li', { dataset: { id, maskKind: entry.mask?.kind ?? '' }, class: entry.kind === 'beauty' ? 'beauty' : 'layer' }, head);
   const source = state.sources.get(entry.source);
   const share = el('span', { class: 'share', title: "share of the beauty's energy (Rec.709 luminance)" },
     shareBar(source?.share ?? 0), el('span', { class: 'percent' }, percent(source?.share ?? 0)));
@@ -775,8 +775,10 @@ function syncRow(entry) {
       if (entry.kelvin !== null && document.activeElement !== input) input.value = entry.kelvin;
     }
   }
-  const maskKind = $('.mask-kind', row);
-  if (maskKind && maskKind.value !== (entry.mask?.kind ?? '')) renderStack();
+  if ((row.dataset.maskKind ?? '') !== (entry.mask?.kind ?? '')) {  // the row's mask controls are the other kind's
+    renderStack();
+    return;
+  }
   const names = $('.mask-names', row);
   if (names) {
     const picked = new Set(entry.mask?.names ?? []);
