@@ -32,6 +32,7 @@ from ..layers.deliver import (DENOISED_SUFFIX, GUIDE_SOURCES, at_index_view, bea
                                index_inputs, index_metadata)
 from ..layers.display_lut import DisplayLut, bake_display_lut, lut_bytes, lut_description
 from ..layers.extract import extract
+from ..layers.kelvin import kelvin_table
 from ..layers.multipart import MultipartImage, read_multipart
 from ..layers.nuke import NUKE_RESERVED_LAYERS, LayerGrade, write_nuke_script
 from ..layers.previews import energy_shares, layers_partition
@@ -188,7 +189,8 @@ class Session:
                 "alphabet": {"types": list(zip(SCATTERING_TYPES, SCATTERING_TYPE_NAMES, strict=True)),
                              "scatterings": list(zip(SCATTERINGS, SCATTERING_NAMES, strict=True))},
                 "display": {"config": self.lut.config, "display": self.lut.display, "view": self.lut.view,
-                            "lut": {**lut_description(self.lut), "url": LUT_URL}}}
+                            "lut": {**lut_description(self.lut), "url": LUT_URL}},
+                "kelvin": kelvin_table()}
 
     def lut_pixels(self) -> bytes:
         return lut_bytes(self.lut)
