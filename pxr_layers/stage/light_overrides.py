@@ -32,6 +32,7 @@ refused as a whole: the index's values would no longer be the stage's.
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 from collections.abc import Mapping, Sequence
@@ -119,17 +120,30 @@ def check_stage(manifest: Mapping) -> Path:
 def read_shot_lights(manifest: Mapping) -> dict[str, ShotLight]:
     """prim path → ShotLight of every light the render saw (the walk's rule, Shot.lights), read
     at the index's frame with its variant selections. Raises StageError (check_stage)."""
+    path = check_stage(manifest)
+    frame = None if manifest.get("frame", "default") == "default" else float(manifest["frame"])
+    return dict(_read_lights(path, _stage_digest(manifest), frame, _variants(manifest),
+                             manifest.get("defaultLights") != "false"))
+
+
+def _stage_digest(manifest: Mapping) -> str:
+    return str(manifest.get("stage_sha256", ""))
+
+
+@functools.lru_cache(maxsize=4)
+def _read_lights(path: Path, digest: str, frame: float | None, variants: tuple[VariantSelection, ...],
+                 default_lights: bool) -> tuple[tuple[str, ShotLight], ...]:
+    """read_shot_lights' work, once per stage file contents (`digest`, checked by the caller):
+    the inspector asks on every change of the stack, and a big shot takes seconds to compose."""
     from .shot import open_shot
 
-    path = check_stage(manifest)
-    shot = open_shot(path, variants=_variants(manifest), default_lights=manifest.get("defaultLights") != "false")
-    frame = None if manifest.get("frame", "default") == "default" else float(manifest["frame"])
+    shot = open_shot(path, variants=variants, default_lights=default_lights)
     found = {}
     with trapped_usd_diagnostics(str(path)):
         time, _ = resolve_time(shot.stage, frame)
         for name, prim_path, group in shot.lights(frame=frame):
             found[prim_path] = _shot_light(shot.stage.GetPrimAtPath(prim_path), name, group, time)
-    return found
+    return tuple(found.items())
 
 
 def _variants(manifest: Mapping) -> tuple[VariantSelection, ...]:

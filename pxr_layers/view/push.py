@@ -123,6 +123,9 @@ def classify(index: PathIndex, entries: Sequence[PushEntry], groups: Mapping[str
     pushed, refused = _conflicts(pushed)
     compositing += refused
     notes = _overlaps(pushed, compositing, matched, by_light)
+    if pushed and index.manifest.get("clamp_indirect"):
+        notes.append(f"the render clamped indirect light (--clamp-indirect {index.manifest['clamp_indirect']:g}): a "
+                     "pushed light's clamped paths clip at another level, so the re-render differs there")
     order = {entry.name: k for k, entry in enumerate(entries)}
     compositing.sort(key=lambda grade: order[grade.layer])
     return PushPlan(tuple(pushed), tuple(compositing), tuple(notes))
