@@ -11,7 +11,7 @@ as a graph a compositor knows (Nuke's stack syntax: a node takes its inputs from
 the stack, input 0 = B from the top; ``set N [stack 0]`` names the top, ``push $N`` pushes
 it again)::
 
-    Read ─┬─ Shuffle_<layer> (in <layer>, alpha black) ─ Grade_<layer> (multiply 2^stops·tint·K) ─┐ A
+    Read ─┬─ Shuffle_<layer> (in <layer>, alpha black) ─ Grade_<layer> (multiply 2^stops·tint) ─┐ A
           │                                                                                     │
           ├─ Grade Black_base ─ Merge2 plus Rest ─ Merge2 plus Merge_<layer> ─ … ─ Grade Exposure
           │   (rgb × 0, the     (rgb only) │ A      B
