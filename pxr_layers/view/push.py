@@ -24,7 +24,7 @@ from collections import defaultdict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
-from ..errors import LpeError, PxrLayersError
+from ..errors import LpeError
 from ..layers.extract import class_matches
 from ..layers.nuke import LayerGrade
 from ..paths.events import SCATTERING_NAMES, SCATTERINGS
@@ -144,7 +144,7 @@ def _classify(index, entry: PushEntry, by_light, names, groups, members, matched
         return stays("has no expression: which paths it holds is unknown")
     try:
         match = class_matches(index, {entry.name: entry.expression})[entry.name]
-    except (LpeError, PxrLayersError) as error:
+    except LpeError as error:
         return stays(f"its expression does not compile: {str(error).splitlines()[0]}")
     if match.conditional:
         return stays(f"has covariance conditions: they keep some records of a path class and not others "
