@@ -15,7 +15,9 @@ not from pxr_layers/layers/nuke.py:
   and channels without a layer are ``rgba``'s;
 * the classic Shuffle (``in`` layer → out rgba, ``red``/``green``/``blue``/``alpha`` the
   source of each: the ``in`` layer's channel of that rank, or black / white), Grade
-  (``multiply`` on ``channels``, default rgb, ``black_clamp`` default true), Merge2
+  (``multiply`` on ``channels``, default rgb, ``black_clamp`` default true; with a mask input,
+  ``inputs 1+1`` and ``maskChannelInput``, the result is in + (graded − in) · mask, the
+  mask's channel read from input 1, as every NukeWrapper node blends by its mask), Merge2
   (B = input 0, A = input 1; plus A+B, from B−A, minus A−B on its channels, rgba unless
   ``Achannels``/``Bchannels``/``output`` say otherwise; the rest of B kept),
   and ``disable true``: the node passes its input 0;
@@ -278,7 +280,7 @@ class Nuke:
         name = node.knob("name")
         assert name is None or name not in self.nodes, f"node name {name} twice"
         self.nodes[name] = node
-        count = int(node.knob("inputs", "1"))
+        count = sum(int(number) for number in node.knob("inputs", "1").split("+"))  # "1+1": an input and a mask
         inputs = [self.stack.pop() for _ in range(count)]  # input 0 from the top
         images = [None if entry is None else entry[1] for entry in inputs]
         if node.knob("disable") == "true":
@@ -316,9 +318,10 @@ class Nuke:
                 image[target] = source.get(layer[rank], zeros) if rank < len(layer) else zeros
         return image
 
-    def grade(self, node: Node, source: Image) -> Image:
+    def grade(self, node: Node, source: Image, mask_input: Image | None = None) -> Image:
         assert set(node.knobs) <= {"multiply", "channels", "black_clamp", "white_clamp", "name", "label",
-                                   "xpos", "ypos"}
+                                   "xpos", "ypos", "inputs", "maskChannelInput"}
+        assert (node.knob("inputs") == "1+1") == (mask_input is not None) == ("maskChannelInput" in node.knobs)
         channels = {"rgb": RGBA[:3], "rgba": RGBA, "alpha": RGBA[3:]}[node.knob("channels", "rgb")]
         multiply = numbers(node.knob("multiply", "1"), 4).astype(np.float32)
         image = dict(source)
@@ -326,6 +329,9 @@ class Nuke:
             value = source[channel] * multiply[RGBA.index(channel)]
             if node.knob("black_clamp", "true") == "true":
                 value = np.maximum(value, 0)
+            if mask_input is not None:
+                mask = mask_input[node.knob("maskChannelInput")]
+                value = source[channel] + (value - source[channel]) * mask
             image[channel] = value
         return image
 
@@ -344,7 +350,7 @@ class Nuke:
 
 
     def cryptomatte(self, node: Node, source: Image) -> Image:
-        assert set(node.knobs) <= {"name", "cryptoLayer", "cryptoLayerLock", "matteList", "xpos", "ypos",
+        assert set(node.knobs) <= {"name", "label", "cryptoLayer", "cryptoLayerLock", "matteList", "xpos", "ypos",
                                    *(f"in{number:02d}" for number in range(12))}
         from test_cryptomatte import spec_id
 
@@ -385,18 +391,22 @@ def test_the_parser_follows_nukes_stack_convention():
 
 
 def composite_rule(beauty: np.ndarray, layers: dict[str, np.ndarray], grades: dict[str, LayerGrade],
-                   exposure: float) -> np.ndarray:
-    """The inspector's rule (/tmp/preamble.md, view/composite.py), in float64: (h, w, 3)."""
-    def gain(grade: LayerGrade) -> np.ndarray:
-        return 0.0 if grade.mute else 2.0 ** grade.stops * np.array(grade.tint, np.float64)
+                   exposure: float, masks: dict[str, np.ndarray] | None = None) -> np.ndarray:
+    """The inspector's rule (view/composite.py), in float64: (h, w, 3). masks: layer name →
+    its mask m (h, w); a layer's weight is then 1 + m · (gain − 1)."""
+    def gain(grade: LayerGrade, name: str) -> np.ndarray:
+        g = 0.0 if grade.mute else 2.0 ** grade.stops * np.array(grade.tint, np.float64)
+        if masks and name in masks:
+            return 1.0 + masks[name].astype(np.float64)[..., None] * (g - 1.0)
+        return g
 
     graded = {name: grades.get(name, LayerGrade()) for name in layers}
     if any(grade.solo for grade in graded.values()):
-        out = sum(gain(graded[name]) * layer.astype(np.float64) for name, layer in layers.items()
+        out = sum(gain(graded[name], name) * layer.astype(np.float64) for name, layer in layers.items()
                   if graded[name].solo)
     else:
         out = beauty[..., :3].astype(np.float64) + sum(
-            (gain(graded[name]) - 1) * layer.astype(np.float64) for name, layer in layers.items())
+            (gain(graded[name], name) - 1) * layer.astype(np.float64) for name, layer in layers.items())
     return out * 2.0 ** exposure
 
 
@@ -698,3 +708,113 @@ def test_a_nuke_script_is_written_only_under_a_nk_name(stack, tmp_path, name):
         write_nuke_script(tmp_path / name, tmp_path / "look.exr", list(layers), {}, resolution=(5, 6),
                           partition=True)
     assert not (tmp_path / name).exists()
+
+
+# --- masks -----------------------------------------------------------------------------------
+
+MASK_NAMES = ("/World/a", "/World/b", "/World/c")
+
+
+@pytest.fixture
+def masked_stack(tmp_path, rng):
+    """look.exr: three random layers (a beauty with light no layer holds) and a CryptoObject
+    of MASK_NAMES with random, fractional coverages (some pixels background, some covered by
+    all three): (beauty (h, w, 4), layers)."""
+    from pxr_layers.layers.cryptomatte import rank
+    from pxr_layers.recipe.model import CRYPTOMATTE_DATA_TYPE, Layer, Product
+
+    height, width = 6, 5
+    layers = {name: rng.uniform(0, 4, (height, width, 3)).astype(np.float32) for name in ("key", "fill", "rim")}
+    rgb = layers["key"] + layers["fill"] + layers["rim"] + rng.uniform(0.5, 2, (height, width, 3)).astype(np.float32)
+    beauty = np.concatenate([rgb, np.ones((height, width, 1), np.float32)], axis=2)
+    shares = rng.dirichlet(np.ones(4), height * width).astype(np.float32)  # three names and the background
+    shares[rng.uniform(size=height * width) < 0.3] = [1, 0, 0, 0]  # whole pixels of /World/a
+    pixel, name = np.nonzero(shares[:, :3] > 0)
+    matte = rank(MASK_NAMES, pixel, name, shares[pixel, name], (width, height), 6, "CryptoObject")
+    product = Product("look", "look.exr", "/camera", (width, height),
+                      (Layer("beauty", "raw", "color"), *(Layer(name, "lpe", "C.*") for name in layers),
+                       Layer("CryptoObject", "raw", "CryptoObject", data_type=CRYPTOMATTE_DATA_TYPE, preview=False)))
+    write_multipart(tmp_path / "look.exr", beauty, {**layers, "CryptoObject": matte}, product)
+    return beauty, layers
+
+
+def mask(*names: str):
+    from pxr_layers.layers.nuke import LayerMask
+
+    return LayerMask("object", names)
+
+
+MASKED = {
+    "masked gain": ({"key": LayerGrade(stops=2, tint=(1, 0.5, 0.25), mask=mask("/World/a")),
+                     "rim": LayerGrade(stops=-1)}, 0.0),
+    "masked mute": ({"fill": LayerGrade(stops=1, mute=True, mask=mask("/World/b", "/World/c")),
+                     "key": LayerGrade(stops=1, mute=True)}, 0.5),
+    "masked solo": ({"key": LayerGrade(stops=1, solo=True, mask=mask("/World/a")),
+                     "fill": LayerGrade(solo=True, mute=True, mask=mask("/World/b")),
+                     "rim": LayerGrade(stops=3, mask=mask("/World/c"))}, 0.0),
+    "mask of every name": ({"rim": LayerGrade(stops=-3, tint=(2, 1, 0), mask=mask(*MASK_NAMES))}, -1.0),
+}
+
+
+@pytest.mark.parametrize("case", MASKED)
+def test_masked_grades_give_the_masked_composite_rule(masked_stack, tmp_path, case):
+    """A masked layer's Grade takes the matte of a Cryptomatte gizmo keyed on its names: the
+    script is the rule with w = 1 + m·(gain − 1), m the names' matte decoded here from the
+    EXR (test_cryptomatte.matte), and the inspector's composite (view/composite.py) with the
+    masks of layers.cryptomatte.coverage agrees."""
+    from test_cryptomatte import matte, read_cryptomattes
+
+    from pxr_layers.layers.cryptomatte import coverage
+    from pxr_layers.layers.multipart import read_multipart
+    from pxr_layers.view.composite import composite
+
+    grades, exposure = MASKED[case]
+    beauty, layers = masked_stack
+    path = write_nuke_script(tmp_path / "look.nk", tmp_path / "look.exr", list(layers), grades, resolution=(5, 6),
+                             partition=False, exposure=exposure, cryptomattes={"CryptoObject": 6})
+    out, nuke = evaluate(path.read_text(), path)
+    entry = read_cryptomattes(tmp_path / "look.exr")[0]["CryptoObject"]
+    masks = {name: matte(entry, list(grade.mask.names)) for name, grade in grades.items() if grade.mask}
+    assert all(0.0 < m.mean() < 1.0 for m in masks.values())  # fractional somewhere, not everywhere
+    expected = composite_rule(beauty, layers, grades, exposure, masks)
+    tolerance = 2 * bound(beauty, layers, grades, exposure) + 1e-6  # the mask's blend rounds thrice more
+    assert np.all(np.abs(out[..., :3] - expected) <= tolerance)
+    np.testing.assert_array_equal(out[..., 3], beauty[..., 3])
+    soloing = any(grade.solo for grade in grades.values())
+    for name in layers:
+        grade = grades.get(name, LayerGrade())
+        node = nuke.nodes[f"Grade_{name}"]
+        assert (node.knob("inputs") == "1+1") == (grade.mask is not None)
+        if grade.mask is not None:
+            keyer = nuke.nodes[f"Mask_{name}"]
+            assert keyer.kind == "Cryptomatte" and keyer.knob("cryptoLayer") == "CryptoObject"
+            assert keyer.knob("matteList") == ", ".join(grade.mask.names)
+        off = (grade.mute and grade.mask is None) or (soloing and not grade.solo)
+        assert (nuke.nodes[f"Merge_{name}"].knob("disable") == "true") == off
+
+    read = read_multipart(tmp_path / "look.exr")
+    ours = {name: coverage(read.cryptomattes["CryptoObject"], grade.mask.names) for name, grade in grades.items()
+            if grade.mask}
+    for name, m in ours.items():
+        np.testing.assert_allclose(m, masks[name], atol=1e-6)
+    inspector = composite(beauty[..., :3], list(layers.values()), [grades.get(n, LayerGrade()) for n in layers],
+                          exposure, [ours.get(n) for n in layers])
+    assert np.all(np.abs(inspector - expected) <= tolerance)
+
+
+def test_a_mask_needs_its_cryptomatte_and_names_the_gizmo_can_list(masked_stack, tmp_path):
+    _, layers = masked_stack
+    grades = {"key": LayerGrade(mask=mask("/World/a"))}
+    with pytest.raises(OutputError, match="the mask of 'key' keys the object Cryptomatte 'CryptoObject', which the "
+                                          "EXR does not hold"):
+        nuke_script("look.exr", list(layers), grades, resolution=(5, 6), partition=False)
+    # another layer name for the kind: the product's own Cryptomatte layer
+    text = nuke_script("look.exr", list(layers), grades, resolution=(5, 6), partition=False,
+                       cryptomattes={"Objects": 4}, mask_layers={"object": "Objects"})
+    assert " cryptoLayer Objects\n" in text and " in01 Objects01\n" in text
+    with pytest.raises(OutputError, match=r"the mask name '/World/a\*' holds \*"):
+        nuke_script("look.exr", list(layers), {"key": LayerGrade(mask=mask("/World/a*"))}, resolution=(5, 6),
+                    partition=False, cryptomattes={"CryptoObject": 6})
+    spaced = nuke_script("look.exr", list(layers), {"key": LayerGrade(mask=mask("/World/a b", "/World/c,d"))},
+                         resolution=(5, 6), partition=False, cryptomattes={"CryptoObject": 6})
+    assert r' matteList "\"/World/a b\", \"/World/c,d\""' in spaced

@@ -314,8 +314,8 @@ def test_keys_and_the_wheel_move_the_view_and_reset_the_grades(page):
     page.evaluate("pxrViewer.setGrade('diffuse_direct', { stops: 2, solo: true })")
     page.keyboard.press("r")
     assert page.evaluate("pxrViewer.state().layers.find(l => l.id === 'diffuse_direct')") | {"share": None} == {
-        "id": "diffuse_direct", "name": "diffuse_direct", "kind": "layer", "share": None, "stops": 0,
-        "tint": [1, 1, 1], "mute": False, "solo": False}
+        "id": "diffuse_direct", "source": "diffuse_direct", "name": "diffuse_direct", "kind": "layer", "share": None,
+        "group": "", "stops": 0, "tint": [1, 1, 1], "kelvin": None, "mute": False, "solo": False, "mask": None}
 
 
 REGRADE = {"diffuse_direct": LayerGrade(stops=1.5, tint=(1.0, 0.5, 0.25)), "diffuse_indirect": LayerGrade(stops=-2.0),

@@ -22,7 +22,8 @@ a type are keyed by the first 7 of those digits of its type name's id (``CryptoO
     cryptomatte/<key>/conversion = uint32_to_float32
     cryptomatte/<key>/manifest   = the manifest as JSON
 
-The encoder lives here; decoding (a matte from a list of names) is the compositor's, and
+The encoder lives here, and the one decoder the inspector's masks need (:func:`coverage`:
+the matte of a list of names, as a compositor keys it; :func:`names_at`: what a click picks);
 the tests decode with their own implementation of the specification.
 """
 
@@ -213,3 +214,32 @@ def asset_roots(object_paths: Sequence[str], model_paths: Sequence[str]) -> tupl
         ancestors = ("/".join(parts[:end]) for end in range(len(parts), 1, -1))
         roots.append(next((p for p in ancestors if p in models), "/".join(parts[:2]) or path))
     return tuple(roots)
+
+
+def coverage(cryptomatte: Cryptomatte, names: Sequence[str]) -> np.ndarray:
+    """The matte of ``names``: (h, w) float32, at each pixel the sum of the coverages of the
+    ranks whose id is one of the names' ids (the specification's keying, as the Nuke gizmo
+    and Blender's compositor key a matte list), ranks summed in order in float32, clipped to
+    [0, 1]. Ids come from the names (:func:`name_id`), not the manifest, as the
+    specification asks of decoders; a name no pixel ranks has coverage 0 everywhere."""
+    wanted = np.array([id_bits(name) for name in names], np.uint32)
+    ranks = cryptomatte.ids.view(np.uint32)
+    total = np.zeros(cryptomatte.ids.shape[:2], np.float32)
+    for slot in range(cryptomatte.depth):
+        hit = np.isin(ranks[..., slot], wanted) & (ranks[..., slot] != 0)
+        total += np.where(hit, cryptomatte.coverage[..., slot], np.float32(0.0))
+    return np.clip(total, np.float32(0.0), np.float32(1.0))
+
+
+def names_at(cryptomatte: Cryptomatte, x: int, y: int) -> list[tuple[str, float]]:
+    """The names ranked at pixel (x, y) (x from the left, y from the top) with their
+    coverage, highest first: what a click on the pixel picks. Empty ranks are left out; an
+    id the manifest does not name is given as its 8 hex digits."""
+    by_id = {hex_id: name for name, hex_id in reversed(cryptomatte.manifest.items())}  # the first name of an id
+    picked = []
+    for slot in range(cryptomatte.depth):
+        bits = int(cryptomatte.ids[y, x, slot:slot + 1].view(np.uint32)[0])
+        weight = float(cryptomatte.coverage[y, x, slot])
+        if bits and weight > 0.0:
+            picked.append((by_id.get(f"{bits:08x}", f"{bits:08x}"), weight))
+    return picked

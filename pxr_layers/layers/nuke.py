@@ -3,9 +3,11 @@
 The script computes the inspector's composite rule (pxr_layers/view/composite.py), so a
 look saved from ``pxr-layers view`` opens in Nuke as it was seen::
 
-    no layer soloed:   out = beauty + Σ_i (gain_i · tint_i − 1) · layer_i      (muted: gain_i = 0)
-    some layer soloed: out = Σ_{i soloed, not muted} gain_i · tint_i · layer_i
-    then · 2^exposure                                              gain_i = 2^stops_i
+    no layer soloed:   out = beauty + Σ_i (w_i − 1) · layer_i
+    some layer soloed: out = Σ_{i soloed} w_i · layer_i
+    then · 2^exposure
+
+    w_i = 1 + m_i · (g_i − 1),  g_i = 2^stops_i · tint_i (0 if muted),  m_i the mask (1 without)
 
 as a graph a compositor knows (Nuke's stack syntax: a node takes its inputs from the top of
 the stack, input 0 = B from the top; ``set N [stack 0]`` names the top, ``push $N`` pushes
@@ -28,6 +30,15 @@ makes unit gains give the beauty again (exactly but for float32 rounding of the
 subtraction and the sums). The trunk starts from the beauty with black RGB, so the result
 carries the beauty's alpha (every layer's alpha is black) and a disabled first Merge still
 leaves a black base.
+
+A masked layer (LayerGrade.mask) gets a Cryptomatte gizmo of its own on the Read,
+``Mask_<layer>`` (``cryptoLayer`` the mask kind's Cryptomatte layer, ``matteList`` the
+mask's names, :func:`matte_list`), wired to its Grade's mask input (``inputs 1+1``,
+``maskChannelInput rgba.alpha``): Nuke's Grade blends graded and ungraded by the mask,
+layer + m·(g·layer − layer) = w·layer, the composite's weight. Its Merge is as any other's,
+but a muted masked layer keeps its Merge enabled and grades by 0 (the layer taken away
+inside its mask only, as the composite does). The keyer reads the Cryptomatte from the same
+Read: a look saved with masks writes the Cryptomattes they key into its EXR.
 
 Knobs and node types are those of every Nuke since 12.0 (the classic Shuffle, not
 Shuffle2). Every Grade has ``black_clamp false`` (Nuke's default clamps negatives to 0,
@@ -68,7 +79,7 @@ from pathlib import Path
 from .. import __version__
 from ..errors import OutputError
 from ..outputs import check_output, write_atomically
-from ..recipe.model import BEAUTY_PART, LAYER_NAME, MAX_CRYPTOMATTE_DEPTH, cryptomatte_parts
+from ..recipe.model import BEAUTY_PART, CRYPTOMATTE_KINDS, LAYER_NAME, MAX_CRYPTOMATTE_DEPTH, cryptomatte_parts
 from .kelvin import blackbody, check_kelvin
 from .previews import layers_partition
 
@@ -87,6 +98,30 @@ _ROW = 80
 
 
 @dataclass(frozen=True)
+class LayerMask:
+    """Where a layer's grade applies: the objects, materials or assets ``names`` (as the
+    Cryptomatte manifest of ``kind`` names them: prim paths, material paths, model roots),
+    keyed from the render's Cryptomatte of that kind (CRYPTOMATTE_KINDS: object, material,
+    asset). Its matte m (layers.cryptomatte.coverage) makes the layer's weight
+    1 + m·(gain·tint − 1): the grade inside, unity outside (view/composite.py)."""
+
+    kind: str
+    names: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        if self.kind not in CRYPTOMATTE_KINDS:
+            raise ValueError(f"a mask's kind is one of {', '.join(CRYPTOMATTE_KINDS)}, not {self.kind!r}")
+        if isinstance(self.names, str) or not self.names or not all(isinstance(n, str) and n for n in self.names):
+            raise ValueError(f"a mask names at least one {self.kind} (non-empty strings), not {self.names!r}")
+        object.__setattr__(self, "names", tuple(self.names))
+
+    @property
+    def source(self) -> str:
+        """The Cryptomatte source of the kind (``CryptoObject``, ...): the layer a saved look writes."""
+        return CRYPTOMATTE_KINDS[self.kind]
+
+
+@dataclass(frozen=True)
 class LayerGrade:
     """How the inspector shows one layer.
 
@@ -96,6 +131,7 @@ class LayerGrade:
     solo  : when any layer is soloed, only the soloed layers (not muted) are shown
     kelvin: None (off), or a colour temperature in K (layers/kelvin.py's range): the layer
             is multiplied by the blackbody colour a UsdLux light of that temperature has
+    mask  : the grade applies where the mask's names are (their Cryptomatte coverage m), unity elsewhere
     """
 
     stops: float = 0.0
@@ -103,6 +139,7 @@ class LayerGrade:
     mute: bool = False
     solo: bool = False
     kelvin: float | None = None
+    mask: LayerMask | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "kelvin", check_kelvin(self.kelvin))
@@ -119,7 +156,7 @@ class LayerGrade:
 def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mapping[str, LayerGrade], *,
                 resolution: tuple[int, int], partition: bool, beauty_part: str = BEAUTY_PART,
                 exposure: float = 0.0, cryptomattes: Mapping[str, int] | None = None,
-                pixel_aspect_ratio: float = 1.0) -> str:
+                pixel_aspect_ratio: float = 1.0, mask_layers: Mapping[str, str] | None = None) -> str:
     """The text of a Nuke script rebuilding ``parts`` of ``exr_path`` graded by ``grades``.
 
     exr_path    : the Read's file: relative (to the script's folder, read through
@@ -133,14 +170,26 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
                   part, shuffled out like a layer
     exposure    : stops of the final Grade (the inspector's viewing exposure)
     cryptomattes: Cryptomatte layer name → its depth (ranks): a Cryptomatte gizmo on the Read for each
+    mask_layers : mask kind (LayerMask.kind) → the Cryptomatte layer of ``cryptomattes`` a
+                  masked grade of that kind is keyed from; by default the kind's source
+                  (``CryptoObject``, ...), the name a saved look gives it
 
-    Raises OutputError for a part Nuke would not read as its own layer, a part given twice
-    or a grade that is not finite; ValueError for a grade of a part not in ``parts``.
+    Raises OutputError for a part Nuke would not read as its own layer, a part given twice,
+    a grade that is not finite, or a mask whose Cryptomatte is not in ``cryptomattes`` or
+    whose names the gizmo's matte list cannot hold; ValueError for a grade of a part not in
+    ``parts``.
     """
     parts = list(parts)
     cryptomattes = dict(cryptomattes or {})
+    mask_layers = {**CRYPTOMATTE_KINDS, **(mask_layers or {})}
     _check(parts + [part for name, depth in cryptomattes.items() for part in cryptomatte_parts(name, depth)],
            grades, beauty_part, exposure)
+    masks = {part: grade.mask for part, grade in grades.items() if grade.mask is not None}
+    for part, mask in masks.items():
+        if mask_layers.get(mask.kind) not in cryptomattes:
+            raise OutputError(f"Nuke script: the mask of {part!r} keys the {mask.kind} Cryptomatte "
+                              f"{mask_layers.get(mask.kind)!r}, which the EXR does not hold "
+                              f"(it holds {', '.join(cryptomattes) or 'no Cryptomatte'})")
     for name, depth in cryptomattes.items():
         if not LAYER_NAME.fullmatch(name) or not 1 <= depth <= MAX_CRYPTOMATTE_DEPTH:
             raise OutputError(f"Nuke script: the Cryptomatte {name!r} of depth {depth} is not one the gizmo keys "
@@ -185,6 +234,19 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
         writer.node("Cryptomatte", {"name": f"Cryptomatte_{name}", "cryptoLayer": name, "cryptoLayerLock": "true",
                                     "matteList": "", **inputs, **_at(column, 1)})
 
+    # A masked layer's keyer: the gizmo's matte of the mask's names, in alpha, for its Grade's mask input.
+    for column, part in enumerate(parts, start=1):
+        mask = masks.get(part)
+        if mask is None:
+            continue
+        name = mask_layers[mask.kind]
+        writer.push("Read_layers")
+        inputs = {f"in{number:02d}": layer for number, layer in enumerate(cryptomatte_parts(name, cryptomattes[name]))}
+        writer.node("Cryptomatte", {"name": f"Mask_{part}", "label": f"mask of {part}: {mask.kind}",
+                                    "cryptoLayer": name, "cryptoLayerLock": "true",
+                                    "matteList": matte_list(mask.names), **inputs, **_at(column, 2)})
+        writer.set(f"Mask_{part}")
+
     soloing = any(grades.get(part, LayerGrade()).solo for part in parts)
     if not partition:
         # The rest: beauty − ((l0 + l1) + l2 ...), the ungraded layers taken off the beauty.
@@ -211,11 +273,21 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
 
     for column, part in enumerate(parts, start=1):
         grade = grades.get(part, LayerGrade())
-        writer.push(f"Shuffle_{part}")
-        writer.node("Grade", {"multiply": _vector(*grade.multiply, 1.0), "black_clamp": "false",
-                              "name": f"Grade_{part}", **_at(column, 5 + column)})
+        if grade.mask is None:
+            writer.push(f"Shuffle_{part}")
+            writer.node("Grade", {"multiply": _vector(*grade.multiply, 1.0), "black_clamp": "false",
+                                  "name": f"Grade_{part}", **_at(column, 5 + column)})
+        else:  # graded inside the mask, as is outside: the weight 1 + m·(gain − 1); muted: gain 0
+            writer.push(f"Mask_{part}")
+            writer.push(f"Shuffle_{part}")
+            multiply = (0.0, 0.0, 0.0) if grade.mute else grade.multiply
+            writer.node("Grade", {"inputs": "1+1", "multiply": _vector(*multiply, 1.0), "black_clamp": "false",
+                                  "maskChannelInput": "rgba.alpha", "name": f"Grade_{part}",
+                                  **({"label": "muted inside the mask"} if grade.mute else {}),
+                                  **_at(column, 5 + column)})
         writer.push(trunk)
-        off = grade.mute or (soloing and not grade.solo)
+        # a muted layer adds nothing, but a masked one still adds itself outside its mask
+        off = (grade.mute and grade.mask is None) or (soloing and not grade.solo)
         trunk = f"Merge_{part}"
         writer.node("Merge2", {"inputs": "2", "operation": "plus", **_disabled(off), "name": trunk,
                                **_at(0, 5 + column)})
@@ -229,7 +301,8 @@ def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mappi
 def write_nuke_script(path: str | os.PathLike, exr_path: str | os.PathLike, parts: Sequence[str],
                       grades: Mapping[str, LayerGrade], *, resolution: tuple[int, int], partition: bool,
                       beauty_part: str = BEAUTY_PART, exposure: float = 0.0,
-                      cryptomattes: Mapping[str, int] | None = None, pixel_aspect_ratio: float = 1.0) -> Path:
+                      cryptomattes: Mapping[str, int] | None = None, pixel_aspect_ratio: float = 1.0,
+                      mask_layers: Mapping[str, str] | None = None) -> Path:
     """Write :func:`nuke_script` at ``path`` (atomically); returns where the file is now
     (its temporary while an OutputSet holds it).
 
@@ -249,7 +322,7 @@ def write_nuke_script(path: str | os.PathLike, exr_path: str | os.PathLike, part
     file_name = exr.relative_to(folder) if exr.is_relative_to(folder) else exr
     text = nuke_script(file_name, parts, grades, resolution=resolution, partition=partition,
                        beauty_part=beauty_part, exposure=exposure, cryptomattes=cryptomattes,
-                       pixel_aspect_ratio=pixel_aspect_ratio)
+                       pixel_aspect_ratio=pixel_aspect_ratio, mask_layers=mask_layers)
     written = write_atomically(path, lambda temporary: temporary.write_text(text, encoding="utf-8"))
     logger.info("wrote the Nuke script %s: %d layers of %s", path, len(parts), exr)
     return written
@@ -266,6 +339,25 @@ def write_product_script(path: str | os.PathLike, exr_path: str | os.PathLike, b
     return write_nuke_script(path, exr_path, list(colour), {}, resolution=(width, height),
                              partition=layers_partition(beauty, [image[..., :3] for image in colour.values()]),
                              cryptomattes=cryptomattes, pixel_aspect_ratio=pixel_aspect_ratio)
+
+
+MATTE_LIST_REFUSED = frozenset('\\*?[]"')
+"""Characters of a name the gizmo's matte list reads as an escape, a quote or a wildcard
+(cryptomatte_utilities.StringEncoder): a mask naming one is refused (USD paths have none)."""
+
+
+def matte_list(names: Sequence[str]) -> str:
+    """The Cryptomatte gizmo's ``matteList`` of ``names``: comma-and-space separated, a name
+    holding a space or a comma double-quoted (the gizmo's own encoding). Raises OutputError
+    for a name with a character of MATTE_LIST_REFUSED."""
+    words = []
+    for name in names:
+        refused = sorted(set(name) & MATTE_LIST_REFUSED)
+        if refused:
+            raise OutputError(f"Nuke script: the mask name {name!r} holds {' '.join(refused)}, which the "
+                              "Cryptomatte gizmo's matte list reads as escapes or wildcards")
+        words.append(f'"{name}"' if " " in name or "," in name else name)
+    return ", ".join(words)
 
 
 def _check(parts: list[str], grades: Mapping[str, LayerGrade], beauty_part: str, exposure: float) -> None:

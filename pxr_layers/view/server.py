@@ -80,6 +80,8 @@ def make_app(session: Session, token: str, allowed_hosts: frozenset[str] | None)
     app.router.add_get(LUT_URL, _lut)
     app.router.add_get("/api/image/{layer}", _image)
     app.router.add_get("/api/inspect", _inspect)
+    app.router.add_get("/api/mask", _mask)
+    app.router.add_get("/api/pick", _pick)
     app.router.add_post("/api/check", _check)
     app.router.add_post("/api/generalise", _generalise)
     app.router.add_post("/api/layer", _layer)
@@ -87,6 +89,7 @@ def make_app(session: Session, token: str, allowed_hosts: frozenset[str] | None)
     app.router.add_post("/api/save", _save)
     app.router.add_post("/api/push", _push)
     app.router.add_post("/api/pushable", _pushable)
+    app.router.add_put("/api/document", _document)
     return app
 
 
@@ -225,6 +228,28 @@ async def _inspect(request: web.Request) -> web.Response:
     return web.json_response(await _blocking(request, request.app[SESSION_KEY].inspect, x0, y0, x1, y1))
 
 
+async def _mask(request: web.Request) -> web.Response:
+    """The coverage of ``names`` (a JSON array, or ``names=`` repeated) in the ``kind``'s Cryptomatte."""
+    session = request.app[SESSION_KEY]
+    names = request.query.getall("names", [])
+    if len(names) == 1 and names[0].lstrip().startswith("["):
+        try:
+            names = json.loads(names[0], parse_constant=_no_constant)
+        except (ValueError, RecursionError):
+            raise ViewError("names is a JSON array of names, or names= repeated") from None
+    pixels = await _blocking(request, session.mask, request.query.get("kind"), names)
+    return web.Response(body=pixels, content_type="application/octet-stream",
+                        headers={"X-Width": str(session.width), "X-Height": str(session.height)})
+
+
+async def _pick(request: web.Request) -> web.Response:
+    try:
+        x, y = (int(request.query[key]) for key in ("x", "y"))
+    except (KeyError, ValueError):
+        raise ViewError("pick needs integer x, y (a pixel: x from the left, y from the top)") from None
+    return web.json_response(request.app[SESSION_KEY].pick(x, y))
+
+
 async def _check(request: web.Request) -> web.Response:
     body = await _json_body(request)
     try:
@@ -260,7 +285,7 @@ async def _save(request: web.Request) -> web.Response:
     if not isinstance(overwrite, bool):
         raise ViewError(f"overwrite must be true or false, not {overwrite!r}")
     written = await _blocking(request, session.save, body.get("name"), body.get("layers"),
-                              body.get("exposure", 0.0), overwrite)
+                              body.get("exposure", 0.0), overwrite, body.get("document"))
     return web.json_response(written)
 
 
@@ -279,6 +304,9 @@ async def _push(request: web.Request) -> web.Response:
 async def _pushable(request: web.Request) -> web.Response:
     body = await _json_body(request)
     return web.json_response(await _blocking(request, request.app[SESSION_KEY].pushable, body.get("layers")))
+async def _document(request: web.Request) -> web.Response:
+    body = await _json_body(request)
+    return web.json_response(await _blocking(request, request.app[SESSION_KEY].put_document, body))
 
 
 async def _folder_file(request: web.Request) -> web.StreamResponse:

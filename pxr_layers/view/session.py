@@ -17,10 +17,12 @@ the session's folder.
 
 from __future__ import annotations
 
+import json
 import logging
 import re
 import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -30,6 +32,7 @@ from .. import lpe
 from ..errors import LpeSyntaxError, PxrLayersError, RecipeError
 from ..layers.deliver import (DENOISED_SUFFIX, GUIDE_SOURCES, at_index_view, beauty_beside, deliver, denoised_path,
                                index_inputs, index_metadata)
+from ..layers.cryptomatte import Cryptomatte, coverage, names_at
 from ..layers.display_lut import DisplayLut, bake_display_lut, lut_bytes, lut_description
 from ..layers.extract import extract
 from ..layers.kelvin import kelvin_table
@@ -47,6 +50,7 @@ from ..paths.events import (
 from ..paths.format import SUFFIX as INDEX_SUFFIX, NormBins
 from ..paths.reader import PathIndex
 from ..recipe.model import (
+    CRYPTOMATTE_KINDS,
     DEFAULT_CAMERA_PATH,
     LAYER_NAME,
     MAX_PREVIEW_STOPS,
@@ -55,6 +59,7 @@ from ..recipe.model import (
     Product,
     Recipe,
 )
+from . import document as documents
 from . import inspect, push
 
 log = logging.getLogger(__name__)
@@ -69,6 +74,8 @@ MAX_SUGGESTED = 32
 """Most layers /api/suggest makes at once."""
 VERSIONS = ("raw", "denoised")
 """The versions of a layer's pixels /api/image serves: as rendered, and from the denoised twin."""
+MASKS_CACHED = 32
+"""Masks (/api/mask answers) a session keeps, the most recently asked."""
 
 
 class ViewError(PxrLayersError):
@@ -120,9 +127,12 @@ class Session:
 
     def __init__(self, folder: Path, title: str, beauty: np.ndarray, layers: list[ViewLayer],
                  index: PathIndex | None, product: Product, threads: int,
-                 guides: tuple[np.ndarray, np.ndarray] | None = None):
+                 guides: tuple[np.ndarray, np.ndarray] | None = None,
+                 cryptomattes: dict[str, tuple[str, Cryptomatte]] | None = None):
         """guides: the denoiser's (albedo, normal) of a render with denoised twins, whose
-        layers then carry their denoised versions (ViewLayer.denoised); None without."""
+        layers then carry their denoised versions (ViewLayer.denoised); None without.
+        cryptomattes: mask kind (object, material, asset) → (its EXR layer, its Cryptomatte),
+        what masks are keyed from (:meth:`mask`)."""
         self.folder, self.title, self.beauty, self.index, self.threads = folder, title, beauty, index, threads
         self.guides = guides
         self.base_product = product
@@ -131,8 +141,13 @@ class Session:
         self.lut: DisplayLut = bake_display_lut(product.ocio_config, product.display, product.view,
                                                 product.rendering_space)
         self._lock = threading.Lock()
+        self.cryptomattes = dict(cryptomattes or {})
+        self._masks: OrderedDict[tuple[str, tuple[str, ...]], bytes] = OrderedDict()
+        self._masks_lock = threading.Lock()
         self._event_paths = event_paths(index.events) if index else []
         self._infos = [inspect.describe(path_class, self._event_paths) for path_class in index.classes] if index else []
+        self.document_path = documents.document_path(folder, title)
+        self.document = self._restored(documents.load(self.document_path))
 
     # -- opening
 
@@ -175,7 +190,7 @@ class Session:
         log.info("%s: %d layers, %s%s", folder, len(layers) - 1,
                  f"index {index.path.name} ({index.record_count:,} records)" if index else "no index",
                  ", denoised twins" if guides else "")
-        return cls(folder, title, beauty, layers, index, product, threads, guides)
+        return cls(folder, title, beauty, layers, index, product, threads, guides, _product_cryptomattes(products))
 
     # -- what the page reads
 
@@ -185,7 +200,10 @@ class Session:
         return {"title": self.title, "width": self.width, "height": self.height,
                 "layers": [layer.description() for layer in self.layers.values()],
                 "denoised": self.guides is not None,
+                "document": self.document, "document_file": self.document_path.name,
                 "partition": self._partition(layers), "index": self._index_description(),
+                "cryptomattes": {kind: {"layer": layer, "names": sorted(matte.manifest)}
+                                 for kind, (layer, matte) in self.cryptomattes.items()},
                 "alphabet": {"types": list(zip(SCATTERING_TYPES, SCATTERING_TYPE_NAMES, strict=True)),
                              "scatterings": list(zip(SCATTERINGS, SCATTERING_NAMES, strict=True))},
                 "display": {"config": self.lut.config, "display": self.lut.display, "view": self.lut.view,
@@ -217,6 +235,58 @@ class Session:
                 "norm_bins": {"min": 2.0 ** NormBins.LOWEST_EXPONENT,
                               "max": 2.0 ** (NormBins.LOWEST_EXPONENT + NormBins.EDGES - 1),
                               "per_octave": 1, "exact": "0 and powers of two"}}
+
+    # -- the working state (view/document.py)
+
+    def put_document(self, document) -> dict:
+        """/api/document: keep the page's working state beside the render. Every layer it
+        shows must be one of the session's."""
+        try:
+            document = documents.checked(document)
+        except documents.DocumentError as error:
+            raise ViewError(f"document: {error}") from None
+        with self._lock:
+            unknown = sorted(set(documents.sources(document)) - set(self.layers))
+            if unknown:
+                raise ViewError(f"document: no layer {unknown[0]!r} in this session", 404)
+            documents.write(self.document_path, document)
+            self.document = document
+        return {"file": self.document_path.name}
+
+    def _restored(self, document: dict | None) -> dict | None:
+        """`document` with the layers it shows that the render's products do not hold (made on
+        the page) extracted again from their expressions; entries of layers that cannot be
+        (no index, no expression, an expression that no longer compiles) are dropped, with a
+        warning naming them."""
+        if document is None:
+            return None
+        missing = {source: expression for source, expression in documents.sources(document).items()
+                   if source not in self.layers}
+        restorable = {source: expression for source, expression in missing.items() if expression and self.index}
+        if restorable:
+            names = {f"restored_{number}": source for number, source in enumerate(restorable)}
+            try:
+                extraction = extract(self.index, {name: restorable[source] for name, source in names.items()},
+                                     threads=self.threads)
+            except PxrLayersError as error:
+                log.warning("%s: its page-made layers are not restored (%s)", self.document_path.name,
+                            str(error).splitlines()[0])
+                restorable = {}
+            else:
+                shares = energy_shares(self.beauty, extraction.layers)
+                denoised = self._denoised(extraction.layers)
+                for name, source in names.items():
+                    self.layers[source] = ViewLayer(source, source, "layer", "", restorable[source],
+                                                    extraction.layers[name], shares[name], denoised=denoised.get(name))
+        lost = sorted(set(missing) - set(restorable))
+        if lost:
+            log.warning("%s: %d layers it shows are gone and left out: %s", self.document_path.name, len(lost),
+                        ", ".join(lost[:5]))
+            for look in (document, *document["snapshots"], *([document["saved"]] if document["saved"] else [])):
+                look["entries"] = [entry for entry in look["entries"] if entry["source"] not in lost]
+        log.info("%s: the working state restored (%d entries, %d snapshots)", self.document_path.name,
+                 len(document["entries"]) - 1, len(document["snapshots"]))
+        return document
 
     # -- inspect
 
@@ -332,11 +402,70 @@ class Session:
             number += 1
         return f"{name}_{number}"
 
+    # -- masks
+
+    def mask_names(self) -> dict[str, frozenset[str]]:
+        """kind → the names its Cryptomatte's manifest has (what a mask may name)."""
+        return {kind: frozenset(matte.manifest) for kind, (_, matte) in self.cryptomattes.items()}
+
+    def mask_coverage(self, kind, names) -> np.ndarray:
+        """(h, w) float32: the coverage of ``names`` in the Cryptomatte of ``kind``
+        (layers.cryptomatte.coverage). ViewError (400) for an unknown kind or name, one line
+        naming it and the nearest known."""
+        from .grades import mask_from_json  # grades.py builds on this module's ViewError
+
+        mask = mask_from_json({"kind": kind, "names": names}, "mask", self.mask_names())
+        return coverage(self.cryptomattes[mask.kind][1], mask.names)
+
+    def mask(self, kind, names) -> bytes:
+        """/api/mask: :meth:`mask_coverage` as little-endian float32 h × w, top row first;
+        the last MASKS_CACHED answers are kept, per kind and set of names."""
+        key = (kind, tuple(sorted(set(names)))) if isinstance(kind, str) and isinstance(names, list) and \
+            all(isinstance(name, str) for name in names) else None
+        with self._masks_lock:
+            if key in self._masks:
+                self._masks.move_to_end(key)
+                return self._masks[key]
+        pixels = np.ascontiguousarray(self.mask_coverage(kind, names), dtype="<f4").tobytes()
+        with self._masks_lock:
+            self._masks[key] = pixels
+            while len(self._masks) > MASKS_CACHED:
+                self._masks.popitem(last=False)
+        return pixels
+
+    def pick(self, x, y) -> dict:
+        """/api/pick: the names under pixel (x, y) (x from the left, y from the top) in each
+        kind's Cryptomatte, highest coverage first: {kind: [{"name", "coverage"}, ...]}."""
+        if isinstance(x, bool) or isinstance(y, bool) or not isinstance(x, int) or not isinstance(y, int) \
+                or not (0 <= x < self.width and 0 <= y < self.height):
+            raise ViewError(f"pick needs a pixel x from 0 to {self.width - 1}, y from 0 to {self.height - 1}, "
+                            f"not ({_shown(x)}, {_shown(y)})")
+        return {kind: [{"name": name, "coverage": weight} for name, weight in names_at(matte, x, y)]
+                for kind, (_, matte) in self.cryptomattes.items()}
+
+    def look_cryptomattes(self, grades: dict[str, LayerGrade]) -> dict[str, Cryptomatte]:
+        """The Cryptomattes a saved look needs for its masked grades, by source (CryptoObject,
+        ...): a masked save writes them into its EXR (Recipe.with_cryptomattes of their
+        sources, ``deliver(data=...)``), layers named after their source as the Nuke script's
+        keyers expect (layers.nuke, ``mask_layers`` by default), so the look is whole without
+        the render's EXR. ViewError for a mask of a kind the render has no Cryptomatte of."""
+        needed = {}
+        for grade in grades.values():
+            if grade.mask is None:
+                continue
+            if grade.mask.kind not in self.cryptomattes:
+                raise ViewError(f"a mask of {grade.mask.kind}s, but the render wrote no {grade.mask.kind} Cryptomatte")
+            needed[grade.mask.source] = self.cryptomattes[grade.mask.kind][1]
+        return needed
+
     # -- save
 
-    def save(self, name: str, stack: list[dict], exposure: float = 0.0, overwrite: bool = False) -> dict:
+    def save(self, name: str, stack: list[dict], exposure: float = 0.0, overwrite: bool = False,
+             document: dict | None = None) -> dict:
         """/api/save: NAME.usda (the recipe), NAME.exr and its previews (extracted from the
-        index), NAME.nk (the grade), all in the folder, together or not at all."""
+        index), NAME.nk (the grade), and with the page's `document`, NAME.view.json (the
+        look's working state: opening NAME.exr shows exactly this), all in the folder,
+        together or not at all."""
         from ..stage.recipe_writer import write_recipe  # USD is imported only when saving
 
         index = self._need_index("save the stack (its layers are extracted from it)")
@@ -345,11 +474,14 @@ class Session:
                             "not starting with a digit or -")
         exposure = _stops(exposure, "exposure")
         chosen, grades = self._stack(stack)
+        look = self._look_document(document, stack, chosen, exposure, name)
         # the raw stack (its grades are the look's; a render with --denoise makes the twin)
         recipe = Recipe((replace(self.base_product, name=name.replace("-", "_"), output_name=f"{name}.exr", prim_path="",
                                  layers=tuple(chosen), per_light="none", denoise=False),))
         paths = {"recipe": self.folder / f"{name}.usda", "exr": self.folder / f"{name}.exr",
                  "nuke": self.folder / f"{name}.nk"}
+        if look is not None:
+            paths["document"] = documents.document_path(self.folder, name)
         partition = self._partition([self.layers[entry["id"]] for entry in stack if entry["id"] != "beauty"])
         # The check and the writes together: of two saves of one name, one is refused. A save
         # named after the render (overwrite: true) does not replace the index and EXR it reads.
@@ -364,11 +496,15 @@ class Session:
             write_nuke_script(paths["nuke"], paths["exr"], [layer.name for layer in chosen], grades,
                               resolution=(self.width, self.height), exposure=float(exposure), partition=partition,
                               pixel_aspect_ratio=self.base_product.pixel_aspect_ratio)
+            if look is not None:
+                documents.write(paths["document"], look)
         log.info("saved %s", ", ".join(str(path) for path in paths.values()))
         return {key: path.name for key, path in paths.items()}
 
     def _stack(self, stack: list[dict]) -> tuple[list[Layer], dict[str, LayerGrade]]:
-        """The recipe layers and the grades of the page's stack entries ({id, stops, tint, mute, solo})."""
+        """The recipe layers and the grades of the page's stack entries ({id: the server
+        layer, name: the layer's name in the look (default: the server layer's), group, stops,
+        tint, mute, solo}): one entry may rename a layer, two may show one layer."""
         if not isinstance(stack, list) or not stack:
             raise ViewError("the stack to save holds no layers")
         layers, grades = [], {}
@@ -380,8 +516,16 @@ class Session:
             layer = self.layer(entry.get("id"))
             if layer.kind == "beauty":
                 continue
-            if layer.name in grades:
-                raise ViewError(f"two layers of the stack are named {layer.name!r}")
+            layer_name = entry.get("name", layer.name)
+            if not isinstance(layer_name, str) or len(layer_name) > MAX_NAME_CHARS or not LAYER_NAME.fullmatch(layer_name) \
+                    or layer_name in NUKE_RESERVED_LAYERS:
+                raise ViewError(f"layer name {_shown(layer_name)}: at most {MAX_NAME_CHARS} letters, digits and _, "
+                                "not starting with a digit, and not a layer Nuke keeps for itself")
+            if layer_name in grades:
+                raise ViewError(f"two layers of the stack are named {layer_name!r}")
+            group = entry.get("group") or "inspector"
+            if not isinstance(group, str) or len(group) > documents.MAX_TEXT:
+                raise ViewError(f"layer {layer_name!r}: group is a name of at most {documents.MAX_TEXT} characters")
             tint = entry.get("tint", [1, 1, 1])
             if not isinstance(tint, list) or len(tint) != 3:
                 raise ViewError(f"layer {layer.name!r}: tint is three numbers >= 0, not {_shown(tint)}")
@@ -389,11 +533,11 @@ class Session:
             try:
                 grade = LayerGrade(stops=_stops(entry.get("stops", 0.0), f"layer {layer.name!r}: stops"), tint=tint,
                                    mute=bool(entry.get("mute", False)), solo=bool(entry.get("solo", False)))
-                layers.append(Layer(layer.name, "lpe", layer.expression, exposure=grade.stops, tint=grade.tint,
-                                    group="inspector"))
+                layers.append(Layer(layer_name, "lpe", layer.expression, exposure=grade.stops, tint=grade.tint,
+                                    group=group))
             except (TypeError, ValueError, RecipeError) as error:
-                raise ViewError(f"layer {layer.name!r}: {error}") from None
-            grades[layer.name] = grade
+                raise ViewError(f"layer {layer_name!r}: {error}") from None
+            grades[layer_name] = grade
         if not layers:
             raise ViewError("the stack to save holds no layers (the beauty is always part 0)")
         return layers, grades
@@ -478,6 +622,8 @@ class Session:
     def _push_entries(self, stack: list[dict]) -> list[push.PushEntry]:
         """The page's stack entries ({id, name, stops, tint, kelvin, mute, solo, mask}) as
         push entries (the beauty left out)."""
+        from .grades import grade_from_json  # grades.py builds on this module's ViewError
+
         if not isinstance(stack, list) or not stack:
             raise ViewError("the stack to push holds no layers")
         entries = []
@@ -489,20 +635,37 @@ class Session:
                 continue
             shown = entry.get("name", layer.name)
             shown = shown if isinstance(shown, str) and 0 < len(shown) <= MAX_NAME_CHARS else layer.name
-            tint = entry.get("tint", [1, 1, 1])
-            if not isinstance(tint, list) or len(tint) != 3:
-                raise ViewError(f"layer {shown!r}: tint is three numbers >= 0, not {_shown(tint)}")
-            tint = tuple(_number(channel, f"layer {shown!r}: tint", 0.0, 1e6) for channel in tint)
-            try:
-                grade = LayerGrade(stops=_stops(entry.get("stops", 0.0), f"layer {shown!r}: stops"), tint=tint,
-                                   mute=bool(entry.get("mute", False)), solo=bool(entry.get("solo", False)),
-                                   kelvin=entry.get("kelvin"))
-            except (TypeError, ValueError) as error:
-                raise ViewError(f"layer {shown!r}: {error}") from None
+            grade = grade_from_json(entry, f"layer {shown!r}")  # a mask's names need not be checked: it is not pushed
             entries.append(push.PushEntry(shown, layer.expression, grade, entry.get("mask")))
         if len({entry.name for entry in entries}) != len(entries):
             raise ViewError("two layers of the stack have one name")
         return entries
+    def _look_document(self, document, stack: list[dict], chosen: list[Layer], exposure: float,
+                       name: str) -> dict | None:
+        """The document a saved look opens with (view/document.py): the page's `document` with
+        each saved entry showing its part of NAME.exr (source = its layer name), the saved
+        grades as the look's "saved" state. None without a document."""
+        if document is None:
+            return None
+        try:
+            document = documents.checked(json.loads(json.dumps(document)))
+        except (documents.DocumentError, ValueError) as error:
+            raise ViewError(f"document: {error}") from None
+        saved = {layer.name for layer in chosen}
+        renamed = {}  # a source of the render → the first saved entry's name showing it
+        for entry in stack:
+            if entry.get("name") in saved:
+                renamed.setdefault(entry["id"], entry["name"])
+        for entry in document["entries"]:
+            if entry["kind"] == "layer" and entry["name"] in saved:
+                entry["source"] = entry["name"]
+        for snapshot in document["snapshots"]:
+            for entry in snapshot["entries"]:
+                entry["source"] = renamed.get(entry["source"], entry["source"])
+        document["exposure"] = exposure
+        document["saved"] = {"name": name, "exposure": exposure,
+                             "entries": [entry for entry in document["entries"] if entry["kind"] == "layer"]}
+        return json.loads(json.dumps(document))
 
     def _need_index(self, what: str) -> PathIndex:
         if self.index is None:
@@ -616,6 +779,19 @@ def _product_layers(products: list[MultipartImage], beauty: np.ndarray) -> list[
                                     shares[name], recipe_layer.exposure if recipe_layer else 0.0,
                                     recipe_layer.tint if recipe_layer else (1.0, 1.0, 1.0)))
     return layers
+
+
+def _product_cryptomattes(products: list[MultipartImage]) -> dict[str, tuple[str, Cryptomatte]]:
+    """mask kind → (EXR layer, Cryptomatte) of the products' Cryptomatte layers, by their
+    source (CRYPTOMATTE_KINDS); of two of one source, the first product's."""
+    kinds = {source: kind for kind, source in CRYPTOMATTE_KINDS.items()}
+    found: dict[str, tuple[str, Cryptomatte]] = {}
+    for product in products:
+        for name, matte in product.cryptomattes.items():
+            kind = kinds.get(product.metadata.get(name, {}).get("source", name))
+            if kind is not None and kind not in found:
+                found[kind] = (name, matte)
+    return found
 
 
 def _denoised_twins(products: list[MultipartImage], layers: list[ViewLayer]) -> tuple[np.ndarray, np.ndarray] | None:

@@ -1,8 +1,16 @@
 // The layer inspector's page: see the composite through the display LUT, regrade the layer
-// stack live, inspect the light paths of a pixel or region, make a layer, save the look.
-// Plain ES2022 and WebGL2, no build step. The HTTP API is the server's
-// (pxr_layers/view/server.py); the composite rule lives in FRAGMENT_MAIN below and in
-// pxr_layers/view/composite.py (the numpy reference), nowhere else.
+// stack live, manage the stack as a document (undo, redo, kept beside the render), compare
+// looks, inspect the light paths of a pixel or region, make a layer, save the look and push
+// light edits back into the shot. Plain ES2022 and WebGL2, no build step. The HTTP API is
+// the server's (pxr_layers/view/server.py, docs/inspector-api.md); the composite rule lives in
+// renderer.js's FRAGMENT_MAIN and in pxr_layers/view/composite.py (the numpy reference).
+
+// Sibling modules carry the token too (every request must): imported with this module's query.
+const QUERY = new URL(import.meta.url).search;
+const { Renderer, MODES } = await import(`./renderer.js${QUERY}`);
+const {
+  History, newEntry, emptyDocument, freeName, moveEntry, setGroup, snapshotOf, GRADE_KEYS,
+} = await import(`./document.js${QUERY}`);
 
 // --- the server ---------------------------------------------------------------------------
 
@@ -40,12 +48,22 @@ async function api(path, { method = 'GET', body, signal, binary = false } = {}) 
 
 /** An image of the stack: Float32Array of height × width × 3 linear RGB, top row first. */
 async function fetchImage(id, width, height) {
-  const version = state.denoised ? 'denoised' : 'raw';
+  const version = state.doc.denoised ? 'denoised' : 'raw';
   const response = await api(`/api/image/${encodeURIComponent(id)}?version=${version}`, { binary: true });
   const data = new Float32Array(await response.arrayBuffer());
   if (data.length !== width * height * 3) {
     throw new Error(`image ${id}: ${data.length} floats, expected ${width}×${height}×3`);
   }
+  return data;
+}
+
+/** A mask's coverage (GET /api/mask): Float32Array of height × width, top row first. */
+async function fetchMask(mask, width, height) {
+  const query = new URLSearchParams({ kind: mask.kind });
+  for (const name of mask.names) query.append('names', name);
+  const response = await api(`/api/mask?${query}`, { binary: true });
+  const data = new Float32Array(await response.arrayBuffer());
+  if (data.length !== width * height) throw new Error(`mask: ${data.length} floats, expected ${width}×${height}`);
   return data;
 }
 
@@ -108,230 +126,6 @@ function base64(bytes) {
   return btoa(text);
 }
 
-// --- the renderer -------------------------------------------------------------------------
-
-const VERTEX_SHADER = `#version 300 es
-void main() {  // one triangle over the whole viewport, no vertex buffer
-  vec2 corner = vec2(float((gl_VertexID & 1) << 2), float((gl_VertexID & 2) << 1));
-  gl_Position = vec4(corner - 1.0, 0.0, 1.0);
-}`;
-
-const FRAGMENT_HEAD = `#version 300 es
-precision highp float;
-precision highp int;
-precision highp sampler2DArray;
-precision highp sampler3D;
-`;  // then the session's displayLut (pxr_layers/layers/display_lut.py), then FRAGMENT_MAIN
-
-// The composite rule (pxr_layers/view/composite.py is its numpy reference):
-//   no layer soloed:   out = beauty + Σ_i (gain_i · tint_i − 1) · layer_i   (muted: gain_i = 0)
-//   some layer soloed: out = Σ_{i soloed, not muted} gain_i · tint_i · layer_i
-//   then · 2^exposure, then the display LUT. At unit gains this is the beauty exactly:
-//   the weights are exactly 0 and the layers are not even read.
-const FRAGMENT_MAIN = `
-uniform sampler2DArray u_images;  // slice 0 the beauty, then the layers: linear RGB, top row first
-uniform highp sampler3D u_lut;
-uniform int u_slices;             // slices in the stack, the beauty included
-uniform vec3 u_grade[MAX_LAYERS]; // gain · tint of each slice (2^stops · linear tint)
-uniform int u_flags[MAX_LAYERS];  // MUTED | SOLOED
-uniform bool u_any_solo;
-uniform float u_exposure_gain;    // 2^exposure
-uniform vec2 u_origin;            // device pixels from the canvas's top-left corner to the image's
-uniform float u_scale;            // device pixels per image pixel
-uniform float u_canvas_height;
-uniform vec3 u_background;
-out vec4 colour;
-
-const int MUTED = 1;
-const int SOLOED = 2;
-
-void main() {
-  // gl_FragCoord counts rows from the bottom; the images' rows run from the top.
-  vec2 canvas_px = vec2(gl_FragCoord.x, u_canvas_height - gl_FragCoord.y);
-  vec2 image_px = floor((canvas_px - u_origin) / u_scale);
-  ivec2 size = textureSize(u_images, 0).xy;
-  if (any(lessThan(image_px, vec2(0.0))) || any(greaterThanEqual(image_px, vec2(size)))) {
-    colour = vec4(u_background, 1.0);
-    return;
-  }
-  ivec2 texel = ivec2(image_px);
-  vec3 rgb = u_any_solo ? vec3(0.0) : texelFetch(u_images, ivec3(texel, 0), 0).rgb;
-  for (int i = 1; i < u_slices; ++i) {
-    vec3 graded = (u_flags[i] & MUTED) != 0 ? vec3(0.0) : u_grade[i];
-    vec3 weight = u_any_solo ? ((u_flags[i] & SOLOED) != 0 ? graded : vec3(0.0)) : graded - 1.0;
-    if (weight != vec3(0.0)) rgb += weight * texelFetch(u_images, ivec3(texel, i), 0).rgb;
-  }
-  colour = vec4(displayLut(rgb * u_exposure_gain, u_lut), 1.0);  // NaN and infinities: as the previews
-}
-`;
-
-const BACKGROUND = [0.09, 0.094, 0.102];
-const MUTED = 1;
-const SOLOED = 2;
-
-/** WebGL2: the stack's images in one TEXTURE_2D_ARRAY of RGB32F (slice i = stack entry i),
- *  the display LUT in a 3D RGB32F texture, one full-viewport triangle. */
-class Renderer {
-  constructor(canvas, lutGlsl) {
-    this.canvas = canvas;
-    const gl = canvas.getContext('webgl2', {
-      alpha: false, antialias: false, depth: false, stencil: false, premultipliedAlpha: false,
-      preserveDrawingBuffer: false, powerPreference: 'high-performance',
-    });
-    if (!gl) throw new Error('this browser has no WebGL2: the inspector needs it');
-    this.gl = gl;
-    // Each slice takes two uniform vectors (grade, flags); leave some for the rest.
-    this.maxLayers = Math.min(256, Math.floor((gl.getParameter(gl.MAX_FRAGMENT_UNIFORM_VECTORS) - 16) / 2),
-      gl.getParameter(gl.MAX_ARRAY_TEXTURE_LAYERS));
-    this.program = this.link(`${FRAGMENT_HEAD}${lutGlsl}\n#define MAX_LAYERS ${this.maxLayers}\n${FRAGMENT_MAIN}`);
-    this.uniforms = {};
-    for (const name of ['u_images', 'u_lut', 'u_slices', 'u_grade', 'u_flags', 'u_any_solo', 'u_exposure_gain',
-      'u_origin', 'u_scale', 'u_canvas_height', 'u_background']) {
-      this.uniforms[name] = gl.getUniformLocation(this.program, name);
-    }
-    this.images = [];  // CPU copies, to fill a bigger array when the stack outgrows this one
-    this.capacity = 0;
-    this.grade = new Float32Array(this.maxLayers * 3);
-    this.flags = new Int32Array(this.maxLayers);
-    this.onePixel = new Uint8Array(4);
-    const debug = gl.getExtension('WEBGL_debug_renderer_info');
-    this.gpu = gl.getParameter(debug ? debug.UNMASKED_RENDERER_WEBGL : gl.RENDERER);  // for the benchmark's report
-    gl.pixelStorei(gl.UNPACK_ALIGNMENT, 4);
-  }
-
-  link(fragmentSource) {
-    const gl = this.gl;
-    const compile = (type, source) => {
-      const shader = gl.createShader(type);
-      gl.shaderSource(shader, source);
-      gl.compileShader(shader);
-      if (!gl.getShaderParameter(shader, gl.COMPILE_STATUS)) {
-        throw new Error(`shader does not compile: ${gl.getShaderInfoLog(shader)}`);
-      }
-      return shader;
-    };
-    const program = gl.createProgram();
-    gl.attachShader(program, compile(gl.VERTEX_SHADER, VERTEX_SHADER));
-    gl.attachShader(program, compile(gl.FRAGMENT_SHADER, fragmentSource));
-    gl.linkProgram(program);
-    if (!gl.getProgramParameter(program, gl.LINK_STATUS)) {
-      throw new Error(`shader does not link: ${gl.getProgramInfoLog(program)}`);
-    }
-    return program;
-  }
-
-  static nearest(gl, target) {
-    // RGB32F is not filterable without an extension; everything is read with texelFetch.
-    for (const parameter of [gl.TEXTURE_MIN_FILTER, gl.TEXTURE_MAG_FILTER]) gl.texParameteri(target, parameter, gl.NEAREST);
-    for (const parameter of [gl.TEXTURE_WRAP_S, gl.TEXTURE_WRAP_T, gl.TEXTURE_WRAP_R]) {
-      gl.texParameteri(target, parameter, gl.CLAMP_TO_EDGE);
-    }
-  }
-
-  /** The baked display transform: size³ × 3 floats, r fastest (width r, height g, depth b). */
-  setLut(size, data) {
-    const gl = this.gl;
-    this.lut = gl.createTexture();
-    gl.activeTexture(gl.TEXTURE1);
-    gl.bindTexture(gl.TEXTURE_3D, this.lut);
-    Renderer.nearest(gl, gl.TEXTURE_3D);
-    gl.texImage3D(gl.TEXTURE_3D, 0, gl.RGB32F, size, size, size, 0, gl.RGB, gl.FLOAT, data);
-  }
-
-  /** Put `data` (height × width × 3 floats) at slice `slot`, growing the array if needed. */
-  setImage(slot, data, width, height) {
-    if (slot >= this.maxLayers) throw new Error(`at most ${this.maxLayers - 1} layers fit in this browser's shader`);
-    this.images[slot] = data;
-    const gl = this.gl;
-    if (slot >= this.capacity || width !== this.width || height !== this.height) {
-      // Immutable storage cannot grow: allocate room for some more, refill from the CPU copies.
-      this.width = width;
-      this.height = height;
-      this.capacity = Math.min(this.maxLayers, Math.max(slot + 4, Math.ceil(this.images.length * 1.5)));
-      if (this.array) gl.deleteTexture(this.array);
-      this.array = gl.createTexture();
-      gl.activeTexture(gl.TEXTURE0);
-      gl.bindTexture(gl.TEXTURE_2D_ARRAY, this.array);
-      Renderer.nearest(gl, gl.TEXTURE_2D_ARRAY);
-      gl.texStorage3D(gl.TEXTURE_2D_ARRAY, 1, gl.RGB32F, width, height, this.capacity);
-      this.images.forEach((image, at) => image && this.upload(at, image));
-      return;
-    }
-    this.upload(slot, data);
-  }
-
-  upload(slot, data) {
-    const gl = this.gl;
-    gl.activeTexture(gl.TEXTURE0);
-    gl.bindTexture(gl.TEXTURE_2D_ARRAY, this.array);
-    gl.texSubImage3D(gl.TEXTURE_2D_ARRAY, 0, 0, 0, slot, this.width, this.height, 1, gl.RGB, gl.FLOAT, data);
-  }
-
-  /** Draw the stack. layers: [{gain, tint, mute, solo}] in slice order (0: the beauty, whose
-   *  grade the rule ignores); view: {x, y, scale} in device pixels. */
-  draw(layers, exposure, view) {
-    const gl = this.gl;
-    const u = this.uniforms;
-    let anySolo = false;
-    layers.forEach((layer, slot) => {
-      const gain = 2 ** layer.stops;
-      for (let c = 0; c < 3; ++c) this.grade[slot * 3 + c] = gain * layer.tint[c];
-      this.flags[slot] = (layer.mute ? MUTED : 0) | (layer.solo ? SOLOED : 0);
-      anySolo ||= slot > 0 && layer.solo;
-    });
-    // The background is cleared; the shader runs on the image's pixels only (a software
-    // WebGL pays for every fragment, early return or not).
-    const { width, height } = this.canvas;
-    gl.viewport(0, 0, width, height);
-    gl.disable(gl.SCISSOR_TEST);
-    gl.clearColor(...BACKGROUND, 1);
-    gl.clear(gl.COLOR_BUFFER_BIT);
-    const left = Math.max(0, Math.floor(view.x));
-    const top = Math.max(0, Math.floor(view.y));
-    const right = Math.min(width, Math.ceil(view.x + this.width * view.scale));
-    const bottom = Math.min(height, Math.ceil(view.y + this.height * view.scale));
-    if (right <= left || bottom <= top) return;
-    gl.enable(gl.SCISSOR_TEST);
-    gl.scissor(left, height - bottom, right - left, bottom - top);
-    gl.useProgram(this.program);
-    gl.activeTexture(gl.TEXTURE0);
-    gl.bindTexture(gl.TEXTURE_2D_ARRAY, this.array);
-    gl.activeTexture(gl.TEXTURE1);
-    gl.bindTexture(gl.TEXTURE_3D, this.lut);
-    gl.uniform1i(u.u_images, 0);
-    gl.uniform1i(u.u_lut, 1);
-    gl.uniform1i(u.u_slices, layers.length);
-    gl.uniform3fv(u.u_grade, this.grade);
-    gl.uniform1iv(u.u_flags, this.flags);
-    gl.uniform1i(u.u_any_solo, anySolo ? 1 : 0);
-    gl.uniform1f(u.u_exposure_gain, 2 ** exposure);
-    gl.uniform2f(u.u_origin, view.x, view.y);
-    gl.uniform1f(u.u_scale, view.scale);
-    gl.uniform1f(u.u_canvas_height, height);
-    gl.uniform3fv(u.u_background, BACKGROUND);
-    gl.drawArrays(gl.TRIANGLES, 0, 3);
-  }
-
-  /** Wait until the GPU has drawn what was asked. gl.finish() returns at once in Chromium (its
-   *  GPU process runs the commands later); reading a pixel back waits for them. */
-  finish() {
-    this.gl.readPixels(0, 0, 1, 1, this.gl.RGBA, this.gl.UNSIGNED_BYTE, this.onePixel);
-  }
-
-  /** RGBA bytes of a canvas rectangle (device pixels, top-left origin), top row first. Call
-   *  right after draw(): the drawing buffer is not preserved past the frame. */
-  read(x, y, width, height) {
-    const gl = this.gl;
-    const bottomUp = new Uint8Array(width * height * 4);
-    gl.readPixels(x, this.canvas.height - y - height, width, height, gl.RGBA, gl.UNSIGNED_BYTE, bottomUp);
-    const rows = new Uint8Array(bottomUp.length);
-    const stride = width * 4;
-    for (let row = 0; row < height; ++row) {
-      rows.set(bottomUp.subarray((height - 1 - row) * stride, (height - row) * stride), row * stride);
-    }
-    return rows;
-  }
-}
 
 // --- state --------------------------------------------------------------------------------
 
@@ -339,16 +133,27 @@ const state = {
   width: 0,
   height: 0,
   index: null,          // the session's index description, or null
-  layers: [],           // the stack: {id, name, kind, share, expression, stops, tint, mute, solo, data}
-  exposure: 0,
-  denoised: false,      // showing the denoised twins' stack (the session has them)
-  view: { x: 0, y: 0, scale: 1, fit: true },  // device pixels
+  sources: new Map(),   // server layer id → {id, name, kind, share, expression, product, exposure, tint, slice, data}
+  doc: emptyDocument(), // the working state (document.js); its entries are the stack, beauty first
+  masks: new Map(),     // mask key → {slice, data} once fetched, {pending} while fetching
+  kelvin: null,         // {min, max, step, rgb: [[r, g, b], ...]}: the blackbody colours of the Kelvin control
+  cryptomattes: {},     // kind → {layer, names}: what masks can be made of
+  view: { x: 0, y: 0, scale: 1, fit: true },  // device pixels, relative to the canvas (side by side: each half)
   selection: null,      // {x0, y0, x1, y1}, image pixels, exclusive end
+  cursor: null,         // [x, y]: the keyboard's pixel cursor
   inspection: null,     // the last /api/inspect reply
   picked: new Set(),    // ticked class ids of that reply
+  picking: null,        // the entry id whose mask a click in the image picks names for
   tab: 'classes',
   builder: { rows: [], anyAfter: true },
+  pushable: new Map(),  // entry name → {light} or {why}
+  overlaps: null,       // the last /api/overlaps reply
 };
+let history = null;
+
+/** The entry of the stack with this id (entries are replaced by undo: look them up, keep ids). */
+const entryById = (id) => state.doc.entries.find((entry) => entry.id === id);
+const layerEntries = (entries = state.doc.entries) => entries.filter((entry) => entry.kind !== 'beauty');
 
 const canvas = $('#canvas');
 let renderer = null;
@@ -372,8 +177,46 @@ function requestDraw() {
   });
 }
 
+/** gain · tint · blackbody(kelvin) of an entry (0 when muted is the shader's business). */
+function gradeOf(entry) {
+  const gain = 2 ** entry.stops;
+  const colour = entry.kelvin === null || !state.kelvin ? [1, 1, 1] : kelvinRgb(entry.kelvin);
+  return entry.tint.map((channel, c) => gain * channel * colour[c]);
+}
+
+function kelvinRgb(kelvin) {
+  const { min, step, rgb } = state.kelvin;
+  return rgb[Math.max(0, Math.min(rgb.length - 1, Math.round((kelvin - min) / step)))];
+}
+
+const maskKey = (mask) => `${mask.kind}\n${[...mask.names].sort().join('\n')}`;
+
+/** What the renderer draws of a look: its entries (the beauty left out) and exposure. */
+function lookOf(entries, exposure) {
+  return {
+    exposure,
+    entries: layerEntries(entries).filter((entry) => state.sources.has(entry.source)).map((entry) => ({
+      slice: state.sources.get(entry.source).slice, grade: gradeOf(entry), mute: entry.mute, solo: entry.solo,
+      maskSlice: entry.mask ? (state.masks.get(maskKey(entry.mask))?.slice ?? -1) : -1,
+    })),
+  };
+}
+
+/** The look compared against the current one: the raw beauty, the saved look or a snapshot. */
+function comparedLook() {
+  const { against } = state.doc.compare;
+  if (against === 'saved' && state.doc.saved) return lookOf(state.doc.saved.entries, state.doc.saved.exposure);
+  const snapshot = against.startsWith('snapshot:') ? state.doc.snapshots[Number(against.slice(9))] : null;
+  if (snapshot) return lookOf(snapshot.entries, snapshot.exposure);
+  return { entries: [], exposure: state.doc.exposure };  // the raw beauty, at the viewing exposure
+}
+
 function drawNow() {
-  renderer.draw(state.layers, state.exposure, state.view);
+  const { mode, wipe } = state.doc.compare;
+  const looks = [lookOf(state.doc.entries, state.doc.exposure)];
+  if (mode !== 'one') looks.push(comparedLook());
+  const split = mode === 'wipe' ? state.view.x + wipe * state.width * state.view.scale : 0;
+  renderer.draw(looks, state.view, MODES[mode], split);
   framesDrawn += 1;
 }
 
@@ -382,9 +225,11 @@ function nextFrame() {
   return new Promise((resolve) => { afterDraw.push(resolve); requestDraw(); });
 }
 
-// --- the view: fit, 1:1, zoom, pan --------------------------------------------------------
+// --- the view: fit, 1:1, zoom, pan, the keyboard's cursor, the wipe -------------------------
 
 const dpr = () => window.devicePixelRatio || 1;
+/** Device pixels across one view of the image: the canvas, or half of it side by side. */
+const panelWidth = () => (state.doc.compare.mode === 'side' ? Math.floor(canvas.width / 2) : canvas.width);
 
 function resizeCanvas() {
   const box = canvas.getBoundingClientRect();
@@ -394,29 +239,48 @@ function resizeCanvas() {
     canvas.width = width;
     canvas.height = height;
   }
-  if (state.view.fit) fit();
+  if (state.width) restoreView();
   requestDraw();
 }
+
+let restoring = false;  // showing the document's view: not a change of it
 
 function setView(x, y, scale, fitted = false) {
   Object.assign(state.view, { x, y, scale, fit: fitted });
   const shown = scale * 100 / dpr();
   $('#zoom').textContent = `${shown >= 10 ? Math.round(shown) : shown.toFixed(1)} %`;
+  if (state.width && !restoring) {  // kept in the document as the image point at the centre: the canvas may change size
+    state.doc.view = {
+      fit: fitted, scale,
+      cx: (panelWidth() / 2 - x) / scale / state.width, cy: (canvas.height / 2 - y) / scale / state.height,
+    };
+    schedulePersist();
+  }
+  placeWipe();
   requestDraw();
+}
+
+/** The view the document holds (on reload): fitted, or its scale around its centre. */
+function restoreView() {
+  const { fit: fitted, scale, cx, cy } = state.doc.view;
+  restoring = true;
+  if (fitted) fit();
+  else setView(Math.round(panelWidth() / 2 - cx * state.width * scale), Math.round(canvas.height / 2 - cy * state.height * scale), scale);
+  restoring = false;
 }
 
 /** The whole image; enlarged by a whole factor only, so that pixels stay equal squares. */
 function fit() {
   if (!state.width) return;
-  let scale = Math.min(canvas.width / state.width, canvas.height / state.height);
+  let scale = Math.min(panelWidth() / state.width, canvas.height / state.height);
   if (scale >= 1) scale = Math.floor(scale);
-  setView(Math.round((canvas.width - state.width * scale) / 2), Math.round((canvas.height - state.height * scale) / 2),
+  setView(Math.round((panelWidth() - state.width * scale) / 2), Math.round((canvas.height - state.height * scale) / 2),
     scale, true);
 }
 
 /** One image pixel per device pixel, centred, on whole pixels. */
 function oneToOne() {
-  setView(Math.round((canvas.width - state.width) / 2), Math.round((canvas.height - state.height) / 2), 1);
+  setView(Math.round((panelWidth() - state.width) / 2), Math.round((canvas.height - state.height) / 2), 1);
 }
 
 function zoomAt(deviceX, deviceY, factor) {
@@ -427,9 +291,12 @@ function zoomAt(deviceX, deviceY, factor) {
   setView(deviceX - imageX * next, deviceY - imageY * next, next);
 }
 
+/** The device point of a pointer event, in the view's frame (side by side: either half). */
 function deviceAt(event) {
   const box = canvas.getBoundingClientRect();
-  return [(event.clientX - box.left) * dpr(), (event.clientY - box.top) * dpr()];
+  let x = (event.clientX - box.left) * dpr();
+  if (state.doc.compare.mode === 'side' && x >= panelWidth()) x -= panelWidth();
+  return [x, (event.clientY - box.top) * dpr()];
 }
 
 /** Image coordinates (fractional pixels) under a device pixel. */
@@ -450,7 +317,12 @@ function placeBox(box, rect) {
   box.hidden = false;
 }
 
-const placeSelection = () => placeBox($('#selection'), state.selection);
+function placeSelection() {
+  placeBox($('#selection'), state.selection);
+  const cursor = state.cursor && document.activeElement === canvas
+    ? { x0: state.cursor[0], y0: state.cursor[1], x1: state.cursor[0] + 1, y1: state.cursor[1] + 1 } : null;
+  placeBox($('#cursor'), cursor);
+}
 
 /** The pixel rectangle between two image points, clipped to the image; null if empty. */
 function pixelRect([ax, ay], [bx, by]) {
@@ -477,6 +349,7 @@ function setupView() {
     const pan = event.button === 1 || (event.button === 0 && spaceHeld);
     if (!pan && event.button !== 0) return;
     event.preventDefault();
+    canvas.focus({ preventScroll: true });
     canvas.setPointerCapture(event.pointerId);
     const point = deviceAt(event);
     gesture = { kind: pan ? 'pan' : 'select', start: point, last: point };
@@ -501,19 +374,53 @@ function setupView() {
     const point = deviceAt(event);
     const click = Math.hypot(point[0] - start[0], point[1] - start[1]) <= CLICK_SLOP;
     const rect = pixelRect(imageAt(...start), imageAt(...(click ? start : point)));
-    if (rect) inspect(rect);
+    if (!rect) return;
+    state.cursor = [rect.x0, rect.y0];
+    if (click && state.picking) pickMaskName(rect.x0, rect.y0);
+    else inspect(rect);
   };
   canvas.addEventListener('pointerup', end);
   canvas.addEventListener('pointercancel', end);
   canvas.addEventListener('auxclick', (event) => event.preventDefault());  // no paste or autoscroll on middle
   canvas.addEventListener('pointerleave', () => { $('#readout').textContent = ''; });
+  canvas.addEventListener('keydown', cursorKey);
+  canvas.addEventListener('focus', () => {
+    state.cursor ??= [Math.floor(state.width / 2), Math.floor(state.height / 2)];
+    placeSelection();
+  });
+  canvas.addEventListener('blur', placeSelection);
   $('#fit').addEventListener('click', fit);
   $('#one-to-one').addEventListener('click', oneToOne);
+  setupWipe();
+}
+
+/** The image with the keyboard: arrows move a pixel cursor (shift: 10 pixels), Enter lists
+ *  its light paths (or picks its mask name), + and − zoom around it. */
+function cursorKey(event) {
+  if (event.ctrlKey || event.metaKey || event.altKey || !state.cursor) return;
+  const step = event.shiftKey ? 10 : 1;
+  const moves = { ArrowLeft: [-step, 0], ArrowRight: [step, 0], ArrowUp: [0, -step], ArrowDown: [0, step] };
+  const [x, y] = state.cursor;
+  if (moves[event.key]) {
+    const [dx, dy] = moves[event.key];
+    state.cursor = [Math.max(0, Math.min(state.width - 1, x + dx)), Math.max(0, Math.min(state.height - 1, y + dy))];
+    const { view } = state;
+    showReadout([view.x + (state.cursor[0] + 0.5) * view.scale, view.y + (state.cursor[1] + 0.5) * view.scale]);
+    placeSelection();
+  } else if (event.key === 'Enter') {
+    if (state.picking) pickMaskName(x, y);
+    else inspect({ x0: x, y0: y, x1: x + 1, y1: y + 1 });
+  } else if (event.key === '+' || event.key === '=' || event.key === '-') {
+    const { view } = state;
+    zoomAt(view.x + (x + 0.5) * view.scale, view.y + (y + 0.5) * view.scale, event.key === '-' ? 0.5 : 2);
+  } else return;
+  event.preventDefault();
+  event.stopPropagation();
 }
 
 function showReadout(point) {
   const [ix, iy] = imageAt(...point).map(Math.floor);
-  const beauty = state.layers[0]?.data;
+  const beauty = state.sources.get('beauty')?.data;
   if (!beauty || ix < 0 || iy < 0 || ix >= state.width || iy >= state.height) {
     $('#readout').textContent = '';
     return;
@@ -523,99 +430,602 @@ function showReadout(point) {
   $('#readout').textContent = `${ix}, ${iy}  beauty ${rgb.join(' ')}`;
 }
 
-// --- exposure and the layer stack ---------------------------------------------------------
+/** The wipe line: dragged, or moved with the arrow keys when focused (a slider). */
+function placeWipe() {
+  const handle = $('#wipe');
+  if (!handle) return;
+  const { mode, wipe } = state.doc.compare;
+  handle.hidden = mode !== 'wipe' || !state.width;
+  if (handle.hidden) return;
+  handle.style.left = `${(state.view.x + wipe * state.width * state.view.scale) / dpr()}px`;
+  handle.setAttribute('aria-valuenow', String(Math.round(wipe * 100)));
+  handle.setAttribute('aria-valuetext', `${Math.round(wipe * 100)} % of the image shows the current look`);
+}
 
-function setExposure(stops) {
-  state.exposure = Number.isFinite(stops) ? stops : 0;
-  $('#exposure').value = state.exposure;
-  $('#exposure-number').value = state.exposure;
+function setWipe(fraction) {
+  state.doc.compare.wipe = Math.max(0, Math.min(1, fraction));
+  placeWipe();
+  schedulePersist();
   requestDraw();
 }
 
-function setupExposure() {
+function setupWipe() {
+  const handle = $('#wipe');
+  handle.addEventListener('pointerdown', (event) => {
+    event.preventDefault();
+    handle.setPointerCapture(event.pointerId);
+    handle.focus();
+    const move = (moved) => {
+      const box = canvas.getBoundingClientRect();
+      setWipe(((moved.clientX - box.left) * dpr() - state.view.x) / (state.width * state.view.scale));
+    };
+    handle.addEventListener('pointermove', move);
+    handle.addEventListener('pointerup', () => handle.removeEventListener('pointermove', move), { once: true });
+  });
+  handle.addEventListener('keydown', (event) => {
+    const steps = { ArrowLeft: -0.02, ArrowRight: 0.02, Home: -1, End: 1, PageDown: -0.1, PageUp: 0.1 };
+    if (!(event.key in steps)) return;
+    event.preventDefault();
+    event.stopPropagation();
+    setWipe(state.doc.compare.wipe + steps[event.key]);
+  });
+}
+
+// --- the document: edits, undo and redo, persistence --------------------------------------
+
+/** Every change of the working state goes through here (one undo step each; `key` names the
+ *  control, so that a slider's drag is one step). */
+function edit(label, change, options = {}) {
+  history.edit(label, change, options);
+}
+
+/** After every edit, undo and redo: the stack's rows, the picture, the document on disk. */
+function documentChanged(document, { structure }) {
+  if (structure) renderStack();
+  else layerEntries().forEach(syncRow);
+  syncExposure();
+  syncCompare();
+  syncHistoryButtons();
+  ensureMasks();
+  requestDraw();
+  schedulePersist();
+  scheduleChecks(structure);
+}
+
+function syncHistoryButtons() {
+  const undo = $('#undo');
+  const redo = $('#redo');
+  undo.disabled = !history.canUndo;
+  redo.disabled = !history.canRedo;
+  undo.title = history.canUndo ? `undo ${history.undoLabel} (Ctrl+Z)` : 'nothing to undo';
+  redo.title = history.canRedo ? `redo ${history.redoLabel} (Ctrl+Shift+Z)` : 'nothing to redo';
+}
+
+function undo() {
+  const label = history.undo();
+  setStatus(label ? `undone: ${label}` : 'nothing to undo');
+}
+
+function redo() {
+  const label = history.redo();
+  setStatus(label ? `redone: ${label}` : 'nothing to redo');
+}
+
+let persistTimer = 0;
+let persisting = Promise.resolve();
+const PERSIST_DELAY_MS = 300;
+
+/** Write the document beside the render, shortly after the last change. */
+function schedulePersist() {
+  if (!history) return;
+  clearTimeout(persistTimer);
+  persistTimer = setTimeout(persistNow, PERSIST_DELAY_MS);
+}
+
+function persistNow({ keepalive = false } = {}) {
+  clearTimeout(persistTimer);
+  persistTimer = 0;
+  const body = JSON.stringify(state.doc);
+  persisting = persisting.then(() => fetch('/api/document', {
+    method: 'PUT', keepalive, body, headers: { 'X-Pxr-Token': TOKEN, 'Content-Type': 'application/json' },
+  }).then(async (response) => {
+    if (!response.ok) setStatus(`the working state is not kept: ${(await response.json()).error}`, true);
+    pxrViewer.persisted += 1;
+  }).catch((error) => setStatus(`the working state is not kept: ${error.message}`, true)));
+  return persisting;
+}
+
+// --- exposure and the layer stack ---------------------------------------------------------
+
+function syncExposure() {
+  const { exposure } = state.doc;
+  if (Number($('#exposure').value) !== exposure) $('#exposure').value = exposure;
+  if (document.activeElement !== $('#exposure-number') && Number($('#exposure-number').value) !== exposure) {
+    $('#exposure-number').value = exposure;
+  }
+}
+
+function setExposure(stops) {
+  const value = Number.isFinite(stops) ? stops : 0;
+  edit('exposure', (doc) => { doc.exposure = value; }, { key: 'exposure' });
+}
+
+function setupStack() {
   $('#exposure').addEventListener('input', (event) => setExposure(Number(event.target.value)));
   $('#exposure-number').addEventListener('input', (event) => {
     if (event.target.value !== '') setExposure(Number(event.target.value));
   });
   $('#reset').addEventListener('click', resetGrades);
+  $('#undo').addEventListener('click', undo);
+  $('#redo').addEventListener('click', redo);
+  $('#snapshot').addEventListener('click', () => takeSnapshot());
+  $('#compare-mode').addEventListener('change', (event) => setCompare({ mode: event.target.value }));
+  $('#compare-against').addEventListener('change', (event) => setCompare({ against: event.target.value }));
 }
 
-function stackEntry(layer) {
-  const stops = Number.isFinite(layer.exposure) ? layer.exposure : 0;
-  const tint = Array.isArray(layer.tint) && layer.tint.length === 3 ? layer.tint.map(Number) : [1, 1, 1];
-  return {
+/** A server layer as the page keeps it (its image comes later). */
+function addSource(layer) {
+  const source = {
     id: layer.id, name: layer.name ?? layer.id, kind: layer.kind, share: layer.share ?? 0,
-    expression: layer.expression ?? '', stops, tint, mute: false, solo: false, data: null,
+    expression: layer.expression ?? '', product: layer.product ?? '', exposure: Number.isFinite(layer.exposure) ? layer.exposure : 0,
+    tint: Array.isArray(layer.tint) && layer.tint.length === 3 ? layer.tint.map(Number) : [1, 1, 1],
+    slice: layer.kind === 'beauty' ? 0 : state.sources.size + (state.sources.has('beauty') ? 0 : 1), data: null,
   };
+  state.sources.set(source.id, source);
+  return source;
 }
 
-function layerRow(layer) {
+async function loadSource(source) {
+  source.data = await fetchImage(source.id, state.width, state.height);
+  renderer.setImage(source.slice, source.data, state.width, state.height);
+}
+
+const stackNames = (except = null) => new Set(state.doc.entries.filter((entry) => entry.id !== except).map((entry) => entry.name));
+const stackIds = () => new Set(state.doc.entries.map((entry) => entry.id));
+
+/** A new entry of `source` at the end of the stack (or after `after`), named freely. */
+function entryOf(source, fields = {}, after = null) {
+  const name = freeName(fields.name ?? source.name, stackNames());
+  const entry = newEntry(source, { ...fields, name, id: freeName(fields.id ?? source.id, stackIds()) });
+  return { entry, at: after === null ? state.doc.entries.length : state.doc.entries.findIndex((e) => e.id === after) + 1 };
+}
+
+const openDetails = new Set();  // ids of the rows whose "more" is open (kept across rebuilds)
+const collapsed = new Set();    // groups folded away
+
+function renderStack() {
+  const items = [];
+  let group = null;
+  const groups = new Set();
+  for (const entry of state.doc.entries) {
+    if (entry.kind !== 'beauty' && entry.group !== group) {
+      group = entry.group;
+      if (group) items.push(groupRow(group));
+    }
+    if (entry.group) groups.add(entry.group);
+    if (!(entry.group && collapsed.has(entry.group))) items.push(layerRow(entry));
+  }
+  $('#stack').replaceChildren(...items);
+  $('#groups').replaceChildren(...[...groups].map((name) => el('option', { value: name })));
+  layerEntries().forEach(syncRow);
+}
+
+function groupRow(group) {
+  const members = () => layerEntries().filter((entry) => entry.group === group);
+  const all = (key) => members().length > 0 && members().every((entry) => entry[key]);
+  const toggle = (key, word) => el('button', {
+    class: `toggle ${key}`, 'aria-pressed': String(all(key)), 'aria-label': `${word} the group ${group}`,
+    onclick: () => {
+      const value = !all(key);
+      edit(`${word.toLowerCase()} group ${group}`, (doc) => {
+        for (const entry of doc.entries) if (entry.group === group) entry[key] = value;
+      });
+    },
+  }, word);
+  const folded = collapsed.has(group);
+  return el('li', { class: 'group', dataset: { group } },
+    el('div', { class: 'layer-head' },
+      el('button', {
+        class: 'fold', 'aria-expanded': String(!folded), 'aria-label': `${folded ? 'show' : 'hide'} the layers of ${group}`,
+        onclick: () => { if (folded) collapsed.delete(group); else collapsed.add(group); renderStack(); },
+      }, folded ? '▸' : '▾'),
+      toggle('solo', 'Solo'), toggle('mute', 'Mute'),
+      el('span', { class: 'group-name' }, group), el('span', { class: 'dim' }, `${members().length} layers`),
+      el('button', {
+        'aria-label': `ungroup ${group}`,
+        onclick: () => edit(`ungroup ${group}`, (doc) => { for (const e of doc.entries) if (e.group === group) e.group = ''; },
+          { structure: true }),
+      }, 'Ungroup')));
+}
+
+function layerRow(entry) {
+  const { id } = entry;
   const head = el('div', { class: 'layer-head' });
-  const row = el('li', { dataset: { id: layer.id }, class: layer.kind === 'beauty' ? 'beauty' : '' }, head);
+  const row = el('li', { dataset: { id }, class: entry.kind === 'beauty' ? 'beauty' : 'layer' }, head);
+  const source = state.sources.get(entry.source);
   const share = el('span', { class: 'share', title: "share of the beauty's energy (Rec.709 luminance)" },
-    shareBar(layer.share), el('span', { class: 'percent' }, percent(layer.share)));
-  if (layer.kind === 'beauty') {
+    shareBar(source?.share ?? 0), el('span', { class: 'percent' }, percent(source?.share ?? 0)));
+  if (entry.kind === 'beauty') {
     head.append(el('span', { class: 'layer-name', title: 'what the layers leave of it stays in the composite' },
-      layer.name), share);
+      entry.name), share);
     return row;
   }
-  const toggle = (letter, key, title) => el('button', {
-    class: `toggle ${key}`, title, 'aria-pressed': String(layer[key]),
-    onclick: () => setGrade(layer, { [key]: !layer[key] }),
-  }, letter);
-  head.append(toggle('S', 'solo', 'solo: show only the soloed layers'), toggle('M', 'mute', 'mute: gain 0'),
-    el('span', { class: 'layer-name', title: layer.expression ? `${layer.name}: ${layer.expression}` : layer.name },
-      layer.name), el('span', { class: 'tint-value mono', title: 'the linear tint' }), share);
+  const toggle = (word, key) => el('button', {
+    class: `toggle ${key}`, 'aria-pressed': String(entry[key]), 'aria-label': `${word} ${entry.name}`,
+    title: key === 'solo' ? 'show only the soloed layers' : 'gain 0',
+    onclick: () => { const e = entryById(id); setGrade(id, { [key]: !e[key] }); },
+  }, word);
+  head.append(toggle('Solo', 'solo'), toggle('Mute', 'mute'),
+    el('span', { class: 'layer-name', title: entry.expression ? `${entry.name}: ${entry.expression}` : entry.name },
+      entry.name),
+    el('span', { class: 'badge', hidden: true }), el('span', { class: 'tint-value mono' }), share);
+  const named = (what) => `${what} of ${entry.name}`;
   const slider = el('input', {
-    type: 'range', class: 'gain', min: -10, max: 10, step: 0.05, value: layer.stops, title: 'gain (stops)',
-    oninput: (event) => setGrade(layer, { stops: Number(event.target.value) }),
+    type: 'range', class: 'gain', min: -10, max: 10, step: 0.05, value: entry.stops, 'aria-label': named('gain (stops)'),
+    oninput: (event) => setGrade(id, { stops: Number(event.target.value) }, 'stops'),
   });
   const field = el('input', {
-    type: 'number', class: 'stops', min: -30, max: 30, step: 0.1, value: layer.stops, title: 'gain (stops)',
-    oninput: (event) => event.target.value !== '' && setGrade(layer, { stops: Number(event.target.value) }),
+    type: 'number', class: 'stops', min: -30, max: 30, step: 0.1, value: entry.stops, 'aria-label': named('gain in stops'),
+    oninput: (event) => event.target.value !== '' && setGrade(id, { stops: Number(event.target.value) }, 'stops'),
   });
   const colour = el('input', {
-    type: 'color', class: 'tint', value: linearToHex(layer.tint), title: 'tint: a linear RGB multiplier',
-    oninput: (event) => setGrade(layer, { tint: hexToLinear(event.target.value) }),
+    type: 'color', class: 'tint', value: linearToHex(entry.tint), 'aria-label': named('tint (a linear RGB multiplier)'),
+    oninput: (event) => setGrade(id, { tint: hexToLinear(event.target.value) }, 'tint'),
   });
-  row.append(el('div', { class: 'layer-grade' }, el('span', { class: 'dim' }, 'gain'), slider, field, colour));
+  row.append(el('div', { class: 'layer-grade' }, el('span', { class: 'dim', 'aria-hidden': 'true' }, 'gain'), slider, field, colour));
+  row.append(moreControls(entry));
   return row;
 }
 
-function rowOf(layer) {
-  return $(`#stack li[data-id="${CSS.escape(layer.id)}"]`);
+/** The rest of a layer's controls, folded: Kelvin, mask, name, group, order, copies. */
+function moreControls(entry) {
+  const { id } = entry;
+  const named = (what) => `${what} of ${entry.name}`;
+  const details = el('details', { class: 'more', open: openDetails.has(id) },
+    el('summary', { 'aria-label': `more controls of ${entry.name}` }, 'more'));
+  details.addEventListener('toggle', () => { if (details.open) openDetails.add(id); else openDetails.delete(id); });
+  if (state.kelvin) {
+    const { min, max, step } = state.kelvin;
+    const kelvin = entry.kelvin ?? 6500;
+    details.append(el('div', { class: 'row kelvin' },
+      el('label', {}, el('input', {
+        type: 'checkbox', class: 'kelvin-on', checked: entry.kelvin !== null,
+        onchange: (event) => setGrade(id, { kelvin: event.target.checked ? kelvin : null }),
+      }), 'colour temperature'),
+      el('input', {
+        type: 'range', class: 'kelvin-slider', min, max, step, value: kelvin, 'aria-label': named('colour temperature (K)'),
+        oninput: (event) => setGrade(id, { kelvin: Number(event.target.value) }, 'kelvin'),
+      }),
+      el('input', {
+        type: 'number', class: 'kelvin-value', min, max, step, value: kelvin, 'aria-label': named('colour temperature in Kelvin'),
+        onchange: (event) => {
+          const value = Math.round(Number(event.target.value) / step) * step;
+          if (value >= min && value <= max) setGrade(id, { kelvin: value });
+        },
+      }), el('span', { class: 'dim', 'aria-hidden': 'true' }, 'K')));
+  }
+  const kinds = Object.keys(state.cryptomattes);
+  if (kinds.length) {
+    const kind = entry.mask?.kind ?? '';
+    const names = new Set(entry.mask?.names ?? []);
+    const options = kind ? state.cryptomattes[kind].names : [];
+    details.append(el('div', { class: 'row mask' },
+      el('label', {}, 'mask ', el('select', {
+        class: 'mask-kind', 'aria-label': named('mask: the Cryptomatte it is picked from'),
+        onchange: (event) => setGrade(id, { mask: event.target.value ? { kind: event.target.value, names: [] } : null }),
+      }, el('option', { value: '' }, 'none'), ...kinds.map((k) => el('option', { value: k, selected: k === kind }, k)))),
+      el('button', {
+        class: 'pick', 'aria-pressed': String(state.picking === id), disabled: !kind,
+        title: 'click objects in the image (or Enter on the keyboard cursor) to add or remove them',
+        onclick: () => { state.picking = state.picking === id ? null : id; renderStack(); setStatus(state.picking ? `picking the mask of ${entry.name}: click in the image` : ''); },
+      }, 'pick in image')),
+    kind ? el('select', {
+      class: 'mask-names', multiple: true, size: Math.min(5, Math.max(2, options.length)), 'aria-label': named(`mask: the ${kind}s`),
+      onchange: (event) => setGrade(id, { mask: { kind, names: [...event.target.selectedOptions].map((o) => o.value) } }),
+    }, options.map((name) => el('option', { value: name, selected: names.has(name) }, name))) : null);
+  }
+  const rename = el('input', {
+    class: 'rename', value: entry.name, spellcheck: false, autocomplete: 'off', 'aria-label': named('name'),
+    onchange: (event) => renameEntry(id, event.target),
+  });
+  const group = el('input', {
+    class: 'group-input', value: entry.group, list: 'groups', spellcheck: false, autocomplete: 'off', placeholder: 'no group',
+    'aria-label': named('group'),
+    onchange: (event) => {
+      const name = event.target.value.trim();
+      edit(name ? `group ${entry.name} in ${name}` : `ungroup ${entry.name}`, (doc) => {
+        setGroup(doc.entries, doc.entries.findIndex((e) => e.id === id), name);
+      }, { structure: true });
+    },
+  });
+  details.append(el('div', { class: 'row' }, el('label', {}, 'name ', rename), el('label', {}, 'group ', group)));
+  const button = (word, action, label) => el('button', { class: word.toLowerCase().replace(/ /g, '-'), 'aria-label': label, onclick: action }, word);
+  details.append(el('div', { class: 'row wrap' },
+    button('Move up', () => moveBy(id, -1), `move ${entry.name} up`),
+    button('Move down', () => moveBy(id, 1), `move ${entry.name} down`),
+    button('Duplicate', () => duplicateEntry(id), `duplicate ${entry.name}`),
+    button('Delete', () => deleteEntry(id), `delete ${entry.name}`)));
+  if (entry.expression) details.append(el('div', { class: 'expression mono dim' }, entry.expression));
+  return details;
 }
 
-/** Show `layer`'s grade in its row (the one place its controls are written). */
-function syncRow(layer) {
-  const row = rowOf(layer);
-  if (!row || layer.kind === 'beauty') return;
-  row.classList.toggle('muted', layer.mute);
-  $('.toggle.solo', row).setAttribute('aria-pressed', String(layer.solo));
-  $('.toggle.mute', row).setAttribute('aria-pressed', String(layer.mute));
+/** Show an entry's grade in its row (the one place its controls are written). */
+function syncRow(entry) {
+  const row = rowOf(entry.id);
+  if (!row || entry.kind === 'beauty') return;
+  row.classList.toggle('muted', entry.mute);
+  $('.toggle.solo', row).setAttribute('aria-pressed', String(entry.solo));
+  $('.toggle.mute', row).setAttribute('aria-pressed', String(entry.mute));
   const gain = $('.gain', row);
   const field = $('.stops', row);
-  if (Number(gain.value) !== layer.stops) gain.value = layer.stops;
-  if (document.activeElement !== field && Number(field.value) !== layer.stops) field.value = layer.stops;
+  if (Number(gain.value) !== entry.stops) gain.value = entry.stops;
+  if (document.activeElement !== field && Number(field.value) !== entry.stops) field.value = entry.stops;
   const colour = $('.tint', row);
-  if (document.activeElement !== colour) colour.value = linearToHex(layer.tint);
-  $('.tint-value', row).textContent = layer.tint.every((c) => c === 1) ? '' : `×${layer.tint.map((c) => c.toFixed(2)).join(' ')}`;
+  if (document.activeElement !== colour) colour.value = linearToHex(entry.tint);
+  const notes = [];
+  if (!entry.tint.every((c) => c === 1)) notes.push(`×${entry.tint.map((c) => c.toFixed(2)).join(' ')}`);
+  if (entry.kelvin !== null) notes.push(`${entry.kelvin} K`);
+  if (entry.mask) notes.push(`mask: ${entry.mask.names.length} ${entry.mask.kind}s`);
+  $('.tint-value', row).textContent = notes.join(' · ');
+  const kelvinOn = $('.kelvin-on', row);
+  if (kelvinOn) {
+    kelvinOn.checked = entry.kelvin !== null;
+    for (const input of [$('.kelvin-slider', row), $('.kelvin-value', row)]) {
+      input.disabled = entry.kelvin === null;
+      if (entry.kelvin !== null && document.activeElement !== input) input.value = entry.kelvin;
+    }
+  }
+  const maskKind = $('.mask-kind', row);
+  if (maskKind && maskKind.value !== (entry.mask?.kind ?? '')) renderStack();
+  const names = $('.mask-names', row);
+  if (names) {
+    const picked = new Set(entry.mask?.names ?? []);
+    for (const option of names.options) option.selected = picked.has(option.value);
+  }
+  showPushable(entry, row);
 }
 
-function setGrade(layer, change) {
-  Object.assign(layer, change);
-  syncRow(layer);
+function rowOf(id) {
+  return $(`#stack li[data-id="${CSS.escape(id)}"]`);
+}
+
+function setGrade(id, change, control = null) {
+  const entry = entryById(id);
+  if (!entry) return;
+  const what = Object.keys(change).join(', ');
+  edit(`${what} of ${entry.name}`, (doc) => Object.assign(doc.entries.find((e) => e.id === id), change),
+    { key: control ? `${id}:${control}` : null });
+}
+
+function renameEntry(id, input) {
+  const entry = entryById(id);
+  const name = input.value.trim();
+  const problem = !LAYER_NAME.test(name) ? 'a layer name is letters, digits and _, not starting with a digit'
+    : stackNames(id).has(name) ? `the stack has a layer named ${name} already` : '';
+  input.setAttribute('aria-invalid', String(Boolean(problem)));
+  if (problem) {
+    setStatus(problem, true);
+    return;
+  }
+  if (name !== entry.name) edit(`rename ${entry.name} to ${name}`, (doc) => { doc.entries.find((e) => e.id === id).name = name; }, { structure: true });
+}
+
+function moveBy(id, offset) {
+  const at = state.doc.entries.findIndex((entry) => entry.id === id);
+  const to = at + offset;
+  if (to < 1 || to >= state.doc.entries.length) return;
+  edit(`move ${state.doc.entries[at].name}`, (doc) => moveEntry(doc.entries, at, to), { structure: true });
+  rowOf(id)?.querySelector(offset < 0 ? '.move-up' : '.move-down')?.focus();
+}
+
+function duplicateEntry(id) {
+  const entry = entryById(id);
+  const source = state.sources.get(entry.source);
+  const grade = Object.fromEntries(GRADE_KEYS.map((key) => [key, structuredClone(entry[key])]));
+  const { entry: copy, at } = entryOf(source, { ...grade, group: entry.group, name: `${entry.name}_copy`, id: `${entry.id}_copy` }, id);
+  edit(`duplicate ${entry.name}`, (doc) => doc.entries.splice(at, 0, copy), { structure: true });
+}
+
+function deleteEntry(id) {
+  const at = state.doc.entries.findIndex((entry) => entry.id === id);
+  if (at < 1) return;
+  const { name } = state.doc.entries[at];
+  edit(`delete ${name}`, (doc) => doc.entries.splice(at, 1), { structure: true });
+  setStatus(`deleted ${name} (Ctrl+Z brings it back)`);
+  const next = state.doc.entries[Math.min(at, state.doc.entries.length - 1)];
+  (rowOf(next.id)?.querySelector('button') ?? $('#reset')).focus();
+}
+
+/** Every layer back to the grade it opened with (the recipe's, the saved look's), exposure 0. */
+function resetGrades() {
+  edit('reset grades', (doc) => {
+    doc.exposure = 0;
+    for (const entry of doc.entries) {
+      const source = state.sources.get(entry.source);
+      Object.assign(entry, { stops: source?.exposure ?? 0, tint: [...(source?.tint ?? [1, 1, 1])], kelvin: null,
+        mute: false, solo: false, mask: null });
+    }
+  });
+}
+
+/** Fetch the masks the entries use that the page does not hold yet. */
+function ensureMasks() {
+  const used = [state.doc.entries, ...state.doc.snapshots.map((s) => s.entries), state.doc.saved?.entries ?? []].flat();
+  for (const entry of used) {
+    if (!entry.mask || !entry.mask.names.length) continue;
+    const key = maskKey(entry.mask);
+    if (state.masks.has(key)) continue;
+    const slot = { pending: true, slice: -1 };
+    state.masks.set(key, slot);
+    fetchMask(entry.mask, state.width, state.height).then((data) => {
+      slot.slice = [...state.masks.values()].filter((m) => m.slice >= 0).length;
+      slot.data = data;
+      slot.pending = false;
+      renderer.setMask(slot.slice, data, state.width, state.height);
+      requestDraw();
+    }).catch((error) => {
+      state.masks.delete(key);
+      setStatus(`mask of ${entry.name}: ${error.message}`, true);
+    });
+  }
+}
+
+/** A click in the image while picking: the name under it joins (or leaves) the entry's mask. */
+async function pickMaskName(x, y) {
+  const entry = entryById(state.picking);
+  if (!entry?.mask) return;
+  try {
+    const reply = await api(`/api/pick?${new URLSearchParams({ x, y })}`);
+    const found = reply[entry.mask.kind] ?? [];
+    if (!found.length) {
+      setStatus(`no ${entry.mask.kind} at ${x}, ${y}`);
+      return;
+    }
+    const { name } = found[0];
+    const names = new Set(entry.mask.names);
+    if (names.has(name)) names.delete(name); else names.add(name);
+    setGrade(entry.id, { mask: { kind: entry.mask.kind, names: [...names].sort() } });
+    setStatus(`${entry.name}'s mask: ${names.has(name) ? 'added' : 'removed'} ${name}`);
+  } catch (error) {
+    setStatus(`pick: ${error.message}`, true);
+  }
+}
+
+// --- snapshots and comparing --------------------------------------------------------------
+
+function takeSnapshot() {
+  const number = state.doc.snapshots.length + 1;
+  edit(`snapshot ${number}`, (doc) => doc.snapshots.push(snapshotOf(doc, `snapshot ${number}`)), { structure: true });
+  setStatus(`snapshot ${number} taken: compare against it, or restore it`);
+}
+
+function restoreLook(look, label) {
+  edit(`restore ${label}`, (doc) => {
+    doc.exposure = look.exposure;
+    doc.entries = [doc.entries[0], ...look.entries.filter((entry) => state.sources.has(entry.source)).map((e) => structuredClone(e))];
+  }, { structure: true });
+}
+
+function setCompare(change) {
+  Object.assign(state.doc.compare, change);
+  syncCompare();
+  if ('mode' in change) {
+    if (state.view.fit) fit(); else restoreView();
+  }
+  schedulePersist();
   requestDraw();
 }
 
-function renderStack() {
-  $('#stack').replaceChildren(...state.layers.map(layerRow));
-  state.layers.forEach(syncRow);
+/** The compare controls and the snapshots' list, from the document. */
+function syncCompare() {
+  const { mode, against } = state.doc.compare;
+  const choices = [['beauty', 'the raw beauty']];
+  if (state.doc.saved) choices.push(['saved', `the saved look (${state.doc.saved.name})`]);
+  state.doc.snapshots.forEach((snapshot, at) => choices.push([`snapshot:${at}`, snapshot.name]));
+  const select = $('#compare-against');
+  select.replaceChildren(...choices.map(([value, text]) => el('option', { value, selected: value === against }, text)));
+  if (!choices.some(([value]) => value === against)) state.doc.compare.against = 'beauty';
+  $('#compare-mode').value = mode;
+  $('#viewer').dataset.compare = mode;
+  placeWipe();
+  $('#snapshots').replaceChildren(...state.doc.snapshots.map((snapshot, at) => el('li', {},
+    el('span', { class: 'snapshot-name' }, snapshot.name),
+    el('button', { 'aria-label': `compare against ${snapshot.name}`, onclick: () => setCompare({ against: `snapshot:${at}`, mode: mode === 'one' ? 'wipe' : mode }) }, 'Compare'),
+    el('button', { 'aria-label': `restore ${snapshot.name}`, onclick: () => restoreLook(snapshot, snapshot.name) }, 'Restore'),
+    el('button', {
+      'aria-label': `delete ${snapshot.name}`,
+      onclick: () => edit(`delete ${snapshot.name}`, (doc) => {
+        doc.snapshots.splice(at, 1);
+        doc.compare.against = 'beauty';
+      }, { structure: true }),
+    }, 'Delete'))));
 }
 
-function resetGrades() {
-  for (const layer of state.layers) setGrade(layer, { stops: 0, tint: [1, 1, 1], mute: false, solo: false });
-  setExposure(0);
+// --- warnings: overlapping layers, which grades a light edit can carry ----------------------
+
+let checksTimer = 0;
+const CHECKS_DELAY_MS = 500;
+
+function scheduleChecks(structure) {
+  clearTimeout(checksTimer);
+  checksTimer = setTimeout(() => runChecks(structure), CHECKS_DELAY_MS);
+}
+
+let checkedStructure = '';
+
+async function runChecks(structure) {
+  if (!state.index) return;
+  const stack = layerEntries();
+  const key = JSON.stringify(stack.map((entry) => [entry.source, entry.expression, entry.mute]));
+  const work = [checkPushable(stack)];
+  if (structure || key !== checkedStructure) {
+    checkedStructure = key;
+    work.push(checkOverlaps(stack));
+  }
+  await Promise.all(work);
+}
+
+/** Which grades a light edit carries (POST /api/pushable): a badge on each row. */
+async function checkPushable(stack) {
+  try {
+    const reply = await api('/api/pushable', { method: 'POST', body: { layers: stack.map(savedEntry), exposure: state.doc.exposure } });
+    state.pushable = new Map([
+      ...(reply.pushed ?? []).map((item) => [item.layer, { light: item.light, edits: item.edits }]),
+      ...(reply.compositing ?? []).map((item) => [item.layer, { why: item.why }]),
+    ]);
+  } catch (error) {
+    state.pushable = new Map();
+    if (error.status !== 404) setStatus(`which grades are light edits: ${error.message}`, true);
+  }
+  layerEntries().forEach((entry) => { const row = rowOf(entry.id); if (row) showPushable(entry, row); });
+}
+
+function showPushable(entry, row) {
+  const badge = $('.badge', row);
+  const verdict = state.pushable.get(entry.name);
+  badge.hidden = !verdict;
+  if (!verdict) return;
+  badge.classList.toggle('light', Boolean(verdict.light));
+  badge.textContent = verdict.light ? 'light' : 'comp';
+  const text = verdict.light ? `a light edit: pushed to ${verdict.light}` : `a compositing grade: ${verdict.why}`;
+  badge.title = text;
+  badge.setAttribute('aria-label', text);
+}
+
+/** Layers that claim the same paths (POST /api/overlaps): a warning with what to do. */
+async function checkOverlaps(stack) {
+  const box = $('#overlaps');
+  const layers = stack.filter((entry) => !entry.mute).map((entry) => ({ id: entry.name, expression: entry.expression }));
+  if (layers.length < 2) {
+    box.hidden = true;
+    return;
+  }
+  try {
+    state.overlaps = await api('/api/overlaps', { method: 'POST', body: { layers } });
+  } catch (error) {
+    box.hidden = true;
+    if (error.status !== 404) setStatus(`overlaps: ${error.message}`, true);
+    return;
+  }
+  renderOverlaps();
+}
+
+function renderOverlaps() {
+  const box = $('#overlaps');
+  const reply = state.overlaps;
+  const pairs = (reply?.pairs ?? []).filter((pair) => pair.share > 0);
+  box.hidden = !pairs.length;
+  if (!pairs.length) return;
+  box.replaceChildren(
+    el('p', {}, `these layers claim the same light paths: ${percent(reply.double_counted ?? 0)} of the beauty is counted twice in their sum`),
+    el('ul', {}, pairs.map((pair) => el('li', {}, `${pair.a} and ${pair.b}: ${percent(pair.share)}`,
+      reply.exclusive?.[pair.b] ? el('button', {
+        'aria-label': `make ${pair.b} leave out what ${pair.a} claims`,
+        onclick: () => makeLayer(`${pair.b}_only`, reply.exclusive[pair.b], { replace: pair.b }),
+      }, `${pair.b} without ${pair.a}`) : null))),
+    reply.remainder_expression ? el('button', {
+      onclick: () => makeLayer('remainder', reply.remainder_expression),
+    }, `add the remainder (${percent(reply.remainder ?? 0)})`) : null);
 }
 
 // --- inspect ------------------------------------------------------------------------------
@@ -935,6 +1345,7 @@ async function checkExpression() {
       box.hidden = false;
       box.classList.add('ok');
       box.textContent = 'valid expression';
+      showUnknownLabels(box, text, reply.unknown_labels);
     } else {
       showExpressionError(text, reply.error, reply.position);
     }
@@ -960,8 +1371,24 @@ async function generalise() {
   }
 }
 
+
+/** Labels of an expression that name nothing in the index, with the nearest names present. */
+function showUnknownLabels(box, text, unknown) {
+  if (!unknown?.length) return;
+  box.classList.remove('ok');
+  box.textContent = '';
+  for (const { label, nearest } of unknown) {
+    box.append(el('div', {}, `no '${label}' in this index`,
+      nearest?.length ? ': did you mean ' : '',
+      ...(nearest ?? []).slice(0, 3).map((name) => el('button', {
+        class: 'nearest', 'aria-label': `use ${name} for ${label}`,
+        onclick: () => useExpression(text.replaceAll(`'${label}'`, `'${name}'`)),
+      }, name))));
+  }
+}
+
 function freeLayerName() {
-  const taken = new Set(state.layers.map((layer) => layer.id));
+  const taken = new Set([...stackNames(), ...state.sources.keys()]);
   let n = 1;
   while (taken.has(`layer_${n}`)) n += 1;
   return `layer_${n}`;
@@ -969,38 +1396,40 @@ function freeLayerName() {
 
 const timings = { layer: null };  // the last "add layer": milliseconds from the click
 
-async function addLayer() {
+/** Extract a layer from the index (POST /api/layer) and put it in the stack (one undo step);
+ *  `replace`: the entry of that name gives its place and grade, and leaves. */
+async function makeLayer(name, expression, { replace = null, solo = false } = {}) {
   const start = performance.now();
+  const made = await api('/api/layer', { method: 'POST', body: { name: freeName(name, new Set(state.sources.keys())), expression } });
+  const extracted = performance.now();
+  const source = addSource({ kind: 'layer', ...made });
+  await loadSource(source);
+  const fetched = performance.now();
+  const old = replace ? state.doc.entries.find((entry) => entry.name === replace) : null;
+  const grade = old ? Object.fromEntries(GRADE_KEYS.map((key) => [key, structuredClone(old[key])])) : {};
+  const { entry, at } = entryOf(source, { ...grade, group: old?.group ?? '', name }, old?.id ?? null);
+  edit(old ? `${name} in place of ${replace}` : `add ${name}`, (doc) => {
+    doc.entries.splice(at, 0, entry);
+    if (old) doc.entries.splice(doc.entries.findIndex((e) => e.id === old.id), 1);
+    if (solo) for (const other of doc.entries) other.solo = other.id === entry.id;
+  }, { structure: true });
+  return { made, entry, start, extracted, fetched };
+}
+
+async function addLayer() {
   const name = $('#layer-name').value.trim() || freeLayerName();
   const expression = $('#expression').value.trim();
   const status = $('#layer-status');
-  if (!LAYER_NAME.test(name)) {
-    status.textContent = 'a layer name is letters, digits and _, not starting with a digit';
-    return;
-  }
-  if (state.layers.some((layer) => layer.id === name || layer.name === name)) {
-    status.textContent = `the stack already has a layer named ${name}`;
-    return;
-  }
-  if (!expression) {
-    status.textContent = 'write an expression first (or generalise ticked classes, or use the query builder)';
-    return;
-  }
+  status.classList.remove('error');
+  const refuse = (text) => { status.textContent = text; status.classList.add('error'); };
+  if (!LAYER_NAME.test(name)) return refuse('a layer name is letters, digits and _, not starting with a digit');
+  if (stackNames().has(name)) return refuse(`the stack already has a layer named ${name}`);
+  if (!expression) return refuse('write an expression first (or generalise ticked classes, or use the query builder)');
   const button = $('#add-layer');
   button.disabled = true;
   status.textContent = `extracting ${name}…`;
   try {
-    const made = await api('/api/layer', { method: 'POST', body: { name, expression } });
-    const extracted = performance.now();
-    const entry = stackEntry({ kind: 'layer', ...made });
-    entry.data = await fetchImage(made.id, state.width, state.height);
-    const fetched = performance.now();
-    renderer.setImage(state.layers.length, entry.data, state.width, state.height);
-    state.layers.push(entry);
-    renderStack();
-    if ($('#solo-new').checked) {
-      for (const layer of state.layers) setGrade(layer, { solo: layer === entry });
-    }
+    const { made, start, extracted, fetched } = await makeLayer(name, expression, { solo: $('#solo-new').checked });
     const shown = await nextFrame();
     timings.layer = {
       name, extract: extracted - start, fetch: fetched - extracted, show: shown - fetched, total: shown - start,
@@ -1009,10 +1438,17 @@ async function addLayer() {
     const matched = made.classes === undefined ? '' : `${made.classes.toLocaleString()} path classes, `;
     status.textContent = `${name}: ${percent(made.share ?? 0)} of the energy, ${matched}`
       + `extracted in ${number(made.seconds ?? NaN)} s, on screen ${((shown - start) / 1000).toFixed(2)} s after the click`;
+    if (made.unknown_labels?.length || made.warnings?.length) {
+      status.classList.add('error');
+      status.textContent += ` · ${made.warnings?.[0] ?? 'a label names nothing in the index'}`;
+      showUnknownLabels($('#expression-error'), expression, made.unknown_labels);
+      $('#expression-error').hidden = false;
+    }
     $('#layer-name').value = '';
+    $('#layer-name').placeholder = freeLayerName();
   } catch (error) {
     if (Number.isInteger(error.position)) showExpressionError(expression, error.message, error.position);
-    status.textContent = `not added: ${error.message}`;
+    refuse(`not added: ${error.message}`);
   } finally {
     button.disabled = false;
   }
@@ -1028,16 +1464,12 @@ async function suggestLayers() {
   status.textContent = `finding ${k} layers…`;
   try {
     const found = await api('/api/suggest', { method: 'POST', body: { k } });
-    for (const made of found.layers) {
-      const entry = stackEntry({ kind: 'layer', ...made });
-      entry.data = await fetchImage(made.id, state.width, state.height);
-      renderer.setImage(state.layers.length, entry.data, state.width, state.height);
-      state.layers.push(entry);
-    }
-    renderStack();
-    requestDraw();
+    const sources = found.layers.map((layer) => addSource({ kind: 'layer', ...layer }));
+    await Promise.all(sources.map(loadSource));
+    const entries = sources.map((source) => entryOf(source).entry);
+    edit(`suggest ${entries.length} layers`, (doc) => doc.entries.push(...entries), { structure: true });
     status.textContent = `${found.layers.length} layers (${found.strategy}) in ${number(found.seconds)} s`;
-    timings.suggest = { layers: found.layers.map((layer) => layer.id), server_seconds: found.seconds };
+    timings.suggest = { layers: entries.map((entry) => entry.id), server_seconds: found.seconds };
   } catch (error) {
     status.textContent = `not suggested: ${error.message}`;
   } finally {
@@ -1058,28 +1490,42 @@ function setupMake() {
   setupBuilder();
 }
 
-// --- save ---------------------------------------------------------------------------------
+// --- save, push -----------------------------------------------------------------------------
+
+/** An entry as /api/save, /api/push and /api/pushable take it. */
+function savedEntry({ source, name, group, stops, tint, kelvin, mute, solo, mask }) {
+  return { id: source, name, group, stops, tint, kelvin, mute, solo, mask };
+}
+
+function lookName(list) {
+  const name = $('#save-name').value.trim();
+  if (LOOK_NAME.test(name)) return name;
+  list.replaceChildren(el('li', { class: 'error' }, 'a look name is letters, digits, _ and -, not starting with a digit'));
+  $('#save-name').setAttribute('aria-invalid', 'true');
+  $('#save-name').focus();
+  return null;
+}
+
+const fileLink = (file) => el('a', { href: `/files/${encodeURIComponent(file)}?token=${encodeURIComponent(TOKEN)}`, download: file }, file);
 
 async function save() {
-  const name = $('#save-name').value.trim();
   const list = $('#saved');
-  if (!LOOK_NAME.test(name)) {
-    list.replaceChildren(el('li', { class: 'error' }, 'a look name is letters, digits, _ and -, not starting with a digit'));
-    return;
-  }
+  const name = lookName(list);
+  if (!name) return;
+  $('#save-name').setAttribute('aria-invalid', 'false');
+  const entries = layerEntries();
   const body = {
-    name,
-    exposure: state.exposure,
-    overwrite: $('#overwrite').checked,
-    layers: state.layers.filter((layer) => layer.kind !== 'beauty').map(({ id, stops, tint, mute, solo }) => ({ id, stops, tint, mute, solo })),
+    name, exposure: state.doc.exposure, overwrite: $('#overwrite').checked, layers: entries.map(savedEntry), document: state.doc,
   };
   const button = $('#save');
   button.disabled = true;
   list.replaceChildren(el('li', { class: 'dim' }, 'writing…'));
   try {
     const written = await api('/api/save', { method: 'POST', body });
-    list.replaceChildren(...Object.entries(written).map(([what, file]) => el('li', { dataset: { kind: what } },
-      el('a', { href: `/files/${encodeURIComponent(file)}?token=${encodeURIComponent(TOKEN)}`, download: file }, file))));
+    list.replaceChildren(...Object.entries(written).map(([what, file]) => el('li', { dataset: { kind: what } }, fileLink(file))));
+    state.doc.saved = { name, exposure: state.doc.exposure, entries: structuredClone(entries) };
+    syncCompare();
+    persistNow();
   } catch (error) {
     const hint = error.status === 409 ? ' (tick overwrite to replace it)' : '';
     list.replaceChildren(el('li', { class: 'error' }, `${error.message}${hint}`));
@@ -1088,20 +1534,74 @@ async function save() {
   }
 }
 
-// --- keyboard -----------------------------------------------------------------------------
+/** The grades a light edit can carry, as a USD override layer on the shot's lights. */
+async function push() {
+  const list = $('#saved');
+  const name = lookName(list);
+  if (!name) return;
+  const button = $('#push');
+  button.disabled = true;
+  list.replaceChildren(el('li', { class: 'dim' }, 'writing the light edits…'));
+  try {
+    const reply = await api('/api/push', {
+      method: 'POST', body: { name, layers: layerEntries().map(savedEntry), exposure: state.doc.exposure, overwrite: $('#overwrite').checked },
+    });
+    list.replaceChildren(
+      ...Object.entries(reply.files ?? {}).map(([what, file]) => el('li', { dataset: { kind: what } }, fileLink(file))),
+      ...(reply.pushed ?? []).map((item) => el('li', { class: 'pushed' }, `${item.layer} → ${item.light}`)),
+      ...(reply.compositing ?? []).map((item) => el('li', { class: 'compositing' }, `${item.layer} stays a compositing grade: ${item.why}`)));
+  } catch (error) {
+    list.replaceChildren(el('li', { class: 'error' }, error.message));
+  } finally {
+    button.disabled = false;
+  }
+}
+
+// --- keyboard -------------------------------------------------------------------------------
+
+const SHORTCUTS = [
+  ['Ctrl+Z', 'undo'], ['Ctrl+Shift+Z or Ctrl+Y', 'redo'], ['f', 'fit the image in the view'],
+  ['1', 'one image pixel per screen pixel'], ['r', 'reset the grades to those the stack opened with'],
+  ['d', 'the denoised stack, or the stack as rendered'], ['c', 'compare: one look, wipe, side by side'],
+  ['s', 'take a snapshot'], ['?', 'this help'],
+  ['Tab on the image, then arrows', 'move the pixel cursor (Shift: 10 pixels)'],
+  ['Enter on the image', 'list the light paths of the cursor pixel (or pick its mask name)'],
+  ['+ and − on the image', 'zoom around the cursor'], ['arrows on the wipe line', 'move the wipe'],
+  ['wheel, middle drag or Space + drag', 'zoom and pan'], ['drag on the image', 'the light paths of a region'],
+];
+
+function setupHelp() {
+  $('#help-keys').replaceChildren(...SHORTCUTS.flatMap(([keys, what]) => [el('dt', {}, keys), el('dd', {}, what)]));
+  $('#help-button').addEventListener('click', () => $('#help').showModal());
+  $('#help-close').addEventListener('click', () => $('#help').close());
+}
+
+const COMPARE_ORDER = ['one', 'wipe', 'side'];
 
 function setupKeyboard() {
   const typing = (target) => target.matches?.('input:not([type=range]):not([type=checkbox]):not([type=color]), select, textarea');
   addEventListener('keydown', (event) => {
+    if ((event.ctrlKey || event.metaKey) && !event.altKey && !typing(event.target)) {
+      const key = event.key.toLowerCase();
+      if (key === 'z' && !event.shiftKey) undo();
+      else if ((key === 'z' && event.shiftKey) || key === 'y') redo();
+      else return;
+      event.preventDefault();
+      return;
+    }
     if (event.ctrlKey || event.metaKey || event.altKey || typing(event.target)) return;
-    if (event.key === ' ' && !event.target.matches?.('button, summary')) {
+    if ($('#help').open) return;
+    if (event.key === ' ' && !event.target.matches?.('button, summary, input')) {
       event.preventDefault();
       spaceHeld = true;
       $('#viewer').classList.add('panning');
     } else if (event.key === 'f') fit();
     else if (event.key === '1') oneToOne();
     else if (event.key === 'r') resetGrades();
-    else if (event.key === 'd') setDenoised(!state.denoised);
+    else if (event.key === 'd') setDenoised(!state.doc.denoised);
+    else if (event.key === 'c') setCompare({ mode: COMPARE_ORDER[(COMPARE_ORDER.indexOf(state.doc.compare.mode) + 1) % 3] });
+    else if (event.key === 's') takeSnapshot();
+    else if (event.key === '?') $('#help').showModal();
   });
   addEventListener('keyup', (event) => {
     if (event.key === ' ') {
@@ -1110,9 +1610,10 @@ function setupKeyboard() {
     }
   });
   addEventListener('blur', () => { spaceHeld = false; $('#viewer').classList.remove('panning'); });
+  addEventListener('pagehide', () => { if (persistTimer) persistNow({ keepalive: true }); });
 }
 
-// --- start --------------------------------------------------------------------------------
+// --- start ----------------------------------------------------------------------------------
 
 function fillDatalist(list, labels) {
   list.replaceChildren(...labels.map((label) => el('option', { value: label })));
@@ -1122,15 +1623,13 @@ function fillDatalist(list, labels) {
  * the grades kept. */
 async function setDenoised(on) {
   const button = $('#denoised');
-  if (button.hidden || state.denoised === on) return;
-  state.denoised = on;
+  if (button.hidden || state.doc.denoised === on) return;
+  state.doc.denoised = on;
+  schedulePersist();
   button.setAttribute('aria-pressed', String(on));
   button.disabled = true;
   try {
-    await Promise.all(state.layers.map(async (layer, slot) => {
-      layer.data = await fetchImage(layer.id, state.width, state.height);
-      renderer.setImage(slot, layer.data, state.width, state.height);
-    }));
+    await Promise.all([...state.sources.values()].map(loadSource));
     setStatus(on ? 'the denoised stack' : 'the stack as rendered');
   } catch (error) {
     setStatus(error.message, true);
@@ -1140,13 +1639,23 @@ async function setDenoised(on) {
   }
 }
 
+/** The document the page opens with: the one kept beside the render, else the render's stack. */
+function openingDocument(session) {
+  const kept = session.document;
+  if (kept) return kept;
+  const doc = emptyDocument();
+  doc.entries = session.layers.filter((layer) => layer.kind === 'beauty' || layer.kind === 'layer')
+    .map((layer) => newEntry(state.sources.get(layer.id)));
+  return doc;
+}
+
 async function start() {
   const session = await api('/api/session');
-  $('#denoised').hidden = !session.denoised;
-  $('#denoised').addEventListener('click', () => setDenoised(!state.denoised));
   state.width = session.width;
   state.height = session.height;
   state.index = session.index;
+  state.kelvin = session.kelvin ?? null;
+  state.cryptomattes = session.cryptomattes ?? {};
   for (const [list, pairs] of [[EVENT_TYPES, session.alphabet.types], [SCATTERINGS, session.alphabet.scatterings]]) {
     list.push(...pairs.map(([letter, name]) => [letter, `${letter} ${name}`]));
   }
@@ -1163,20 +1672,28 @@ async function start() {
   renderer.setLut(display.lut.size, new Float32Array(await lutResponse.arrayBuffer()));
 
   // Data layers (anything but the beauty and light layers) do not enter the composite.
-  state.layers = session.layers.filter((layer) => layer.kind === 'beauty' || layer.kind === 'layer').map(stackEntry);
+  for (const layer of session.layers) if (layer.kind === 'beauty' || layer.kind === 'layer') addSource(layer);
+  state.doc = openingDocument(session);
+  history = new History(state.doc, documentChanged);
+  $('#denoised').hidden = !session.denoised;
+  $('#denoised').addEventListener('click', () => setDenoised(!state.doc.denoised));
+  if (!session.denoised) state.doc.denoised = false;
+  $('#denoised').setAttribute('aria-pressed', String(state.doc.denoised));
   renderStack();
+  syncExposure();
+  syncCompare();
+  syncHistoryButtons();
   let loaded = 0;
   const loading = $('#loading');
-  const queue = state.layers.map((layer, slot) => [layer, slot]);
+  const queue = [...state.sources.values()];
   const worker = async () => {
     for (let next = queue.shift(); next; next = queue.shift()) {
-      const [layer, slot] = next;
-      layer.data = await fetchImage(layer.id, state.width, state.height);
-      renderer.setImage(slot, layer.data, state.width, state.height);
-      loading.textContent = `loading layers ${++loaded}/${state.layers.length}…`;
+      await loadSource(next);
+      loading.textContent = `loading layers ${++loaded}/${state.sources.size}…`;
     }
   };
   await Promise.all([worker(), worker(), worker()]);
+  ensureMasks();
 
   if (state.index) {
     fillDatalist($('#labels'), state.index.labels ?? []);
@@ -1184,12 +1701,16 @@ async function start() {
     $('#selection-info').textContent = `click a pixel or drag a region · ${state.index.file}, ${state.index.spp} spp`;
   } else {
     for (const panel of ['#make-panel', '#save-panel', '#suggest-row']) $(panel).classList.add('disabled');
+    for (const control of document.querySelectorAll('#make-panel :is(input, button, select, summary), #save-panel :is(input, button), #suggest-row :is(input, button)')) {
+      control.setAttribute('disabled', '');
+      control.setAttribute('tabindex', '-1');
+    }
     $('#selection-info').textContent = 'no path index beside this product';
   }
   $('#layer-name').placeholder = freeLayerName();
   showTab('classes');
   resizeCanvas();
-  fit();
+  scheduleChecks(true);
   await nextFrame();
   loading.hidden = true;
   pxrViewer.ready = true;
@@ -1199,13 +1720,23 @@ async function start() {
 const pxrViewer = {
   ready: false,
   error: null,
+  persisted: 0,  // documents written by the server so far
   timings,
   frames: () => framesDrawn,
   state: () => ({
-    width: state.width, height: state.height, exposure: state.exposure, view: { ...state.view }, denoised: state.denoised,
-    canvas: [canvas.width, canvas.height], selection: state.selection, gpu: renderer?.gpu,
-    layers: state.layers.map(({ id, name, kind, share, stops, tint, mute, solo }) => ({ id, name, kind, share, stops, tint, mute, solo })),
+    width: state.width, height: state.height, exposure: state.doc.exposure, view: { ...state.view }, denoised: state.doc.denoised,
+    canvas: [canvas.width, canvas.height], selection: state.selection, gpu: renderer?.gpu, compare: { ...state.doc.compare },
+    snapshots: state.doc.snapshots.map((snapshot) => snapshot.name), saved: state.doc.saved?.name ?? null,
+    undo: history?.canUndo ?? false, redo: history?.canRedo ?? false,
+    layers: state.doc.entries.map(({ id, source, name, kind, group, stops, tint, kelvin, mute, solo, mask }) => ({
+      id, source, name, kind, share: state.sources.get(source)?.share ?? 0, group, stops, tint, kelvin, mute, solo, mask,
+    })),
+    pushable: Object.fromEntries(state.pushable), overlaps: state.overlaps,
   }),
+  /** The document as the page holds it (what it persists). */
+  document: () => structuredClone(state.doc),
+  /** Write the document now; resolves once the server has it. */
+  persist: () => persistNow(),
   /** The client (CSS) coordinates of image pixel (x, y)'s centre, for a mouse click. */
   imageToClient(x, y) {
     const box = canvas.getBoundingClientRect();
@@ -1215,23 +1746,32 @@ const pxrViewer = {
   /** The image as drawn at 1:1: {width, height, rgba: base64 of height × width × 4 bytes}. */
   readImage() {
     const { x, y, scale } = state.view;
-    if (scale !== 1 || x < 0 || y < 0 || x + state.width > canvas.width || y + state.height > canvas.height) {
+    if (scale !== 1 || x < 0 || y < 0 || x + state.width > panelWidth() || y + state.height > canvas.height) {
       throw new Error('readImage needs the whole image on the canvas at 1:1 (press 1, and a canvas at least as large)');
     }
     drawNow();
     return { width: state.width, height: state.height, rgba: base64(renderer.read(x, y, state.width, state.height)) };
   },
-  /** A stack entry's linear RGB as uploaded: base64 of its little-endian float32 data. */
+  /** A stack entry's linear RGB as uploaded (its source's): base64 of its little-endian float32 data. */
   layerData(id) {
-    const layer = state.layers.find((entry) => entry.id === id);
-    return layer ? base64(new Uint8Array(layer.data.buffer, layer.data.byteOffset, layer.data.byteLength)) : null;
+    const entry = entryById(id);
+    const data = state.sources.get(entry ? entry.source : id)?.data;
+    return data ? base64(new Uint8Array(data.buffer, data.byteOffset, data.byteLength)) : null;
+  },
+  /** A mask's coverage as uploaded: base64 of little-endian float32, or null until fetched. */
+  maskData(mask) {
+    const data = state.masks.get(maskKey(mask))?.data;
+    return data ? base64(new Uint8Array(data.buffer, data.byteOffset, data.byteLength)) : null;
   },
   /** Show the denoised stack or the stack as rendered, as the button does; resolves when shown. */
   setDenoised,
-  /** Grade a layer as its controls would: change = {stops, tint, mute, solo}. */
+  /** Grade a layer as its controls would: change = {stops, tint, kelvin, mute, solo, mask}. */
   setGrade(id, change) {
-    setGrade(state.layers.find((layer) => layer.id === id), change);
+    setGrade(id, change);
   },
+  setCompare,
+  undo,
+  redo,
   /** Draw now and wait for the GPU: milliseconds taken. */
   drawFinished() {
     const begin = performance.now();
@@ -1243,10 +1783,12 @@ const pxrViewer = {
 window.pxrViewer = pxrViewer;
 
 setupView();
-setupExposure();
+setupStack();
 setupMake();
 setupKeyboard();
+setupHelp();
 $('#save').addEventListener('click', save);
+$('#push').addEventListener('click', push);
 start().catch((error) => {
   pxrViewer.error = error.message;
   const loading = $('#loading');

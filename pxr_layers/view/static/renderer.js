@@ -1,0 +1,286 @@
+// The inspector's WebGL2 renderer: the stack's images in one TEXTURE_2D_ARRAY of RGB32F, the
+// Cryptomatte masks in one of R32F, the display LUT in a 3D RGB32F texture, one
+// full-viewport triangle. The composite rule lives in FRAGMENT_MAIN below and in
+// pxr_layers/view/composite.py (the numpy reference), nowhere else.
+
+const VERTEX_SHADER = `#version 300 es
+void main() {  // one triangle over the whole viewport, no vertex buffer
+  vec2 corner = vec2(float((gl_VertexID & 1) << 2), float((gl_VertexID & 2) << 1));
+  gl_Position = vec4(corner - 1.0, 0.0, 1.0);
+}`;
+
+const FRAGMENT_HEAD = `#version 300 es
+precision highp float;
+precision highp int;
+precision highp sampler2DArray;
+precision highp sampler3D;
+`;  // then the session's displayLut (pxr_layers/layers/display_lut.py), then FRAGMENT_MAIN
+
+// The composite rule (pxr_layers/view/composite.py is its numpy reference), per look (set):
+//   w_i = 1 + m_i · (g_i − 1), g_i = gain_i · tint_i (· blackbody(kelvin_i)), 0 when muted;
+//         m_i the layer's mask coverage at the pixel, 1 without a mask
+//   no layer soloed:   out = beauty + Σ_i (w_i − 1) · layer_i
+//   some layer soloed: out = Σ_{i soloed} w_i · layer_i
+//   then · 2^exposure, then the display LUT. At unit gains this is the beauty exactly:
+//   the weights are exactly 0 and the layers are not even read.
+// Two looks (sets 0 and 1) can be shown at once: split by a wipe line, or side by side.
+const FRAGMENT_MAIN = `
+uniform sampler2DArray u_images;  // slice 0 the beauty, then the layers: linear RGB, top row first
+uniform sampler2DArray u_masks;   // mask coverages (red), top row first
+uniform highp sampler3D u_lut;
+uniform int u_count[2];            // entries of each look (the beauty not counted)
+uniform vec3 u_grade[2 * MAX_ENTRIES];   // g_i of each entry: look 0's, then look 1's
+uniform ivec4 u_info[2 * MAX_ENTRIES];   // (image slice, MUTED | SOLOED, mask slice or -1, 0)
+uniform bool u_any_solo[2];
+uniform float u_exposure_gain[2];  // 2^exposure
+uniform int u_mode;                // 0 one look, 1 wipe, 2 side by side
+uniform float u_wipe;              // device pixels from the canvas's left edge to the wipe line
+uniform vec2 u_origin;             // device pixels from the canvas's (or the half's) top-left corner to the image's
+uniform float u_scale;             // device pixels per image pixel
+uniform vec2 u_canvas;             // the canvas's size, device pixels
+uniform vec3 u_background;
+out vec4 colour;
+
+const int MUTED = 1;
+const int SOLOED = 2;
+
+vec3 look(int set, ivec2 texel) {
+  int base = set * MAX_ENTRIES;
+  vec3 rgb = u_any_solo[set] ? vec3(0.0) : texelFetch(u_images, ivec3(texel, 0), 0).rgb;
+  for (int i = 0; i < u_count[set]; ++i) {
+    ivec4 info = u_info[base + i];
+    vec3 graded = (info.y & MUTED) != 0 ? vec3(0.0) : u_grade[base + i];
+    if (info.z >= 0) graded = 1.0 + texelFetch(u_masks, ivec3(texel, info.z), 0).r * (graded - 1.0);
+    vec3 weight = u_any_solo[set] ? ((info.y & SOLOED) != 0 ? graded : vec3(0.0)) : graded - 1.0;
+    if (weight != vec3(0.0)) rgb += weight * texelFetch(u_images, ivec3(texel, info.x), 0).rgb;
+  }
+  return rgb * u_exposure_gain[set];
+}
+
+void main() {
+  // gl_FragCoord counts rows from the bottom; the images' rows run from the top.
+  vec2 canvas_px = vec2(gl_FragCoord.x, u_canvas.y - gl_FragCoord.y);
+  int set = 0;
+  if (u_mode == 1) set = canvas_px.x >= u_wipe ? 1 : 0;
+  if (u_mode == 2 && canvas_px.x >= floor(u_canvas.x / 2.0)) {
+    set = 1;
+    canvas_px.x -= floor(u_canvas.x / 2.0);
+  }
+  vec2 image_px = floor((canvas_px - u_origin) / u_scale);
+  ivec2 size = textureSize(u_images, 0).xy;
+  if (any(lessThan(image_px, vec2(0.0))) || any(greaterThanEqual(image_px, vec2(size)))) {
+    colour = vec4(u_background, 1.0);
+    return;
+  }
+  colour = vec4(displayLut(look(set, ivec2(image_px)), u_lut), 1.0);  // NaN and infinities: as the previews
+}
+`;
+
+export const BACKGROUND = [0.09, 0.094, 0.102];
+const MUTED = 1;
+const SOLOED = 2;
+export const MODES = { one: 0, wipe: 1, side: 2 };
+
+/** A growable TEXTURE_2D_ARRAY of one format, with CPU copies to refill it when it grows
+ *  (immutable storage cannot grow). */
+class SliceArray {
+  constructor(gl, unit, internalFormat, format) {
+    Object.assign(this, { gl, unit, internalFormat, format, images: [], capacity: 0, width: 0, height: 0, texture: null });
+  }
+
+  set(slice, data, width, height, maxSlices) {
+    if (slice >= maxSlices) throw new Error(`at most ${maxSlices} images fit in this browser's texture array`);
+    this.images[slice] = data;
+    const { gl } = this;
+    if (slice >= this.capacity || width !== this.width || height !== this.height) {
+      this.width = width;
+      this.height = height;
+      this.capacity = Math.min(maxSlices, Math.max(slice + 4, Math.ceil(this.images.length * 1.5)));
+      if (this.texture) gl.deleteTexture(this.texture);
+      this.texture = gl.createTexture();
+      this.bind();
+      Renderer.nearest(gl, gl.TEXTURE_2D_ARRAY);
+      gl.texStorage3D(gl.TEXTURE_2D_ARRAY, 1, this.internalFormat, width, height, this.capacity);
+      this.images.forEach((image, at) => image && this.upload(at, image));
+      return;
+    }
+    this.upload(slice, data);
+  }
+
+  bind() {
+    this.gl.activeTexture(this.gl.TEXTURE0 + this.unit);
+    this.gl.bindTexture(this.gl.TEXTURE_2D_ARRAY, this.texture);
+  }
+
+  upload(slice, data) {
+    const { gl } = this;
+    this.bind();
+    gl.texSubImage3D(gl.TEXTURE_2D_ARRAY, 0, 0, 0, slice, this.width, this.height, 1, this.format, gl.FLOAT, data);
+  }
+}
+
+export class Renderer {
+  constructor(canvas, lutGlsl) {
+    this.canvas = canvas;
+    const gl = canvas.getContext('webgl2', {
+      alpha: false, antialias: false, depth: false, stencil: false, premultipliedAlpha: false,
+      preserveDrawingBuffer: false, powerPreference: 'high-performance',
+    });
+    if (!gl) throw new Error('this browser has no WebGL2: the inspector needs it');
+    this.gl = gl;
+    // Each entry of each of the two looks takes two uniform vectors (grade, info); leave some for the rest.
+    this.maxEntries = Math.min(128, Math.floor((gl.getParameter(gl.MAX_FRAGMENT_UNIFORM_VECTORS) - 16) / 4));
+    this.maxSlices = gl.getParameter(gl.MAX_ARRAY_TEXTURE_LAYERS);
+    this.program = this.link(`${FRAGMENT_HEAD}${lutGlsl}\n#define MAX_ENTRIES ${this.maxEntries}\n${FRAGMENT_MAIN}`);
+    this.uniforms = {};
+    for (const name of ['u_images', 'u_masks', 'u_lut', 'u_count', 'u_grade', 'u_info', 'u_any_solo', 'u_exposure_gain',
+      'u_mode', 'u_wipe', 'u_origin', 'u_scale', 'u_canvas', 'u_background']) {
+      this.uniforms[name] = gl.getUniformLocation(this.program, name);
+    }
+    this.images = new SliceArray(gl, 0, gl.RGB32F, gl.RGB);
+    this.masks = new SliceArray(gl, 2, gl.R32F, gl.RED);
+    this.grade = new Float32Array(2 * this.maxEntries * 3);
+    this.info = new Int32Array(2 * this.maxEntries * 4);
+    this.onePixel = new Uint8Array(4);
+    const debug = gl.getExtension('WEBGL_debug_renderer_info');
+    this.gpu = gl.getParameter(debug ? debug.UNMASKED_RENDERER_WEBGL : gl.RENDERER);  // for the benchmark's report
+    gl.pixelStorei(gl.UNPACK_ALIGNMENT, 4);
+    // An empty mask array until the first mask: a sampler must have a complete texture.
+    this.masks.set(0, new Float32Array(1), 1, 1, this.maxSlices);
+    this.masks.images = [];
+  }
+
+  link(fragmentSource) {
+    const gl = this.gl;
+    const compile = (type, source) => {
+      const shader = gl.createShader(type);
+      gl.shaderSource(shader, source);
+      gl.compileShader(shader);
+      if (!gl.getShaderParameter(shader, gl.COMPILE_STATUS)) {
+        throw new Error(`shader does not compile: ${gl.getShaderInfoLog(shader)}`);
+      }
+      return shader;
+    };
+    const program = gl.createProgram();
+    gl.attachShader(program, compile(gl.VERTEX_SHADER, VERTEX_SHADER));
+    gl.attachShader(program, compile(gl.FRAGMENT_SHADER, fragmentSource));
+    gl.linkProgram(program);
+    if (!gl.getProgramParameter(program, gl.LINK_STATUS)) {
+      throw new Error(`shader does not link: ${gl.getProgramInfoLog(program)}`);
+    }
+    return program;
+  }
+
+  static nearest(gl, target) {
+    // RGB32F is not filterable without an extension; everything is read with texelFetch.
+    for (const parameter of [gl.TEXTURE_MIN_FILTER, gl.TEXTURE_MAG_FILTER]) gl.texParameteri(target, parameter, gl.NEAREST);
+    for (const parameter of [gl.TEXTURE_WRAP_S, gl.TEXTURE_WRAP_T, gl.TEXTURE_WRAP_R]) {
+      gl.texParameteri(target, parameter, gl.CLAMP_TO_EDGE);
+    }
+  }
+
+  /** The baked display transform: size³ × 3 floats, r fastest (width r, height g, depth b). */
+  setLut(size, data) {
+    const gl = this.gl;
+    this.lut = gl.createTexture();
+    gl.activeTexture(gl.TEXTURE1);
+    gl.bindTexture(gl.TEXTURE_3D, this.lut);
+    Renderer.nearest(gl, gl.TEXTURE_3D);
+    gl.texImage3D(gl.TEXTURE_3D, 0, gl.RGB32F, size, size, size, 0, gl.RGB, gl.FLOAT, data);
+  }
+
+  /** Image slice `slice` (0: the beauty): height × width × 3 floats, top row first. */
+  setImage(slice, data, width, height) {
+    this.images.set(slice, data, width, height, this.maxSlices);
+    this.width = width;
+    this.height = height;
+  }
+
+  /** Mask slice `slice`: height × width floats (coverage), top row first. */
+  setMask(slice, data, width, height) {
+    this.masks.set(slice, data, width, height, this.maxSlices);
+  }
+
+  /** Draw one look, or two. looks: [{entries: [{slice, grade: [r, g, b], mute, solo, maskSlice}],
+   *  exposure}] (the beauty is not an entry); view: {x, y, scale} in device pixels, relative
+   *  to the canvas (side by side: to each half); mode: MODES; wipe: the wipe line's device x. */
+  draw(looks, view, mode = MODES.one, wipe = 0) {
+    const gl = this.gl;
+    const u = this.uniforms;
+    const counts = [0, 0];
+    const anySolo = [0, 0];
+    const gains = [1, 1];
+    looks.forEach((look, set) => {
+      if (look.entries.length > this.maxEntries) {
+        throw new Error(`at most ${this.maxEntries} layers fit in this browser's shader`);
+      }
+      counts[set] = look.entries.length;
+      gains[set] = 2 ** look.exposure;
+      look.entries.forEach((entry, i) => {
+        const at = set * this.maxEntries + i;
+        this.grade.set(entry.grade, at * 3);
+        this.info.set([entry.slice, (entry.mute ? MUTED : 0) | (entry.solo ? SOLOED : 0), entry.maskSlice ?? -1, 0], at * 4);
+        if (entry.solo) anySolo[set] = 1;
+      });
+    });
+    if (looks.length === 1) mode = MODES.one;
+    // The background is cleared; the shader runs on the image's pixels only (a software
+    // WebGL pays for every fragment, early return or not).
+    const { width, height } = this.canvas;
+    gl.viewport(0, 0, width, height);
+    gl.disable(gl.SCISSOR_TEST);
+    gl.clearColor(...BACKGROUND, 1);
+    gl.clear(gl.COLOR_BUFFER_BIT);
+    const panels = mode === MODES.side ? [0, Math.floor(width / 2)] : [0];
+    gl.useProgram(this.program);
+    this.images.bind();
+    this.masks.bind();
+    gl.activeTexture(gl.TEXTURE1);
+    gl.bindTexture(gl.TEXTURE_3D, this.lut);
+    gl.uniform1i(u.u_images, 0);
+    gl.uniform1i(u.u_lut, 1);
+    gl.uniform1i(u.u_masks, 2);
+    gl.uniform1iv(u.u_count, counts);
+    gl.uniform3fv(u.u_grade, this.grade);
+    gl.uniform4iv(u.u_info, this.info);
+    gl.uniform1iv(u.u_any_solo, anySolo);
+    gl.uniform1fv(u.u_exposure_gain, gains);
+    gl.uniform1i(u.u_mode, mode);
+    gl.uniform1f(u.u_wipe, wipe);
+    gl.uniform2f(u.u_origin, view.x, view.y);
+    gl.uniform1f(u.u_scale, view.scale);
+    gl.uniform2f(u.u_canvas, width, height);
+    gl.uniform3fv(u.u_background, BACKGROUND);
+    gl.enable(gl.SCISSOR_TEST);
+    for (const offset of panels) {
+      const left = Math.max(offset, Math.floor(offset + view.x));
+      const top = Math.max(0, Math.floor(view.y));
+      const end = mode === MODES.side && offset === 0 ? panels[1] : width;
+      const right = Math.min(end, Math.ceil(offset + view.x + this.width * view.scale));
+      const bottom = Math.min(height, Math.ceil(view.y + this.height * view.scale));
+      if (right <= left || bottom <= top) continue;
+      gl.scissor(left, height - bottom, right - left, bottom - top);
+      gl.drawArrays(gl.TRIANGLES, 0, 3);
+    }
+  }
+
+  /** Wait until the GPU has drawn what was asked. gl.finish() returns at once in Chromium (its
+   *  GPU process runs the commands later); reading a pixel back waits for them. */
+  finish() {
+    this.gl.readPixels(0, 0, 1, 1, this.gl.RGBA, this.gl.UNSIGNED_BYTE, this.onePixel);
+  }
+
+  /** RGBA bytes of a canvas rectangle (device pixels, top-left origin), top row first. Call
+   *  right after draw(): the drawing buffer is not preserved past the frame. */
+  read(x, y, width, height) {
+    const gl = this.gl;
+    const bottomUp = new Uint8Array(width * height * 4);
+    gl.readPixels(x, this.canvas.height - y - height, width, height, gl.RGBA, gl.UNSIGNED_BYTE, bottomUp);
+    const rows = new Uint8Array(bottomUp.length);
+    const stride = width * 4;
+    for (let row = 0; row < height; ++row) {
+      rows.set(bottomUp.subarray((height - 1 - row) * stride, (height - row) * stride), row * stride);
+    }
+    return rows;
+  }
+}

@@ -1,0 +1,313 @@
+"""The inspector as a document, in a real browser (headless Chromium through Playwright, as
+tests/test_view_browser.py runs it): the stack managed (duplicate, rename, reorder, group,
+delete) with undo and redo; the working state kept beside the render and restored on reload
+and on reopening a saved look; comparing looks (wipe, side by side, snapshots); the keyboard
+alone; and an axe-core accessibility audit.
+
+Each test gets its own render folder (the working state is kept in it), so they do not see
+each other's edits.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_view_browser import (
+    CORNELL,
+    RESOLUTION,
+    SCRIPT,
+    _sync_playwright,
+    canvas_image,
+    launch,
+    layer_pixels,
+    open_inspector,
+    serving,
+)
+
+from pxr_layers.layers.nuke import LayerGrade
+from pxr_layers.layers.previews import to_display
+from pxr_layers.view.composite import composite
+
+SERIOUS = ("serious", "critical")
+"""The axe-core impacts the audit must not report."""
+
+
+@pytest.fixture(scope="module")
+def browser(tmp_path_factory):
+    sync_playwright = _sync_playwright()
+    with sync_playwright() as playwright:
+        context = launch(playwright, tmp_path_factory.mktemp("chromium-profile"))
+        yield context
+        context.close()
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory) -> Path:
+    """The Cornell light passes at 128², 16 spp, with the index: copied for each test."""
+    folder = tmp_path_factory.mktemp("document-render")
+    result = subprocess.run([SCRIPT, "render", str(CORNELL), "--recipe", "light_passes", "-o", str(folder),
+                             "--resolution", str(RESOLUTION), str(RESOLUTION), "--spp", "16", "--quiet"],
+                            capture_output=True, text=True, check=False)
+    assert result.returncode == 0, result.stderr
+    return folder
+
+
+@pytest.fixture
+def folder(rendered, tmp_path) -> Path:
+    """A fresh copy of the render (hard links: the files are never written in place)."""
+    copy = tmp_path / "render"
+    copy.mkdir()
+    for path in rendered.iterdir():
+        (copy / path.name).hardlink_to(path)
+    return copy
+
+
+@pytest.fixture
+def opened(browser, folder):
+    """(page, url) of the inspector on `folder`; uncaught page errors fail the test."""
+    errors: list[str] = []
+
+    def uncaught(error):
+        errors.append(str(error.error))
+
+    browser.on("weberror", uncaught)
+    with serving(folder) as url:
+        page = open_inspector(browser, url)
+        yield page, url
+        page.close()
+    browser.remove_listener("weberror", uncaught)
+    assert not errors, errors
+
+
+def stack(page) -> list[dict]:
+    return page.evaluate("pxrViewer.state().layers")
+
+
+def names(page) -> list[str]:
+    return [layer["name"] for layer in stack(page)]
+
+
+def more(page, entry_id: str):
+    """The "more" controls of an entry's row, opened."""
+    row = page.locator(f'#stack li[data-id="{entry_id}"]')
+    details = row.locator("details.more")
+    if not details.evaluate("d => d.open"):
+        details.locator("summary").click()
+    return row
+
+
+def persisted(page) -> dict:
+    """The document once the server has written it."""
+    page.evaluate("pxrViewer.persist()")
+    return page.evaluate("pxrViewer.document()")
+
+
+def test_the_stack_is_managed_and_every_edit_undoes_and_redoes(opened):
+    page, _ = opened
+    first = names(page)
+    assert first[0] == "beauty" and "diffuse_direct" in first
+    states = [stack(page)]
+
+    row = more(page, "diffuse_direct")
+    row.locator("button.duplicate").click()
+    assert names(page).count("diffuse_direct_copy") == 1
+    states.append(stack(page))
+
+    copy = more(page, "diffuse_direct_copy")
+    copy.locator("input.rename").fill("key_bounce")
+    copy.locator("input.rename").press("Enter")
+    page.wait_for_function("pxrViewer.state().layers.some(l => l.name === 'key_bounce')")
+    states.append(stack(page))
+
+    at = names(page).index("key_bounce")
+    more(page, "diffuse_direct_copy").locator("button.move-up").click()
+    assert names(page).index("key_bounce") == at - 1
+    states.append(stack(page))
+
+    group = more(page, "diffuse_direct_copy").locator("input.group-input")
+    group.fill("key")
+    group.press("Enter")
+    page.wait_for_selector('#stack li.group[data-group="key"]')
+    states.append(stack(page))
+
+    page.evaluate("pxrViewer.setGrade('diffuse_direct_copy', {stops: 1.5, mute: true})")
+    states.append(stack(page))
+
+    more(page, "emission").locator("button.delete").click()
+    assert "emission" not in names(page)
+    states.append(stack(page))
+
+    # a rename to a name the stack has is refused, not applied
+    renamed = more(page, "diffuse_direct_copy").locator("input.rename")
+    renamed.fill("diffuse_direct")
+    renamed.press("Enter")
+    assert renamed.get_attribute("aria-invalid") == "true" and stack(page) == states[-1]
+
+    for expected in reversed(states[:-1]):
+        page.click("#undo")
+        assert stack(page) == expected
+    assert page.locator("#undo").is_disabled()
+    for expected in states[1:]:
+        page.keyboard.press("Control+Shift+Z")
+        assert stack(page) == expected
+    page.keyboard.press("Control+z")
+    assert stack(page) == states[-2]
+
+
+def test_the_working_state_is_restored_on_reload(opened, folder):
+    page, url = opened
+    page.evaluate("pxrViewer.setGrade('diffuse_direct', {stops: -1.25, tint: [1, 0.5, 0.25]})")
+    page.evaluate("pxrViewer.setGrade('emission', {mute: true})")
+    page.fill("#exposure-number", "0.75")
+    page.fill("#expression", "C<RD'redWall'>.*")
+    page.fill("#layer-name", "red_wall")
+    page.click("#add-layer")
+    page.wait_for_selector('#stack li[data-id="red_wall"]')
+    made = layer_pixels(page, "red_wall")
+    page.keyboard.press("s")  # a snapshot
+    page.evaluate("pxrViewer.setGrade('red_wall', {stops: 2})")
+    page.select_option("#compare-mode", "wipe")
+    page.click("#one-to-one")
+    before = persisted(page)
+    picture = canvas_image(page)
+    assert (folder / "light_passes.view.json").is_file()
+    assert json.loads((folder / "light_passes.view.json").read_text()) == before
+
+    page.reload()
+    page.wait_for_function("pxrViewer.ready")
+    assert page.evaluate("pxrViewer.document()") == before
+    assert page.evaluate("pxrViewer.state().snapshots") == ["snapshot 1"]
+    np.testing.assert_array_equal(layer_pixels(page, "red_wall"), made)  # extracted again from its expression
+    np.testing.assert_array_equal(canvas_image(page), picture)
+
+
+def test_a_saved_look_reopens_exactly_as_saved_and_reset_returns_to_it(opened, browser, folder):
+    page, _ = opened
+    more(page, "diffuse_indirect").locator("button.duplicate").click()
+    page.evaluate("pxrViewer.setGrade('diffuse_direct', {stops: 1, tint: [1, 0.8, 0.6]})")
+    page.evaluate("pxrViewer.setGrade('diffuse_indirect_copy', {stops: -2, solo: false})")
+    page.evaluate("pxrViewer.setGrade('emission', {mute: true})")
+    page.fill("#exposure-number", "-0.5")
+    page.fill("#save-name", "warm_look")
+    page.click("#save")
+    page.wait_for_selector('#saved li[data-kind="document"]')
+    saved = [{key: layer[key] for key in ("name", "stops", "tint", "mute", "solo", "group")} for layer in stack(page)]
+    picture = canvas_image(page)
+    assert (folder / "warm_look.view.json").is_file() and (folder / "warm_look.exr").is_file()
+
+    with serving(folder / "warm_look.exr") as url:
+        look = open_inspector(browser, url)
+        try:
+            shown = [{key: layer[key] for key in ("name", "stops", "tint", "mute", "solo", "group")}
+                     for layer in stack(look)]
+            assert shown == saved
+            assert look.evaluate("pxrViewer.state().exposure") == -0.5
+            assert look.evaluate("pxrViewer.state().saved") == "warm_look"
+            np.testing.assert_array_equal(canvas_image(look), picture)
+            # reset: back to the grades the look's recipe holds (its layers' stops and tint), not to 0
+            look.evaluate("pxrViewer.setGrade('diffuse_direct', {stops: 3})")
+            look.keyboard.press("r")
+            direct = next(layer for layer in stack(look) if layer["name"] == "diffuse_direct")
+            assert (direct["stops"], direct["tint"]) == (1, pytest.approx([1, 0.8, 0.6]))
+        finally:
+            look.close()
+
+
+def test_compare_wipes_and_sets_side_by_side_the_look_and_the_raw_beauty(opened):
+    page, _ = opened
+    grade = {"diffuse_direct": LayerGrade(stops=1.5, tint=(1.0, 0.5, 0.25))}
+    page.evaluate("pxrViewer.setGrade('diffuse_direct', {stops: 1.5, tint: [1, 0.5, 0.25]})")
+    ids = [layer["id"] for layer in stack(page)]
+    layers = [layer_pixels(page, entry) for entry in ids[1:]]
+    beauty = layer_pixels(page, "beauty")
+    graded = to_display(composite(beauty, layers, [grade.get(entry, LayerGrade()) for entry in ids[1:]])).astype(int)
+    raw = to_display(composite(beauty, layers, [LayerGrade()] * len(layers))).astype(int)
+    assert np.abs(graded - raw).max() > 8
+
+    page.select_option("#compare-mode", "wipe")
+    page.evaluate("pxrViewer.setCompare({against: 'beauty', wipe: 0.25})")
+    shown = canvas_image(page).astype(int)
+    split = RESOLUTION // 4
+    assert np.abs(shown[:, :split] - graded[:, :split]).max() <= 1
+    assert np.abs(shown[:, split:] - raw[:, split:]).max() <= 1
+    handle = page.locator("#wipe")
+    handle.focus()
+    handle.press("End")
+    assert page.evaluate("pxrViewer.state().compare.wipe") == 1
+    assert np.abs(canvas_image(page).astype(int) - graded).max() <= 1
+
+    # a snapshot of the graded look, then another grade: the wipe compares the two
+    page.keyboard.press("s")
+    page.evaluate("pxrViewer.setGrade('diffuse_direct', {stops: 0, tint: [1, 1, 1]})")
+    page.evaluate("pxrViewer.setCompare({against: 'snapshot:0', wipe: 0})")
+    assert np.abs(canvas_image(page).astype(int) - graded).max() <= 1
+
+    page.select_option("#compare-mode", "side")
+    page.click("#one-to-one")
+    left = canvas_image(page).astype(int)  # the left half's image: the current look (ungraded now)
+    assert np.abs(left - raw).max() <= 1
+    page.select_option("#compare-mode", "one")
+
+
+def test_the_keyboard_alone_inspects_a_pixel_and_grades_a_layer(opened):
+    page, _ = opened
+    page.focus("#canvas")
+    page.keyboard.press("ArrowRight")
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#tab-body tr[data-path]")
+    assert page.evaluate("pxrViewer.state().selection") is not None
+    page.focus('#stack li[data-id="diffuse_direct"] input.gain')
+    page.keyboard.press("ArrowRight")
+    assert next(layer for layer in stack(page) if layer["id"] == "diffuse_direct")["stops"] == 0.05
+    page.focus('#stack li[data-id="diffuse_direct"] button.mute')
+    page.keyboard.press("Enter")
+    assert next(layer for layer in stack(page) if layer["id"] == "diffuse_direct")["mute"] is True
+    page.keyboard.press("?")  # focus on a button: the shortcut still opens the help
+    assert page.locator("#help").evaluate("d => d.open")
+    assert "Ctrl+Z" in page.text_content("#help")
+    page.keyboard.press("Escape")
+    assert not page.locator("#help").evaluate("d => d.open")
+
+
+def test_tab_reaches_every_control_and_leaves_none_trapped(opened):
+    """Tab from the start of the page visits the controls in order and comes back round: no
+    control keeps the focus (a trap), and each visited one has an accessible name."""
+    page, _ = opened
+    page.evaluate("document.activeElement.blur()")
+    seen = []
+    for _ in range(400):
+        page.keyboard.press("Tab")
+        focused = page.evaluate("""() => {
+            const e = document.activeElement;
+            if (!e || e === document.body) return null;
+            const label = e.labels?.[0]?.textContent || e.getAttribute('aria-label') || e.textContent || e.title || e.id;
+            return {key: e.id || e.outerHTML.slice(0, 120), label: (label || '').trim()};
+        }""")
+        if focused is None or (seen and focused["key"] == seen[0]["key"]):
+            break
+        seen.append(focused)
+    else:
+        pytest.fail("Tab never came back round")
+    keys = [item["key"] for item in seen]
+    assert "canvas" in keys and "save" in keys and "add-layer" in keys
+    assert all(item["label"] for item in seen), [item for item in seen if not item["label"]]
+
+
+@pytest.mark.parametrize("state", ["as opened", "layer controls open", "help open"])
+def test_the_accessibility_audit_finds_nothing_serious(opened, state):
+    from axe_playwright_python.sync_playwright import Axe
+
+    page, _ = opened
+    if state == "layer controls open":
+        more(page, "diffuse_direct")
+        page.select_option("#compare-mode", "wipe")
+    elif state == "help open":
+        page.click("#help-button")
+    violations = Axe().run(page).response["violations"]
+    serious = [(violation["id"], violation["impact"], [node["target"] for node in violation["nodes"]][:3])
+               for violation in violations if violation["impact"] in SERIOUS]
+    assert not serious, serious
