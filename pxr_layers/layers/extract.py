@@ -171,6 +171,35 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     return Extraction(images, records_read, len(wanted), tuple(warnings))
 
 
+@dataclass(frozen=True)
+class ClassMatch:
+    """Which path classes of an index an expression takes. always : the ids of the classes
+    all of whose records it takes; conditional : of those whose records its covariance
+    conditions split (some records in, some out); every other class it never takes."""
+
+    always: frozenset[int]
+    conditional: frozenset[int]
+
+
+def class_matches(index: PathIndex, expressions: dict[str, str]) -> dict[str, ClassMatch]:
+    """name → the classes of `index` each expression matches, by the automaton ``extract``
+    runs (no record is read). Raises LpeError for an expression that does not compile."""
+    always: dict[str, set[int]] = {name: set() for name in expressions}
+    conditional: dict[str, set[int]] = {name: set() for name in expressions}
+    for automaton in _automata(expressions):
+        accepting, conditional_classes = _class_outcomes(automaton, index)
+        for layers, class_ids in accepting.items():
+            for layer in layers:
+                always[layer].update(class_ids.tolist())
+        for class_id, outcomes in conditional_classes:
+            for layer, outcome in outcomes.items():
+                if outcome.kind == "always":
+                    always[layer].add(class_id)
+                elif outcome.kind == "conditional":
+                    conditional[layer].add(class_id)
+    return {name: ClassMatch(frozenset(always[name]), frozenset(conditional[name])) for name in expressions}
+
+
 def _automata(expressions: dict[str, str]) -> list[lpe.LayerAutomaton]:
     """One automaton for the layers without covariance conditions, one per layer with.
 

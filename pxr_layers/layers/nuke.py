@@ -80,6 +80,7 @@ from .. import __version__
 from ..errors import OutputError
 from ..outputs import check_output, write_atomically
 from ..recipe.model import BEAUTY_PART, CRYPTOMATTE_KINDS, LAYER_NAME, MAX_CRYPTOMATTE_DEPTH, cryptomatte_parts
+from .kelvin import blackbody, check_kelvin
 from .previews import layers_partition
 
 logger = logging.getLogger(__name__)
@@ -128,6 +129,8 @@ class LayerGrade:
     tint  : linear RGB multiplier, each >= 0
     mute  : the layer counts with gain 0
     solo  : when any layer is soloed, only the soloed layers (not muted) are shown
+    kelvin: None (off), or a colour temperature in K (layers/kelvin.py's range): the layer
+            is multiplied by the blackbody colour a UsdLux light of that temperature has
     mask  : the grade applies where the mask's names are (their Cryptomatte coverage m), unity elsewhere
     """
 
@@ -135,13 +138,19 @@ class LayerGrade:
     tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     mute: bool = False
     solo: bool = False
+    kelvin: float | None = None
     mask: LayerMask | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "kelvin", check_kelvin(self.kelvin))
 
     @property
     def multiply(self) -> tuple[float, float, float]:
-        """The Grade's multiply: 2^stops · tint (the mute is the disabled Merge, not this)."""
+        """The Grade's multiply: 2^stops · tint · blackbody(kelvin) (the mute is the disabled
+        Merge, not this)."""
         gain = 2.0 ** self.stops
-        return tuple(gain * float(channel) for channel in self.tint)
+        temperature = (1.0, 1.0, 1.0) if self.kelvin is None else blackbody(self.kelvin)
+        return tuple(gain * float(channel) * warmth for channel, warmth in zip(self.tint, temperature, strict=True))
 
 
 def nuke_script(exr_path: str | os.PathLike, parts: Sequence[str], grades: Mapping[str, LayerGrade], *,

@@ -31,7 +31,8 @@ from pathlib import Path
 from ..errors import PxrLayersError
 from ..outputs import write_atomically
 from ..recipe.model import LAYER_NAME, MAX_PREVIEW_STOPS
-from .grades import MAX_KELVIN, MAX_TINT, MIN_KELVIN
+from ..layers.kelvin import KELVIN_MAX, KELVIN_MIN
+from .grades import MAX_TINT
 
 log = logging.getLogger(__name__)
 
@@ -148,7 +149,7 @@ def _entries(entries, what: str) -> list[dict]:
         for channel in tint:
             _number(channel, f"{where}.tint", 0, MAX_TINT)
         if entry["kelvin"] is not None:
-            _number(entry["kelvin"], f"{where}.kelvin", MIN_KELVIN, MAX_KELVIN)
+            _number(entry["kelvin"], f"{where}.kelvin", KELVIN_MIN, KELVIN_MAX)
         _bool(entry["mute"], f"{where}.mute")
         _bool(entry["solo"], f"{where}.solo")
         if entry["mask"] is not None:

@@ -10,7 +10,7 @@ the id optional (its default that of LayerGrade):
 * ``mask``  : null, or ``{"kind": "object" | "material" | "asset", "names": [name, ...]}``
   (at least one name, as the Cryptomatte manifest of the kind names it: the session's
   ``cryptomattes``)
-* ``kelvin``: null, or a colour temperature from MIN_KELVIN to MAX_KELVIN, passed to the
+* ``kelvin``: null, or a colour temperature from KELVIN_MIN to KELVIN_MAX, passed to the
   grade as it is (its meaning is the grade's)
 """
 
@@ -18,17 +18,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Collection, Mapping
-from dataclasses import fields
 
+from ..layers.kelvin import KELVIN_MAX, KELVIN_MIN
 from ..layers.nuke import LayerGrade, LayerMask
-from ..lpe.labels import closest_labels
 from ..errors import PxrLayersError
+from ..lpe.labels import closest_labels
 from ..recipe.model import CRYPTOMATTE_KINDS, MAX_PREVIEW_STOPS
 
 MAX_TINT = 1e6
 """Largest tint channel a page may send."""
-MIN_KELVIN, MAX_KELVIN = 1000.0, 40000.0
-"""The colour temperatures a grade's ``kelvin`` may take (candle light to deep blue sky)."""
 MAX_MASK_NAMES = 10_000
 """Most names one mask may list."""
 
@@ -78,19 +76,15 @@ def grade_from_json(entry: dict, what: str, *, known: Mapping[str, Collection[st
         if not isinstance(value, bool):
             raise ViewError(f"{what}: {field} is true or false, not {_shown(value)}")
         flags[field] = value
-    extra = {}
-    if entry.get("kelvin") is not None:
-        extra["kelvin"] = _kelvin(entry["kelvin"], what)
-        if "kelvin" not in {f.name for f in fields(LayerGrade)}:
-            raise ViewError(f"{what}: kelvin: this version of pxr-layers does not grade by colour temperature")
+    kelvin = None if entry.get("kelvin") is None else _kelvin(entry["kelvin"], what)
     mask = mask_from_json(entry.get("mask"), f"{what}: mask", known)
-    return LayerGrade(stops=stops, tint=tint, mask=mask, **flags, **extra)
+    return LayerGrade(stops=stops, tint=tint, kelvin=kelvin, mask=mask, **flags)
 
 
 def _kelvin(value, what: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or not MIN_KELVIN <= value <= MAX_KELVIN:
-        raise ViewError(f"{what}: kelvin is null or a colour temperature from {MIN_KELVIN:g} to {MAX_KELVIN:g} K, "
+            or not KELVIN_MIN <= value <= KELVIN_MAX:
+        raise ViewError(f"{what}: kelvin is null or a colour temperature from {KELVIN_MIN:g} to {KELVIN_MAX:g} K, "
                         f"not {_shown(value)}")
     return float(value)
 

@@ -87,6 +87,8 @@ def make_app(session: Session, token: str, allowed_hosts: frozenset[str] | None)
     app.router.add_post("/api/layer", _layer)
     app.router.add_post("/api/suggest", _suggest)
     app.router.add_post("/api/save", _save)
+    app.router.add_post("/api/push", _push)
+    app.router.add_post("/api/pushable", _pushable)
     app.router.add_put("/api/document", _document)
     return app
 
@@ -287,6 +289,21 @@ async def _save(request: web.Request) -> web.Response:
     return web.json_response(written)
 
 
+async def _push(request: web.Request) -> web.Response:
+    """/api/push writes the grades of whole lights as light overrides; /api/pushable says,
+    without writing, which entries would push and why the others stay compositing grades."""
+    body = await _json_body(request)
+    overwrite = body.get("overwrite", False)
+    if not isinstance(overwrite, bool):
+        raise ViewError(f"overwrite must be true or false, not {overwrite!r}")
+    session = request.app[SESSION_KEY]
+    return web.json_response(await _blocking(request, session.push, body.get("name"), body.get("layers"),
+                                             body.get("exposure", 0.0), overwrite))
+
+
+async def _pushable(request: web.Request) -> web.Response:
+    body = await _json_body(request)
+    return web.json_response(await _blocking(request, request.app[SESSION_KEY].pushable, body.get("layers")))
 async def _document(request: web.Request) -> web.Response:
     body = await _json_body(request)
     return web.json_response(await _blocking(request, request.app[SESSION_KEY].put_document, body))

@@ -35,6 +35,7 @@ from ..layers.deliver import (DENOISED_SUFFIX, GUIDE_SOURCES, at_index_view, bea
 from ..layers.cryptomatte import Cryptomatte, coverage, names_at
 from ..layers.display_lut import DisplayLut, bake_display_lut, lut_bytes, lut_description
 from ..layers.extract import extract
+from ..layers.kelvin import kelvin_table
 from ..layers.multipart import MultipartImage, read_multipart
 from ..layers.nuke import NUKE_RESERVED_LAYERS, LayerGrade, write_nuke_script
 from ..layers.previews import energy_shares, layers_partition
@@ -58,7 +59,7 @@ from ..recipe.model import (
     Recipe,
 )
 from . import document as documents
-from . import inspect
+from . import inspect, push
 from .grades import ViewError, _shown, _stops, grade_from_json
 
 log = logging.getLogger(__name__)
@@ -197,7 +198,8 @@ class Session:
                 "alphabet": {"types": list(zip(SCATTERING_TYPES, SCATTERING_TYPE_NAMES, strict=True)),
                              "scatterings": list(zip(SCATTERINGS, SCATTERING_NAMES, strict=True))},
                 "display": {"config": self.lut.config, "display": self.lut.display, "view": self.lut.view,
-                            "lut": {**lut_description(self.lut), "url": LUT_URL}}}
+                            "lut": {**lut_description(self.lut), "url": LUT_URL}},
+                "kelvin": kelvin_table()}
 
     def lut_pixels(self) -> bytes:
         return lut_bytes(self.lut)
@@ -529,6 +531,103 @@ class Session:
             raise ViewError("the stack to save holds no layers (the beauty is always part 0)")
         return layers, grades
 
+    # -- push (the look back into the shot: view/push.py decides, stage/light_overrides.py writes)
+
+    def pushable(self, stack: list[dict]) -> dict:
+        """/api/pushable: which stack entries /api/push would write as light edits, and why
+        each other one stays a compositing grade; no file is written. ``stage`` is why the
+        shot's lights could not be read (their groups, animation...), else None."""
+        index = self._need_index("push grades to lights")
+        entries = self._push_entries(stack)
+        with self._lock:
+            plan, _, problem = self._push_plan(index, entries, need_stage=False)
+        return {**plan.description(), "stage": problem}
+
+    def push(self, name: str, stack: list[dict], exposure: float = 0.0, overwrite: bool = False) -> dict:
+        """/api/push: the grades of whole lights as NAME.lights.usda (overrides of the UsdLux
+        lights) and NAME.shot.usda (it over the stage), together or not at all; the other
+        grades stay compositing grades, each with its reason."""
+        from ..stage.light_overrides import LightChange, write_push
+
+        index = self._need_index("push grades to lights")
+        if not isinstance(name, str) or len(name) > MAX_NAME_CHARS or not SAVE_NAME.fullmatch(name):
+            raise ViewError(f"push name {_shown(name)}: at most {MAX_NAME_CHARS} letters, digits, _ and -, "
+                            "not starting with a digit or -")
+        exposure = _stops(exposure, "exposure")
+        entries = self._push_entries(stack)
+        with self._lock:
+            plan, lights, _ = self._push_plan(index, entries, need_stage=True)
+            if not plan.pushed:
+                raise ViewError("no layer of the stack is a grade of one whole light: nothing to push "
+                                f"({'; '.join(f'{grade.layer}: {grade.why}' for grade in plan.compositing)})")
+            changes = [LightChange(edit.lights, edit.layer, edit.grade.stops, edit.grade.tint, edit.grade.kelvin,
+                                   edit.grade.mute) for edit in plan.pushed]
+            try:
+                paths, edits = write_push(self.folder, name, index.manifest, changes, lights, overwrite=overwrite,
+                                          description=f"Rendered from {index.path.name}.")
+            except PxrLayersError as error:  # the files exist, the stage changed, a light cannot take it
+                raise ViewError(str(error).splitlines()[0], 409) from None
+        notes = list(plan.notes)
+        if exposure:
+            notes.append(f"the view's exposure ({exposure:+g} stops) is a display setting: not pushed")
+        log.info("pushed %d layers as light edits (%s, %s)", len(plan.pushed), *(p.name for p in paths.values()))
+        return {"pushed": [{**edit.description(), "edits": {path: edits[path] for path in edit.lights}}
+                           for edit in plan.pushed],
+                "compositing": [grade.description() for grade in plan.compositing], "notes": notes,
+                "files": {key: path.name for key, path in paths.items()}}
+
+    def _push_plan(self, index: PathIndex, entries, *, need_stage: bool):
+        """(the plan, the shot's lights or None, why they could not be read or None): entries
+        whose edit cannot be written exactly on the stage (light_overrides.planned_edits)
+        become compositing grades with that reason."""
+        from ..stage.light_overrides import LightChange, planned_edits, read_shot_lights
+
+        try:
+            lights = read_shot_lights(index.manifest)
+        except PxrLayersError as error:
+            if need_stage:
+                raise ViewError(str(error).splitlines()[0], 409) from None
+            lights, problem = None, str(error).splitlines()[0]
+        else:
+            problem = None
+        plan = push.classify(index, entries, {path: light.group for path, light in lights.items()} if lights else None)
+        if lights is None:
+            return plan, None, problem
+        pushed, refused = [], []
+        for edit in plan.pushed:
+            grade = edit.grade
+            change = LightChange(edit.lights, edit.layer, grade.stops, grade.tint, grade.kelvin, grade.mute)
+            try:
+                for path in edit.lights:
+                    if path not in lights:
+                        raise ViewError(f"{edit.light}: the stage has no light {path} now (renamed since the render?)")
+                    planned_edits(change, lights[path])
+            except PxrLayersError as error:
+                refused.append(push.CompositingGrade(edit.layer, str(error).splitlines()[0]))
+            else:
+                pushed.append(edit)
+        return push.PushPlan(tuple(pushed), plan.compositing + tuple(refused), plan.notes), lights, problem
+
+    def _push_entries(self, stack: list[dict]) -> list[push.PushEntry]:
+        """The page's stack entries ({id, name, stops, tint, kelvin, mute, solo, mask}) as
+        push entries (the beauty left out)."""
+
+        if not isinstance(stack, list) or not stack:
+            raise ViewError("the stack to push holds no layers")
+        entries = []
+        for entry in stack:
+            if not isinstance(entry, dict) or not isinstance(entry.get("id"), str):
+                raise ViewError("each stack entry is an object {id, name, stops, tint, kelvin, mute, solo, mask}")
+            layer = self.layer(entry["id"])
+            if layer.kind == "beauty":
+                continue
+            shown = entry.get("name", layer.name)
+            shown = shown if isinstance(shown, str) and 0 < len(shown) <= MAX_NAME_CHARS else layer.name
+            grade = grade_from_json(entry, f"layer {shown!r}")  # a mask's names need not be checked: it is not pushed
+            entries.append(push.PushEntry(shown, layer.expression, grade, entry.get("mask")))
+        if len({entry.name for entry in entries}) != len(entries):
+            raise ViewError("two layers of the stack have one name")
+        return entries
     def _look_document(self, document, stack: list[dict], chosen: list[Layer], exposure: float,
                        name: str) -> dict | None:
         """The document a saved look opens with (view/document.py): the page's `document` with
