@@ -298,7 +298,8 @@ def test_syntax_errors_name_the_position_with_a_caret(query, position, words):
         ("C<RD'redWall>.*L", 16, "expected ' to close the label opened at position 4"),
         # conditions
         ("C D@(|S_C| = 0", 14, "expected 'and', 'or' or ')' to close the condition opened at position 4"),
-        ("C D@(|S_C| = 0 L", 15, "expected 'and', 'or', a quantity, or ')' to close the condition opened at position 4"),
+        ("C D@(|S_C| = 0 L", 15,
+         "expected 'and', 'or', a quantity, or ')' to close the condition opened at position 4"),
         ("C D@((|S_C| = 0 or |S_T| > 1)", 29, "to close the condition opened at position 4"),
         ("C D@((|S_C| = 0 or |S_T| > 1", 28, "to close the '(' at position 5"),
         # empty alternatives

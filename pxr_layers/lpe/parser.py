@@ -297,7 +297,8 @@ class _Parser:
         if token.kind is Kind.END:
             return "the expression ends early: expected an event"
         if token.kind is Kind.BAR:
-            return "expected an event before '|': an alternative cannot be empty ('|' needs an expression on both sides)"
+            return ("expected an event before '|': an alternative cannot be empty ('|' needs an expression on both "
+                    "sides)")
         if token.kind is Kind.MINUS:
             return ("unexpected '-': a set difference takes whole expressions on both sides, at the top level only "
                     "(A - B, A - (B|C); not (A - B), A|-B or -A)")

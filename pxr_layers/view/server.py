@@ -244,7 +244,8 @@ async def _layer(request: web.Request) -> web.Response:
     body = await _json_body(request)
     session = request.app[SESSION_KEY]
     layer, facts = await _blocking(request, session.add_layer, body.get("name"), body.get("expression"))
-    return web.json_response({**layer.description(), **facts, "unknown_labels": session.unknown_labels(layer.expression)})
+    return web.json_response({**layer.description(), **facts,
+                              "unknown_labels": session.unknown_labels(layer.expression)})
 
 
 async def _overlaps(request: web.Request) -> web.Response:
