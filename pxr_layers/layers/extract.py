@@ -16,6 +16,11 @@ is some 90 % of the work of a layer without conditions, so it is what is spread;
 stay in one order (chunk, then record), which makes the images byte-identical whatever the
 thread count. Memory: the output's float64 sums plus a few chunks per thread in flight.
 
+The matching is ``plan_layers`` (what the automata say of every class) and
+``keyed_chunks`` (each decoded record's set of layers, as an int64 key): ``extract`` adds
+the records to their layers' images, ``overlaps`` (layers/overlaps.py) sums the energy
+that several layers, or none, claim, from the same keys.
+
 ``extract_reference`` is the slow, obvious version (every record matched on its own by
 the tree-walking reference matcher) that the fast one is tested against.
 """
