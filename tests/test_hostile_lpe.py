@@ -78,7 +78,8 @@ def test_the_cli_refuses_a_blow_up_in_one_error_and_exit_1(capsys):
     assert time.process_time() - started < COMPILE_SECONDS
     captured = capsys.readouterr()
     assert captured.out == ""
-    assert captured.err.startswith("pxr-layers: error: this repetition makes the expression too large: 100 copies")
+    assert captured.err.startswith("pxr-layers: error: position 11: this repetition makes the expression too large: "
+                                   "100 copies")
     assert captured.err.endswith("  C(R{1,100}){1,100}L\n             ^\n")
 
 

@@ -126,7 +126,7 @@ def test_many_light_groups_build_states_on_demand_only():
 def test_compile_layers_names_the_layer_of_a_syntax_error():
     with pytest.raises(LpeSyntaxError) as caught:
         compile_layers({"good": "C.*", "bad": "C<RD"})
-    assert caught.value.message.startswith("layer 'bad': ") and caught.value.position == 1
+    assert caught.value.message.startswith("layer 'bad': position 4: ") and caught.value.position == 4
     with pytest.raises(LpeError):
         compile_layers({})
 

@@ -65,7 +65,8 @@ def test_a_syntax_error_is_exit_1_with_the_caret_on_stderr(capsys):
     assert lpe_cli.main(["check", "C<RD"]) == 1
     captured = capsys.readouterr()
     assert captured.out == ""
-    assert captured.err == "pxr-layers: error: missing '>' to close the '<'\n  C<RD\n   ^\n"
+    assert captured.err == ("pxr-layers: error: position 4: expected '>' to close the event '<' opened at position 1\n"
+                            "  C<RD\n      ^\n")
 
 
 def test_a_bad_path_is_exit_1_and_nothing_is_printed(capsys):

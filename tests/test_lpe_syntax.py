@@ -217,10 +217,10 @@ def caret_column(error: LpeSyntaxError) -> int:
     "query, position, words",
     [
         ("", 0, "empty expression"),
-        ("C<RD", 1, "missing '>'"),
-        ("C[LO", 1, "missing ']'"),
-        ("C(RD", 1, "missing ')'"),
-        ("CRD)", 3, "without a matching '('"),
+        ("C<RD", 4, "expected '>' to close the event '<' opened at position 1"),
+        ("C[LO", 4, "expected ']' to close the '[' at position 1"),
+        ("C(RD", 4, "expected ')' to close the '(' at position 1"),
+        ("CRD)", 3, "unexpected ')': no '(' is open"),
         ("C|", 2, "ends early"),
         ("|C", 0, "both sides"),
         ("C*+", 2, "two repetitions"),
@@ -235,7 +235,7 @@ def caret_column(error: LpeSyntaxError) -> int:
         ("C{2,1}", 1, "maximum below its minimum"),
         ("C{x}", 1, "bad repetition"),
         ("C{1000}", 1, "above 100"),
-        ("C'key", 1, "not closed"),
+        ("C'key", 5, "expected ' to close the label opened at position 1"),
         ("C''", 1, "empty label"),
         ("Cd", 1, "unknown letter 'd'"),
         ('C"key"', 1, "single quotes"),
@@ -270,10 +270,66 @@ def test_syntax_errors_name_the_position_with_a_caret(query, position, words):
     assert isinstance(error, LpeError) and isinstance(error, PxrLayersError)
 
 
+@pytest.mark.parametrize(
+    "query, position, words",
+    [
+        # unclosed '<': the caret where the '>' goes, the message names where the '<' opened
+        ("C<RD'redWall'.*L", 13, "expected '>' to close the event '<' opened at position 1"),
+        ("C<RD.*<L'key'", 4, "expected '>' to close the event '<' opened at position 1"),
+        ("C<RD<L>", 4, "expected '>' to close the event '<' opened at position 1: no <...> inside"),
+        ("C<RD|L>", 4, "expected '>' to close the event '<' opened at position 1: no '|'"),
+        ("C<RD(L)>", 4, "expected '>' to close the event '<' opened at position 1: no (...)"),
+        ("C<R+>", 3, "expected '>' to close the event '<' opened at position 1: repetitions"),
+        ("C<R-D>", 3, "expected '>' to close the event '<' opened at position 1: no '-'"),
+        ("C<R.'a'", 7, "expected '>' to close the event '<' opened at position 1"),
+        # unclosed '[' (an alternative set, a list of letters, a list in a slot)
+        ("C[<RD>L", 7, "expected ']' to close the '[' at position 1"),
+        ("C[^RT", 5, "expected ']' to close the '[' at position 1"),
+        ("C<[RT", 5, "expected ']' to close the '[' at position 2"),
+        ("C[^R.]L", 4, "expected an event letter, a quoted label or ']' to close the '[' at position 1"),
+        ("C[R|T]", 3, "expected an item or ']' to close the '[' at position 1"),
+        ("C[^]", 1, "expected a letter or a label inside the '[' at position 1"),
+        # unclosed '(' and '{'
+        ("C((RD)L", 7, "expected ')' to close the '(' at position 1"),
+        ("C(R>L)", 3, "expected ')' to close the '(' at position 1: unexpected '>'"),
+        ("C()L", 2, "expected an expression inside the '(' at position 1"),
+        ("C{2", 1, "expected {n}, {n,} or {n,m}"),
+        # quotes
+        ("C<RD'redWall>.*L", 16, "expected ' to close the label opened at position 4"),
+        # conditions
+        ("C D@(|S_C| = 0", 14, "expected 'and', 'or' or ')' to close the condition opened at position 4"),
+        ("C D@(|S_C| = 0 L", 15,
+         "expected 'and', 'or', a quantity, or ')' to close the condition opened at position 4"),
+        ("C D@((|S_C| = 0 or |S_T| > 1)", 29, "to close the condition opened at position 4"),
+        ("C D@((|S_C| = 0 or |S_T| > 1", 28, "to close the '(' at position 5"),
+        # empty alternatives
+        ("C||L", 2, "expected an event before '|': an alternative cannot be empty"),
+        ("C(R|)L", 4, "expected an event before ')': an alternative cannot be empty"),
+        ("C.(|R)L", 3, "expected an event before '|'"),
+        # stray closers
+        ("C>L", 1, "unexpected '>' without a matching '<'"),
+        ("C]L", 1, "unexpected ']' without a matching '['"),
+        # set difference in the wrong place
+        ("C.*-", 4, "expected an expression after '-'"),
+        ("-C.*", 0, "unexpected '-'"),
+        ("(C.*-CL)", 4, "expected ')' to close the '(' at position 0: unexpected '-'"),
+        ("C.*|-CL", 4, "unexpected '-'"),
+    ],
+)
+def test_every_syntax_error_says_what_was_expected_where(query, position, words):
+    with pytest.raises(LpeSyntaxError) as caught:
+        parse(query)
+    error = caught.value
+    assert error.message.startswith(f"position {position}: "), error.message
+    assert words in error.message, error.message
+    assert error.position == position and caret_column(error) == position
+
+
 def test_error_text_shows_message_query_and_caret():
     with pytest.raises(LpeSyntaxError) as caught:
         parse("C<RD>.*<L.'key'")
-    assert str(caught.value) == "missing '>' to close the '<'\n  C<RD>.*<L.'key'\n         ^"
+    assert str(caught.value) == ("position 15: expected '>' to close the event '<' opened at position 7\n"
+                                 "  C<RD>.*<L.'key'\n                 ^")
 
 
 def test_hints_flag_path_notation_events_written_in_an_expression():

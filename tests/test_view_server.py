@@ -241,7 +241,62 @@ def test_a_bad_expression_says_where(server):
     assert status == 400 and answer == {"error": expected.value.message, "position": expected.value.position}
     checked = server.json("/api/check", {"expression": "C<RD.*"})
     assert checked == {"ok": False, "error": expected.value.message, "position": expected.value.position}
-    assert server.json("/api/check", {"expression": "C<RD>.*"}) == {"ok": True}
+    assert server.json("/api/check", {"expression": "C<RD>.*"}) == {"ok": True, "unknown_labels": []}
+
+
+def test_labels_that_name_nothing_come_with_their_position_and_the_nearest_names(server):
+    expression = "C<RD'flor'>.*<L.'ceilingLite'>"
+    checked = server.json("/api/check", {"expression": expression})
+    assert checked["ok"] is True
+    unknown = {entry["label"]: entry for entry in checked["unknown_labels"]}
+    assert unknown["flor"]["position"] == expression.index("'flor'") and unknown["flor"]["nearest"][0] == "floor"
+    assert unknown["ceilingLite"]["position"] == expression.index("'ceilingLite'")
+    assert unknown["ceilingLite"]["nearest"][0] == "ceilingLight"
+    assert "names no" in unknown["flor"]["message"]
+    made = server.json("/api/layer", {"name": "typo", "expression": expression})
+    assert made["unknown_labels"] == checked["unknown_labels"] and len(made["warnings"]) == 2
+
+
+def test_overlaps_of_the_stack(server, folder):
+    server.json("/api/layer", {"name": "all_diffuse", "expression": "C<RD>.*"})
+    stack = [{"id": "beauty"}, {"id": "all_diffuse"}, {"id": "diffuse_direct"},
+             {"id": "mine", "expression": "C.*'redWall'.*"}, {"id": "product_only", "expression": None}]
+    found = server.json("/api/overlaps", {"layers": stack})
+    pairs = {(pair["a"], pair["b"]): pair["share"] for pair in found["pairs"]}
+    assert set(found) >= {"pairs", "double_counted", "remainder", "seconds", "unknown"}
+    assert found["unknown"] == ["product_only"] and ("all_diffuse", "diffuse_direct") in pairs
+    index = PathIndex(folder / "cornell.pxlidx")
+    from pxr_layers.layers.multipart import read_multipart
+    from pxr_layers.layers.overlaps import overlaps
+
+    expected = overlaps(index, {"all_diffuse": "C<RD>.*", "diffuse_direct": "C<RD>[LOB]", "mine": "C.*'redWall'.*"},
+                        read_multipart(folder / "light_passes.exr").beauty)
+    assert pairs == pytest.approx(expected.pairs) and found["double_counted"] == pytest.approx(expected.double_counted)
+    assert found["remainder"] == pytest.approx(expected.remainder) and found["remainder"] > 0
+    status, body, _ = server.request("/api/overlaps", {"layers": [{"id": "x", "expression": "C<RD"}]})
+    assert status == 400 and json.loads(body)["position"] == 4
+    assert server.request("/api/overlaps", {"layers": "all"})[0] == 400
+
+
+def test_a_remainder_layer_is_saved_and_extracted_again(server, folder, tmp_path):
+    stack = ["C<RD>.*", "C.*'redWall'.*"]
+    server.json("/api/layer", {"name": "diffuse_all", "expression": stack[0]})
+    server.json("/api/layer", {"name": "red_only", "expression": lpe.exclusive(stack[1], stack[:1])})
+    server.json("/api/layer", {"name": "the_rest", "expression": lpe.remainder(stack)})
+    layers = [{"id": name} for name in ("diffuse_all", "red_only", "the_rest")]
+    found = server.json("/api/overlaps", {"layers": layers})
+    assert found["pairs"] == [] and found["double_counted"] == 0 and found["remainder"] == 0
+    server.json("/api/save", {"name": "exclusive_look", "layers": layers})
+    saved = parts(folder / "exclusive_look.exr")
+    out = tmp_path / "again"
+    subprocess.run([*CLI, "extract", str(folder / "cornell.pxlidx"), "--recipe", str(folder / "exclusive_look.usda"),
+                    "-o", str(out), "--no-previews", "-q"], check=True)
+    again = parts(out / "exclusive_look.exr")
+    for name in ("diffuse_all", "red_only", "the_rest"):
+        np.testing.assert_array_equal(again[name], saved[name])
+    total = sum(saved[name][..., :3].astype(np.float64) for name in ("diffuse_all", "red_only", "the_rest"))
+    beauty = saved["rgba"][..., :3].astype(np.float64)
+    assert np.abs(total - beauty).max() <= 1e-5 * beauty.max()
 
 
 def test_generalise_keeps_what_is_asked(server, folder):
@@ -311,6 +366,8 @@ def test_suggested_layers_partition_the_beauty(server, folder):
     ("/api/generalise", {"classes": [True]}), ("/api/layer", {"name": "x", "expression": None}),
     ("/api/save", {"name": "look2", "layers": [{"id": "beauty"}], "exposure": "bright"}),
     ("/api/save", {"name": "look2", "layers": "all"}), ("/api/suggest", {"k": "six"}),
+    ("/api/overlaps", {}), ("/api/overlaps", {"layers": [{"id": 3}]}),
+    ("/api/overlaps", {"layers": [{"id": "x", "expression": 7}]}),
 ])
 def test_wrong_types_get_one_line_not_an_internal_error(server, path, body):
     status, answer, _ = server.request(path, body)

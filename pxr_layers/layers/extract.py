@@ -16,6 +16,11 @@ is some 90 % of the work of a layer without conditions, so it is what is spread;
 stay in one order (chunk, then record), which makes the images byte-identical whatever the
 thread count. Memory: the output's float64 sums plus a few chunks per thread in flight.
 
+The matching is ``plan_layers`` (what the automata say of every class) and
+``keyed_chunks`` (each decoded record's set of layers, as an int64 key): ``extract`` adds
+the records to their layers' images, ``overlaps`` (layers/overlaps.py) sums the energy
+that several layers, or none, claim, from the same keys.
+
 ``extract_reference`` is the slow, obvious version (every record matched on its own by
 the tree-walking reference matcher) that the fast one is tested against.
 """
@@ -91,6 +96,62 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     could be trusted to sum to anything.
     """
     threads = threads or default_threads()
+    plan = plan_layers(index, expressions)
+    width, height = index.manifest["resolution"]
+    accumulator = LayerSums(plan.plain_sets, plan.keyed, width * height)
+    progress = Progress(plan.records_read, "extract", enabled=show_progress)
+    for chunk, key, unkeyed in keyed_chunks(index, plan, threads):
+        for row, matching in unkeyed:
+            accumulator.add_to_layer(row, chunk.pixel[matching], chunk.rgb[matching])
+        accumulator.add(key, chunk.pixel, chunk.rgb)
+        progress.advance(len(chunk.class_id))
+    images = dict(zip(plan.names, accumulator.images(height, width, index.manifest["spp"])))
+    log.info("extracted %d layers from %d of %d records (%d of %d classes)", len(plan.names), plan.records_read,
+             index.record_count, len(plan.wanted), index.class_count)
+    return Extraction(images, plan.records_read, len(plan.wanted), tuple(plan.warnings))
+
+
+@dataclass(frozen=True, eq=False)
+class LayerPlan:
+    """What the automata say of every class of an index, for the layers ``names``: the plan
+    ``keyed_chunks`` follows to give each record the set of layers it feeds.
+
+    always : (layers, classes) bool, the class feeds the layer whatever the covariance
+    group_of : (layers, classes) int64, the conditional group of (layer, class), −1 for none
+    groups : the groups' outcomes (their ``mask`` says which records of the group match)
+    conditional_rows : the layers with a conditional class; the first ``len(keyed)`` are
+        bits of the record's key, the others are given apart (``keyed_chunks``)
+    plain_sets : (S, layers) bool, the distinct columns of ``always``; class_set : (classes,)
+        int64, each class's set id shifted past the keyed bits
+    wanted : ids of the classes some layer can match (only those are decoded);
+    records_read : their records; warnings : unknown_labels's
+    """
+
+    names: list[str]
+    always: np.ndarray
+    group_of: np.ndarray
+    groups: list
+    conditional_rows: list[int]
+    keyed: list[int]
+    plain_sets: np.ndarray
+    class_set: np.ndarray
+    wanted: np.ndarray
+    records_read: int
+    warnings: list[str]
+
+    def members(self, key: np.ndarray) -> np.ndarray:
+        """(k, layers) bool: the layers records of each key (k,) int64 feed (without the
+        unkeyed conditional layers, which ``keyed_chunks`` gives apart)."""
+        rows = self.plain_sets[key >> len(self.keyed)].copy()
+        for bit, row in enumerate(self.keyed):
+            rows[:, row] |= (key >> bit & 1).astype(bool)
+        return rows
+
+
+def plan_layers(index: PathIndex, expressions: dict[str, str]) -> LayerPlan:
+    """Match every class of ``index`` against the layers ``expressions`` (name → extended
+    LPE) once: the plan of ``extract`` (and ``overlaps``). Refuses an index holding NaN or
+    infinite light, and warns of labels that name nothing (``warn_unknown_labels``)."""
     broken = np.flatnonzero(~index.finite_class)
     if len(broken):
         raise PathIndexError(f"{len(broken)} path classes carry NaN or infinite light (the first: "
@@ -133,20 +194,32 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
     wanted = np.flatnonzero(always.any(axis=0) | (group_of >= 0).any(axis=0))
     # A record's layers: its class's "always" layers (one of a few distinct sets) plus, per
     # conditional layer, one bit from its covariance. Both go into one int64 key per record;
-    # conditional layers past the key's 63 bits are accumulated on their own.
+    # conditional layers past the key's 63 bits are given apart.
     plain_sets, class_set = _distinct_rows(always.T)
     keyed = conditional_rows[:63 - max(1, len(plain_sets)).bit_length()]
     class_set = class_set << len(keyed)
-    width, height = index.manifest["resolution"]
-    accumulator = LayerSums(plain_sets, keyed, width * height)
     records_read = int(index.class_records()[wanted].sum())
+    return LayerPlan(names, always, group_of, groups, conditional_rows, keyed, plain_sets, class_set, wanted,
+                     records_read, warnings)
+
+
+def keyed_chunks(index: PathIndex, plan: LayerPlan, threads: int, *, every_class: bool = False):
+    """Each chunk of the classes ``plan`` wants (every class: all of them), in file order,
+    with its records' layers: yields (chunk, key, unkeyed), key (r,) int64 as
+    ``LayerSums`` reads it (``plan.members(key)``: the layers), unkeyed [(layer row,
+    (m,) ids of the chunk's records that also feed it)] for conditional layers past the key.
+
+    threads: how many threads read and decode the chunks (``PathIndex.records``); the
+    chunks and keys are the same whatever it is.
+    """
     # Only the runs of wanted classes are decoded (PathIndex.records): a chunk's other
     # records cost their share of its decompression only.
-    selected = None if len(wanted) == class_count else wanted.tolist()
-    progress = Progress(records_read, "extract", enabled=show_progress)
+    selected = None if every_class or len(plan.wanted) == index.class_count else plan.wanted.tolist()
+    groups, group_of = plan.groups, plan.group_of
     for chunk in index.records(selected, norms=bool(groups), threads=threads):
-        key = class_set[chunk.class_id]
-        for bit, row in enumerate(conditional_rows):
+        key = plan.class_set[chunk.class_id]
+        unkeyed = []
+        for bit, row in enumerate(plan.conditional_rows):
             # The chunk's records of each group of the layer, from one sort by group.
             chunk_groups = group_of[row, chunk.class_id]
             records = np.flatnonzero(chunk_groups >= 0)
@@ -159,16 +232,11 @@ def extract(index: PathIndex, expressions: dict[str, str], *, show_progress: boo
                 records[start:stop][groups[sorted_groups[start]].mask(
                     norms[start:stop], None if sigma is None else sigma[start:stop])]
                 for start, stop in zip(starts.tolist(), [*starts[1:].tolist(), len(records)])])
-            if bit < len(keyed):
+            if bit < len(plan.keyed):
                 key[matching] |= 1 << bit
             else:
-                accumulator.add_to_layer(row, chunk.pixel[matching], chunk.rgb[matching])
-        accumulator.add(key, chunk.pixel, chunk.rgb)
-        progress.advance(len(chunk.class_id))
-    images = dict(zip(names, accumulator.images(height, width, index.manifest["spp"])))
-    log.info("extracted %d layers from %d of %d records (%d of %d classes)", len(names), records_read,
-             index.record_count, len(wanted), class_count)
-    return Extraction(images, records_read, len(wanted), tuple(warnings))
+                unkeyed.append((row, matching))
+        yield chunk, key, unkeyed
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,8 @@ Entry points::
 Modules: ``lexer`` and ``parser`` (text → tree), ``nodes`` (tree, canonical form),
 ``conditions`` (covariance conditions), ``automaton`` (NFA, DFA, minimisation, matching),
 ``outcomes`` (never / always / conditional masks), ``paths`` (textual path notation),
-``reference`` (slow matcher on the tree), ``passes`` (standard light passes), ``hints``
+``reference`` (slow matcher on the tree), ``passes`` (standard light passes), ``sets``
+(exclusive and remainder layers, with the set difference ``A - B``), ``hints``
 (notes on likely slips), ``testing`` (random trees and paths for property tests).
 The language is documented in docs/lpe.md.
 """
@@ -30,6 +31,7 @@ from .parser import parse
 from .passes import BEAUTY, STANDARD_PASSES, per_light_passes
 from .paths import PathText, format_path, parse_path
 from .reference import reference_match
+from .sets import exclusive, remainder
 
 __all__ = [
     "ALWAYS",
@@ -48,10 +50,12 @@ __all__ = [
     "closest_labels",
     "compile",
     "compile_layers",
+    "exclusive",
     "format_path",
     "hints",
     "parse",
     "parse_path",
     "per_light_passes",
     "reference_match",
+    "remainder",
 ]

@@ -68,6 +68,13 @@ rows); past this the class's records run through the DFA one event at a time ins
 # --- NFA -------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class Subtracted:
+    """The NFA state ending the subtracted part of layer ``layer``'s set difference."""
+
+    layer: str
+
+
 @dataclass
 class Nfa:
     """Thompson NFA over events.
@@ -75,19 +82,26 @@ class Nfa:
     guards : distinct event patterns labelling the edges
     edges : per state, (guard index, target state) pairs
     epsilon : per state, targets reached without reading an event
-    accepting : per state, the layer it ends, or None
+    accepting : per state, the layer it ends (a name; ``Subtracted(name)`` for the end of
+        what a set difference ``A - B`` takes away from layer ``name``), or None
     """
 
     guards: list[nodes.EventPattern]
     edges: list[list[tuple[int, int]]]
     epsilon: list[list[int]]
-    accepting: list[str | None]
+    accepting: list[str | Subtracted | None]
     start: int
     _closures: dict[int, frozenset[int]] = field(default_factory=dict, repr=False)
 
     @property
     def state_count(self) -> int:
         return len(self.edges)
+
+    def layers_ended(self, nfa_set) -> frozenset[str]:
+        """The layers a DFA state made of these NFA states accepts: those whose expression
+        ends here, less those of a set difference whose subtracted part ends here too."""
+        ended = {self.accepting[state] for state in nfa_set if self.accepting[state] is not None}
+        return frozenset(layer for layer in ended if isinstance(layer, str) and Subtracted(layer) not in ended)
 
     def closure(self, states) -> frozenset[int]:
         """The states reachable through epsilon edges (including the given ones) that read an
@@ -130,6 +144,8 @@ def nfa_state_count(node: nodes.Node, known: dict | None = None) -> int:
         return found[1]
     if isinstance(node, nodes.EventPattern):
         count = 2
+    elif isinstance(node, nodes.Difference):
+        count = nfa_state_count(node.positive, known) + nfa_state_count(node.negative, known)
     elif isinstance(node, nodes.Concat):
         count = 1 + sum(nfa_state_count(item, known) for item in node.items)
     elif isinstance(node, nodes.Union):
@@ -209,9 +225,14 @@ def build_nfa(layers: dict[str, nodes.Node]) -> Nfa:
     builder = _NfaBuilder()
     start = builder.state()
     for name, tree in layers.items():
-        entry, exit_ = builder.fragment(tree)
-        builder.epsilon[start].append(entry)
-        builder.accepting[exit_] = name
+        # A set difference A - B runs both parts side by side from the start; a DFA state
+        # then knows whether each ended (Nfa.layers_ended), for each record's own covariance.
+        parts = [(tree.positive, name), (tree.negative, Subtracted(name))] if isinstance(tree, nodes.Difference) \
+            else [(tree, name)]
+        for part, ends in parts:
+            entry, exit_ = builder.fragment(part)
+            builder.epsilon[start].append(entry)
+            builder.accepting[exit_] = ends
     guards = sorted(builder.guard_index, key=builder.guard_index.get)
     return Nfa(guards, builder.edges, builder.epsilon, builder.accepting, start)
 
@@ -399,12 +420,12 @@ class Dfa:
         self._ids[nfa_set] = len(self._nfa_sets)
         self._nfa_sets.append(nfa_set)
         self.transitions.append({})
-        self.accepts.append(frozenset(self.nfa.accepting[s] for s in nfa_set if self.nfa.accepting[s] is not None))
+        self.accepts.append(self.nfa.layers_ended(nfa_set))
         self.relevant.append(sum({1 << guard for s in nfa_set for guard, _ in self.nfa.edges[s]}))
         return len(self._nfa_sets) - 1
 
     def _too_many_states(self) -> str:
-        layers = list(dict.fromkeys(layer for layer in self.nfa.accepting if layer is not None))
+        layers = list(dict.fromkeys(layer for layer in self.nfa.accepting if isinstance(layer, str)))
         which = f"layer {layers[0]!r}" if len(layers) == 1 else f"these {len(layers)} layers"
         return (
             f"the automaton of {which} needs more than {MAX_DFA_STATES} states (MAX_DFA_STATES, see "

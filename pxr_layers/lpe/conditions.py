@@ -287,16 +287,16 @@ class ConditionParser:
         self.query = query
         self.prefix_position = prefix_position
         self.prefix = query[prefix_position]
-        self.cursor = opening
+        self.cursor = self.opening = opening
         self._peeked: _Token | None = None
         self.depth = 0  # parentheses open inside the condition's own
         self.tokens_left = max_tokens  # of the expression's MAX_TOKENS
 
     def parse(self) -> tuple[Condition, int]:
         """Returns the condition and the position just after its closing parenthesis."""
-        self._expect("(", "a condition starts with '('")
+        opening = self._expect("(", "a condition starts with '('")
         condition = self._disjunction()
-        self._expect(")", "expected 'and', 'or' or ')' to close the condition")
+        self._expect(")", f"expected 'and', 'or' or ')' to close the condition opened at position {opening.position}")
         self._check_prefix(condition)
         return condition, self.cursor
 
@@ -324,7 +324,7 @@ class ConditionParser:
                 raise self._error(f"parentheses nest more than {MAX_NESTING} deep here", opening.position)
             self.depth += 1
             inner = self._disjunction()
-            self._expect(")", "expected 'and', 'or' or ')'")
+            self._expect(")", f"expected 'and', 'or' or ')' to close the '(' at position {opening.position}")
             self.depth -= 1
             return inner
         left_token = self._peek()
@@ -422,7 +422,8 @@ class ConditionParser:
         position, self.cursor = self.cursor, match.end()
         kind = match.lastgroup
         if kind == "word" and match.group() not in ("and", "or"):
-            raise self._error(f"unknown word {match.group()!r} in a condition (expected 'and' or 'or')", position)
+            raise self._error(f"unknown word {match.group()!r} in a condition: expected 'and', 'or', a quantity, or "
+                              f"')' to close the condition opened at position {self.opening}", position)
         return _Token(kind, match.group(), position)
 
     def _error(self, message: str, position: int) -> LpeSyntaxError:

@@ -122,7 +122,26 @@ def unknown_labels(trees: Mapping[str, nodes.Node], known: KnownNames, where: st
     A negated label (``[^'flor']``) that names nothing is warned of too: it excludes nothing.
     The ``.`` label slot (any label) names everything.
     """
-    slots: dict[tuple[str, tuple[str, ...]], list[str]] = {}  # (label, kinds) → layers using it
+    slots = _label_slots(trees)
+    return [warning.message for warning in _unknown(slots, known, where, log_them=True)]
+
+
+@dataclass(frozen=True)
+class UnknownLabel:
+    """A quoted label that names nothing: ``label`` (as written), ``layers`` using it, the
+    ``kinds`` its slots carry, the ``nearest`` names of those kinds (the closest, or all of
+    them when there are few: LISTED_WHEN_FEW), and the warning's ``message``."""
+
+    label: str
+    layers: tuple[str, ...]
+    kinds: tuple[str, ...]
+    nearest: tuple[str, ...]
+    message: str
+
+
+def _label_slots(trees: Mapping[str, nodes.Node]) -> dict[tuple[str, tuple[str, ...]], list[str]]:
+    """(label, kinds its slot carries) → the layers using it, for every quoted label."""
+    slots: dict[tuple[str, tuple[str, ...]], list[str]] = {}
     for layer, tree in trees.items():
         for event in nodes.event_patterns(tree):
             types = EVENT_TYPES if event.types is None else [kind for kind in EVENT_TYPES if kind in event.types]
@@ -134,7 +153,29 @@ def unknown_labels(trees: Mapping[str, nodes.Node], known: KnownNames, where: st
                         slots.setdefault((pattern, kinds), [])
                         if layer not in slots[pattern, kinds]:
                             slots[pattern, kinds].append(layer)
-    warnings = []
+    return slots
+
+
+def unknown_label_report(query: str, known: KnownNames, where: str = "") -> list[dict]:
+    """The labels of one expression that name nothing, for a page to show while the query is
+    typed: ``[{"label", "position", "nearest", "message"}]``, position the offset of the
+    label's opening quote in ``query`` (its first use), nearest as in UnknownLabel. Not
+    logged (``unknown_labels`` logs when the layer is made). Raises LpeSyntaxError."""
+    from .lexer import Kind, tokenize
+    from .parser import parse
+
+    slots = _label_slots({"expression": parse(query)})
+    first_use: dict[str, int] = {}
+    for token in tokenize(query):
+        if token.kind is Kind.LABEL:
+            first_use.setdefault(token.value, token.position)
+    return [{"label": warning.label, "position": first_use.get(warning.label), "nearest": list(warning.nearest),
+             "message": warning.message.split(": ", 1)[1]}
+            for warning in _unknown(slots, known, where, log_them=False)]
+
+
+def _unknown(slots: dict, known: KnownNames, where: str, *, log_them: bool) -> list[UnknownLabel]:
+    found = []
     for (pattern, kinds), layers in slots.items():
         candidates = known.of_kinds(kinds)
         if any(label_matches(pattern, name) for name in candidates):
@@ -148,15 +189,17 @@ def unknown_labels(trees: Mapping[str, nodes.Node], known: KnownNames, where: st
         elif pattern in LOBE_NAMES:
             message += " (no path took that lobe)"
         close = closest_labels(pattern, candidates)
+        nearest = close or (candidates if 0 < len(candidates) <= LISTED_WHEN_FEW else [])
         if close:
             message += f"; closest: {', '.join(map(repr, close))}"
         elif 0 < len(candidates) <= LISTED_WHEN_FEW:
             message += f"; the {_PLURAL[kinds[0]] if len(kinds) == 1 else 'names'} are {', '.join(map(repr, candidates))}"
         elif candidates:
             message += "; no known name is close"
-        log.warning(message)
-        warnings.append(message)
-    return warnings
+        if log_them:
+            log.warning(message)
+        found.append(UnknownLabel(pattern, tuple(layers), kinds, tuple(nearest), message))
+    return found
 
 
 def _either(words: list[str], joint: str = "or") -> str:

@@ -30,6 +30,7 @@ class Kind(Enum):
     OPEN_PAREN = auto()
     CLOSE_PAREN = auto()
     BAR = auto()  # |
+    MINUS = auto()  # - set difference, top level only (our extension)
     STAR = auto()
     PLUS = auto()
     QUESTION = auto()
@@ -56,6 +57,7 @@ _PUNCTUATION = {
     "(": Kind.OPEN_PAREN,
     ")": Kind.CLOSE_PAREN,
     "|": Kind.BAR,
+    "-": Kind.MINUS,
     "*": Kind.STAR,
     "+": Kind.PLUS,
     "?": Kind.QUESTION,
@@ -120,7 +122,8 @@ def tokenize(query: str) -> list[Token]:
 def _read_label(query: str, opening: int) -> tuple[str, int]:
     closing = query.find("'", opening + 1)
     if closing < 0:
-        raise LpeSyntaxError("label not closed: missing ' (labels cannot contain quotes)", query, opening)
+        raise LpeSyntaxError(f"expected ' to close the label opened at position {opening} (labels cannot contain "
+                             "quotes)", query, len(query))
     label = query[opening + 1 : closing]
     if not label:
         raise LpeSyntaxError("empty label ''", query, opening)

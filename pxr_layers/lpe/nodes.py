@@ -106,7 +106,21 @@ class Repeat:
     maximum: int | None
 
 
-Node = EventPattern | Concat | Union | Repeat
+@dataclass(frozen=True)
+class Difference:
+    """``positive - negative``: the paths ``positive`` matches and ``negative`` does not.
+
+    Our extension (OSL has no set difference); only at the top of a layer's expression, so
+    ``negative`` and ``positive`` hold no Difference. Conditions on either side are read
+    with each record's own covariance: a record belongs when it matches ``positive`` and
+    not ``negative`` (see docs/lpe.md, "Set difference").
+    """
+
+    positive: object
+    negative: object
+
+
+Node = EventPattern | Concat | Union | Repeat | Difference
 
 
 def concat(items) -> Node:
@@ -126,6 +140,10 @@ def repeat(body: Node, minimum: int, maximum: int | None) -> Node:
 def walk(node: Node):
     """Every node of the tree, parents before children."""
     yield node
+    if isinstance(node, Difference):
+        yield from walk(node.positive)
+        yield from walk(node.negative)
+        return
     children = {Concat: "items", Union: "alternatives"}.get(type(node))
     if children:
         for child in getattr(node, children):
@@ -153,6 +171,10 @@ def has_conditions(node: Node) -> bool:
 
 def canonical(node: Node) -> str:
     """The canonical text of a tree; parsing it gives the same tree back."""
+    if isinstance(node, Difference):
+        negative = node.negative
+        subtracted = event_text(negative) if isinstance(negative, EventPattern) else f"({_alternation_text(negative)})"
+        return f"{canonical(node.positive)}-{subtracted}"
     text = _alternation_text(node)
     return f"({text})" if text.startswith("(") else text
 

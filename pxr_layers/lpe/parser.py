@@ -3,7 +3,8 @@
 Grammar (standard regular-expression precedence: repetition, then concatenation, then
 alternation; see docs/lpe.md for the EBNF and every difference from OSL)::
 
-    expression  = alternation END
+    query       = alternation { "-" alternation } END    (set difference: our extension)
+    expression  = alternation
     alternation = sequence { "|" sequence }
     sequence    = postfix { postfix }
     postfix     = atom { condition } [ repetition ]
@@ -30,8 +31,12 @@ _SLOT_NAMES = ("event type", "scattering")
 
 
 def parse(query: str) -> nodes.Node:
-    """Parse a Light Path Expression. Raises LpeSyntaxError naming the position."""
-    return _Parser(query).parse()
+    """Parse a Light Path Expression. Raises LpeSyntaxError whose message starts with the
+    position of the fault ("position 13: expected '>' ...") and says what was expected."""
+    try:
+        return _Parser(query).parse()
+    except LpeSyntaxError as error:
+        raise LpeSyntaxError(f"position {error.position}: {error.message}", error.query, error.position) from None
 
 
 class _Parser:
@@ -58,9 +63,21 @@ class _Parser:
     def parse(self) -> nodes.Node:
         if self.token.kind is Kind.END:
             raise self.error("empty expression")
+        first = self.token.position
         tree = self.alternation()
+        negatives, positions = [], []
+        while self.token.kind is Kind.MINUS:
+            self.advance()
+            if self.token.kind not in _ATOM_STARTS:
+                raise self.error("expected an expression after '-' (set difference: A - B)")
+            positions.append(self.token.position)
+            negatives.append(self.alternation())
+        if negatives:
+            # A - B - C is A - (B|C): one regular expression for everything subtracted.
+            tree = self.checked_size(nodes.Difference(tree, nodes.union(negatives)), [tree, *negatives],
+                                     [first, *positions], "part")
         if self.token.kind is Kind.CLOSE_PAREN:
-            raise self.error("')' without a matching '('")
+            raise self.error("unexpected ')': no '(' is open")
         if self.token.kind is not Kind.END:
             raise self.error(self._unexpected_here())
         return tree
@@ -148,12 +165,14 @@ class _Parser:
         if token.kind is Kind.OPEN_PAREN:
             self.advance()
             if self.token.kind is Kind.CLOSE_PAREN:
-                raise self.error("empty parentheses")
+                raise self.error(f"expected an expression inside the '(' at position {token.position}: "
+                                 "empty parentheses")
             inner = self.alternation()
             if self.token.kind is Kind.END:
-                raise self.error("missing ')' to close this '('", token.position)
+                raise self.error(f"expected ')' to close the '(' at position {token.position}")
             if self.token.kind is not Kind.CLOSE_PAREN:
-                raise self.error(f"expected ')': {self._unexpected_here()}")
+                raise self.error(f"expected ')' to close the '(' at position {token.position}: "
+                                 f"{self._unexpected_here()}")
             self.advance()
             return inner
         return self.alternative_set()
@@ -164,14 +183,16 @@ class _Parser:
         items, positions = [], []
         while self.token.kind is not Kind.CLOSE_SET:
             if self.token.kind is Kind.END:
-                raise self.error("missing ']' to close the '['", opening.position)
+                raise self.error(f"expected ']' to close the '[' at position {opening.position}")
             if self.token.kind not in _ATOM_STARTS:
-                raise self.error(self._unexpected_here())
+                raise self.error(f"expected an item or ']' to close the '[' at position {opening.position}: "
+                                 f"{self._unexpected_here()}")
             positions.append(self.token.position)
             items.append(self.postfix())
         self.advance()
         if not items:
-            raise self.error("empty set []", opening.position)
+            raise self.error(f"expected an item inside the '[' at position {opening.position}: empty set []",
+                             opening.position)
         return _fold_letter_set(items) or self.checked_size(nodes.union(items), items, positions, "item")
 
     def event(self) -> EventPattern:
@@ -209,10 +230,15 @@ class _Parser:
         while self.token.kind is not Kind.CLOSE_GROUP:
             token = self.token
             if token.kind is Kind.END:
-                raise self.error("missing '>' to close the '<'", opening.position)
+                raise self.error(f"expected '>' to close the event '<' opened at position {opening.position}")
             problem = _GROUP_PROBLEMS.get(token.kind)
             if problem:
-                raise self.error(problem)
+                position = token.position
+                if token.kind in _REPETITIONS and self.tokens[self.index - 1].kind is Kind.DOT:
+                    # <RD'wall'.*L: the '>' was meant before the '.*'
+                    position = self.tokens[self.index - 1].position
+                raise self.error(f"expected '>' to close the event '<' opened at position {opening.position}: "
+                                 f"{problem}", position)
             if token.kind is Kind.DOT:
                 self.advance()
                 if slot >= 2:
@@ -249,9 +275,10 @@ class _Parser:
         while self.token.kind is not Kind.CLOSE_SET:
             token = self.token
             if token.kind is Kind.END:
-                raise self.error("missing ']' to close the '['", opening.position)
+                raise self.error(f"expected ']' to close the '[' at position {opening.position}")
             if token.kind not in (Kind.TYPE, Kind.SCATTER, Kind.LABEL):
-                raise self.error("only event letters or quoted labels can be listed here")
+                raise self.error(f"expected an event letter, a quoted label or ']' to close the '[' at position "
+                                 f"{opening.position}: only letters or labels can be listed here")
             if kind is not None and token.kind is not kind:
                 raise self.error(
                     f"this list mixes {_KIND_NAMES[kind]} and {_KIND_NAMES[token.kind]}; "
@@ -261,7 +288,8 @@ class _Parser:
             symbols.append(self.advance().value)
         self.advance()
         if not symbols:
-            raise self.error("empty list", opening.position)
+            raise self.error(f"expected a letter or a label inside the '[' at position {opening.position}: "
+                             "empty list", opening.position)
         return kind, symbols
 
     def _unexpected_here(self) -> str:
@@ -269,17 +297,22 @@ class _Parser:
         if token.kind is Kind.END:
             return "the expression ends early: expected an event"
         if token.kind is Kind.BAR:
-            return "'|' needs an expression on both sides"
+            return ("expected an event before '|': an alternative cannot be empty ('|' needs an expression on both "
+                    "sides)")
+        if token.kind is Kind.MINUS:
+            return ("unexpected '-': a set difference takes whole expressions on both sides, at the top level only "
+                    "(A - B, A - (B|C); not (A - B), A|-B or -A)")
         if token.kind in _REPETITIONS or token.kind is Kind.RANGE:
-            return "a repetition must follow an event or a group"
+            return "expected an event: a repetition must follow an event or a group"
         if token.kind is Kind.CONDITION:
-            return "a condition must follow an event"
+            return "expected an event: a condition must follow an event"
         if token.kind is Kind.CLOSE_GROUP:
-            return "'>' without a matching '<'"
+            return "unexpected '>' without a matching '<' (expected an event)"
         if token.kind is Kind.CLOSE_SET:
-            return "']' without a matching '['"
+            return "unexpected ']' without a matching '[' (expected an event)"
         if token.kind is Kind.CLOSE_PAREN:
-            return "')' without a matching '('" if self._paren_depth() == 0 else "expected an event before ')'"
+            return ("unexpected ')' without a matching '('" if self._paren_depth() == 0
+                    else "expected an event before ')': an alternative cannot be empty")
         return "unexpected token"
 
     def _paren_depth(self) -> int:
@@ -293,6 +326,7 @@ _KIND_NAMES = {Kind.TYPE: "event types", Kind.SCATTER: "scatterings", Kind.LABEL
 
 _GROUP_PROBLEMS = {
     Kind.OPEN_GROUP: "no <...> inside <...>",
+    Kind.MINUS: "no '-' inside <...>: a set difference takes whole expressions, A - B",
     Kind.OPEN_PAREN: "no (...) inside <...>: list alternatives of one slot with [...]",
     Kind.BAR: "no '|' inside <...>: list alternatives of one slot with [...]",
     Kind.STAR: "repetitions are not allowed inside <...>",

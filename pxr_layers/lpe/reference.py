@@ -31,6 +31,9 @@ def reference_match(expression, events, norms_row=None, sigma_row=None) -> bool:
     tree = parse(expression) if isinstance(expression, str) else expression
     path = tuple(parse_path(events).events if isinstance(events, str) else events)
     values = _Values(norms_row, sigma_row)
+    if isinstance(tree, nodes.Difference):
+        return len(path) in _ends(tree.positive, path, 0, values) and len(path) not in _ends(tree.negative, path, 0,
+                                                                                              values)
     return len(path) in _ends(tree, path, 0, values)
 
 

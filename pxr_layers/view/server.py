@@ -86,6 +86,7 @@ def make_app(session: Session, token: str, allowed_hosts: frozenset[str] | None)
     app.router.add_post("/api/generalise", _generalise)
     app.router.add_post("/api/layer", _layer)
     app.router.add_post("/api/suggest", _suggest)
+    app.router.add_post("/api/overlaps", _overlaps)
     app.router.add_post("/api/save", _save)
     app.router.add_post("/api/push", _push)
     app.router.add_post("/api/pushable", _pushable)
@@ -256,7 +257,8 @@ async def _check(request: web.Request) -> web.Response:
         request.app[SESSION_KEY].check(body.get("expression"))
     except ViewError as error:
         return web.json_response({"ok": False, "error": str(error), "position": error.position})
-    return web.json_response({"ok": True})
+    return web.json_response({"ok": True,
+                              "unknown_labels": request.app[SESSION_KEY].unknown_labels(body.get("expression"))})
 
 
 async def _generalise(request: web.Request) -> web.Response:
@@ -267,9 +269,15 @@ async def _generalise(request: web.Request) -> web.Response:
 
 async def _layer(request: web.Request) -> web.Response:
     body = await _json_body(request)
-    layer, facts = await _blocking(request, request.app[SESSION_KEY].add_layer, body.get("name"),
-                                   body.get("expression"))
-    return web.json_response({**layer.description(), **facts})
+    session = request.app[SESSION_KEY]
+    layer, facts = await _blocking(request, session.add_layer, body.get("name"), body.get("expression"))
+    return web.json_response({**layer.description(), **facts,
+                              "unknown_labels": session.unknown_labels(layer.expression)})
+
+
+async def _overlaps(request: web.Request) -> web.Response:
+    body = await _json_body(request)
+    return web.json_response(await _blocking(request, request.app[SESSION_KEY].overlaps, body.get("layers")))
 
 
 async def _suggest(request: web.Request) -> web.Response:

@@ -17,6 +17,7 @@ the session's folder.
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import re
@@ -38,7 +39,9 @@ from ..layers.extract import extract
 from ..layers.kelvin import kelvin_table
 from ..layers.multipart import MultipartImage, read_multipart
 from ..layers.nuke import NUKE_RESERVED_LAYERS, LayerGrade, write_nuke_script
+from ..layers.overlaps import overlaps
 from ..layers.previews import energy_shares, layers_partition
+from ..lpe.labels import KnownNames, unknown_label_report
 from ..outputs import OutputSet, reading
 from ..paths.events import (
     SCATTERING_NAMES,
@@ -71,6 +74,9 @@ SAVE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*")
 MAX_NAME_CHARS = 120
 """Longest save or layer name (NAME.usda and its previews' names stay within the system's 255 bytes)."""
 MAX_SUGGESTED = 32
+
+MAX_OVERLAP_LAYERS = 256
+"""Layers /api/overlaps compares at most (a stack is far smaller)."""
 """Most layers /api/suggest makes at once."""
 VERSIONS = ("raw", "denoised")
 """The versions of a layer's pixels /api/image serves: as rendered, and from the denoised twin."""
@@ -373,6 +379,65 @@ class Session:
         log.info("suggested %d layers in %.2f s", len(added), seconds)
         return added, {"objective": suggestion.objective, "strategy": suggestion.strategy,
                        "splits": list(suggestion.splits), "seconds": seconds}
+
+    # -- energy that goes wrong: overlapping layers, names that match nothing
+
+    def overlaps(self, stack) -> dict:
+        """/api/overlaps: which layers of ``stack`` ([{"id", "expression"}], the page's layers
+        in order) claim the same paths, per record (layers.overlaps): {"pairs": [{"a", "b",
+        "share"}], "double_counted", "remainder", "claimed", "seconds", "unknown": ids of the
+        layers without an expression (products read from an EXR without one), "warnings"}.
+        Shares are of the beauty's energy. An entry's expression defaults to its layer's;
+        the beauty (id "beauty") is the reference, not a layer of the sum, and is skipped."""
+        index = self._need_index("find overlapping layers")
+        if not isinstance(stack, list) or len(stack) > MAX_OVERLAP_LAYERS or \
+                not all(isinstance(entry, dict) and isinstance(entry.get("id"), str) for entry in stack):
+            raise ViewError(f"layers must be a list of at most {MAX_OVERLAP_LAYERS} {{\"id\", \"expression\"}} objects")
+        expressions: dict[str, str] = {}
+        unknown: list[str] = []
+        for entry in stack:
+            layer_id, expression = entry["id"], entry.get("expression")
+            if layer_id == "beauty" or layer_id in expressions:
+                continue
+            if expression is None and layer_id in self.layers:
+                expression = self.layers[layer_id].expression
+            if expression is None or expression == "":
+                unknown.append(layer_id)
+                continue
+            if not isinstance(expression, str):
+                raise ViewError(f"layer {_shown(layer_id)}: the expression must be a string")
+            try:
+                lpe.parse(expression)
+            except LpeSyntaxError as error:
+                raise ViewError(f"layer {_shown(layer_id)}: {error.message}", position=error.position) from None
+            expressions[layer_id] = expression
+        if not expressions:
+            return {"pairs": [], "double_counted": 0.0, "remainder": 1.0, "claimed": 0.0, "seconds": 0.0,
+                    "unknown": unknown, "warnings": []}
+        with self._lock:
+            try:
+                found = overlaps(index, expressions, self.beauty, threads=self.threads)
+            except PxrLayersError as error:
+                raise ViewError(str(error).splitlines()[0]) from None
+        return {"pairs": [{"a": a, "b": b, "share": share} for (a, b), share in found.pairs.items()],
+                "double_counted": found.double_counted, "remainder": found.remainder, "claimed": found.claimed,
+                "seconds": found.seconds, "unknown": unknown, "warnings": list(found.warnings)}
+
+    def unknown_labels(self, expression: str) -> list[dict]:
+        """The quoted labels of ``expression`` that name nothing in the index, with their
+        position and the nearest names present ([{"label", "position", "nearest",
+        "message"}]; lpe.labels.unknown_label_report); [] without an index or for an
+        expression that does not parse (``check`` says why)."""
+        if self.index is None or not isinstance(expression, str):
+            return []
+        try:
+            return unknown_label_report(expression, self._known_names, str(self.index.shown_as))
+        except PxrLayersError:
+            return []
+
+    @functools.cached_property
+    def _known_names(self) -> KnownNames:
+        return KnownNames.of_events(self.index.events)
 
     def _denoised(self, images: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Layers made from the index, denoised as the render's twins were (its beauty's input
