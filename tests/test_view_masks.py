@@ -23,12 +23,12 @@ from pxr_layers.layers.cryptomatte import coverage, names_at
 from pxr_layers.layers.multipart import read_multipart
 from pxr_layers.layers.nuke import LayerGrade, LayerMask
 from pxr_layers.view.composite import composite
-from pxr_layers.view.grades import MAX_KELVIN, MIN_KELVIN, grade_from_json
+from pxr_layers.layers.kelvin import KELVIN_MAX, KELVIN_MIN
+from pxr_layers.view.grades import grade_from_json
 from pxr_layers.view.session import Session, ViewError
 
 WALL = "/World/Geometry/redWall"
 KINDS = {"object": "CryptoObject", "material": "CryptoMaterial", "asset": "CryptoAsset"}
-HAS_KELVIN = "kelvin" in {field.name for field in fields(LayerGrade)}
 
 
 @pytest.fixture(scope="module")
@@ -238,7 +238,7 @@ def test_grade_from_json_reads_an_entry():
     ({"mask": {"kind": "object", "names": []}}, "layer 'key': mask names are a list of 1 to"),
     ({"mask": {"kind": "object", "names": WALL}}, "layer 'key': mask names are a list of 1 to"),
     ({"mask": {"kind": "object", "names": [""]}}, "layer 'key': mask names are a list of 1 to"),
-    ({"kelvin": 200}, f"layer 'key': kelvin is null or a colour temperature from {MIN_KELVIN:g} to {MAX_KELVIN:g} K"),
+    ({"kelvin": 200}, f"layer 'key': kelvin is null or a colour temperature from {KELVIN_MIN:g} to {KELVIN_MAX:g} K"),
     ({"kelvin": "6500"}, "layer 'key': kelvin is null or a colour temperature"),
     ({"kelvin": True}, "layer 'key': kelvin is null or a colour temperature"),
 ])
@@ -248,12 +248,8 @@ def test_grade_from_json_names_the_layer_and_the_field(entry, message):
     assert message in str(raised.value) and raised.value.status == 400 and "\n" not in str(raised.value)
 
 
-def test_grade_from_json_passes_kelvin_through_when_the_grade_has_it():
-    if HAS_KELVIN:
-        assert grade_from_json({"kelvin": 6500}, "layer 'key'").kelvin == 6500.0
-    else:
-        with pytest.raises(ViewError, match="layer 'key': kelvin: this version of pxr-layers does not grade"):
-            grade_from_json({"kelvin": 6500}, "layer 'key'")
+def test_grade_from_json_passes_kelvin_through():
+    assert grade_from_json({"kelvin": 6500}, "layer 'key'").kelvin == 6500.0
 
 
 def test_grade_from_json_checks_mask_names_against_the_render(session):

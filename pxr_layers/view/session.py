@@ -419,9 +419,22 @@ class Session:
                 found = overlaps(index, expressions, self.beauty, threads=self.threads)
             except PxrLayersError as error:
                 raise ViewError(str(error).splitlines()[0]) from None
+        # What the page offers to make the stack sum to the beauty again: each layer that
+        # shares paths with an earlier one, less the earlier ones; and the unclaimed rest.
+        names = list(expressions)
+        exclusive, rest = {}, None
+        try:
+            for (a, b), share in found.pairs.items():
+                later = max(a, b, key=names.index)
+                if share > 0 and later not in exclusive:
+                    exclusive[later] = lpe.exclusive(expressions[later], [expressions[n] for n in names[:names.index(later)]])
+            rest = lpe.remainder(list(expressions.values())) if found.remainder > 0 and not unknown else None
+        except PxrLayersError as error:  # a layer that subtracts what is not in the stack: none offered
+            log.info("overlaps: no exclusive or remainder layer offered (%s)", error)
         return {"pairs": [{"a": a, "b": b, "share": share} for (a, b), share in found.pairs.items()],
                 "double_counted": found.double_counted, "remainder": found.remainder, "claimed": found.claimed,
-                "seconds": found.seconds, "unknown": unknown, "warnings": list(found.warnings)}
+                "seconds": found.seconds, "unknown": unknown, "warnings": list(found.warnings),
+                "exclusive": exclusive, "remainder_expression": rest}
 
     def unknown_labels(self, expression: str) -> list[dict]:
         """The quoted labels of ``expression`` that name nothing in the index, with their

@@ -1551,7 +1551,8 @@ async function push() {
     list.replaceChildren(
       ...Object.entries(reply.files ?? {}).map(([what, file]) => el('li', { dataset: { kind: what } }, fileLink(file))),
       ...(reply.pushed ?? []).map((item) => el('li', { class: 'pushed' }, `${item.layer} → ${item.light}`)),
-      ...(reply.compositing ?? []).map((item) => el('li', { class: 'compositing' }, `${item.layer} stays a compositing grade: ${item.why}`)));
+      ...(reply.compositing ?? []).map((item) => el('li', { class: 'compositing' }, `${item.layer} stays a compositing grade: ${item.why}`)),
+      ...(reply.notes ?? []).map((note) => el('li', { class: 'compositing' }, note)));
   } catch (error) {
     list.replaceChildren(el('li', { class: 'error' }, error.message));
   } finally {
