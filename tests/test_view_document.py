@@ -347,3 +347,82 @@ def test_a_mask_picked_in_the_image_limits_the_grade_to_it(opened, folder):
     shown = canvas_image(page).astype(int)
     assert np.abs(shown - expected).max() <= 1
     assert np.abs(to_display(composite(beauty, layers, grades)).astype(int) - expected).max() > 8
+
+
+def add_layer(page, name: str, expression: str) -> None:
+    page.fill("#expression", expression)
+    page.fill("#layer-name", name)
+    page.uncheck("#solo-new")
+    page.click("#add-layer")
+    page.wait_for_selector(f'#stack li[data-id="{name}"]')
+
+
+def test_overlapping_layers_are_shown_and_made_exclusive(opened):
+    """A layer that claims paths the light passes claim already: the warning names the pair
+    and the energy counted twice; its exclusive version takes its place, and then the stack
+    sums to the beauty again."""
+    page, _ = opened
+    add_layer(page, "red_wall", "C<RD'redWall'>.*")
+    page.wait_for_selector("#overlaps:not([hidden]) button")
+    text = page.text_content("#overlaps")
+    assert "counted twice" in text and "red_wall" in text
+    overlaps = page.evaluate("pxrViewer.state().overlaps")
+    assert overlaps["double_counted"] > 0.001 and "red_wall" in overlaps["exclusive"]
+    page.locator("#overlaps button", has_text="red_wall without").first.click()
+    page.wait_for_selector('#stack li[data-id="red_wall_only"]')
+    assert "red_wall" not in [layer["name"] for layer in stack(page)]
+    page.wait_for_function("pxrViewer.state().overlaps && pxrViewer.state().overlaps.double_counted === 0")
+    assert page.locator("#overlaps").is_hidden()
+    total = sum(layer_pixels(page, layer["id"]).astype(np.float64) for layer in stack(page)[1:])
+    beauty = layer_pixels(page, "beauty").astype(np.float64)
+    np.testing.assert_allclose(total, beauty, rtol=1e-5, atol=1e-6 * beauty.max())
+
+
+def test_a_misspelled_name_shows_the_nearest_names_and_a_missing_bracket_its_position(opened):
+    page, _ = opened
+    page.fill("#expression", "C<RD'redWal'>.*")
+    page.wait_for_selector("#expression-error button.nearest")
+    assert "no 'redWal' in this index" in page.text_content("#expression-error")
+    page.locator("#expression-error button.nearest", has_text="redWall").click()
+    assert page.input_value("#expression") == "C<RD'redWall'>.*"
+    page.wait_for_function("document.querySelector('#expression-error').textContent === 'valid expression'")
+
+    page.fill("#expression", "C<RD'redWall'.*L")
+    page.wait_for_function("document.querySelector('#expression-error').textContent.includes('^')")
+    text, caret, message = page.text_content("#expression-error").split("\n", 2)
+    assert caret == " " * len("C<RD'redWall'") + "^"
+    assert "expected '>'" in message and "position 1" in message
+
+
+def test_colour_temperature_grades_as_the_light_would(opened):
+    """The Kelvin control multiplies by the blackbody colour a UsdLux light of that
+    temperature gets (LayerGrade.kelvin): the canvas is the numpy composite within 1/255."""
+    page, _ = opened
+    row = more(page, "diffuse_direct")
+    row.locator("input.kelvin-on").check()
+    row.locator("input.kelvin-value").fill("3000")
+    row.locator("input.kelvin-value").press("Enter")
+    page.wait_for_function("pxrViewer.state().layers.find(l => l.id === 'diffuse_direct').kelvin === 3000")
+    ids = [layer["id"] for layer in stack(page)]
+    grades = [LayerGrade(kelvin=3000.0) if entry == "diffuse_direct" else LayerGrade() for entry in ids[1:]]
+    expected = to_display(composite(layer_pixels(page, "beauty"), [layer_pixels(page, entry) for entry in ids[1:]],
+                                    grades)).astype(int)
+    assert np.abs(canvas_image(page).astype(int) - expected).max() <= 1
+    assert "3000 K" in page.text_content('#stack li[data-id="diffuse_direct"] .tint-value')
+
+
+def test_light_edits_are_badged_and_pushed_into_usd(opened, folder):
+    """A layer of the whole ceiling light is a light edit; a pass of its diffuse bounces only
+    is a compositing grade that says why; the push writes the override and the shot."""
+    page, _ = opened
+    add_layer(page, "ceiling", "C.*<L.'ceilingLight'>")
+    page.evaluate("pxrViewer.setGrade('ceiling', {stops: 1, kelvin: 4000})")
+    page.wait_for_selector('#stack li[data-id="ceiling"] .badge.light:not([hidden])')
+    badge = page.locator('#stack li[data-id="diffuse_direct"] .badge')
+    assert badge.text_content() == "comp" and "compositing grade" in badge.get_attribute("title")
+    page.fill("#save-name", "warmer")
+    page.click("#push")
+    page.wait_for_selector("#saved li.pushed")
+    assert "ceiling → ceilingLight" in page.text_content("#saved")
+    assert (folder / "warmer.lights.usda").is_file() and (folder / "warmer.shot.usda").is_file()
+    assert "over" in (folder / "warmer.lights.usda").read_text()
