@@ -23,14 +23,17 @@ precision highp sampler3D;
 //   some layer soloed: out = Σ_{i soloed} w_i · layer_i
 //   then · 2^exposure, then the display LUT. At unit gains this is the beauty exactly:
 //   the weights are exactly 0 and the layers are not even read.
+// Renderer.draw computes what does not vary over the image, each entry's a_i: g_i − 1 (no
+// solo), g_i (soloed), 0 (not soloed while others are); the shader applies the masks:
+//   unmasked: weight a_i;  masked: m_i · a_i (no solo), 1 + m_i · (a_i − 1) (soloed).
 // Two looks (sets 0 and 1) can be shown at once: split by a wipe line, or side by side.
 const FRAGMENT_MAIN = `
 uniform sampler2DArray u_images;  // slice 0 the beauty, then the layers: linear RGB, top row first
 uniform sampler2DArray u_masks;   // mask coverages (red), top row first
 uniform highp sampler3D u_lut;
 uniform int u_count[2];            // entries of each look (the beauty not counted)
-uniform vec3 u_grade[2 * MAX_ENTRIES];   // g_i of each entry: look 0's, then look 1's
-uniform ivec4 u_info[2 * MAX_ENTRIES];   // (image slice, MUTED | SOLOED, mask slice or -1, 0)
+uniform vec3 u_weight[2 * MAX_ENTRIES];  // a_i of each entry: look 0's, then look 1's
+uniform ivec2 u_slices[2 * MAX_ENTRIES]; // (image slice, mask slice or -1)
 uniform bool u_any_solo[2];
 uniform float u_exposure_gain[2];  // 2^exposure
 uniform int u_mode;                // 0 one look, 1 wipe, 2 side by side
@@ -41,18 +44,18 @@ uniform vec2 u_canvas;             // the canvas's size, device pixels
 uniform vec3 u_background;
 out vec4 colour;
 
-const int MUTED = 1;
-const int SOLOED = 2;
-
 vec3 look(int set, ivec2 texel) {
   int base = set * MAX_ENTRIES;
-  vec3 rgb = u_any_solo[set] ? vec3(0.0) : texelFetch(u_images, ivec3(texel, 0), 0).rgb;
+  bool soloing = u_any_solo[set];
+  vec3 rgb = soloing ? vec3(0.0) : texelFetch(u_images, ivec3(texel, 0), 0).rgb;
   for (int i = 0; i < u_count[set]; ++i) {
-    ivec4 info = u_info[base + i];
-    vec3 graded = (info.y & MUTED) != 0 ? vec3(0.0) : u_grade[base + i];
-    if (info.z >= 0) graded = 1.0 + texelFetch(u_masks, ivec3(texel, info.z), 0).r * (graded - 1.0);
-    vec3 weight = u_any_solo[set] ? ((info.y & SOLOED) != 0 ? graded : vec3(0.0)) : graded - 1.0;
-    if (weight != vec3(0.0)) rgb += weight * texelFetch(u_images, ivec3(texel, info.x), 0).rgb;
+    vec3 weight = u_weight[base + i];
+    ivec2 slices = u_slices[base + i];
+    if (slices.y >= 0) {
+      float m = texelFetch(u_masks, ivec3(texel, slices.y), 0).r;
+      weight = soloing ? (weight == vec3(0.0) ? weight : 1.0 + m * (weight - 1.0)) : m * weight;
+    }
+    if (weight != vec3(0.0)) rgb += weight * texelFetch(u_images, ivec3(texel, slices.x), 0).rgb;
   }
   return rgb * u_exposure_gain[set];
 }
@@ -77,8 +80,6 @@ void main() {
 `;
 
 export const BACKGROUND = [0.09, 0.094, 0.102];
-const MUTED = 1;
-const SOLOED = 2;
 export const MODES = { one: 0, wipe: 1, side: 2 };
 
 /** A growable TEXTURE_2D_ARRAY of one format, with CPU copies to refill it when it grows
@@ -128,19 +129,19 @@ export class Renderer {
     });
     if (!gl) throw new Error('this browser has no WebGL2: the inspector needs it');
     this.gl = gl;
-    // Each entry of each of the two looks takes two uniform vectors (grade, info); leave some for the rest.
+    // Each entry of each of the two looks takes two uniform vectors (weight, slices); leave some for the rest.
     this.maxEntries = Math.min(128, Math.floor((gl.getParameter(gl.MAX_FRAGMENT_UNIFORM_VECTORS) - 16) / 4));
     this.maxSlices = gl.getParameter(gl.MAX_ARRAY_TEXTURE_LAYERS);
     this.program = this.link(`${FRAGMENT_HEAD}${lutGlsl}\n#define MAX_ENTRIES ${this.maxEntries}\n${FRAGMENT_MAIN}`);
     this.uniforms = {};
-    for (const name of ['u_images', 'u_masks', 'u_lut', 'u_count', 'u_grade', 'u_info', 'u_any_solo', 'u_exposure_gain',
+    for (const name of ['u_images', 'u_masks', 'u_lut', 'u_count', 'u_weight', 'u_slices', 'u_any_solo', 'u_exposure_gain',
       'u_mode', 'u_wipe', 'u_origin', 'u_scale', 'u_canvas', 'u_background']) {
       this.uniforms[name] = gl.getUniformLocation(this.program, name);
     }
     this.images = new SliceArray(gl, 0, gl.RGB32F, gl.RGB);
     this.masks = new SliceArray(gl, 2, gl.R32F, gl.RED);
-    this.grade = new Float32Array(2 * this.maxEntries * 3);
-    this.info = new Int32Array(2 * this.maxEntries * 4);
+    this.weight = new Float32Array(2 * this.maxEntries * 3);
+    this.slices = new Int32Array(2 * this.maxEntries * 2);
     this.onePixel = new Uint8Array(4);
     const debug = gl.getExtension('WEBGL_debug_renderer_info');
     this.gpu = gl.getParameter(debug ? debug.UNMASKED_RENDERER_WEBGL : gl.RENDERER);  // for the benchmark's report
@@ -216,11 +217,14 @@ export class Renderer {
       }
       counts[set] = look.entries.length;
       gains[set] = 2 ** look.exposure;
+      anySolo[set] = look.entries.some((entry) => entry.solo) ? 1 : 0;
       look.entries.forEach((entry, i) => {
         const at = set * this.maxEntries + i;
-        this.grade.set(entry.grade, at * 3);
-        this.info.set([entry.slice, (entry.mute ? MUTED : 0) | (entry.solo ? SOLOED : 0), entry.maskSlice ?? -1, 0], at * 4);
-        if (entry.solo) anySolo[set] = 1;
+        const graded = entry.mute ? [0, 0, 0] : entry.grade;
+        // a_i (the rule above), in float32 as the numpy reference computes g_i − 1
+        const weight = anySolo[set] ? (entry.solo ? graded : [0, 0, 0]) : graded.map((g) => Math.fround(g) - 1);
+        this.weight.set(weight, at * 3);
+        this.slices.set([entry.slice, anySolo[set] && !entry.solo ? -1 : (entry.maskSlice ?? -1)], at * 2);
       });
     });
     if (looks.length === 1) mode = MODES.one;
@@ -241,8 +245,8 @@ export class Renderer {
     gl.uniform1i(u.u_lut, 1);
     gl.uniform1i(u.u_masks, 2);
     gl.uniform1iv(u.u_count, counts);
-    gl.uniform3fv(u.u_grade, this.grade);
-    gl.uniform4iv(u.u_info, this.info);
+    gl.uniform3fv(u.u_weight, this.weight);
+    gl.uniform2iv(u.u_slices, this.slices);
     gl.uniform1iv(u.u_any_solo, anySolo);
     gl.uniform1fv(u.u_exposure_gain, gains);
     gl.uniform1i(u.u_mode, mode);
