@@ -426,3 +426,28 @@ def test_light_edits_are_badged_and_pushed_into_usd(opened, folder):
     assert "ceiling → ceilingLight" in page.text_content("#saved")
     assert (folder / "warmer.lights.usda").is_file() and (folder / "warmer.shot.usda").is_file()
     assert "over" in (folder / "warmer.lights.usda").read_text()
+
+
+def test_another_view_transform_is_shown_kept_and_saved(opened, browser, folder):
+    """The view transform (an OCIO view of the products' display): the canvas is the numpy
+    composite through that view's processor, the choice survives a reload, and a saved
+    look's previews and recipe use it."""
+    from pxr_layers.layers.previews import display_processor
+
+    page, url = opened
+    display = page.evaluate("fetch('/api/session', {headers: {'X-Pxr-Token': new URLSearchParams(location.search).get('token')}}).then(r => r.json())")["display"]
+    other = next(view for view in display["views"] if view != display["view"] and "Raw" not in view)
+    page.select_option("#view-transform", other)
+    page.wait_for_function("view => pxrViewer.document().display_view === view", arg=other)
+    processor = display_processor(display["config"], display["display"], other)
+    beauty = layer_pixels(page, "beauty")
+    assert np.abs(canvas_image(page).astype(int) - to_display(beauty, processor).astype(int)).max() <= 1
+    persisted(page)
+    page.reload()
+    page.wait_for_function("window.pxrViewer && pxrViewer.ready")
+    assert page.input_value("#view-transform") == other
+    assert np.abs(canvas_image(page).astype(int) - to_display(beauty, processor).astype(int)).max() <= 1
+    page.fill("#save-name", "other_view")
+    page.click("#save")
+    page.wait_for_selector('#saved li[data-kind="document"]')
+    assert f'"{other}"' in (folder / "other_view.usda").read_text()

@@ -99,6 +99,11 @@ def check_colour_settings(config: str = DEFAULT_OCIO_CONFIG, display: str = DEFA
         raise ColourError(f"colour space {rendering_space!r} is not in {config}", "renderingSpace")
 
 
+def display_views(config: str = DEFAULT_OCIO_CONFIG, display: str = DEFAULT_DISPLAY) -> list[str]:
+    """The views (view transforms) `config` offers for `display`, in its order."""
+    return list(_config(config).getViews(display))
+
+
 @lru_cache(maxsize=16)
 def display_processor(config: str = DEFAULT_OCIO_CONFIG, display: str = DEFAULT_DISPLAY, view: str = DEFAULT_VIEW,
                       rendering_space: str = RENDERING_SPACE):

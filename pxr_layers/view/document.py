@@ -13,7 +13,8 @@ The document (every field required, nothing else)::
      "saved": null | {"name", "exposure", "entries"},  # the last saved look's grades
      "view": {"fit": bool, "scale": device px per image px, "cx", "cy": image point at the centre (0..1)},
      "compare": {"mode": "one" | "wipe" | "side", "against": "beauty" | "saved" | "snapshot:N", "wipe": 0..1},
-     "denoised": bool}
+     "denoised": bool,
+     "display_view": null | a view of the products' display (null: the products' own)}
 
     ENTRY = {"id": unique key, "source": the server layer it shows, "name": its layer name,
              "kind": "beauty" | "layer", "expression": LPE or "", "group": "" or a name,
@@ -45,7 +46,7 @@ MAX_TEXT = 200
 MAX_EXPRESSION = 4096
 COMPARE_MODES = ("one", "wipe", "side")
 ENTRY_KEYS = {"id", "source", "name", "kind", "expression", "group", "stops", "tint", "kelvin", "mute", "solo", "mask"}
-DOCUMENT_KEYS = {"format", "exposure", "entries", "snapshots", "saved", "view", "compare", "denoised"}
+DOCUMENT_KEYS = {"format", "exposure", "entries", "snapshots", "saved", "view", "compare", "denoised", "display_view"}
 
 
 class DocumentError(PxrLayersError):
@@ -99,6 +100,8 @@ def checked(document) -> dict:
     _text(compare["against"], "compare.against")
     _number(compare["wipe"], "compare.wipe", 0, 1)
     _bool(document["denoised"], "denoised")
+    if document["display_view"] is not None:
+        _text(document["display_view"], "display_view")
     return document
 
 

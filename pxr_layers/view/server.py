@@ -78,6 +78,7 @@ def make_app(session: Session, token: str, allowed_hosts: frozenset[str] | None)
     app.router.add_get("/files/{name:.+}", _folder_file)
     app.router.add_get("/api/session", _session_description)
     app.router.add_get(LUT_URL, _lut)
+    app.router.add_get("/api/display", _display)
     app.router.add_get("/api/image/{layer}", _image)
     app.router.add_get("/api/inspect", _inspect)
     app.router.add_get("/api/mask", _mask)
@@ -210,7 +211,13 @@ async def _session_description(request: web.Request) -> web.Response:
 
 
 async def _lut(request: web.Request) -> web.Response:
-    return web.Response(body=request.app[SESSION_KEY].lut_pixels(), content_type="application/octet-stream")
+    pixels = await _blocking(request, request.app[SESSION_KEY].lut_pixels, request.query.get("view"))
+    return web.Response(body=pixels, content_type="application/octet-stream")
+
+
+async def _display(request: web.Request) -> web.Response:
+    description = await _blocking(request, request.app[SESSION_KEY].display_description, request.query.get("view"))
+    return web.json_response(description)
 
 
 async def _image(request: web.Request) -> web.Response:

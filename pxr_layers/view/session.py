@@ -23,6 +23,7 @@ import logging
 import re
 import threading
 import time
+import urllib.parse
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -40,7 +41,7 @@ from ..layers.kelvin import kelvin_table
 from ..layers.multipart import MultipartImage, read_multipart
 from ..layers.nuke import NUKE_RESERVED_LAYERS, LayerGrade, write_nuke_script
 from ..layers.overlaps import overlaps
-from ..layers.previews import energy_shares, layers_partition
+from ..layers.previews import display_views, energy_shares, layers_partition
 from ..lpe.labels import KnownNames, unknown_label_report
 from ..outputs import OutputSet, reading
 from ..paths.events import (
@@ -137,6 +138,7 @@ class Session:
         self.layers: dict[str, ViewLayer] = {layer.id: layer for layer in layers}
         self.lut: DisplayLut = bake_display_lut(product.ocio_config, product.display, product.view,
                                                 product.rendering_space)
+        self.views = display_views(product.ocio_config, product.display)
         self._lock = threading.Lock()
         self.cryptomattes = dict(cryptomattes or {})
         self._masks: OrderedDict[tuple[str, tuple[str, ...]], bytes] = OrderedDict()
@@ -203,12 +205,29 @@ class Session:
                                  for kind, (layer, matte) in self.cryptomattes.items()},
                 "alphabet": {"types": list(zip(SCATTERING_TYPES, SCATTERING_TYPE_NAMES, strict=True)),
                              "scatterings": list(zip(SCATTERINGS, SCATTERING_NAMES, strict=True))},
-                "display": {"config": self.lut.config, "display": self.lut.display, "view": self.lut.view,
-                            "lut": {**lut_description(self.lut), "url": LUT_URL}},
+                "display": self.display_description(),
                 "kelvin": kelvin_table()}
 
-    def lut_pixels(self) -> bytes:
-        return lut_bytes(self.lut)
+    def display_description(self, view: str | None = None) -> dict:
+        """/api/display: the display transform of `view` (the products' view when None): its
+        config, display, view, the display's other views, and its LUT (the GLSL and where the
+        table is)."""
+        lut = self._lut(view)
+        url = LUT_URL if view is None else f"{LUT_URL}?{urllib.parse.urlencode({'view': view})}"
+        return {"config": lut.config, "display": lut.display, "view": lut.view, "views": self.views,
+                "default_view": self.lut.view, "lut": {**lut_description(lut), "url": url}}
+
+    def lut_pixels(self, view: str | None = None) -> bytes:
+        return lut_bytes(self._lut(view))
+
+    def _lut(self, view: str | None) -> DisplayLut:
+        """The LUT of one of the display's views (baked once: bake_display_lut caches)."""
+        if view is None or view == self.lut.view:
+            return self.lut
+        if view not in self.views:
+            raise ViewError(f"view {_shown(view)} is not a view of {self.lut.display!r} "
+                            f"(views: {', '.join(self.views)})")
+        return bake_display_lut(self.lut.config, self.lut.display, view, self.lut.rendering_space)
 
     def layer(self, layer_id: str) -> ViewLayer:
         try:
@@ -547,8 +566,11 @@ class Session:
         # the raw stack (its grades are the look's; a render with --denoise makes the twin), with
         # the Cryptomattes its masked grades key, so that the look stands without the render's EXR
         cryptomattes = self.look_cryptomattes(grades)
+        # its previews through the view the page shows (the document's choice)
+        view = self._lut(look["display_view"] if look else None).view
         recipe = Recipe((replace(self.base_product, name=name.replace("-", "_"), output_name=f"{name}.exr", prim_path="",
-                                 layers=tuple(chosen), per_light="none", denoise=False),)).with_cryptomattes(cryptomattes)
+                                 layers=tuple(chosen), per_light="none", denoise=False, view=view),)
+                        ).with_cryptomattes(cryptomattes)
         paths = {"recipe": self.folder / f"{name}.usda", "exr": self.folder / f"{name}.exr",
                  "nuke": self.folder / f"{name}.nk"}
         if look is not None:

@@ -1642,6 +1642,35 @@ async function setDenoised(on) {
   }
 }
 
+/** Use a display transform (/api/display's answer): its GLSL in the shader, its table in the LUT. */
+async function showDisplay(display) {
+  const table = await api(display.lut.url, { binary: true });
+  renderer.useDisplay(display.lut.glsl);
+  renderer.setLut(display.lut.size, new Float32Array(await table.arrayBuffer()));
+  $('#display').textContent = `${display.display} · ${display.view}`;
+  $('#display').title = `OCIO ${display.config}: display and view, baked into a ${display.lut.size}³ LUT`
+    + (display.view === display.default_view ? " (the products' and previews' own)" : '');
+}
+
+/** Show the composite through another view of the display (the choice is kept in the document
+ *  and a saved look's previews use it). */
+async function setDisplayView(view) {
+  const choice = $('#view-transform');
+  choice.disabled = true;
+  try {
+    const display = await api(`/api/display?${new URLSearchParams({ view })}`);
+    await showDisplay(display);
+    state.doc.display_view = view === display.default_view ? null : view;
+    choice.value = view;
+    schedulePersist();
+    requestDraw();
+  } catch (error) {
+    setStatus(`view ${view}: ${error.message}`, true);
+  } finally {
+    choice.disabled = false;
+  }
+}
+
 /** The document the page opens with: the one kept beside the render, else the render's stack. */
 function openingDocument(session) {
   const kept = session.document;
@@ -1665,19 +1694,21 @@ async function start() {
   document.title = `${session.title} · pxr-layers`;
   $('#title').textContent = session.title;
   const { display } = session;
-  $('#display').textContent = `${display.display} · ${display.view}`;
-  $('#display').title = `OCIO ${display.config}: the previews' display and view, baked into a ${display.lut.size}³ LUT`;
   $('#partition-note').hidden = session.partition !== false || session.layers.length < 2;
 
   renderer = new Renderer(canvas, display.lut.glsl);
   canvas.addEventListener('webglcontextlost', () => setStatus('the GPU context was lost: reload the page', true));
-  const lutResponse = await api(display.lut.url, { binary: true });
-  renderer.setLut(display.lut.size, new Float32Array(await lutResponse.arrayBuffer()));
+  await showDisplay(display);
 
   // Data layers (anything but the beauty and light layers) do not enter the composite.
   for (const layer of session.layers) if (layer.kind === 'beauty' || layer.kind === 'layer') addSource(layer);
   state.doc = openingDocument(session);
   history = new History(state.doc, documentChanged);
+  const viewChoice = $('#view-transform');
+  viewChoice.replaceChildren(...display.views.map((view) => el('option', { value: view }, view)));
+  viewChoice.value = state.doc.display_view ?? display.view;
+  viewChoice.addEventListener('change', () => setDisplayView(viewChoice.value));
+  if (state.doc.display_view && state.doc.display_view !== display.view) await setDisplayView(state.doc.display_view);
   $('#denoised').hidden = !session.denoised;
   $('#denoised').addEventListener('click', () => setDenoised(!state.doc.denoised));
   if (!session.denoised) state.doc.denoised = false;
@@ -1773,6 +1804,7 @@ const pxrViewer = {
     setGrade(id, change);
   },
   setCompare,
+  setDisplayView,
   undo,
   redo,
   /** Draw now and wait for the GPU: milliseconds taken. */

@@ -26,7 +26,7 @@ export function emptyDocument() {
   return {
     format: FORMAT, exposure: 0, entries: [], snapshots: [], saved: null,
     view: { fit: true, scale: 1, cx: 0.5, cy: 0.5 }, compare: { mode: 'one', against: 'beauty', wipe: 0.5 },
-    denoised: false,
+    denoised: false, display_view: null,
   };
 }
 
@@ -35,7 +35,7 @@ const copy = (value) => JSON.parse(JSON.stringify(value));
 /** Undo and redo over whole documents (they are small: no images). */
 export class History {
   /** `kept`: keys of the document that undo and redo leave as they are (how it is viewed). */
-  constructor(document, onChange, kept = ['view', 'compare', 'denoised', 'saved']) {
+  constructor(document, onChange, kept = ['view', 'compare', 'denoised', 'saved', 'display_view']) {
     this.document = document;
     this.onChange = onChange;  // (document, {structure}) after every edit, undo and redo
     this.kept = kept;

@@ -132,12 +132,7 @@ export class Renderer {
     // Each entry of each of the two looks takes two uniform vectors (weight, slices); leave some for the rest.
     this.maxEntries = Math.min(128, Math.floor((gl.getParameter(gl.MAX_FRAGMENT_UNIFORM_VECTORS) - 16) / 4));
     this.maxSlices = gl.getParameter(gl.MAX_ARRAY_TEXTURE_LAYERS);
-    this.program = this.link(`${FRAGMENT_HEAD}${lutGlsl}\n#define MAX_ENTRIES ${this.maxEntries}\n${FRAGMENT_MAIN}`);
-    this.uniforms = {};
-    for (const name of ['u_images', 'u_masks', 'u_lut', 'u_count', 'u_weight', 'u_slices', 'u_any_solo', 'u_exposure_gain',
-      'u_mode', 'u_wipe', 'u_origin', 'u_scale', 'u_canvas', 'u_background']) {
-      this.uniforms[name] = gl.getUniformLocation(this.program, name);
-    }
+    this.useDisplay(lutGlsl);
     this.images = new SliceArray(gl, 0, gl.RGB32F, gl.RGB);
     this.masks = new SliceArray(gl, 2, gl.R32F, gl.RED);
     this.weight = new Float32Array(2 * this.maxEntries * 3);
@@ -149,6 +144,19 @@ export class Renderer {
     // An empty mask array until the first mask: a sampler must have a complete texture.
     this.masks.set(0, new Float32Array(1), 1, 1, this.maxSlices);
     this.masks.images = [];
+  }
+
+  /** The shader with this display transform's GLSL (pxr_layers/layers/display_lut.py). */
+  useDisplay(lutGlsl) {
+    const gl = this.gl;
+    const program = this.link(`${FRAGMENT_HEAD}${lutGlsl}\n#define MAX_ENTRIES ${this.maxEntries}\n${FRAGMENT_MAIN}`);
+    if (this.program) gl.deleteProgram(this.program);
+    this.program = program;
+    this.uniforms = {};
+    for (const name of ['u_images', 'u_masks', 'u_lut', 'u_count', 'u_weight', 'u_slices', 'u_any_solo', 'u_exposure_gain',
+      'u_mode', 'u_wipe', 'u_origin', 'u_scale', 'u_canvas', 'u_background']) {
+      this.uniforms[name] = gl.getUniformLocation(program, name);
+    }
   }
 
   link(fragmentSource) {
@@ -183,6 +191,7 @@ export class Renderer {
   /** The baked display transform: size³ × 3 floats, r fastest (width r, height g, depth b). */
   setLut(size, data) {
     const gl = this.gl;
+    if (this.lut) gl.deleteTexture(this.lut);
     this.lut = gl.createTexture();
     gl.activeTexture(gl.TEXTURE1);
     gl.bindTexture(gl.TEXTURE_3D, this.lut);
