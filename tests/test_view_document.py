@@ -451,3 +451,16 @@ def test_another_view_transform_is_shown_kept_and_saved(opened, browser, folder)
     page.click("#save")
     page.wait_for_selector('#saved li[data-kind="document"]')
     assert f'"{other}"' in (folder / "other_view.usda").read_text()
+
+
+def test_a_layer_of_a_misspelled_name_is_not_added_unless_asked_twice(opened):
+    page, _ = opened
+    page.fill("#expression", "C<RD'flor'>.*")
+    page.fill("#layer-name", "floor_bounce")
+    page.click("#add-layer")
+    page.wait_for_function("document.querySelector('#layer-status').textContent.startsWith('not added')")
+    assert "'flor' names nothing" in page.text_content("#layer-status")
+    assert "floor" in page.text_content("#expression-error button.nearest")
+    assert "floor_bounce" not in names(page)
+    page.click("#add-layer")  # asked again: added, empty
+    page.wait_for_selector('#stack li[data-id="floor_bounce"]')

@@ -14,11 +14,17 @@ DESCRIPTION = (
     "render), an .exr product (and the index it names), or a .pxlidx index (and the products beside "
     "it). Starts a local web server, prints its URL (with a random access token: anyone with the URL "
     "can use the page) and opens the browser. The page shows the beauty and every layer through the "
-    "products' OCIO display and view, regrades the layers live (gain, tint, mute, solo), lists the "
-    "light paths of a clicked pixel or a dragged region, makes new layers from the index (or suggests "
-    "K of them that add up to the beauty), and saves "
-    "the stack as a USD recipe (NAME.usda), its EXR (NAME.exr) and a Nuke script (NAME.nk) in PATH's "
-    "folder. Only the files of that folder are served. Ctrl-C stops it. docs/inspector.md tells more."
+    "products' OCIO display (any of its views), regrades the layers live (gain, tint, colour "
+    "temperature, mute, solo, masks picked from the Cryptomattes), manages the stack (rename, "
+    "duplicate, reorder, group, delete, undo and redo), compares looks (wipe, side by side, "
+    "snapshots, the raw beauty), warns of layers that count the same light twice, lists the light "
+    "paths of a clicked pixel or a dragged region, makes new layers from the index (or suggests K "
+    "of them that add up to the beauty), saves the stack as a USD recipe (NAME.usda), its EXR "
+    "(NAME.exr), a Nuke script (NAME.nk) and its working state (NAME.view.json), and pushes grades "
+    "of whole lights into the shot as a UsdLux override layer (NAME.lights.usda, NAME.shot.usda), "
+    "all in PATH's folder. The working state is kept beside the render (TITLE.view.json) and "
+    "restored when the page or the view is opened again. Only the files of that folder are "
+    "served. Ctrl-C stops it. docs/inspector.md tells more."
 )
 log = logging.getLogger(__name__)
 

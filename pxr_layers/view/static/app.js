@@ -1397,6 +1397,7 @@ function freeLayerName() {
 }
 
 const timings = { layer: null };  // the last "add layer": milliseconds from the click
+let confirmedUnknown = null;  // an expression with unknown labels the user was told of once
 
 /** Extract a layer from the index (POST /api/layer) and put it in the stack (one undo step);
  *  `replace`: the entry of that name gives its place and grade, and leaves. */
@@ -1427,6 +1428,19 @@ async function addLayer() {
   if (!LAYER_NAME.test(name)) return refuse('a layer name is letters, digits and _, not starting with a digit');
   if (stackNames().has(name)) return refuse(`the stack already has a layer named ${name}`);
   if (!expression) return refuse('write an expression first (or generalise ticked classes, or use the query builder)');
+  // A label that names nothing in the index (a typo) would make an empty layer: say so, with
+  // the nearest names, and add it only when asked again.
+  if (confirmedUnknown !== expression) {
+    const checked = await api('/api/check', { method: 'POST', body: { expression } }).catch(() => null);
+    if (checked?.unknown_labels?.length) {
+      confirmedUnknown = expression;
+      const box = $('#expression-error');
+      box.hidden = false;
+      showUnknownLabels(box, expression, checked.unknown_labels);
+      return refuse(`not added: ${checked.unknown_labels.map((u) => `'${u.label}'`).join(', ')} names nothing in this index, `
+        + 'so the layer would be empty (add layer again to add it anyway)');
+    }
+  }
   const button = $('#add-layer');
   button.disabled = true;
   status.textContent = `extracting ${name}…`;
