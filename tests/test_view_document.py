@@ -22,10 +22,9 @@ from test_view_browser import (
     RED_DIRECT,
     RESOLUTION,
     SCRIPT,
-    _sync_playwright,
     brightest_pixel,
+    browser,  # noqa: F401  (the fixture: one headless Chromium for the module)
     canvas_image,
-    launch,
     layer_pixels,
     open_inspector,
     serving,
@@ -37,15 +36,6 @@ from pxr_layers.view.composite import composite
 
 SERIOUS = ("serious", "critical")
 """The axe-core impacts the audit must not report."""
-
-
-@pytest.fixture(scope="module")
-def browser(tmp_path_factory):
-    sync_playwright = _sync_playwright()
-    with sync_playwright() as playwright:
-        context = launch(playwright, tmp_path_factory.mktemp("chromium-profile"))
-        yield context
-        context.close()
 
 
 @pytest.fixture(scope="module")
