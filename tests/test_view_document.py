@@ -454,3 +454,26 @@ def test_a_layer_of_a_misspelled_name_is_not_added_unless_asked_twice(opened):
     assert "floor_bounce" not in names(page)
     page.click("#add-layer")  # asked again: added, empty
     page.wait_for_selector('#stack li[data-id="floor_bounce"]')
+
+
+def test_a_slider_dragged_alone_adds_its_layer_to_the_rest_summed_once(opened):
+    """While one layer is regraded and the others stay, the frames add it to a float texture
+    of the rest (renderer.js's base): the picture is still the numpy composite within 1/255,
+    and back at its first grade it is the first picture exactly."""
+    page, _ = opened
+    rest = {"diffuse_indirect": LayerGrade(stops=-1.0, tint=(1.0, 0.8, 0.6)), "emission": LayerGrade(stops=0.5)}
+    for name, grade in rest.items():
+        page.evaluate("([id, grade]) => pxrViewer.setGrade(id, grade)", [name, {"stops": grade.stops, "tint": list(grade.tint)}])
+    first = canvas_image(page)
+    for stops in (0.5, 1.0, 1.5):
+        page.evaluate("stops => { pxrViewer.setGrade('diffuse_direct', {stops}); pxrViewer.drawFinished(); }", stops)
+    shown = canvas_image(page).astype(int)
+    assert page.evaluate("pxrViewer.state().pass") == 2
+    grades = {**rest, "diffuse_direct": LayerGrade(stops=1.5)}
+    ids = [layer["id"] for layer in stack(page)]
+    expected = to_display(composite(layer_pixels(page, "beauty"), [layer_pixels(page, entry) for entry in ids[1:]],
+                                    [grades.get(entry, LayerGrade()) for entry in ids[1:]])).astype(int)
+    assert np.abs(shown - expected).max() <= 1
+    page.evaluate("pxrViewer.setGrade('diffuse_direct', {stops: 0}); pxrViewer.drawFinished()")
+    np.testing.assert_array_equal(canvas_image(page), first)
+    assert page.evaluate("pxrViewer.state().pass") == 2

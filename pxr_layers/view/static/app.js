@@ -144,6 +144,7 @@ const state = {
   inspection: null,     // the last /api/inspect reply
   picked: new Set(),    // ticked class ids of that reply
   picking: null,        // the entry id whose mask a click in the image picks names for
+  regrading: null,      // the entry id last regraded (renderer.js: its frames add it to a base of the rest)
   tab: 'classes',
   builder: { rows: [], anyAfter: true },
   pushable: new Map(),  // entry name → {light} or {why}
@@ -196,7 +197,7 @@ function lookOf(entries, exposure) {
   return {
     exposure,
     entries: layerEntries(entries).filter((entry) => state.sources.has(entry.source)).map((entry) => ({
-      slice: state.sources.get(entry.source).slice, grade: gradeOf(entry), mute: entry.mute, solo: entry.solo,
+      id: entry.id, slice: state.sources.get(entry.source).slice, grade: gradeOf(entry), mute: entry.mute, solo: entry.solo,
       maskSlice: entry.mask ? (state.masks.get(maskKey(entry.mask))?.slice ?? -1) : -1,
     })),
   };
@@ -216,7 +217,8 @@ function drawNow() {
   const looks = [lookOf(state.doc.entries, state.doc.exposure)];
   if (mode !== 'one') looks.push(comparedLook());
   const split = mode === 'wipe' ? state.view.x + wipe * state.width * state.view.scale : 0;
-  renderer.draw(looks, state.view, MODES[mode], split);
+  const active = looks[0].entries.findIndex((entry) => entry.id === state.regrading);
+  renderer.draw(looks, state.view, MODES[mode], split, active);
   framesDrawn += 1;
 }
 
@@ -794,6 +796,7 @@ function rowOf(id) {
 function setGrade(id, change, control = null) {
   const entry = entryById(id);
   if (!entry) return;
+  state.regrading = id;
   const what = Object.keys(change).join(', ');
   edit(`${what} of ${entry.name}`, (doc) => Object.assign(doc.entries.find((e) => e.id === id), change),
     { key: control ? `${id}:${control}` : null });
@@ -1774,6 +1777,7 @@ const pxrViewer = {
   state: () => ({
     width: state.width, height: state.height, exposure: state.doc.exposure, view: { ...state.view }, denoised: state.doc.denoised,
     canvas: [canvas.width, canvas.height], selection: state.selection, gpu: renderer?.gpu, compare: { ...state.doc.compare },
+    pass: renderer?.lastPass ?? 0,
     snapshots: state.doc.snapshots.map((snapshot) => snapshot.name), saved: state.doc.saved?.name ?? null,
     undo: history?.canUndo ?? false, redo: history?.canRedo ?? false,
     layers: state.doc.entries.map(({ id, source, name, kind, group, stops, tint, kelvin, mute, solo, mask }) => ({

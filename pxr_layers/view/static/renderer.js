@@ -27,6 +27,11 @@ precision highp sampler3D;
 // solo), g_i (soloed), 0 (not soloed while others are); the shader applies the masks:
 //   unmasked: weight a_i;  masked: m_i · a_i (no solo), 1 + m_i · (a_i − 1) (soloed).
 // Two looks (sets 0 and 1) can be shown at once: split by a wipe line, or side by side.
+// While one entry is regraded alone (a slider dragged), the rest of the look is summed once
+// into a float texture (the base, pass 1) and each frame adds that entry only (pass 2): a
+// frame then reads two layers, not all of them. It is the same sum, in another order (within
+// float32 rounding); at unit gains, and with the entry's weight back at 0, it is the beauty
+// exactly again.
 const FRAGMENT_MAIN = `
 uniform sampler2DArray u_images;  // slice 0 the beauty, then the layers: linear RGB, top row first
 uniform sampler2DArray u_masks;   // mask coverages (red), top row first
@@ -42,25 +47,37 @@ uniform vec2 u_origin;             // device pixels from the canvas's (or the ha
 uniform float u_scale;             // device pixels per image pixel
 uniform vec2 u_canvas;             // the canvas's size, device pixels
 uniform vec3 u_background;
+uniform int u_pass;                // 0 the looks; 1 the base (look 0 less entry u_active); 2 the base plus it
+uniform int u_active;              // look 0's entry being regraded, when the base serves
+uniform highp sampler2D u_base;    // look 0 less entry u_active, linear, before exposure (pass 1's output)
 out vec4 colour;
 
-vec3 look(int set, ivec2 texel) {
-  int base = set * MAX_ENTRIES;
+// Entry i of a look at a pixel: its weight (the mask applied) times its layer.
+vec3 contribution(int set, int i, ivec2 texel, bool soloing) {
+  vec3 weight = u_weight[set * MAX_ENTRIES + i];
+  ivec2 slices = u_slices[set * MAX_ENTRIES + i];
+  if (slices.y >= 0) {
+    float m = texelFetch(u_masks, ivec3(texel, slices.y), 0).r;
+    weight = soloing ? (weight == vec3(0.0) ? weight : 1.0 + m * (weight - 1.0)) : m * weight;
+  }
+  return weight == vec3(0.0) ? vec3(0.0) : weight * texelFetch(u_images, ivec3(texel, slices.x), 0).rgb;
+}
+
+// A look at a pixel, linear, before its exposure; entry skip left out (-1: none).
+vec3 look(int set, ivec2 texel, int skip) {
   bool soloing = u_any_solo[set];
   vec3 rgb = soloing ? vec3(0.0) : texelFetch(u_images, ivec3(texel, 0), 0).rgb;
   for (int i = 0; i < u_count[set]; ++i) {
-    vec3 weight = u_weight[base + i];
-    ivec2 slices = u_slices[base + i];
-    if (slices.y >= 0) {
-      float m = texelFetch(u_masks, ivec3(texel, slices.y), 0).r;
-      weight = soloing ? (weight == vec3(0.0) ? weight : 1.0 + m * (weight - 1.0)) : m * weight;
-    }
-    if (weight != vec3(0.0)) rgb += weight * texelFetch(u_images, ivec3(texel, slices.x), 0).rgb;
+    if (i != skip) rgb += contribution(set, i, texel, soloing);
   }
-  return rgb * u_exposure_gain[set];
+  return rgb;
 }
 
 void main() {
+  if (u_pass == 1) {  // the base: look 0 less its active entry, one fragment an image pixel
+    colour = vec4(look(0, ivec2(gl_FragCoord.xy), u_active), 1.0);
+    return;
+  }
   // gl_FragCoord counts rows from the bottom; the images' rows run from the top.
   vec2 canvas_px = vec2(gl_FragCoord.x, u_canvas.y - gl_FragCoord.y);
   int set = 0;
@@ -75,7 +92,11 @@ void main() {
     colour = vec4(u_background, 1.0);
     return;
   }
-  colour = vec4(displayLut(look(set, ivec2(image_px)), u_lut), 1.0);  // NaN and infinities: as the previews
+  ivec2 texel = ivec2(image_px);
+  vec3 rgb = u_pass == 2
+    ? texelFetch(u_base, texel, 0).rgb + contribution(0, u_active, texel, u_any_solo[0])
+    : look(set, texel, -1);
+  colour = vec4(displayLut(rgb * u_exposure_gain[set], u_lut), 1.0);  // NaN and infinities: as the previews
 }
 `;
 
@@ -135,6 +156,11 @@ export class Renderer {
     this.useDisplay(lutGlsl);
     this.images = new SliceArray(gl, 0, gl.RGB32F, gl.RGB);
     this.masks = new SliceArray(gl, 2, gl.R32F, gl.RED);
+    // The base (see FRAGMENT_MAIN) needs a float render target: WebGL2 has it with this extension.
+    this.baseAllowed = Boolean(gl.getExtension('EXT_color_buffer_float'));
+    this.base = null;      // {texture, framebuffer, width, height, key}
+    this.lastKey = null;   // what the last frame's look 0 was, less its active entry
+    this.contents = 0;     // bumped when an image or a mask changes: a base of older ones is stale
     this.weight = new Float32Array(2 * this.maxEntries * 3);
     this.slices = new Int32Array(2 * this.maxEntries * 2);
     this.onePixel = new Uint8Array(4);
@@ -154,7 +180,7 @@ export class Renderer {
     this.program = program;
     this.uniforms = {};
     for (const name of ['u_images', 'u_masks', 'u_lut', 'u_count', 'u_weight', 'u_slices', 'u_any_solo', 'u_exposure_gain',
-      'u_mode', 'u_wipe', 'u_origin', 'u_scale', 'u_canvas', 'u_background']) {
+      'u_mode', 'u_wipe', 'u_origin', 'u_scale', 'u_canvas', 'u_background', 'u_pass', 'u_active', 'u_base']) {
       this.uniforms[name] = gl.getUniformLocation(program, name);
     }
   }
@@ -201,6 +227,7 @@ export class Renderer {
 
   /** Image slice `slice` (0: the beauty): height × width × 3 floats, top row first. */
   setImage(slice, data, width, height) {
+    this.contents += 1;
     this.images.set(slice, data, width, height, this.maxSlices);
     this.width = width;
     this.height = height;
@@ -208,13 +235,16 @@ export class Renderer {
 
   /** Mask slice `slice`: height × width floats (coverage), top row first. */
   setMask(slice, data, width, height) {
+    this.contents += 1;
     this.masks.set(slice, data, width, height, this.maxSlices);
   }
 
   /** Draw one look, or two. looks: [{entries: [{slice, grade: [r, g, b], mute, solo, maskSlice}],
    *  exposure}] (the beauty is not an entry); view: {x, y, scale} in device pixels, relative
-   *  to the canvas (side by side: to each half); mode: MODES; wipe: the wipe line's device x. */
-  draw(looks, view, mode = MODES.one, wipe = 0) {
+   *  to the canvas (side by side: to each half); mode: MODES; wipe: the wipe line's device x;
+   *  active: the index of look 0's entry being regraded (-1: none), whose frames may add it to
+   *  a base of the rest (FRAGMENT_MAIN). */
+  draw(looks, view, mode = MODES.one, wipe = 0, active = -1) {
     const gl = this.gl;
     const u = this.uniforms;
     const counts = [0, 0];
@@ -237,6 +267,7 @@ export class Renderer {
       });
     });
     if (looks.length === 1) mode = MODES.one;
+    const plan = this.planBase(looks, mode, active);
     // The background is cleared; the shader runs on the image's pixels only (a software
     // WebGL pays for every fragment, early return or not).
     const { width, height } = this.canvas;
@@ -264,6 +295,22 @@ export class Renderer {
     gl.uniform1f(u.u_scale, view.scale);
     gl.uniform2f(u.u_canvas, width, height);
     gl.uniform3fv(u.u_background, BACKGROUND);
+    gl.uniform1i(u.u_active, active);
+    gl.uniform1i(u.u_base, 3);
+    gl.activeTexture(gl.TEXTURE3);
+    gl.bindTexture(gl.TEXTURE_2D, null);  // not read while it is written
+    if (plan.fill) {
+      gl.bindFramebuffer(gl.FRAMEBUFFER, this.base.framebuffer);
+      gl.viewport(0, 0, this.width, this.height);
+      gl.uniform1i(u.u_pass, 1);
+      gl.drawArrays(gl.TRIANGLES, 0, 3);
+      gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+      gl.viewport(0, 0, width, height);
+      this.base.key = plan.key;
+    }
+    gl.uniform1i(u.u_pass, plan.pass);
+    this.lastPass = plan.pass;  // for the tests: 2 when the frame added one entry to the base
+    gl.bindTexture(gl.TEXTURE_2D, plan.pass === 2 ? this.base.texture : null);
     gl.enable(gl.SCISSOR_TEST);
     for (const offset of panels) {
       const left = Math.max(offset, Math.floor(offset + view.x));
@@ -275,6 +322,56 @@ export class Renderer {
       gl.scissor(left, height - bottom, right - left, bottom - top);
       gl.drawArrays(gl.TRIANGLES, 0, 3);
     }
+  }
+
+  /** {pass, fill, key}: pass 2 when this frame adds look 0's active entry to the base (fill:
+   *  the base is filled first), 0 when it draws the looks whole. A base pays when the rest of
+   *  the look stayed as it was since the last frame (a slider being dragged), not when
+   *  everything changes every frame. */
+  planBase(looks, mode, active) {
+    if (!this.baseAllowed || mode !== MODES.one || active < 0 || looks[0].entries.length < 2) {
+      this.lastKey = null;
+      return { pass: 0, fill: false, key: null };
+    }
+    const entries = looks[0].entries;
+    const key = JSON.stringify([this.contents, this.width, this.height, active, entries.map((entry, i) => (i === active
+      ? [entry.slice, entry.solo, entry.maskSlice] : [entry.slice, entry.grade, entry.mute, entry.solo, entry.maskSlice]))]);
+    const steady = key === this.lastKey;
+    this.lastKey = key;
+    if (this.base?.key === key) return { pass: 2, fill: false, key };
+    if (!steady || !this.makeBase()) return { pass: 0, fill: false, key };
+    return { pass: 2, fill: true, key };
+  }
+
+  /** The base's float texture and framebuffer, at the images' size; false if the browser
+   *  cannot draw into one (the looks are then always drawn whole). */
+  makeBase() {
+    const gl = this.gl;
+    if (this.base && this.base.width === this.width && this.base.height === this.height) return true;
+    if (this.base) {
+      gl.deleteFramebuffer(this.base.framebuffer);
+      gl.deleteTexture(this.base.texture);
+      this.base = null;
+    }
+    const texture = gl.createTexture();
+    gl.activeTexture(gl.TEXTURE3);
+    gl.bindTexture(gl.TEXTURE_2D, texture);
+    Renderer.nearest(gl, gl.TEXTURE_2D);
+    gl.texStorage2D(gl.TEXTURE_2D, 1, gl.RGBA32F, this.width, this.height);
+    gl.bindTexture(gl.TEXTURE_2D, null);
+    const framebuffer = gl.createFramebuffer();
+    gl.bindFramebuffer(gl.FRAMEBUFFER, framebuffer);
+    gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0, gl.TEXTURE_2D, texture, 0);
+    const complete = gl.checkFramebufferStatus(gl.FRAMEBUFFER) === gl.FRAMEBUFFER_COMPLETE;
+    gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+    if (!complete) {
+      gl.deleteFramebuffer(framebuffer);
+      gl.deleteTexture(texture);
+      this.baseAllowed = false;
+      return false;
+    }
+    this.base = { texture, framebuffer, width: this.width, height: this.height, key: null };
+    return true;
   }
 
   /** Wait until the GPU has drawn what was asked. gl.finish() returns at once in Chromium (its
