@@ -18,6 +18,7 @@ The document (every field required, nothing else)::
 
     ENTRY = {"id": unique key, "source": the server layer it shows, "name": its layer name,
              "kind": "beauty" | "layer", "expression": LPE or "", "group": "" or a name,
+             "note": "" or a line saying what it holds (a suggested layer's explanation),
              "stops", "tint": [r, g, b], "kelvin": null | K, "mute", "solo",
              "mask": null | {"kind", "names": [...]}}
 """
@@ -44,8 +45,10 @@ MAX_SNAPSHOTS = 64
 MAX_TEXT = 200
 """Longest id, source, snapshot or group name (characters)."""
 MAX_EXPRESSION = 4096
+MAX_NOTE = 1000
 COMPARE_MODES = ("one", "wipe", "side")
-ENTRY_KEYS = {"id", "source", "name", "kind", "expression", "group", "stops", "tint", "kelvin", "mute", "solo", "mask"}
+ENTRY_KEYS = {"id", "source", "name", "kind", "expression", "group", "note", "stops", "tint", "kelvin", "mute", "solo",
+              "mask"}
 DOCUMENT_KEYS = {"format", "exposure", "entries", "snapshots", "saved", "view", "compare", "denoised", "display_view"}
 
 
@@ -145,6 +148,8 @@ def _entries(entries, what: str) -> list[dict]:
             raise DocumentError(f"{where}.expression: a string of at most {MAX_EXPRESSION} characters")
         if entry["group"] != "":
             _text(entry["group"], f"{where}.group")
+        if entry["note"] != "":
+            _text(entry["note"], f"{where}.note", MAX_NOTE)
         _number(entry["stops"], f"{where}.stops", -MAX_PREVIEW_STOPS, MAX_PREVIEW_STOPS)
         tint = entry["tint"]
         if not isinstance(tint, list) or len(tint) != 3:
@@ -177,9 +182,9 @@ def _list(value, what: str, most: int) -> list:
     return value
 
 
-def _text(value, what: str) -> None:
-    if not isinstance(value, str) or not value or len(value) > MAX_TEXT or not value.isprintable():
-        raise DocumentError(f"{what}: 1 to {MAX_TEXT} printable characters, not {_shown(value)}")
+def _text(value, what: str, most: int = MAX_TEXT) -> None:
+    if not isinstance(value, str) or not value or len(value) > most or not value.isprintable():
+        raise DocumentError(f"{what}: 1 to {most} printable characters, not {_shown(value)}")
 
 
 def _number(value, what: str, low: float, high: float) -> None:

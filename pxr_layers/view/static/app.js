@@ -661,6 +661,7 @@ function layerRow(entry) {
     el('span', { class: 'layer-name', title: entry.expression ? `${entry.name}: ${entry.expression}` : entry.name },
       entry.name),
     el('span', { class: 'badge', hidden: true }), el('span', { class: 'tint-value mono' }), share);
+  if (entry.note) row.append(el('div', { class: 'layer-note dim' }, entry.note));
   const named = (what) => `${what} of ${entry.name}`;
   const slider = el('input', {
     type: 'range', class: 'gain', min: -10, max: 10, step: 0.05, value: entry.stops, 'aria-label': named('gain (stops)'),
@@ -1473,21 +1474,27 @@ async function addLayer() {
   }
 }
 
-/** Layers found automatically (POST /api/suggest): K layers that partition the beauty, added to
- * the stack at unit gain (the picture does not change until they are regraded). */
+/** Layers found automatically (POST /api/suggest): K layers (K empty: as many as the search's
+ * objective finds worth it) that partition the beauty, less those the stack has already,
+ * added at unit gain (the picture does not change until they are regraded), each with its
+ * one-line explanation. */
 async function suggestLayers() {
-  const k = Number($('#suggest-k').value);
+  const text = $('#suggest-k').value.trim();
+  const k = text === '' ? null : Number(text);
   const status = $('#suggest-status');
   const button = $('#suggest');
   button.disabled = true;
-  status.textContent = `finding ${k} layers…`;
+  status.textContent = k === null ? 'finding layers…' : `finding ${k} layers…`;
   try {
-    const found = await api('/api/suggest', { method: 'POST', body: { k } });
+    const exclude = [...new Set(layerEntries().map((entry) => entry.expression).filter(Boolean))];
+    const found = await api('/api/suggest', { method: 'POST', body: { k, exclude } });
     const sources = found.layers.map((layer) => addSource({ kind: 'layer', ...layer }));
     await Promise.all(sources.map(loadSource));
-    const entries = sources.map((source) => entryOf(source).entry);
+    const entries = sources.map((source) => entryOf(source, { note: found.explanations?.[source.id] ?? '' }).entry);
     edit(`suggest ${entries.length} layers`, (doc) => doc.entries.push(...entries), { structure: true });
-    status.textContent = `${found.layers.length} layers (${found.strategy}) in ${number(found.seconds)} s`;
+    const already = Object.keys(found.already ?? {}).length;
+    status.textContent = `${found.layers.length} layers${found.chosen_k === 'elbow' ? ' (K by the elbow)' : ''} in `
+      + `${number(found.seconds)} s${already ? `; ${already} the stack has already, not added again` : ''}`;
     timings.suggest = { layers: entries.map((entry) => entry.id), server_seconds: found.seconds };
   } catch (error) {
     status.textContent = `not suggested: ${error.message}`;

@@ -13,7 +13,7 @@ export const COALESCE_MS = 1000;
 export function newEntry(source, fields = {}) {
   return {
     id: fields.id ?? source.id, source: source.id, name: fields.name ?? source.name, kind: source.kind,
-    expression: source.expression ?? '', group: fields.group ?? '',
+    expression: source.expression ?? '', group: fields.group ?? '', note: fields.note ?? '',
     stops: fields.stops ?? source.exposure ?? 0, tint: fields.tint ?? source.tint ?? [1, 1, 1],
     kelvin: fields.kelvin ?? null, mute: fields.mute ?? false, solo: fields.solo ?? false, mask: fields.mask ?? null,
   };
