@@ -171,7 +171,8 @@ def click_to_layer(context, url: str, repeats: int) -> None:
 
 
 def screenshot(context, url: str, index: Path, path: Path) -> None:
-    """The page after a click on the Cornell box's red wall and a layer made from its first class."""
+    """The page after a click on the Cornell box's red wall and a layer made from its first class,
+    graded warm, its more controls open, wiped against the raw beauty."""
     x, y, _, _ = brightest_pixel(index, RED_DIRECT)
     page = open_inspector(context, url)
     page.keyboard.press("f")
@@ -184,6 +185,9 @@ def screenshot(context, url: str, index: Path, path: Path) -> None:
     page.uncheck("#solo-new")
     make_layer(page, "red_bounce", page.input_value("#expression"))
     page.evaluate("pxrViewer.setGrade('red_bounce', { stops: 1, tint: [1, 0.55, 0.3] })")
+    page.locator('#stack li[data-id="red_bounce"] details.more summary').click()  # its more controls
+    page.evaluate("pxrViewer.setGrade('red_bounce', { kelvin: 4500 })")
+    page.evaluate("pxrViewer.setCompare({ mode: 'wipe', against: 'beauty', wipe: 0.12 })")  # across the red wall
     page.wait_for_timeout(200)
     page.screenshot(path=str(path))
     print(f"screenshot: {path}")

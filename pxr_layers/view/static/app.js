@@ -1022,7 +1022,7 @@ function renderOverlaps() {
   const pairs = (reply?.pairs ?? []).filter((pair) => pair.share > 0);
   box.hidden = !pairs.length;
   if (!pairs.length) return;
-  box.replaceChildren(
+  box.replaceChildren(...[
     el('p', {}, `these layers claim the same light paths: ${percent(reply.double_counted ?? 0)} of the beauty is counted twice in their sum`),
     el('ul', {}, pairs.map((pair) => el('li', {}, `${pair.a} and ${pair.b}: ${percent(pair.share)}`,
       reply.exclusive?.[pair.b] ? el('button', {
@@ -1031,7 +1031,8 @@ function renderOverlaps() {
       }, `${pair.b} without ${pair.a}`) : null))),
     reply.remainder_expression ? el('button', {
       onclick: () => makeLayer('remainder', reply.remainder_expression),
-    }, `add the remainder (${percent(reply.remainder ?? 0)})`) : null);
+    }, `add the remainder (${percent(reply.remainder ?? 0)})`) : null,
+  ].filter(Boolean));
 }
 
 // --- inspect ------------------------------------------------------------------------------
