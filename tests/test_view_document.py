@@ -30,6 +30,7 @@ from test_view_browser import (
     serving,
 )
 
+from pxr_layers.layers.multipart import read_multipart
 from pxr_layers.layers.nuke import LayerGrade
 from pxr_layers.layers.previews import to_display
 from pxr_layers.view.composite import composite
@@ -401,9 +402,15 @@ def test_colour_temperature_grades_as_the_light_would(opened):
     assert "3000 K" in page.text_content('#stack li[data-id="diffuse_direct"] .tint-value')
 
 
-def test_light_edits_are_badged_and_pushed_into_usd(opened, folder):
+def test_light_edits_are_badged_and_pushed_into_usd(opened, folder, tmp_path):
     """A layer of the whole ceiling light is a light edit; a pass of its diffuse bounces only
-    is a compositing grade that says why; the push writes the override and the shot."""
+    is a compositing grade that says why; the push writes the override and the shot, and a
+    render of the shot is the page's regraded beauty within noise.
+
+    Tolerance (as tests/test_view_push.py derives it): the pixels are independent estimates,
+    so the mean of D = rerender − the page's composite has standard error std(D)/√pixels; each
+    channel's mean must be within 4 of them (plus 1e-6 of the mean, for renders whose paths
+    coincide and whose D is rounding only)."""
     page, _ = opened
     add_layer(page, "ceiling", "C.*<L.'ceilingLight'>")
     page.evaluate("pxrViewer.setGrade('ceiling', {stops: 1, kelvin: 4000})")
@@ -416,6 +423,22 @@ def test_light_edits_are_badged_and_pushed_into_usd(opened, folder):
     assert "ceiling → ceilingLight" in page.text_content("#saved")
     assert (folder / "warmer.lights.usda").is_file() and (folder / "warmer.shot.usda").is_file()
     assert "over" in (folder / "warmer.lights.usda").read_text()
+
+    ids = [layer["id"] for layer in stack(page)]
+    grades = [LayerGrade(stops=1.0, kelvin=4000.0) if entry == "ceiling" else LayerGrade() for entry in ids[1:]]
+    beauty = layer_pixels(page, "beauty")
+    expected = composite(beauty, [layer_pixels(page, entry) for entry in ids[1:]], grades).astype(np.float64)
+    again = tmp_path / "again"
+    result = subprocess.run([SCRIPT, "render", str(folder / "warmer.shot.usda"), "-o", str(again), "--resolution",
+                             str(RESOLUTION), str(RESOLUTION), "--spp", "16", "--quiet", "--no-index"],
+                            capture_output=True, text=True, check=False)
+    assert result.returncode == 0, result.stderr
+    rendered = read_multipart(next(again.glob("*.exr"))).beauty[..., :3].astype(np.float64)
+    difference = (rendered - expected).reshape(-1, 3)
+    tolerance = 4.0 * difference.std(axis=0, ddof=1) / np.sqrt(len(difference)) + 1e-6 * expected.mean()
+    assert np.all(np.abs(difference.mean(axis=0)) < tolerance), (difference.mean(axis=0), tolerance)
+    moved = (expected - beauty).reshape(-1, 3).mean(axis=0)
+    assert np.all(np.abs(moved) > 10 * tolerance), (moved, tolerance)  # the grade is far outside it
 
 
 def test_another_view_transform_is_shown_kept_and_saved(opened, browser, folder):
