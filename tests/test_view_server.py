@@ -40,8 +40,9 @@ class Server:
         self.base, _, self.token = url.partition("/?token=")
 
     def request(self, path: str, body: dict | None = None, *, token: str | None = "header",
-                headers: dict | None = None) -> tuple[int, bytes, dict]:
-        """(status, body, headers) of GET path (POST body as JSON); token: "header", "query" or None."""
+                headers: dict | None = None, method: str | None = None) -> tuple[int, bytes, dict]:
+        """(status, body, headers) of GET path (POST body as JSON, or `method`); token: "header",
+        "query" or None."""
         url = self.base + path
         sent = dict(headers or {})
         if token == "header":
@@ -51,7 +52,8 @@ class Server:
         data = json.dumps(body).encode() if body is not None else None
         if data is not None:
             sent["Content-Type"] = "application/json"
-        request = urllib.request.Request(url, data=data, headers=sent, method="POST" if data is not None else "GET")
+        request = urllib.request.Request(url, data=data, headers=sent,
+                                         method=method or ("POST" if data is not None else "GET"))
         try:
             with urllib.request.urlopen(request, timeout=120) as response:
                 return response.status, response.read(), dict(response.headers)
