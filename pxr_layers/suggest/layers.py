@@ -42,6 +42,9 @@ TYPE_WORDS = dict(zip(SCATTERING_TYPES, ("", "transmitted", "volume"), strict=Tr
 DEPTH_WORDS = {frozenset({0}): "emission", frozenset({1}): "direct", frozenset({2}): "indirect",
                frozenset({0, 1}): "direct", frozenset({1, 2}): "bounced"}
 REST = "rest"
+LISTED_AT_MOST = 3
+"""A node that avoids some lights (objects, materials) is named after those it is left with
+when they are this many or fewer: "fill_sky"."""
 """The name of a layer that no split names (the whole of path space, or what a split left)."""
 
 
@@ -107,18 +110,23 @@ class Node:
 
     def named_terms(self, present: list[dict]) -> dict[str, object]:
         """The terms that name something an artist can change: attribute → value for the
-        light, the first bounce's object and material it equals (or, avoiding values, is left
-        with one of, among `present`), and "touches" → the tokens it requires. Empty: the
-        node names no light, object or material (a depth, lobe or covariance cut alone)."""
+        light, the first bounce's object and material it equals or is left with one value of
+        among `present` (whether the node tests it or the stage has only one: "lamp"), or a
+        tuple of the LISTED_AT_MOST values it is left with when it avoids some ("fill",
+        "sky"); and "touches" → the tokens it requires. Empty: it names nothing."""
         include, exclude = dict(self.include), dict(self.exclude)
         found: dict[str, object] = {}
         for attribute in ("light", "object", "material"):
             if attribute in include:
                 found[attribute] = include[attribute]
-            elif attribute in exclude:
-                left = {atom[attribute] for atom in present}
-                if len(left) == 1 and None not in left:
-                    found[attribute] = left.pop()
+                continue
+            left = sorted({atom[attribute] for atom in present}, key=str)
+            if None in left or not left:
+                continue
+            if len(left) == 1 and (attribute in exclude or attribute == "light"):
+                found[attribute] = left[0]
+            elif attribute in exclude and len(left) <= LISTED_AT_MOST:
+                found[attribute] = tuple(left)
         if self.touched:
             found[TOUCHES] = tuple(sorted(self.touched))
         return found
@@ -157,6 +165,9 @@ class Node:
                 if self.depths != ALL_DEPTHS and not implied:
                     parts.append(DEPTH_WORDS[self.depths])
                 continue
+            if attribute in named and isinstance(named[attribute], tuple):
+                parts.append("_".join(_word(attribute, value, names) for value in named[attribute]))
+                continue
             if attribute in named:
                 value = named[attribute]
             elif attribute in include:
@@ -174,26 +185,31 @@ class Node:
         return text if re.match(r"[A-Za-z_]", text) else "layer_" + text
 
     def explain(self, present: list[dict], names: dict[str, str]) -> str:
-        """One line an artist reads: "the red light's direct diffuse light on ball_red",
-        "lamp's light by way of mirror", "every light's indirect light, not by way of mirror"."""
+        """One line an artist reads: "the red light's direct diffuse light on the shelf",
+        "the lamp light's light on the wall by way of the mirror"."""
         include, exclude = dict(self.include), dict(self.exclude)
         named = self.named_terms(present)
 
         def called(value) -> str:
             return names.get(value, str(value))
 
+        def listed(values) -> str:
+            values = [called(value) for value in values]
+            return values[0] if len(values) == 1 else ", ".join(values[:-1]) + " and " + values[-1]
+
         light = named.get("light")
-        if light == "B":
+        if isinstance(light, tuple):
+            whose = f"the {listed(light)} lights'"
+        elif light == "B":
             whose = "the background's"
         elif light is not None:
             whose = f"{called(light)}'s" if str(light).startswith("O:") else f"the {called(light)} light's"
         elif "light" in exclude:
-            whose = "every light's but " + ", ".join(called(value) for value in sorted(exclude["light"]))
-            whose = whose + "'s"
+            whose = f"every light's but {listed(sorted(exclude['light']))}'s"
         else:
             whose = "every light's"
-        kind = {frozenset({0}): "light seen directly", frozenset({1}): "direct", frozenset({2}): "indirect",
-                frozenset({0, 1}): "direct and seen", frozenset({1, 2}): ""}.get(self.depths, "")
+        kind = {frozenset({0}): "", frozenset({1}): "direct", frozenset({2}): "indirect",
+                frozenset({0, 1}): "direct and directly seen"}.get(self.depths, "")
         lobe = []
         if "type" in include and TYPE_WORDS[include["type"]]:
             lobe.append(TYPE_WORDS[include["type"]])
@@ -203,26 +219,28 @@ class Node:
             lobe.append("non-" + "/".join(SCATTER_WORDS[value] for value in sorted(exclude["scatter"])))
         words = " ".join(word for word in (kind, *lobe) if word)
         if self.depths == frozenset({0}):
-            text = f"{whose} {words}"
+            text = f"{whose} emitter seen directly"
         else:
             text = f"{whose} {words + ' ' if words else ''}light"
-        if "object" in named:
-            text += f" on {called(named['object'])}"
+        objects = named.get("object")
+        if objects is not None:
+            text += f" on the {listed(objects if isinstance(objects, tuple) else (objects,))}"
         elif "object" in exclude:
-            text += " on anything but " + ", ".join(called(value) for value in sorted(exclude["object"]))
-        if "material" in named:
-            text += f" ({called(named['material'])} material)"
+            text += f" on anything but the {listed(sorted(exclude['object']))}"
+        materials = named.get("material")
+        if materials is not None:
+            text += f" ({listed(materials if isinstance(materials, tuple) else (materials,))} material)"
         elif "material" in exclude:
-            text += " (any material but " + ", ".join(called(value) for value in sorted(exclude["material"])) + ")"
+            text += f" (any material but {listed(sorted(exclude['material']))})"
         covariance = [COVARIANCE_WORDS[attribute][0 if attribute in include else 1]
                       for attribute in COVARIANCE if attribute in include or attribute in exclude]
         if covariance:
             text += " where the first bounce is " + ", ".join(covariance)
         if self.touched:
-            text += " by way of " + " and ".join(called(token) for token in sorted(self.touched))
+            text += f" by way of the {listed(sorted(self.touched))}"
         avoided = sorted(exclude.get(TOUCHES, ()))
         if avoided:
-            text += ", never touching " + " or ".join(called(token) for token in avoided)
+            text += f", never touching the {listed(avoided)}"
         return text
 
 

@@ -34,7 +34,9 @@ log = logging.getLogger(__name__)
 NAMELESS_WEIGHT = 1.0
 """Per unit of share of a layer that names no light, object, material or touch (docs/suggest.md)."""
 ELBOW_FLAT = 0.02
-"""J(K) − J(1) at or under which no split is worth making: the elbow rule suggests one layer."""
+"""J(2) − J(1) at or under which no split is worth making: the elbow rule suggests one layer."""
+ELBOW_FRACTION = 0.2
+"""A split gaining less than this fraction of the first split's gain is past the elbow."""
 MAX_ELBOW_K = 8
 """The largest K the elbow rule looks at when -k is left out."""
 UNMATTED_WEIGHT = 1.5
@@ -249,18 +251,16 @@ class Searcher:
 
 
 def elbow(objectives: list[float]) -> int:
-    """The number of layers (1-based) at the elbow of J(1), …, J(K): the k whose point lies
-    farthest above the chord from (1, J(1)) to (K, J(K)) (Satopää et al.'s "Kneedle" for a
-    concave, rising curve), ties to the smaller k; 1 when J never rises by more than
-    ELBOW_FLAT (nothing worth splitting)."""
+    """The number of layers (1-based) at the elbow of J(1), J(2), …: the first K whose next
+    split gains less than ELBOW_FRACTION of what the first split gained (J(2) − J(1)), the
+    last K when none does; 1 when the first split gains ELBOW_FLAT or less (nothing worth
+    splitting). The first split is the measure of what a split can do on this stage."""
     values = np.asarray(objectives, float)
-    if len(values) < 3:
-        return len(values) if len(values) and values[-1] - values[0] > ELBOW_FLAT else 1
-    if values.max() - values[0] <= ELBOW_FLAT:
+    if len(values) < 2 or values[1] - values[0] <= ELBOW_FLAT:
         return 1
-    k = np.arange(1, len(values) + 1, dtype=float)
-    chord = values[0] + (values[-1] - values[0]) * (k - 1) / (k[-1] - 1)
-    return int(np.argmax(values - chord)) + 1
+    gains = np.diff(values)
+    small = np.flatnonzero(gains[1:] < ELBOW_FRACTION * gains[0])
+    return int(small[0]) + 2 if len(small) else len(values)
 
 
 def _object_column(values: list) -> np.ndarray:
