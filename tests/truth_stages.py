@@ -212,12 +212,12 @@ def mirror(folder: Path, width: int = 64, height: int = 64):
 
 def textured(folder: Path, width: int = 64, height: int = 48):
     """(c) Two flat quads side by side facing the camera under one light (/World/lamp): a
-    textured one (/World/textured, two_frequencies.png) and a plain grey one (/World/flat).
-    Truth: 0 where the central ray hits the textured quad, 1 the flat one."""
+    textured poster (/World/poster, two_frequencies.png) and a plain grey board (/World/board).
+    Truth: 0 where the central ray hits the poster, 1 the board."""
     camera_z = 3.0
     left = [(-1.1, -0.5, 0.0), (-0.1, -0.5, 0.0), (-0.1, 0.5, 0.0), (-1.1, 0.5, 0.0)]
     right = [(0.1, -0.5, 0.0), (1.1, -0.5, 0.0), (1.1, 0.5, 0.0), (0.1, 0.5, 0.0)]
-    body = (_quads("textured", [left], "printed") + _quads("flat", [right], "grey")
+    body = (_quads("poster", [left], "printed") + _quads("board", [right], "grey")
             + _light("lamp", (0.0, 1.0, 1.5), (1.0, 1.0, 1.0), 200.0, 0.1))
     materials = _material("printed", texture=TEXTURE) + _material("grey", (0.5, 0.5, 0.5))
     stage = _write(folder, "textured", body, materials, width, height, camera_z)
