@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import lpe
 from ..paths.reader import PathIndex
 from .atoms import ATTRIBUTES, gather
 from .partition import SuggestError, check_partition, same_layer
@@ -72,6 +73,8 @@ def suggest(indexes: Sequence[PathIndex], k: int | None = None, *, strategy: str
         raise SuggestError("no path index to suggest layers for")
     if k is not None and k < 1:
         raise SuggestError(f"asked for {k} layers: at least 1")
+    for expression in exclude:  # a mistake in the stack's expressions costs nothing
+        lpe.compile_layers({"excluded": expression})
     started = time.perf_counter()
     atoms = gather(indexes, threads=threads)
     gathered = time.perf_counter()
