@@ -63,7 +63,8 @@ def _time(index_path: Path, k: int | None, repeats: int) -> int:
           f"{index.manifest.get('spp')} spp")
     started = time.perf_counter()
     atoms = gather([index], threads=THREADS)
-    print(f"read into {len(atoms.keys):,} atoms of {atoms.maps.shape[1]} features in {time.perf_counter() - started:.2f} s")
+    print(f"read into {len(atoms.keys):,} atoms of {atoms.maps.shape[1]} features "
+          f"in {time.perf_counter() - started:.2f} s")
     missed = False
     for strategy in STRATEGIES:
         search = whole = float("inf")

@@ -365,12 +365,14 @@ def test_job_suggest_is_the_suggest_search_on_the_frames_done(tmp_path, referenc
     parser = argparse.ArgumentParser()
     job_command.add_arguments(parser)
     recipe = tmp_path / "shot.usda"
-    arguments = ["suggest", str(SHOT), "--directory", str(job.output_directory), "-k", "3", "-o", str(recipe), "--no-exr"]
+    arguments = ["suggest", str(SHOT), "--directory", str(job.output_directory), "-k", "3", "-o", str(recipe),
+                 "--no-exr"]
     assert job_command.run(parser.parse_args(arguments)) == 0
     printed = capsys.readouterr().out
     expected = suggest([PathIndex(job.index_path(frame)) for frame in (1.0, 2.0)], 3)
     recipe_read = load_recipe(job.request.stage, recipe_layers=[recipe])
-    layers = {layer.name: layer for product in recipe_read.products if product.name == "shot" for layer in product.layers}
+    layers = {layer.name: layer for product in recipe_read.products if product.name == "shot"
+              for layer in product.layers}
     assert {name: layer.source_name for name, layer in layers.items()} == expected.layers
     assert {name: layer.description for name, layer in layers.items()} == expected.explanations
     assert all(text in printed for text in expected.explanations.values())

@@ -205,6 +205,7 @@ def test_without_k_the_elbow_chooses_and_the_recipe_carries_the_explanations(tou
     expected = suggest([touches])
     assert expected.chosen_k == "elbow" and "at the elbow of" in printed
     stage = Usd.Stage.Open(str(recipe))
-    documented = {prim.GetName(): prim.GetDocumentation() for prim in stage.Traverse() if prim.GetTypeName() == "RenderVar"}
+    documented = {prim.GetName(): prim.GetDocumentation() for prim in stage.Traverse()
+                  if prim.GetTypeName() == "RenderVar"}
     assert documented == expected.explanations
     assert all(f"  {text}" in printed for text in expected.explanations.values())

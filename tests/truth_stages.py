@@ -115,7 +115,8 @@ def _light(name: str, position, color, intensity: float, radius: float, linked: 
     link = ""
     if linked:
         targets = ", ".join(f"</World/{prim}>" for prim in linked)
-        link = f"uniform bool collection:lightLink:includeRoot = 0\n        rel collection:lightLink:includes = [{targets}]\n"
+        link = (f"uniform bool collection:lightLink:includeRoot = 0\n"
+                f"        rel collection:lightLink:includes = [{targets}]\n")
     return f'''
     def SphereLight "{name}"
     {{
@@ -145,7 +146,8 @@ CELL_LIGHTS = (("red", (1.0, 0.08, 0.05)), ("green", (0.08, 1.0, 0.1)), ("blue",
 
 def compartments(folder: Path, width: int = 96, height: int = 48):
     """(a) Three boxes side by side (1 m wide and tall, 1.5 m deep, open toward the camera at
-    z = 0 but for a lip along its top that hides the light from the camera), each with its own walls (/World/walls_<colour>), a ball (/World/ball_<colour>) and
+    z = 0 but for a lip along its top that hides the light from the camera), each with its
+    own walls (/World/walls_<colour>), a ball (/World/ball_<colour>) and
     a coloured SphereLight (/World/<colour>) inside, light-linked to its own box only: every
     path touches exactly one light, one set of walls and one ball. Truth: the box (0, 1, 2)
     whose opening the pixel's central ray passes through."""

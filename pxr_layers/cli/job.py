@@ -116,7 +116,8 @@ def _suggest(args: argparse.Namespace) -> int:
     job = load_job(args.job, {"output.directory": args.directory} if args.directory else {})
     done = [frame for frame in job.frames if is_done(job, frame)]
     if not done:
-        raise JobError(f"no frame is done in {job.output_directory} yet: `pxr-layers job run` first", file=str(job.file))
+        raise JobError(f"no frame is done in {job.output_directory} yet: `pxr-layers job run` first",
+                       file=str(job.file))
     args.indexes = [str(job.index_path(frame)) for frame in done]
     if not args.output:
         args.output = str(job.output_directory / expand_template(SUGGESTED_RECIPE, done[0], job.name))

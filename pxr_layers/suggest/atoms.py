@@ -230,7 +230,8 @@ def _event_values(event: Event, paths: tuple[str, str], names: dict[str, str], l
         if event.type == "L":
             return {"light": value}
         names[own_path], labels[own_path] = names[value], own_path  # an emissive object is touched too
-        return {"light": value, "object": own_path, "material": (material or None) and _named_material(material, names, labels)}
+        named_material = _named_material(material, names, labels) if material else None
+        return {"light": value, "object": own_path, "material": named_material}
     if event.type == "B":
         names["B"] = "background"
         return {"light": "B"}

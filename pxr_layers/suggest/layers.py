@@ -71,7 +71,8 @@ class Node:
         if attribute == TOUCHES:
             equal = Node(self.include, self.exclude, self.depths, self.touched | {value})
         else:
-            equal = Node(_sorted({**dict(self.include), attribute: value}), _sorted(excluded), self.depths, self.touched)
+            included = _sorted({**dict(self.include), attribute: value})
+            equal = Node(included, _sorted(excluded), self.depths, self.touched)
         excluded[attribute] = avoided | {value}
         return equal, Node(self.include, _sorted(excluded), self.depths, self.touched)
 

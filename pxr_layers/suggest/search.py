@@ -4,7 +4,8 @@ The objective of a partition into layers l (docs/suggest.md, "The objective")::
 
     J = Σ_l ‖x_l − s_l·b‖₁ / ‖b‖₁                                  what a grade of the beauty cannot do
         + UNMATTED_WEIGHT · Σ_l Σ_m ‖min(x_lm, b_m − x_lm)‖₁ / ‖b‖₁   what an ID matte cannot do
-        − TERM_WEIGHT · Σ_l terms_l                                   long expressions
+        − NAMELESS_WEIGHT · Σ_{l not nameable} s_l                    what no one can name
+        − TERM_WEIGHT · Σ_l terms_l − TOUCH_TERM_WEIGHT · Σ_l touch terms_l   long expressions
 
 x_l : the layer's rgb per frame and tile (atoms.Atoms.maps summed over its atoms), b the
 beauty's, s_l = ‖x_l‖₁ / ‖b‖₁ its share; x_lm, b_m the same under the ID matte m (the
@@ -14,6 +15,10 @@ beauty would not; the second, the light it separates *within* the pixels of one 
 x_lm's distance to the nearest all-or-nothing cut of b_m, which is 0 for a layer made of
 whole objects (a Cryptomatte gives that already) and large for a light, a lobe or a
 bounce count that shares its pixels with others. Neither decreases when a layer is split.
+The third takes the share of a layer that names no light, object, material or touch, or
+cuts by bounce, lobe or covariance without naming one light (Node.nameable).
+
+Without K, ``elbow`` chooses it from J of the best partition into 1, 2, … layers.
 
 Strategies: ``greedy`` takes, K − 1 times, the split of one leaf that raises J most;
 ``beam`` keeps the BEAM_WIDTH best partitions at each step (greedy is beam of width 1).
@@ -58,8 +63,10 @@ STRATEGIES = ("beam", "greedy")
 class Leaf:
     """A node and what it holds. atoms : (n,) int64 rows of Atoms; rgb : (f,) its light;
     energy : its luminance summed over frames and tiles; isolated, unmatted : its terms of
-    the first two sums; nameable : whether it names a light, object, material or touch
-    (Node.named_terms), the third sum counting its share when not."""
+    the first two sums; nameable : Node.nameable of its node and atoms, the third sum
+    counting its share when not; mattes : (p,) the ID mattes its atoms fall under,
+    ascending; by_matte : (p, f) its light under each. Its atoms are kept in matte order,
+    so that one side of a split is a sum per run."""
 
     node: Node
     atoms: np.ndarray
@@ -91,7 +98,8 @@ class Searcher:
         self.total = float(self.beauty.sum()) or 1.0
         self.energy_total = float(luminance(self.beauty).sum()) or 1.0
         self.mattes = atoms.mattes()
-        self.matte_beauty = self._by_matte(np.argsort(self.mattes, kind="stable"))[1]  # (m, f): the beauty under each matte
+        # (m, f): the beauty under each matte
+        self.matte_beauty = self._by_matte(np.argsort(self.mattes, kind="stable"))[1]
         self.unmatted_weight, self.term_weight = unmatted_weight, term_weight
         self.nameless_weight = nameless_weight
         self.columns = {attribute: _object_column(atoms.values(attribute)) for attribute in ATTRIBUTES}
