@@ -74,7 +74,7 @@ def suggest(indexes: Sequence[PathIndex], k: int | None = None, *, strategy: str
     if k is not None and k < 1:
         raise SuggestError(f"asked for {k} layers: at least 1")
     for expression in exclude:  # a mistake in the stack's expressions costs nothing
-        lpe.compile_layers({"excluded": expression})
+        lpe.compile_layers({"exclude": expression})
     started = time.perf_counter()
     atoms = gather(indexes, threads=threads)
     gathered = time.perf_counter()
