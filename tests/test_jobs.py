@@ -349,3 +349,32 @@ def test_a_job_denoises_its_frames_from_their_tiles_guides(tmp_path, client):
     assert twins and twins == sorted(path.name for path in whole.glob("*.denoised.exr"))
     for name in twins:
         assert (out / name).read_bytes() == (whole / name).read_bytes()
+
+
+def test_job_suggest_is_the_suggest_search_on_the_frames_done(tmp_path, reference, capsys):
+    """`pxr-layers job suggest`: one layer set for the job's done frames, the very search of
+    `pxr-layers suggest` (and of the inspector's /api/suggest); no frame done is one line."""
+    import argparse
+
+    from pxr_layers.cli import job as job_command
+    from pxr_layers.paths.reader import PathIndex
+    from pxr_layers.stage import load_recipe
+    from pxr_layers.suggest import suggest
+
+    job, _, _ = reference
+    parser = argparse.ArgumentParser()
+    job_command.add_arguments(parser)
+    recipe = tmp_path / "shot.usda"
+    arguments = ["suggest", str(SHOT), "--directory", str(job.output_directory), "-k", "3", "-o", str(recipe),
+                 "--no-exr"]
+    assert job_command.run(parser.parse_args(arguments)) == 0
+    printed = capsys.readouterr().out
+    expected = suggest([PathIndex(job.index_path(frame)) for frame in (1.0, 2.0)], 3)
+    recipe_read = load_recipe(job.request.stage, recipe_layers=[recipe])
+    layers = {layer.name: layer for product in recipe_read.products if product.name == "shot"
+              for layer in product.layers}
+    assert {name: layer.source_name for name, layer in layers.items()} == expected.layers
+    assert {name: layer.description for name, layer in layers.items()} == expected.explanations
+    assert all(text in printed for text in expected.explanations.values())
+    with pytest.raises(Exception, match="no frame is done"):
+        job_command.run(parser.parse_args(["suggest", str(SHOT), "--directory", str(tmp_path / "empty")]))

@@ -158,7 +158,7 @@ def test_lights_that_share_pixels_are_split_first(showcase):
     for strategy in STRATEGIES:
         suggestion = suggest([showcase], 2, strategy=strategy)
         assert suggestion.splits == ("light = L:/World/Lights/key",), suggestion.splits
-        assert set(suggestion.layers) == {"key", "rest"}
+        assert set(suggestion.layers) == {"key", "fill_sky"}  # the rest, named after the lights it is left with
         for k in (2, 3):
             layers = extract(showcase, suggest([showcase], k, strategy=strategy).layers).layers
             assert_sums_to_beauty(layers, extract(showcase, {"beauty": lpe.BEAUTY}).layers["beauty"].astype(np.float64))
@@ -192,3 +192,20 @@ def test_the_recipe_round_trips_through_extract_bit_for_bit(touches, tmp_path, c
     assert rendered.returncode == 0, rendered.stderr
     parts = OpenEXR.File(str(tmp_path / "render" / "touch_layers.exr")).parts
     assert [part.name() for part in parts] == [part.name() for part in first]
+
+
+def test_without_k_the_elbow_chooses_and_the_recipe_carries_the_explanations(touches, tmp_path, capsys):
+    """No -k: K at the objective's elbow, said so; each layer's one-line explanation printed
+    under it and kept in the recipe as its RenderVar's USD documentation."""
+    from pxr import Usd
+
+    recipe = tmp_path / "explained.usda"
+    assert run_suggest(str(touches.path), "-o", str(recipe), "--no-exr") == 0
+    printed = capsys.readouterr().out
+    expected = suggest([touches])
+    assert expected.chosen_k == "elbow" and "at the elbow of" in printed
+    stage = Usd.Stage.Open(str(recipe))
+    documented = {prim.GetName(): prim.GetDocumentation() for prim in stage.Traverse()
+                  if prim.GetTypeName() == "RenderVar"}
+    assert documented == expected.explanations
+    assert all(f"  {text}" in printed for text in expected.explanations.values())

@@ -363,6 +363,20 @@ def test_suggested_layers_partition_the_beauty(server, folder):
     assert server.request("/api/suggest", {"k": 0})[0] == 400
 
 
+def test_suggest_chooses_k_explains_and_skips_the_stack(server):
+    """k left out: the elbow; each layer explained; `exclude` (the stack's expressions)
+    keeps a suggestion that cuts the same paths from being added again."""
+    first = server.json("/api/suggest", {})
+    names = [layer["id"] for layer in first["layers"]]
+    assert first["chosen_k"] == "elbow" and set(first["explanations"]) == set(names)
+    assert all(text.strip() for text in first["explanations"].values())
+    stack = [layer["expression"] for layer in first["layers"]]
+    again = server.json("/api/suggest", {"exclude": stack})
+    assert again["layers"] == [] and set(again["already"].values()) <= set(stack) and again["already"]
+    assert server.request("/api/suggest", {"exclude": "C.*"})[0] == 400
+    assert server.request("/api/suggest", {"exclude": ["C<RD"]})[0] == 400
+
+
 @pytest.mark.parametrize("path, body", [
     ("/api/generalise", {}), ("/api/generalise", {"classes": None}), ("/api/generalise", {"classes": [0], "keep": [{}]}),
     ("/api/generalise", {"classes": [True]}), ("/api/layer", {"name": "x", "expression": None}),

@@ -10,13 +10,16 @@ from ..request import OPTIONS
 from . import logging_flags
 from .render import add_request_flags, nonempty_path
 
-HELP = "run a shot job (frames × tiles on Dask), or show its progress"
+HELP = "run a shot job (frames × tiles on Dask), show its progress, or suggest layers for its frames"
 DESCRIPTION = (
     "A job file (TOML, pipelines/README.md) names a stage, frames, recipe layers, render settings, "
     "output templates and a Dask scheduler. `job run` renders every frame not done yet on a "
     "LocalCluster (or the job's scheduler) and resumes where an interrupted run stopped; "
-    "`job status` lists each frame as done, under way (tiles committed) or pending."
+    "`job status` lists each frame as done, under way (tiles committed) or pending; `job suggest` runs "
+    "`pxr-layers suggest` (the same search) on the indexes of the frames done, one layer set for the shot."
 )
+SUGGESTED_RECIPE = "$JOB.suggested.usda"
+"""`job suggest`'s recipe in the job's output directory when -o is not given ($JOB: the job's name)."""
 log = logging.getLogger(__name__)
 
 
@@ -37,11 +40,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     status.add_argument("job", type=nonempty_path, metavar="JOB", help="the job file (.toml)")
     for sub in (run, status):
         sub.add_argument("-o", "--output", type=nonempty_path, metavar="DIR", help="output directory (default: the job's)")
+    from . import suggest as suggest_command
+
+    suggest = actions.add_parser("suggest", help="suggest layers for the frames done (pxr-layers suggest)",
+                                 parents=[logging_flags(nested=True)],
+                                 description="Suggest one set of layers for every frame of JOB that is done: "
+                                 "`pxr-layers suggest` on their indexes (docs/suggest.md).")
+    suggest.add_argument("job", type=nonempty_path, metavar="JOB", help="the job file (.toml)")
+    suggest.add_argument("--directory", type=nonempty_path, metavar="DIR",
+                         help="the job's output directory (default: the job's)")
+    suggest_command.add_search_options(suggest, default_recipe=f"{SUGGESTED_RECIPE} in the job's output directory")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..jobs import load_job
 
+    if args.action == "suggest":
+        return _suggest(args)
     overrides = {"output.directory": args.output} if args.output else {}
     if args.action == "run":
         for flag, key in (("frames", "frames"), ("scheduler", "dask.scheduler"),
@@ -89,6 +104,24 @@ def _committed(job) -> str:
     if under_way:
         text += f" ({under_way} more under way: their committed tiles are kept)"
     return text
+
+
+def _suggest(args: argparse.Namespace) -> int:
+    """`pxr-layers suggest` on the indexes of the job's frames that are done."""
+    from ..errors import JobError
+    from ..jobs import expand_template, load_job
+    from ..jobs.executor import is_done
+    from . import suggest as suggest_command
+
+    job = load_job(args.job, {"output.directory": args.directory} if args.directory else {})
+    done = [frame for frame in job.frames if is_done(job, frame)]
+    if not done:
+        raise JobError(f"no frame is done in {job.output_directory} yet: `pxr-layers job run` first",
+                       file=str(job.file))
+    args.indexes = [str(job.index_path(frame)) for frame in done]
+    if not args.output:
+        args.output = str(job.output_directory / expand_template(SUGGESTED_RECIPE, done[0], job.name))
+    return suggest_command.run(args)
 
 
 def _status(job) -> int:

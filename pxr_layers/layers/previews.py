@@ -50,6 +50,8 @@ FONT = "DroidSans"
 """Bundled with the OpenImageIO wheel, so the sheet looks the same on every machine."""
 FONT_SIZE = 13
 LABEL_HEIGHT = 38
+DESCRIPTION_LINES = 2
+"""Lines of a layer's description under its tile on the contact sheet."""
 MARGIN = 6
 BACKGROUND = 32  # 8-bit grey behind the tiles
 TEXT_COLOUR = (0.92, 0.92, 0.92)
@@ -280,7 +282,9 @@ def _energy(image: np.ndarray) -> float:
 def write_contact_sheet(path: str | os.PathLike, beauty: np.ndarray, images: Mapping[str, np.ndarray],
                         product: Product | None = None, *, tile_width: int = 256,
                         columns: int | None = None, shares: Mapping[str, float | None] | None = None) -> Path:
-    """A grid of the beauty and every layer, each labelled with its name and energy share.
+    """A grid of the beauty and every layer, each labelled with its name and energy share,
+    and with its description (Layer.description, e.g. a suggested layer's explanation) in
+    up to DESCRIPTION_LINES lines when any layer has one.
 
     Tiles are ``tile_width`` wide (the image's aspect kept, never upscaled), graded and
     transformed like the previews, ordered beauty first, then by group (in order of first
@@ -304,7 +308,9 @@ def write_contact_sheet(path: str | os.PathLike, beauty: np.ndarray, images: Map
         entries.append((name, images[name], layers[name], label))
     columns = columns or min(len(entries), max(1, math.ceil(math.sqrt(len(entries)))))
     rows = math.ceil(len(entries) / columns)
-    cell_w, cell_h = tile_w + MARGIN, tile_h + LABEL_HEIGHT + MARGIN
+    described = any(layer is not None and layer.description for _, _, layer, _ in entries)
+    line = FONT_SIZE + 4
+    cell_w, cell_h = tile_w + MARGIN, tile_h + LABEL_HEIGHT + MARGIN + (DESCRIPTION_LINES * line if described else 0)
     sheet = np.full((rows * cell_h + MARGIN, columns * cell_w + MARGIN, 3), BACKGROUND, np.uint8)
     for index, (_, image, layer, _) in enumerate(entries):
         y, x = _cell_origin(index, columns, cell_w, cell_h)
@@ -316,7 +322,11 @@ def write_contact_sheet(path: str | os.PathLike, beauty: np.ndarray, images: Map
         y, x = _cell_origin(index, columns, cell_w, cell_h)
         baseline = y + tile_h + FONT_SIZE + 3
         text_ok &= _text(buffer, x + 2, baseline, _fit(name, tile_w - 4), TEXT_COLOUR)
-        text_ok &= _text(buffer, x + 2, baseline + FONT_SIZE + 4, label, DIM_TEXT_COLOUR)
+        text_ok &= _text(buffer, x + 2, baseline + line, label, DIM_TEXT_COLOUR)
+        layer = entries[index][2]
+        if text_ok and layer is not None and layer.description:
+            for number, text in enumerate(_wrapped(layer.description, tile_w - 4, DESCRIPTION_LINES)):
+                text_ok &= _text(buffer, x + 2, baseline + (number + 2) * line, text, DIM_TEXT_COLOUR)
     if not text_ok:
         logger.warning("contact sheet %s: OpenImageIO could not draw text (%s); tiles left unlabelled",
                        path, buffer.geterror() or "no font")
@@ -346,6 +356,24 @@ def _text(buffer, x: int, y: int, text: str, colour) -> bool:
     import OpenImageIO as oiio
 
     return bool(oiio.ImageBufAlgo.render_text(buffer, x, y, text, FONT_SIZE, FONT, colour))
+
+
+def _wrapped(text: str, width: int, lines: int) -> list[str]:
+    """``text`` in at most ``lines`` lines of ``width`` pixels, word by word, the last one
+    shortened with an ellipsis if the text goes on."""
+    import OpenImageIO as oiio
+
+    words, out = text.split(), []
+    while words and len(out) < lines:
+        taken = 1
+        while taken < len(words) and oiio.ImageBufAlgo.text_size(" ".join(words[:taken + 1]), FONT_SIZE,
+                                                                 FONT).width <= width:
+            taken += 1
+        if len(out) == lines - 1:
+            taken = len(words)
+        out.append(_fit(" ".join(words[:taken]), width))
+        words = words[taken:]
+    return out
 
 
 def _fit(text: str, width: int) -> str:

@@ -228,6 +228,8 @@ class Layer:
                   grade the preview and the contact-sheet tile only
     group       : free-form group name (part metadata, contact-sheet order)
     prim_path   : the RenderVar it was read from; "" for generated layers
+    description : one line on what the layer holds, for people ("the key light's light on
+                  the floor"): the RenderVar's USD documentation (``doc`` metadata)
     """
 
     name: str
@@ -241,6 +243,7 @@ class Layer:
     tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     group: str = ""
     prim_path: str = ""
+    description: str = ""
 
     def __post_init__(self):
         object.__setattr__(self, "tint", tuple(float(c) for c in self.tint))

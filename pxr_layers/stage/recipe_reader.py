@@ -273,7 +273,7 @@ class _Reader:
             "data_type": data_type, "pixel_type": pixel_type, "compression": compression,
             "preview": bool(api["preview"][0]), "exposure": _float32(api["preview:exposure"][0]),
             "tint": tuple(_float32(c) for c in api["preview:tint"][0]), "group": str(api["group"][0]),
-            "prim_path": str(prim.GetPath()),
+            "prim_path": str(prim.GetPath()), "description": prim.GetDocumentation(),
         }
         try:
             layer = Layer(**fields)

@@ -215,6 +215,8 @@ def _author_var(stage: Usd.Stage, path: Sdf.Path, layer: Layer, product: Product
     var.CreateDataTypeAttr(layer.data_type)
     var.CreateSourceTypeAttr(layer.source_type)
     var.CreateSourceNameAttr(layer.source_name)
+    if layer.description:
+        var.GetPrim().SetDocumentation(layer.description)
     # What the reader takes when the var does not author them.
     inherited_pixel_type, inherited_compression = inherited_encoding(layer.is_data, product.pixel_type,
                                                                      product.compression)

@@ -1,10 +1,12 @@
 """Path space cut into atoms: the finest pieces any split of the hierarchy can tell apart.
 
 Every split of :mod:`.search` looks at a path through a few attributes only (ATTRIBUTES):
-the emitter it ends at, how many bounces it has (none, one, more), and the first bounce's
+the emitter it ends at, how many bounces it has (none, one, more), the first bounce's
 type, scattering, object, material and covariance bins (curvature, texture, reflectance
-zero or not). An **atom** is one combination of these values; a path class is one atom,
-except that the covariance bins are per record. One read of each index sums every atom's
+zero or not), and what the **whole path touches**: every object, material and asset (the
+Cryptomatte asset: the object's model root) that any of its events carries, at any bounce.
+An **atom** is one combination of these values; a path class is one atom, except that the
+covariance bins are per record. One read of each index sums every atom's
 light per image tile: the tile maps the objective compares (docs/suggest.md).
 
 Values are strings that mean the same in every frame of a shot (prim paths, letters), so
@@ -22,18 +24,23 @@ import numpy as np
 
 from ..paths.events import Event, event_paths
 from ..paths.reader import PathIndex
+from ..layers.cryptomatte import asset_roots
 from ..layers.previews import LUMINANCE_WEIGHTS as LUMINANCE
 
 log = logging.getLogger(__name__)
 
-ATTRIBUTES = ("light", "depth", "object", "material", "scatter", "type", "curved", "textured", "shiny")
+ATTRIBUTES = ("light", "depth", "object", "material", "scatter", "type", "curved", "textured", "shiny", "touches")
 """What an atom is made of, in the order splits are preferred when they score the same.
 light: the emitter ("L:<light path>", "O:<object path>", "B"); depth: 0 (seen directly),
 1 (direct: one bounce), 2 (indirect: more); then the first bounce's type (R, T, V),
 scattering (D, G, S, s), object path, material path (None: no material), and "1" where its |S_C|,
 |S_T|, |S_R| is not 0, "0" where it is. First-bounce values are None on a path without
-bounces."""
-FIRST_BOUNCE = ATTRIBUTES[2:]
+bounces. touches: the sorted tuple of TOUCH tokens ("object:<path>", "material:<path>",
+"asset:<path>") of every event of the path but the camera, at any bounce (an emissive
+object it ends at included); a split on it is "touches X or not"."""
+FIRST_BOUNCE = ATTRIBUTES[2:-1]
+TOUCH_KINDS = ("object", "material", "asset")
+"""What a path can touch, as token prefixes: a token is "<kind>:<prim path>"."""
 COVARIANCE = {"curved": 0, "textured": 1, "shiny": 2}
 """Covariance attribute → its column of the index's norms (C, T, R)."""
 TILES = 16
@@ -48,8 +55,10 @@ class Atoms:
     keys  : (a,) tuples of ATTRIBUTES values, sorted (so the same input gives the same order)
     maps  : (a, f) float64: each atom's light per frame, tile and channel, every frame
             scaled so that its beauty's luminance sums to 1 (f = frames · TILES² · 3)
-    names : value → display name (a light's or object's prim name, a material's)
-    labels: value → the label an LPE tests for it (the prim path)
+    names : value → display name (a light's or object's prim name, a material's); touch
+            tokens too
+    labels: value → the label an LPE tests for it (the prim path; an asset's: a glob of it
+            and what is under it, "/World/shelf*")
     covariance : whether the indexes keep first-bounce norms (covariance splits possible)
     frames : the frames' descriptions, in feature order
     """
@@ -120,9 +129,19 @@ def _frame_atoms(index: PathIndex, covariance: bool, threads: int) -> _FrameAtom
                     for event, paths in zip(index.events, event_paths(index.events))]
     # Classes that agree on (first bounce, emitter, depth) are one atom up to the covariance
     # bits: group them once, so that records are keyed with one lookup.
-    triples = np.array([(ids[1] if len(ids) > 2 else -1, ids[-1], min(len(ids) - 2, 2))
-                        for ids in (path_class.event_ids for path_class in index.classes)], np.int64).reshape(-1, 3)
-    groups, class_group = np.unique(triples, axis=0, return_inverse=True)
+    # Whole paths: each class's touches as a bit mask over the tokens of the index's events.
+    tokens, event_bits = _touch_bits(index, event_values, names, labels)
+    matrix = index.event_matrix(len(index.events))  # (classes, longest), padded with an id past the events
+    lengths = (matrix != len(index.events)).sum(axis=1)  # events, the camera included
+    rows = np.arange(len(matrix))
+    first_event = np.where(lengths > 2, matrix[:, min(1, matrix.shape[1] - 1)], -1)
+    end_event = matrix[rows, np.maximum(lengths - 1, 0)]
+    depth = np.minimum(lengths - 2, 2)
+    masks = np.bitwise_or.reduce(event_bits[matrix[:, 1:]], axis=1) if matrix.shape[1] > 1 else \
+        np.zeros((len(matrix), event_bits.shape[1]), np.uint64)
+    keyed = np.column_stack([first_event, end_event, depth, masks.view(np.int64)]) if len(matrix) else \
+        np.zeros((0, 3 + event_bits.shape[1]), np.int64)
+    groups, class_group = np.unique(keyed, axis=0, return_inverse=True)
     class_group = class_group.reshape(-1)
     group_depth = groups[:, 2]
     width, height = index.manifest["resolution"]
@@ -146,11 +165,14 @@ def _frame_atoms(index: PathIndex, covariance: bool, threads: int) -> _FrameAtom
     if total > 0:
         sums /= total
     atoms: dict[tuple, np.ndarray] = {}
-    for number, (first, end, depth) in enumerate(groups.tolist()):
+    for number, (first, end, depth, *mask) in enumerate(groups.tolist()):
         light = event_values[end]["light"]
         first_values = event_values[first] if depth > 0 else {}
+        touched = tuple(sorted(token for bit, token in enumerate(tokens)
+                               if (mask[bit // 64] >> (bit % 64)) & 1))
         for bits in range(COVARIANCE_BITS if covariance and depth > 0 else 1):
-            values = {"light": light, "depth": depth, **{name: first_values.get(name) for name in FIRST_BOUNCE}}
+            values = {"light": light, "depth": depth, "touches": touched,
+                      **{name: first_values.get(name) for name in FIRST_BOUNCE}}
             for attribute, column in COVARIANCE.items():
                 values[attribute] = (str(bits >> column & 1) if covariance else None) if depth > 0 else None
             key = tuple(values[name] for name in ATTRIBUTES)
@@ -163,6 +185,39 @@ def _frame_atoms(index: PathIndex, covariance: bool, threads: int) -> _FrameAtom
     return _FrameAtoms(atoms, names, labels)
 
 
+def _touch_bits(index: PathIndex, event_values: list[dict], names: dict[str, str],
+                labels: dict[str, str]) -> tuple[list[str], np.ndarray]:
+    """The touch tokens of the index's events (sorted) and (events + 1, words) uint64: each
+    event's tokens as bits (the last row, the padding of event_matrix, none). Records each
+    token's display name and LPE label in `names`, `labels`."""
+    model_paths = index.manifest.get("model_paths") or ()
+    event_tokens: list[list[str]] = []
+    for values in event_values:
+        found = []
+        own = values.get("object")
+        if own:
+            found.append(f"object:{own}")
+            names[f"object:{own}"], labels[f"object:{own}"] = names[own], labels[own]
+            root = asset_roots((own,), model_paths)[0]
+            if root != own and root.count("/") > 1:  # a top-level prim (/World) tells nothing apart
+                token = f"asset:{root}"
+                found.append(token)
+                names[token], labels[token] = root.rsplit("/", 1)[-1], root + "*"
+        material = values.get("material")
+        if material:
+            found.append(f"material:{material}")
+            names[f"material:{material}"], labels[f"material:{material}"] = names[material], labels[material]
+        event_tokens.append(found)
+    tokens = sorted({token for found in event_tokens for token in found})
+    bit_of = {token: bit for bit, token in enumerate(tokens)}
+    words = max(1, -(-len(tokens) // 64))
+    bits = np.zeros((len(event_values) + 1, words), np.uint64)
+    for event, found in enumerate(event_tokens):
+        for token in found:
+            bits[event, bit_of[token] // 64] |= np.uint64(1) << np.uint64(bit_of[token] % 64)
+    return tokens, bits
+
+
 def _event_values(event: Event, paths: tuple[str, str], names: dict[str, str], labels: dict[str, str]) -> dict:
     """The ATTRIBUTES values an event gives as a first bounce ("object", ...) or as the end
     ("light"); records each value's display name and LPE label in `names`, `labels`.
@@ -172,7 +227,11 @@ def _event_values(event: Event, paths: tuple[str, str], names: dict[str, str], l
     if event.type in "LO":
         value = f"{event.type}:{own_path}"
         names[value], labels[value] = event.name or own_path.rsplit("/", 1)[-1], own_path
-        return {"light": value}
+        if event.type == "L":
+            return {"light": value}
+        names[own_path], labels[own_path] = names[value], own_path  # an emissive object is touched too
+        named_material = _named_material(material, names, labels) if material else None
+        return {"light": value, "object": own_path, "material": named_material}
     if event.type == "B":
         names["B"] = "background"
         return {"light": "B"}
@@ -181,6 +240,11 @@ def _event_values(event: Event, paths: tuple[str, str], names: dict[str, str], l
         names[material], labels[material] = material.rsplit("/", 1)[-1], material
     names[own_path], labels[own_path] = event.name or own_path.rsplit("/", 1)[-1], own_path
     return {"type": event.type, "scatter": event.scatter, "object": own_path, "material": material}
+
+
+def _named_material(material: str, names: dict[str, str], labels: dict[str, str]) -> str:
+    names[material], labels[material] = material.rsplit("/", 1)[-1], material
+    return material
 
 
 def luminance(maps: np.ndarray) -> np.ndarray:

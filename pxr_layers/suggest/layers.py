@@ -9,6 +9,12 @@ expressions are built to be complementary too (``<L.'key'>`` / ``<L.[^'key']>|[O
 
 A value of None (a first-bounce attribute of a path without bounces, a surface without a
 material) avoids every set and equals nothing: such paths go with the "avoids" side.
+
+Whole-path touches ("touches": any event of the path carries an object, material or asset)
+are sets, not one value: a node requires some tokens (``touched``) and avoids others. Its
+expression is then an exact set difference (docs/lpe.md): ``P - (C[^'X']* | C.*'Z'.*)``,
+P the expression of its other terms, ``C[^'X']*`` the paths none of whose events carries
+X (so subtracting it requires X) and ``C.*'Z'.*`` those that touch Z.
 """
 
 from __future__ import annotations
@@ -18,6 +24,12 @@ from dataclasses import dataclass, field
 
 from ..paths.events import SCATTER_SINGULAR, SCATTERING_NAMES, SCATTERING_TYPES, SCATTERINGS
 from .atoms import ATTRIBUTES, COVARIANCE, FIRST_BOUNCE
+
+TOUCHES = "touches"
+NAMING = frozenset({"light", "object", "material", TOUCHES})
+"""Attributes whose values are things an artist names and changes (a light, an object, a material)."""
+BOUNCE_CUTS = frozenset({"scatter", "type", *COVARIANCE})
+"""Attributes (with depth) that cut a named thing's light by how it bounced."""
 
 ALL_DEPTHS = frozenset({0, 1, 2})
 NORM_NAMES = {"curved": "|S_C|", "textured": "|S_T|", "shiny": "|S_R|"}
@@ -30,6 +42,9 @@ TYPE_WORDS = dict(zip(SCATTERING_TYPES, ("", "transmitted", "volume"), strict=Tr
 DEPTH_WORDS = {frozenset({0}): "emission", frozenset({1}): "direct", frozenset({2}): "indirect",
                frozenset({0, 1}): "direct", frozenset({1, 2}): "bounced"}
 REST = "rest"
+LISTED_AT_MOST = 3
+"""A node that avoids some lights (objects, materials) is named after those it is left with
+when they are this many or fewer: "fill_sky"."""
 """The name of a layer that no split names (the whole of path space, or what a split left)."""
 
 
@@ -41,26 +56,45 @@ class Node:
     include: tuple[tuple[str, str], ...] = ()
     exclude: tuple[tuple[str, frozenset], ...] = ()
     depths: frozenset = field(default=ALL_DEPTHS)
+    touched: frozenset = frozenset()
+    """Touch tokens the node's paths all carry at some event (exclude["touches"]: none of them)."""
 
     def split(self, attribute: str, value) -> tuple[Node, Node]:
         """(the side where `attribute` equals `value`, the side where it does not); for
-        "depth", `value` is a threshold: (depth ≤ value, depth > value)."""
+        "depth", `value` is a threshold: (depth ≤ value, depth > value); for "touches", a
+        token: (the paths that touch it, those that do not)."""
         if attribute == "depth":
-            return (Node(self.include, self.exclude, frozenset(d for d in self.depths if d <= value)),
-                    Node(self.include, self.exclude, frozenset(d for d in self.depths if d > value)))
+            return (Node(self.include, self.exclude, frozenset(d for d in self.depths if d <= value), self.touched),
+                    Node(self.include, self.exclude, frozenset(d for d in self.depths if d > value), self.touched))
         excluded = dict(self.exclude)
         avoided = excluded.pop(attribute, frozenset())
-        equal = Node(_sorted({**dict(self.include), attribute: value}), _sorted(excluded), self.depths)
+        if attribute == TOUCHES:
+            equal = Node(self.include, self.exclude, self.depths, self.touched | {value})
+        else:
+            included = _sorted({**dict(self.include), attribute: value})
+            equal = Node(included, _sorted(excluded), self.depths, self.touched)
         excluded[attribute] = avoided | {value}
-        return equal, Node(self.include, _sorted(excluded), self.depths)
+        return equal, Node(self.include, _sorted(excluded), self.depths, self.touched)
 
     @property
     def terms(self) -> int:
         """How many terms the node's expression tests: the LPE length penalty counts these."""
-        return len(self.include) + sum(len(values) for _, values in self.exclude) + (self.depths != ALL_DEPTHS)
+        return (len(self.include) + sum(len(values) for _, values in self.exclude) + (self.depths != ALL_DEPTHS)
+                + len(self.touched))
 
     def expression(self, labels: dict[str, str]) -> str:
         """The node's LPE. labels : value → the label its events carry (prim paths)."""
+        positive = Node(self.include, tuple(item for item in self.exclude if item[0] != TOUCHES),
+                        self.depths)._plain_expression(labels)
+        avoided = dict(self.exclude).get(TOUCHES, frozenset())
+        subtracted = [f"C[^{_label_list([token], labels)}]*" for token in sorted(self.touched)]
+        subtracted += [f"C.*{_label_list([token], labels)}.*" for token in sorted(avoided)]
+        if not subtracted:
+            return positive
+        return f"{positive} - " + (subtracted[0] if len(subtracted) == 1 else "(" + "|".join(subtracted) + ")")
+
+    def _plain_expression(self, labels: dict[str, str]) -> str:
+        """The expression of every term but the touches: a plain LPE (no difference)."""
         if not self.include and not self.exclude and self.depths == ALL_DEPTHS:
             return "C.*"
         include, exclude = dict(self.include), dict(self.exclude)
@@ -75,29 +109,73 @@ class Node:
             alternatives.append("C" + _first(include, exclude, labels) + middle + end)
         return "|".join(alternatives)
 
-    def name(self, present: list[dict], names: dict[str, str]) -> str:
-        """A readable identifier from the node's terms: ``key_on_floor_diffuse_direct``.
-        present : the attribute values of the atoms the node holds that carry light; an
-        attribute it avoids values of is named when they leave one value present."""
+    def named_terms(self, present: list[dict]) -> dict[str, object]:
+        """The terms that name something an artist can change: attribute → value for the
+        light, the first bounce's object and material it equals or is left with one value of
+        among `present` (whether the node tests it or the stage has only one: "lamp"), or a
+        tuple of the LISTED_AT_MOST values it is left with when it avoids some ("fill",
+        "sky"); and "touches" → the tokens it requires. Empty: it names nothing."""
         include, exclude = dict(self.include), dict(self.exclude)
+        found: dict[str, object] = {}
+        for attribute in ("light", "object", "material"):
+            if attribute in include:
+                found[attribute] = include[attribute]
+                continue
+            left = sorted({atom[attribute] for atom in present}, key=str)
+            if None in left or not left:
+                continue
+            if len(left) == 1 and (attribute in exclude or attribute == "light"):
+                found[attribute] = left[0]
+            elif attribute in exclude and len(left) <= LISTED_AT_MOST:
+                found[attribute] = tuple(left)
+        if self.touched:
+            found[TOUCHES] = tuple(sorted(self.touched))
+        return found
+
+    def nameable(self, single: frozenset | set) -> bool:
+        """Whether an artist can name what the node holds (docs/suggest.md, "Names"): it has a
+        term on a light, an object, a material or a touch, and it cuts by bounce count, lobe
+        or covariance only when it also pins one light ("the red light's indirect light",
+        not "the indirect light on white"). single : the attributes among light, object,
+        material whose lit atoms in the node hold one value (present or not in its terms)."""
+        terms = {attribute for attribute, _ in (*self.include, *self.exclude)}
+        if not terms and not self.touched and self.depths == ALL_DEPTHS:
+            return True  # the whole of path space: the beauty
+        if not (terms & NAMING or self.touched):
+            return False
+        cuts = self.depths != ALL_DEPTHS or bool(terms & BOUNCE_CUTS)
+        return not cuts or "light" in dict(self.include) or ("light" in terms and "light" in single)
+
+    def name(self, present: list[dict], names: dict[str, str]) -> str:
+        """A readable identifier from the node's terms: ``key_on_floor_diffuse_direct``,
+        ``lamp_via_mirror``. present : the attribute values of the atoms the node holds that
+        carry light; an attribute it avoids values of is named when they leave one value present."""
+        include, exclude = dict(self.include), dict(self.exclude)
+        named = self.named_terms(present)
         parts = []
         for attribute in ATTRIBUTES:
+            if attribute == TOUCHES:
+                parts += [f"via_{names.get(token, token)}" for token in named.get(TOUCHES, ())]
+                avoided = sorted(exclude.get(TOUCHES, ()))
+                if len(avoided) == 1:
+                    parts.append(f"without_{names.get(avoided[0], avoided[0])}")
+                continue
             if attribute == "depth":
                 # "bounced" says nothing a first-bounce value it equals does not already say
                 implied = self.depths == frozenset({1, 2}) and any(name in FIRST_BOUNCE for name in include)
                 if self.depths != ALL_DEPTHS and not implied:
                     parts.append(DEPTH_WORDS[self.depths])
                 continue
-            if attribute in include:
+            if attribute in named and isinstance(named[attribute], tuple):
+                parts.append("_".join(_word(attribute, value, names) for value in named[attribute]))
+                continue
+            if attribute in named:
+                value = named[attribute]
+            elif attribute in include:
                 value = include[attribute]
-            elif attribute in exclude:
-                if attribute in COVARIANCE:
-                    parts.append(COVARIANCE_WORDS[attribute][1])
-                    continue
-                left = {atom[attribute] for atom in present}
-                if len(left) != 1 or None in left:
-                    continue
-                value = left.pop()
+            elif attribute in exclude and attribute in COVARIANCE:
+                parts.append(COVARIANCE_WORDS[attribute][1])
+                continue
             else:
                 continue
             parts.append(_word(attribute, value, names))
@@ -106,6 +184,65 @@ class Node:
             return REST
         text = re.sub(r"[^A-Za-z0-9_]+", "_", "_".join(dict.fromkeys(words))).strip("_")
         return text if re.match(r"[A-Za-z_]", text) else "layer_" + text
+
+    def explain(self, present: list[dict], names: dict[str, str]) -> str:
+        """One line an artist reads: "the red light's direct diffuse light on the shelf",
+        "the lamp light's light on the wall by way of the mirror"."""
+        include, exclude = dict(self.include), dict(self.exclude)
+        named = self.named_terms(present)
+
+        def called(value) -> str:
+            return names.get(value, str(value))
+
+        def listed(values) -> str:
+            values = [called(value) for value in values]
+            return values[0] if len(values) == 1 else ", ".join(values[:-1]) + " and " + values[-1]
+
+        light = named.get("light")
+        if isinstance(light, tuple):
+            whose = f"the {listed(light)} lights'"
+        elif light == "B":
+            whose = "the background's"
+        elif light is not None:
+            whose = f"{called(light)}'s" if str(light).startswith("O:") else f"the {called(light)} light's"
+        elif "light" in exclude:
+            whose = f"every light's but {listed(sorted(exclude['light']))}'s"
+        else:
+            whose = "every light's"
+        kind = {frozenset({0}): "", frozenset({1}): "direct", frozenset({2}): "indirect",
+                frozenset({0, 1}): "direct and directly seen"}.get(self.depths, "")
+        lobe = []
+        if "type" in include and TYPE_WORDS[include["type"]]:
+            lobe.append(TYPE_WORDS[include["type"]])
+        if "scatter" in include:
+            lobe.append(SCATTER_WORDS[include["scatter"]])
+        elif "scatter" in exclude:
+            lobe.append("non-" + "/".join(SCATTER_WORDS[value] for value in sorted(exclude["scatter"])))
+        words = " ".join(word for word in (kind, *lobe) if word)
+        if self.depths == frozenset({0}):
+            text = f"{whose} emitter seen directly"
+        else:
+            text = f"{whose} {words + ' ' if words else ''}light"
+        objects = named.get("object")
+        if objects is not None:
+            text += f" on the {listed(objects if isinstance(objects, tuple) else (objects,))}"
+        elif "object" in exclude:
+            text += f" on anything but the {listed(sorted(exclude['object']))}"
+        materials = named.get("material")
+        if materials is not None:
+            text += f" ({listed(materials if isinstance(materials, tuple) else (materials,))} material)"
+        elif "material" in exclude:
+            text += f" (any material but {listed(sorted(exclude['material']))})"
+        covariance = [COVARIANCE_WORDS[attribute][0 if attribute in include else 1]
+                      for attribute in COVARIANCE if attribute in include or attribute in exclude]
+        if covariance:
+            text += " where the first bounce is " + ", ".join(covariance)
+        if self.touched:
+            text += f" by way of the {listed(sorted(self.touched))}"
+        avoided = sorted(exclude.get(TOUCHES, ()))
+        if avoided:
+            text += f", never touching the {listed(avoided)}"
+        return text
 
 
 def _word(attribute: str, value, names: dict[str, str]) -> str:

@@ -65,6 +65,29 @@ def check_partition(index: PathIndex, expressions: Mapping[str, str]) -> int:
     return len(representatives)
 
 
+def same_layer(index: PathIndex, expression: str, other: str) -> bool:
+    """Whether two expressions cut the same layer from `index`: they match the same path
+    classes, and a class's records under the same first-bounce covariance combinations (the
+    2³ zero / non-zero C, T, R that suggested layers test; conditions on later bounces are
+    taken at these combinations too). Decided once per distinct sequence of the automaton's
+    symbols, as check_partition is, so whatever their text."""
+    automaton = lpe.compile_layers({"first": expression, "other": other})
+    symbol_of: dict = {}
+    event_symbol = np.array([symbol_of.setdefault(automaton.alphabet.classify(event), len(symbol_of))
+                             for event in index.events] + [-1], np.int64)
+    combinations = first_bounce_combinations(index.norm_slots)
+    for class_id in _distinct_sequences(index, event_symbol).tolist():
+        masks = {name: np.zeros(len(combinations), bool) for name in ("first", "other")}
+        for name, outcome in automaton.match(index.classes[class_id].events).items():
+            if outcome.kind == "always":
+                masks[name][:] = True
+            elif outcome.kind == "conditional":
+                masks[name] |= np.asarray(outcome.mask(combinations), bool)
+        if not (masks["first"] == masks["other"]).all():
+            return False
+    return True
+
+
 def _distinct_sequences(index: PathIndex, event_symbol: np.ndarray) -> np.ndarray:
     """(s,) ids of one class per distinct sequence of symbols (event_symbol: event id →
     symbol, its last entry the padding), the first of each in class order."""

@@ -289,7 +289,7 @@ async def _overlaps(request: web.Request) -> web.Response:
 
 async def _suggest(request: web.Request) -> web.Response:
     body = await _json_body(request)
-    layers, facts = await _blocking(request, request.app[SESSION_KEY].suggest_layers, body.get("k"))
+    layers, facts = await _blocking(request, request.app[SESSION_KEY].suggest_layers, body.get("k"), body.get("exclude"))
     return web.json_response({"layers": [layer.description() for layer in layers], **facts})
 
 

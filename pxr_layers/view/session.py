@@ -374,22 +374,28 @@ class Session:
         # answer says so, with the close names, as the log does
         return layer, {"classes": extraction.classes_matched, "seconds": seconds, "warnings": list(extraction.warnings)}
 
-    def suggest_layers(self, k: int) -> tuple[list[ViewLayer], dict]:
+    def suggest_layers(self, k: int | None = None, exclude=None) -> tuple[list[ViewLayer], dict]:
         """Layers found automatically (pxr_layers.suggest, docs/suggest.md): K layers that
-        partition the beauty, extracted in one pass and added to the stack. /api/suggest."""
+        partition the beauty (K None: the objective's elbow), extracted in one pass and added
+        to the stack, but for those that cut the same paths as an expression of `exclude`
+        (the stack's). /api/suggest."""
         from ..suggest import suggest
 
         index = self._need_index("suggest layers")
-        if not isinstance(k, int) or isinstance(k, bool) or not 1 <= k <= MAX_SUGGESTED:
-            raise ViewError(f"suggest asks for 1 to {MAX_SUGGESTED} layers, not {k!r}")
+        if k is not None and (not isinstance(k, int) or isinstance(k, bool) or not 1 <= k <= MAX_SUGGESTED):
+            raise ViewError(f"suggest asks for 1 to {MAX_SUGGESTED} layers (or none: the elbow), not {k!r}")
+        if exclude is None:
+            exclude = []
+        if not isinstance(exclude, list) or not all(isinstance(text, str) for text in exclude):
+            raise ViewError("suggest's exclude is a list of the stack's expressions")
         start = time.perf_counter()
         with self._lock:
-            suggestion = suggest([index], k, threads=self.threads)
-            expressions = {self._free_name(name, suggestion.layers): expression
-                           for name, expression in suggestion.layers.items()}
-            extraction = extract(index, expressions, threads=self.threads)
-            shares = energy_shares(self.beauty, extraction.layers)
-            denoised = self._denoised(extraction.layers)
+            suggestion = suggest([index], k, threads=self.threads, exclude=exclude)
+            names = {name: self._free_name(name, suggestion.layers) for name in suggestion.layers}
+            expressions = {names[name]: expression for name, expression in suggestion.layers.items()}
+            extraction = extract(index, expressions, threads=self.threads) if expressions else None
+            shares = energy_shares(self.beauty, extraction.layers) if extraction else {}
+            denoised = self._denoised(extraction.layers) if extraction else {}
             added = [ViewLayer(name, name, "layer", "", expression, extraction.layers[name], shares[name],
                                denoised=denoised.get(name))
                      for name, expression in expressions.items()]
@@ -397,7 +403,9 @@ class Session:
         seconds = time.perf_counter() - start
         log.info("suggested %d layers in %.2f s", len(added), seconds)
         return added, {"objective": suggestion.objective, "strategy": suggestion.strategy,
-                       "splits": list(suggestion.splits), "seconds": seconds}
+                       "splits": list(suggestion.splits), "seconds": seconds, "chosen_k": suggestion.chosen_k,
+                       "explanations": {names[name]: text for name, text in suggestion.explanations.items()},
+                       "already": suggestion.already}
 
     # -- energy that goes wrong: overlapping layers, names that match nothing
 
