@@ -500,3 +500,27 @@ def test_a_slider_dragged_alone_adds_its_layer_to_the_rest_summed_once(opened):
     page.evaluate("pxrViewer.setGrade('diffuse_direct', {stops: 0}); pxrViewer.drawFinished()")
     np.testing.assert_array_equal(canvas_image(page), first)
     assert page.evaluate("pxrViewer.state().pass") == 2
+
+
+def test_suggested_layers_come_with_their_explanations_and_are_not_offered_twice(opened, folder):
+    """K left empty: the search chooses; each suggested layer shows its one-line explanation,
+    which a saved look's recipe keeps; asked again, the same layers are not added twice."""
+    page, _ = opened
+    before = len(stack(page))
+    page.fill("#suggest-k", "")
+    page.click("#suggest")
+    page.wait_for_function("pxrViewer.timings.suggest !== undefined", timeout=60_000)
+    added = page.evaluate("pxrViewer.timings.suggest.layers")
+    assert added and len(stack(page)) == before + len(added)
+    notes = page.eval_on_selector_all("#stack li .layer-note", "notes => notes.map(n => n.textContent)")
+    assert len(notes) == len(added) and all(notes), notes
+    page.evaluate("pxrViewer.timings.suggest = undefined")
+    page.click("#suggest")
+    page.wait_for_function("pxrViewer.timings.suggest !== undefined", timeout=60_000)
+    assert page.evaluate("pxrViewer.timings.suggest.layers") == []
+    assert "not added again" in page.text_content("#suggest-status")
+    page.fill("#save-name", "suggested_look")
+    page.click("#save")
+    page.wait_for_selector('#saved li[data-kind="recipe"]')
+    recipe = (folder / "suggested_look.usda").read_text()
+    assert all(f'doc = "{note}"' in recipe for note in notes), notes  # each RenderVar's doc

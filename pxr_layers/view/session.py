@@ -628,10 +628,13 @@ class Session:
             group = entry.get("group") or "inspector"
             if not isinstance(group, str) or len(group) > documents.MAX_TEXT:
                 raise ViewError(f"layer {layer_name!r}: group is a name of at most {documents.MAX_TEXT} characters")
+            note = entry.get("note") or ""
+            if not isinstance(note, str) or len(note) > documents.MAX_NOTE or not note.isprintable():
+                raise ViewError(f"layer {layer_name!r}: note is one line of at most {documents.MAX_NOTE} characters")
             grade = grade_from_json(entry, f"layer {layer_name!r}", known=self.mask_names())
             try:
                 layers.append(Layer(layer_name, "lpe", layer.expression, exposure=grade.stops, tint=grade.tint,
-                                    group=group))
+                                    group=group, description=note))
             except (TypeError, ValueError, RecipeError) as error:
                 raise ViewError(f"layer {layer_name!r}: {error}") from None
             grades[layer_name] = grade

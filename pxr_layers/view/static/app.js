@@ -1520,8 +1520,8 @@ function setupMake() {
 // --- save, push -----------------------------------------------------------------------------
 
 /** An entry as /api/save, /api/push and /api/pushable take it. */
-function savedEntry({ source, name, group, stops, tint, kelvin, mute, solo, mask }) {
-  return { id: source, name, group, stops, tint, kelvin, mute, solo, mask };
+function savedEntry({ source, name, group, note, stops, tint, kelvin, mute, solo, mask }) {
+  return { id: source, name, group, note, stops, tint, kelvin, mute, solo, mask };
 }
 
 function lookName(list) {
