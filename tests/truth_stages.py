@@ -136,6 +136,7 @@ def _light(name: str, position, color, intensity: float, radius: float, linked: 
 
 
 def _write(folder: Path, name: str, body: str, materials: str, width: int, height: int, camera_z: float) -> Path:
+    import pxr_layers.stage  # noqa: F401  registers the pxrLayers schema before this process opens a stage
     from pxr import Usd
 
     stage = Path(folder) / f"{name}.usda"

@@ -127,7 +127,7 @@ class Node:
 
     def named_terms(self, present: list[dict]) -> dict[str, object]:
         """The terms that name something an artist can change: attribute → value for the
-        light, the first bounce's object and material it equals or is left with one value of
+        light group, light, the first bounce's object and material it equals or is left with one value of
         among `present` (whether the node tests it or the stage has only one: "lamp"), or a
         tuple of the LISTED_AT_MOST values it is left with when it avoids some ("fill",
         "sky"); and "touches" → the tokens it requires. Empty: it names nothing."""
@@ -139,7 +139,7 @@ class Node:
                 continue
             if attribute == "light" and "group" in found and "light" not in exclude:
                 continue  # the group names whose light it is; its lights are not terms
-            left = sorted({atom[attribute] for atom in present}, key=str)
+            left = sorted({atom.get(attribute) for atom in present}, key=str)  # no "group": none
             if None in left or not left:
                 continue
             if len(left) == 1 and (attribute in exclude or attribute == "light"):
