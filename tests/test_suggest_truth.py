@@ -52,6 +52,8 @@ STAGES = {
     "compartments": (truth_stages.compartments, 96, 48, 3),
     "mirror": (truth_stages.mirror, 64, 64, 2),
     "textured": (truth_stages.textured, 64, 48, 2),
+    "light_groups": (truth_stages.light_groups, 96, 48, 2),
+    "assets": (truth_stages.assets, 96, 48, 2),
 }
 
 
@@ -152,3 +154,38 @@ def test_a_layer_already_in_the_stack_is_not_offered_again(stage):
     suggestion = suggest([index], 3, exclude=["C<RD>.*", "C.*<L.'green'>"])
     assert set(suggestion.layers) == {"red", "blue"} and suggestion.already == {"green": "C.*<L.'green'>"}
     assert set(suggest([index], 3, exclude=["C.*<L.'green'>L"]).layers) == {"red", "green", "blue"}
+
+
+def test_light_groups_are_suggested_by_name(stage):
+    """Two lights of group "rim" light the left boards, the key (group "front") the right one:
+    the render records the groups in the index, and suggest, with K = 2 or by the elbow,
+    gives the two groups, each one layer ending at its lights (ARI and the sum: above)."""
+    name, index, truth, lit, beauty = stage
+    if name != "light_groups":
+        pytest.skip("the light groups stage")
+    assert index.manifest["light_groups"] == {"/World/key": "front", "/World/rim_a": "rim", "/World/rim_b": "rim"}
+    for k in (2, None):
+        suggestion = suggest([index], k)
+        assert suggestion.layers == {"front": "C<L.'/World/key'>|C<[RTV].>.*<L.'/World/key'>",
+                                     "rim": "C<L.['/World/rim_a''/World/rim_b']>|C<[RTV].>.*<L.['/World/rim_a''/World/rim_b']>"}, k
+        assert suggestion.explanations == {"front": "the front group's light", "rim": "the rim group's light"}
+        layers = extract(index, suggestion.layers).layers
+        assert adjusted_rand_index(dominant(layers)[lit], truth[lit]) >= 0.9
+        assert_sums_to_beauty(layers, beauty)
+
+
+def test_assets_are_touched_by_name(stage):
+    """Two component models of two meshes each: the render records the models, the atoms
+    touch each model as an asset, and the two suggested layers are the chair's and the
+    table's (by way of the chair, or never touching it: every path is camera, mesh, lamp)."""
+    name, index, truth, lit, beauty = stage
+    if name != "assets":
+        pytest.skip("the assets stage")
+    assert index.manifest["model_paths"] == ["/World/chair", "/World/table"]
+    atoms = gather([index])
+    assert {atoms.names["asset:/World/chair"], atoms.names["asset:/World/table"]} == {"chair", "table"}
+    assert atoms.labels["asset:/World/chair"] == "/World/chair/*"
+    suggestion = suggest([index], 2)
+    assert any("chair" in layer or "table" in layer for layer in suggestion.layers), suggestion.layers
+    assert any("by way of the chair" in text or "by way of the table" in text
+               for text in suggestion.explanations.values()), suggestion.explanations

@@ -111,12 +111,17 @@ def _material(name: str, diffuse=(0.7, 0.7, 0.7), *, mirror: bool = False, textu
     return text + "        }\n"
 
 
-def _light(name: str, position, color, intensity: float, radius: float, linked: tuple[str, ...] = ()) -> str:
+def _light(name: str, position, color, intensity: float, radius: float, linked: tuple[str, ...] = (),
+           group: str = "") -> str:
+    """A SphereLight /World/<name>; linked : prims under /World it lights alone; group : its
+    pxrLayers:lightGroup ("" none)."""
     link = ""
     if linked:
         targets = ", ".join(f"</World/{prim}>" for prim in linked)
         link = (f"uniform bool collection:lightLink:includeRoot = 0\n"
                 f"        rel collection:lightLink:includes = [{targets}]\n")
+    if group:
+        link += f'uniform string pxrLayers:lightGroup = "{group}"\n        '
     return f'''
     def SphereLight "{name}"
     {{
@@ -131,6 +136,7 @@ def _light(name: str, position, color, intensity: float, radius: float, linked: 
 
 
 def _write(folder: Path, name: str, body: str, materials: str, width: int, height: int, camera_z: float) -> Path:
+    import pxr_layers.stage  # noqa: F401  registers the pxrLayers schema before this process opens a stage
     from pxr import Usd
 
     stage = Path(folder) / f"{name}.usda"
@@ -231,6 +237,75 @@ def textured(folder: Path, width: int = 64, height: int = 48):
         inside = np.abs(y) < 0.5
         label[inside & (x > -1.1) & (x < -0.1)] = 0
         label[inside & (x > 0.1) & (x < 1.1)] = 1
+        return label
+
+    return stage, truth
+
+
+def _board(x0: float, x1: float, y0: float, y1: float) -> list[tuple]:
+    """A quad in the plane z = 0 facing the camera (+Z), metres."""
+    return [(x0, y0, 0.0), (x1, y0, 0.0), (x1, y1, 0.0), (x0, y1, 0.0)]
+
+
+def _inside(w: int, h: int, camera_z: float, x0: float, x1: float, y0: float, y1: float) -> np.ndarray:
+    sx, sy = camera_rays(w, h)
+    x, y = sx * camera_z, sy * camera_z  # where the central ray crosses z = 0
+    return (x > x0) & (x < x1) & (y > y0) & (y < y1)
+
+
+GROUP_BOARDS = {"rim_top": (-1.5, -0.7, 0.05, 0.6), "rim_bottom": (-1.5, -0.7, -0.6, -0.05),
+                "key_board": (-0.4, 1.5, -0.6, 0.6)}
+"""name → (x0, x1, y0, y1) of each board of the light groups stage, metres at z = 0."""
+
+
+def light_groups(folder: Path, width: int = 96, height: int = 48):
+    """(d) Three grey boards facing the camera, in the plane z = 0, no light seen by the
+    camera: on the left two small boards one above the other (/World/rim_top, /World/rim_bottom),
+    each lit alone by one light of group "rim" (/World/rim_a, /World/rim_b: light-linked), on the
+    right a large board (/World/key_board) lit alone by /World/key of group "front". Coplanar
+    boards do not light each other: every path is camera, board, light. Truth: 0 where the
+    central ray hits a rim board (the rim group's part), 1 the key's board."""
+    camera_z = 3.4
+    body = "".join(_quads(name, [_board(*corners)], "grey") for name, corners in GROUP_BOARDS.items())
+    body += (_light("rim_a", (-1.1, 1.4, 1.0), (1, 1, 1), 60.0, 0.05, ("rim_top",), "rim")
+             + _light("rim_b", (-1.1, -1.4, 1.0), (1, 1, 1), 60.0, 0.05, ("rim_bottom",), "rim")
+             + _light("key", (0.55, 1.4, 1.5), (1, 1, 1), 200.0, 0.05, ("key_board",), "front"))
+    stage = _write(folder, "light_groups", body, _material("grey", (0.5, 0.5, 0.5)), width, height, camera_z)
+
+    def truth(w: int, h: int) -> np.ndarray:
+        label = np.full((h, w), -1, np.int64)
+        for name, corners in GROUP_BOARDS.items():
+            label[_inside(w, h, camera_z, *corners)] = 1 if name == "key_board" else 0
+        return label
+
+    return stage, truth
+
+
+ASSET_BOARDS = {"chair": {"seat": (-1.5, -0.1, -0.6, -0.05), "back": (-1.5, -0.1, 0.05, 0.6)},
+                "table": {"top": (0.1, 1.5, 0.05, 0.6), "leg": (0.1, 1.5, -0.6, -0.05)}}
+"""model → its two meshes → (x0, x1, y0, y1), metres at z = 0."""
+
+
+def assets(folder: Path, width: int = 96, height: int = 48):
+    """(e) Two component models (/World/chair: seat and back; /World/table: top and leg, each
+    mesh its own quad facing the camera in the plane z = 0, all of one grey material) under one
+    lamp behind the camera (/World/lamp), which lights the four alike. Truth: 0 where the central ray hits the chair, 1 the table."""
+    camera_z = 3.4
+    body = ""
+    for model, meshes in ASSET_BOARDS.items():
+        parts = "".join(_quads(name, [_board(*corners)], "grey") for name, corners in meshes.items())
+        body += f'''
+    def Xform "{model}" (kind = "component")
+    {{{parts}    }}
+'''
+    body += _light("lamp", (0.0, 0.0, 8.0), (1, 1, 1), 4000.0, 0.05)  # behind the camera: every mesh alike
+    stage = _write(folder, "assets", body, _material("grey", (0.5, 0.5, 0.5)), width, height, camera_z)
+
+    def truth(w: int, h: int) -> np.ndarray:
+        label = np.full((h, w), -1, np.int64)
+        for number, meshes in enumerate(ASSET_BOARDS.values()):
+            for corners in meshes.values():
+                label[_inside(w, h, camera_z, *corners)] = number
         return label
 
     return stage, truth

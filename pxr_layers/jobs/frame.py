@@ -64,7 +64,8 @@ class FramePlan:
                      after delivery: the layers are cut from it all the same)
     data_aovs      : the raw sources the tracer renders beside the beauty (depth, ...)
     metadata       : ``pxrLayers/`` attributes of every EXR part
-    manifest       : the path index's manifest
+    manifest       : the path index's manifest (paths/format.py; ``model_paths`` and
+                     ``light_groups``: stage_names)
     cryptomattes   : the Cryptomatte sources of the recipe (CryptoObject, ...)
     model_paths    : the stage's models (kind component, group, assembly), CryptoAsset's roots
     """
@@ -141,12 +142,7 @@ def plan_frame(
             raise RenderSettingsError(f"denoising: {missing}")
     sources = raw_sources(recipe)
     crypto_sources = tuple(source for source in sources if source in CRYPTOMATTE_SOURCES)
-    model_paths: tuple[str, ...] = ()
-    if "CryptoAsset" in crypto_sources:
-        from ..stage import open_request
-        from ..stage.recipe_reader import model_prim_paths
-
-        model_paths = model_prim_paths((shot or open_request(request)).stage)
+    model_paths, light_groups = stage_names(shot or _open(request), recipe, frame)
 
     if product_path is not None:
         outputs = {product.name: Path(product_path(product)) for product in recipe.products}
@@ -200,9 +196,33 @@ def plan_frame(
         manifest["clamp_indirect"] = request.clamp_indirect
     if view.pixel_aspect_ratio != 1.0:  # only then: square-pixel indexes keep their bytes
         manifest["pixel_aspect_ratio"] = view.pixel_aspect_ratio
+    if model_paths:  # only then: a stage without models (or light groups) keeps its bytes
+        manifest["model_paths"] = sorted(model_paths)
+    if light_groups:
+        manifest["light_groups"] = light_groups
     return FramePlan(request, frame, view_camera, resolution, trace, recipe, outputs, index_path,
                      tuple(source for source in sources if source not in CRYPTOMATTE_SOURCES),
                      metadata, manifest, crypto_sources, model_paths)
+
+
+def _open(request: RenderRequest):
+    from ..stage import open_request
+
+    return open_request(request)
+
+
+def stage_names(shot, recipe: Recipe, frame: float | None) -> tuple[tuple[str, ...], dict[str, str]]:
+    """What the index records of the stage beyond its events, for whole-path layers
+    (docs/suggest.md): the stage's models (prim paths of kind component, group, assembly,
+    in traversal order: CryptoAsset's roots, layers.cryptomatte.asset_roots) and each light
+    the render sees that has a ``pxrLayers:lightGroup``, as {light prim path: group}, sorted
+    by path. The prim path is the label a light event of the index carries (paths/events.py),
+    so the mapping needs no translation. shot : the open :class:`pxr_layers.stage.Shot`."""
+    from ..stage.recipe_reader import model_prim_paths
+
+    settings = shot.find_settings(recipe.settings_path) if recipe.settings_path else None
+    groups = {path: group for _, path, group in shot.lights(settings, frame) if group}
+    return model_prim_paths(shot.stage), dict(sorted(groups.items()))
 
 
 def index_settings(request: RenderRequest, recipe: Recipe) -> tuple[str, bool]:

@@ -90,7 +90,9 @@ and b − g codes (those of its first record written with three bin codes, else 
 
 The footer's JSON (see ``PathIndexWriter._footer``): ``manifest`` (what was rendered: stage
 path and SHA-256, frame, camera, resolution, spp, seed, ``clamp_indirect`` when the render
-clamped indirect light, N, the mode, norm names, units and bins, rgb bins, record,
+clamped indirect light, ``model_paths`` (the stage's models) and ``light_groups`` ({light
+prim path: pxrLayers:lightGroup}) when the stage has any (jobs.frame.stage_names; what
+``suggest`` names assets and light groups from), N, the mode, norm names, units and bins, rgb bins, record,
 contribution and class counts), ``labels`` (every name an event carries), ``events`` (every
 distinct event as [type, scatter, [label ids], display name]), ``nonfinite_classes`` (ids
 of the classes with a NaN or infinite record), ``class_table`` (its frame's bytes and

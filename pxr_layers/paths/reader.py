@@ -62,9 +62,12 @@ per mesh from its size on the image: RenderRequest.subdiv_level None); else it i
 level asked. Either way the levels may have been lowered to the scene's budget."""
 RENDER_KEYS = {"stage": str, "stage_sha256": str, "camera": str, "frame": str, "variants": str,
                "defaultLights": str, "beauty": str, "version": str, "maxDepth": str, "spp": int,
-               "seed": int, "max_depth": int, "subdiv_level": int, "clampIndirect": str, "clamp_indirect": float}
+               "seed": int, "max_depth": int, "subdiv_level": int, "clampIndirect": str, "clamp_indirect": float,
+               "model_paths": list, "light_groups": dict}
 """Manifest keys that whoever wrote the index may give (PathIndexWriter stores its manifest
-as given) and that pxr-layers reads, with their types; checked when present."""
+as given) and that pxr-layers reads, with their types; checked when present. model_paths:
+the stage's models (prim paths), light_groups: {light prim path: pxrLayers:lightGroup}
+(jobs.frame.stage_names; absent from older indexes and stages without any)."""
 CHUNK_KEYS = ("offset", "bytes", "where_bytes", "light_bytes", "crc32", "records", "runs", "exact", "first_class",
               "last_class")
 """A chunk's entry in the footer (paths/format.py): whole numbers >= 0."""
@@ -320,6 +323,11 @@ class PathIndex:
         for key, kind in RENDER_KEYS.items():
             if key in manifest:
                 _typed(manifest, key, kind, "the manifest's ")
+        if not all(type(path) is str and path.startswith("/") for path in manifest.get("model_paths", ())):
+            raise _Malformed("the manifest's model_paths are not all prim paths")
+        if not all(type(path) is str and path.startswith("/") and type(group) is str and group
+                   for path, group in manifest.get("light_groups", {}).items()):
+            raise _Malformed("the manifest's light_groups do not map light prim paths to group names")
         if manifest.get("spp", 1) < 1:
             raise _Malformed(f"the manifest's spp is {manifest['spp']}")
         clamp = manifest.get("clamp_indirect", 0.0)  # present when the render clamped indirect light

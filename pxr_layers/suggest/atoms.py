@@ -1,10 +1,13 @@
 """Path space cut into atoms: the finest pieces any split of the hierarchy can tell apart.
 
 Every split of :mod:`.search` looks at a path through a few attributes only (ATTRIBUTES):
-the emitter it ends at, how many bounces it has (none, one, more), the first bounce's
+the light group of the emitter it ends at (``pxrLayers:lightGroup``, from the index
+manifest's ``light_groups``), the emitter, how many bounces it has (none, one, more), the first bounce's
 type, scattering, object, material and covariance bins (curvature, texture, reflectance
 zero or not), and what the **whole path touches**: every object, material and asset (the
-Cryptomatte asset: the object's model root) that any of its events carries, at any bounce.
+Cryptomatte asset: the object's model root, from the manifest's ``model_paths``) that any of
+its events carries, at any bounce. An index without those manifest keys (rendered before
+they were recorded) has no groups and no assets.
 An **atom** is one combination of these values; a path class is one atom, except that the
 covariance bins are per record. One read of each index sums every atom's
 light per image tile: the tile maps the objective compares (docs/suggest.md).
@@ -18,7 +21,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -26,19 +29,22 @@ from ..paths.events import Event, event_paths
 from ..paths.reader import PathIndex
 from ..layers.cryptomatte import asset_roots
 from ..layers.previews import LUMINANCE_WEIGHTS as LUMINANCE
+from .partition import SuggestError
 
 log = logging.getLogger(__name__)
 
-ATTRIBUTES = ("light", "depth", "object", "material", "scatter", "type", "curved", "textured", "shiny", "touches")
+ATTRIBUTES = ("group", "light", "depth", "object", "material", "scatter", "type", "curved", "textured", "shiny",
+              "touches")
 """What an atom is made of, in the order splits are preferred when they score the same.
-light: the emitter ("L:<light path>", "O:<object path>", "B"); depth: 0 (seen directly),
+group: the emitter's light group ("group:<name>"; None for a light of no group, an
+emissive object, the background); light: the emitter ("L:<light path>", "O:<object path>", "B"); depth: 0 (seen directly),
 1 (direct: one bounce), 2 (indirect: more); then the first bounce's type (R, T, V),
 scattering (D, G, S, s), object path, material path (None: no material), and "1" where its |S_C|,
 |S_T|, |S_R| is not 0, "0" where it is. First-bounce values are None on a path without
 bounces. touches: the sorted tuple of TOUCH tokens ("object:<path>", "material:<path>",
 "asset:<path>") of every event of the path but the camera, at any bounce (an emissive
 object it ends at included); a split on it is "touches X or not"."""
-FIRST_BOUNCE = ATTRIBUTES[2:-1]
+FIRST_BOUNCE = ATTRIBUTES[3:-1]
 TOUCH_KINDS = ("object", "material", "asset")
 """What a path can touch, as token prefixes: a token is "<kind>:<prim path>"."""
 COVARIANCE = {"curved": 0, "textured": 1, "shiny": 2}
@@ -61,6 +67,9 @@ class Atoms:
             and what is under it, "/World/shelf*")
     covariance : whether the indexes keep first-bounce norms (covariance splits possible)
     frames : the frames' descriptions, in feature order
+    members : group value → the light values ("L:<path>") of the group, sorted: every light
+              the indexes' manifests put in it, seen in a path or not (an LPE of the group
+              lists them all, so it is exact)
     """
 
     keys: tuple[tuple, ...]
@@ -69,6 +78,7 @@ class Atoms:
     labels: dict[str, str]
     covariance: bool
     frames: tuple[str, ...]
+    members: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     def values(self, attribute: str) -> list:
         column = ATTRIBUTES.index(attribute)
@@ -96,7 +106,11 @@ def gather(indexes: Sequence[PathIndex], *, threads: int = 1) -> Atoms:
     (sorted by frame, then path)."""
     ordered = sorted(indexes, key=_frame_order)
     covariance = all(index.norm_slots >= 1 for index in ordered)
-    frames = [_frame_atoms(index, covariance, threads) for index in ordered]
+    group_of = light_groups(ordered)
+    members: dict[str, list[str]] = {}
+    for light, group in group_of.items():
+        members.setdefault(group, []).append(light)
+    frames = [_frame_atoms(index, covariance, threads, group_of) for index in ordered]
     keys = sorted({key for frame in frames for key in frame.sums}, key=_sortable)
     row = {key: number for number, key in enumerate(keys)}
     width = TILES * TILES * 3
@@ -107,7 +121,28 @@ def gather(indexes: Sequence[PathIndex], *, threads: int = 1) -> Atoms:
             maps[row[key], number * width:(number + 1) * width] = tile_rgb.reshape(-1)
         names.update(frame.names)
         labels.update(frame.labels)
-    return Atoms(tuple(keys), maps, names, labels, covariance, tuple(_frame_order(index)[2] for index in ordered))
+    for group, lights in members.items():
+        names[group] = group.split(":", 1)[1]
+        for light in lights:
+            names.setdefault(light, light.rsplit("/", 1)[-1])
+            labels.setdefault(light, light.split(":", 1)[1])
+    return Atoms(tuple(keys), maps, names, labels, covariance, tuple(_frame_order(index)[2] for index in ordered),
+                 {group: tuple(sorted(lights)) for group, lights in sorted(members.items())})
+
+
+def light_groups(indexes: Sequence[PathIndex]) -> dict[str, str]:
+    """Light value ("L:<prim path>") → group value ("group:<name>") of every light the
+    indexes' manifests (``light_groups``) put in a group; {} for indexes that record none.
+    Raises SuggestError when two indexes put one light in different groups."""
+    found: dict[str, tuple[str, PathIndex]] = {}
+    for index in indexes:
+        for path, group in (index.manifest.get("light_groups") or {}).items():
+            light, value = f"L:{path}", f"group:{group}"
+            if light in found and found[light][0] != value:
+                raise SuggestError(f"light {path} is in group {found[light][0][6:]!r} in {found[light][1].path.name} "
+                                   f"and {group!r} in {index.path.name}: suggest frames of one shot")
+            found.setdefault(light, (value, index))
+    return {light: value for light, (value, _) in sorted(found.items())}
 
 
 def _frame_order(index: PathIndex) -> tuple:
@@ -121,8 +156,9 @@ def _sortable(key: tuple) -> tuple:
     return tuple(("", "") if value is None else ("~", str(value)) for value in key)
 
 
-def _frame_atoms(index: PathIndex, covariance: bool, threads: int) -> _FrameAtoms:
-    """One read of `index`: every atom's rgb per tile, scaled so the beauty's luminance is 1."""
+def _frame_atoms(index: PathIndex, covariance: bool, threads: int, group_of: dict[str, str]) -> _FrameAtoms:
+    """One read of `index`: every atom's rgb per tile, scaled so the beauty's luminance is 1.
+    group_of : light value → its group value (light_groups)."""
     names: dict[str, str] = {}
     labels: dict[str, str] = {}
     event_values = [_event_values(event, paths, names, labels)
@@ -171,7 +207,7 @@ def _frame_atoms(index: PathIndex, covariance: bool, threads: int) -> _FrameAtom
         touched = tuple(sorted(token for bit, token in enumerate(tokens)
                                if (mask[bit // 64] >> (bit % 64)) & 1))
         for bits in range(COVARIANCE_BITS if covariance and depth > 0 else 1):
-            values = {"light": light, "depth": depth, "touches": touched,
+            values = {"group": group_of.get(light), "light": light, "depth": depth, "touches": touched,
                       **{name: first_values.get(name) for name in FIRST_BOUNCE}}
             for attribute, column in COVARIANCE.items():
                 values[attribute] = (str(bits >> column & 1) if covariance else None) if depth > 0 else None
@@ -189,24 +225,36 @@ def _touch_bits(index: PathIndex, event_values: list[dict], names: dict[str, str
                 labels: dict[str, str]) -> tuple[list[str], np.ndarray]:
     """The touch tokens of the index's events (sorted) and (events + 1, words) uint64: each
     event's tokens as bits (the last row, the padding of event_matrix, none). Records each
-    token's display name and LPE label in `names`, `labels`."""
+    token's display name and LPE label in `names`, `labels`.
+
+    An asset is the model root (manifest ``model_paths``) of an object, when it is neither
+    the object itself nor a top-level prim; its label is the glob ``'<root>/*'``, and an event
+    carries its token exactly when the LPE's glob matches one of the event's labels (an
+    object, a material or a light under the root), so that atoms and expressions agree."""
     model_paths = index.manifest.get("model_paths") or ()
-    event_tokens: list[list[str]] = []
+    roots = set()
     for values in event_values:
+        own = values.get("object")
+        if own:
+            root = asset_roots((own,), model_paths)[0]
+            if root != own and root.count("/") > 1:  # a top-level prim (/World) tells nothing apart
+                roots.add(root)
+    event_tokens: list[list[str]] = []
+    for event, values in zip(index.events, event_values):
         found = []
         own = values.get("object")
         if own:
             found.append(f"object:{own}")
             names[f"object:{own}"], labels[f"object:{own}"] = names[own], labels[own]
-            root = asset_roots((own,), model_paths)[0]
-            if root != own and root.count("/") > 1:  # a top-level prim (/World) tells nothing apart
-                token = f"asset:{root}"
-                found.append(token)
-                names[token], labels[token] = root.rsplit("/", 1)[-1], root + "*"
         material = values.get("material")
         if material:
             found.append(f"material:{material}")
             names[f"material:{material}"], labels[f"material:{material}"] = names[material], labels[material]
+        for root in sorted(roots):
+            if any(label.startswith(root + "/") for label in event.labels):
+                token = f"asset:{root}"
+                found.append(token)
+                names[token], labels[token] = root.rsplit("/", 1)[-1], root + "/*"
         event_tokens.append(found)
     tokens = sorted({token for found in event_tokens for token in found})
     bit_of = {token: bit for bit, token in enumerate(tokens)}

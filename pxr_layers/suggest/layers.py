@@ -7,6 +7,10 @@ two complementary nodes, so the leaves of any tree of splits partition path spac
 expressions are built to be complementary too (``<L.'key'>`` / ``<L.[^'key']>|[OB]``,
 ``@(|S_C| != 0)`` / ``@(|S_C| = 0)``), which :mod:`.partition` checks with the automaton.
 
+A light group is a set of lights: its side ends at one of them (``<L.['/a''/b']>``, every
+light the manifests put in the group, Atoms.members), the other side at any other emitter
+(``(<L.[^'/a''/b']>|O|B)``); a light split within a group lists what is left of it.
+
 A value of None (a first-bounce attribute of a path without bounces, a surface without a
 material) avoids every set and equals nothing: such paths go with the "avoids" side.
 
@@ -26,8 +30,11 @@ from ..paths.events import SCATTER_SINGULAR, SCATTERING_NAMES, SCATTERING_TYPES,
 from .atoms import ATTRIBUTES, COVARIANCE, FIRST_BOUNCE
 
 TOUCHES = "touches"
-NAMING = frozenset({"light", "object", "material", TOUCHES})
-"""Attributes whose values are things an artist names and changes (a light, an object, a material)."""
+NAMING = frozenset({"group", "light", "object", "material", TOUCHES})
+"""Attributes whose values are things an artist names and changes (a light group, a light,
+an object, a material)."""
+EMITTERS = frozenset({"group", "light"})
+"""Attributes that pin whose light a node holds: a cut by bounce of one of them is nameable."""
 BOUNCE_CUTS = frozenset({"scatter", "type", *COVARIANCE})
 """Attributes (with depth) that cut a named thing's light by how it bounced."""
 
@@ -76,16 +83,25 @@ class Node:
         excluded[attribute] = avoided | {value}
         return equal, Node(self.include, _sorted(excluded), self.depths, self.touched)
 
+    def pinned(self, attribute: str, value) -> Node:
+        """The node with `attribute` equal to `value` in place of the values it avoids: the
+        "avoids" side of a split whose paths, in every index, all carry that one value (the
+        other of two light groups), so that its expression names it (``<L.['/a''/b']>``)."""
+        excluded = dict(self.exclude)
+        excluded.pop(attribute, None)
+        return Node(_sorted({**dict(self.include), attribute: value}), _sorted(excluded), self.depths, self.touched)
+
     @property
     def terms(self) -> int:
         """How many terms the node's expression tests: the LPE length penalty counts these."""
         return (len(self.include) + sum(len(values) for _, values in self.exclude) + (self.depths != ALL_DEPTHS)
                 + len(self.touched))
 
-    def expression(self, labels: dict[str, str]) -> str:
-        """The node's LPE. labels : value → the label its events carry (prim paths)."""
+    def expression(self, labels: dict[str, str], members: dict[str, tuple[str, ...]] | None = None) -> str:
+        """The node's LPE. labels : value → the label its events carry (prim paths);
+        members : group value → its light values (Atoms.members; needed for a group term)."""
         positive = Node(self.include, tuple(item for item in self.exclude if item[0] != TOUCHES),
-                        self.depths)._plain_expression(labels)
+                        self.depths)._plain_expression(labels, members or {})
         avoided = dict(self.exclude).get(TOUCHES, frozenset())
         subtracted = [f"C[^{_label_list([token], labels)}]*" for token in sorted(self.touched)]
         subtracted += [f"C.*{_label_list([token], labels)}.*" for token in sorted(avoided)]
@@ -93,12 +109,12 @@ class Node:
             return positive
         return f"{positive} - " + (subtracted[0] if len(subtracted) == 1 else "(" + "|".join(subtracted) + ")")
 
-    def _plain_expression(self, labels: dict[str, str]) -> str:
+    def _plain_expression(self, labels: dict[str, str], members: dict[str, tuple[str, ...]]) -> str:
         """The expression of every term but the touches: a plain LPE (no difference)."""
         if not self.include and not self.exclude and self.depths == ALL_DEPTHS:
             return "C.*"
         include, exclude = dict(self.include), dict(self.exclude)
-        end = _end(include.get("light"), exclude.get("light", frozenset()), labels)
+        end = _end(include, exclude, labels, members)
         alternatives = []
         first_bounce_equal = any(attribute in FIRST_BOUNCE for attribute in include)
         if 0 in self.depths and not first_bounce_equal:
@@ -111,17 +127,19 @@ class Node:
 
     def named_terms(self, present: list[dict]) -> dict[str, object]:
         """The terms that name something an artist can change: attribute → value for the
-        light, the first bounce's object and material it equals or is left with one value of
+        light group, light, the first bounce's object and material it equals or is left with one value of
         among `present` (whether the node tests it or the stage has only one: "lamp"), or a
         tuple of the LISTED_AT_MOST values it is left with when it avoids some ("fill",
         "sky"); and "touches" → the tokens it requires. Empty: it names nothing."""
         include, exclude = dict(self.include), dict(self.exclude)
         found: dict[str, object] = {}
-        for attribute in ("light", "object", "material"):
+        for attribute in ("group", "light", "object", "material"):
             if attribute in include:
                 found[attribute] = include[attribute]
                 continue
-            left = sorted({atom[attribute] for atom in present}, key=str)
+            if attribute == "light" and "group" in found and "light" not in exclude:
+                continue  # the group names whose light it is; its lights are not terms
+            left = sorted({atom.get(attribute) for atom in present}, key=str)  # no "group": none
             if None in left or not left:
                 continue
             if len(left) == 1 and (attribute in exclude or attribute == "light"):
@@ -136,15 +154,16 @@ class Node:
         """Whether an artist can name what the node holds (docs/suggest.md, "Names"): it has a
         term on a light, an object, a material or a touch, and it cuts by bounce count, lobe
         or covariance only when it also pins one light ("the red light's indirect light",
-        not "the indirect light on white"). single : the attributes among light, object,
-        material whose lit atoms in the node hold one value (present or not in its terms)."""
+        not "the indirect light on white"; a light group counts as a light). single : the
+        attributes among group, light, object, material whose lit atoms in the node hold one
+        value (present or not in its terms)."""
         terms = {attribute for attribute, _ in (*self.include, *self.exclude)}
         if not terms and not self.touched and self.depths == ALL_DEPTHS:
             return True  # the whole of path space: the beauty
         if not (terms & NAMING or self.touched):
             return False
         cuts = self.depths != ALL_DEPTHS or bool(terms & BOUNCE_CUTS)
-        return not cuts or "light" in dict(self.include) or ("light" in terms and "light" in single)
+        return not cuts or bool(EMITTERS & set(dict(self.include))) or bool(EMITTERS & terms & set(single))
 
     def name(self, present: list[dict], names: dict[str, str]) -> str:
         """A readable identifier from the node's terms: ``key_on_floor_diffuse_direct``,
@@ -199,14 +218,22 @@ class Node:
             return values[0] if len(values) == 1 else ", ".join(values[:-1]) + " and " + values[-1]
 
         light = named.get("light")
-        if isinstance(light, tuple):
+        group = named.get("group")
+        if group is not None and light is None:
+            groups = group if isinstance(group, tuple) else (group,)
+            whose = f"the {listed(groups)} groups'" if len(groups) > 1 else f"the {listed(groups)} group's"
+            if "light" in exclude:
+                whose += f", but {listed(sorted(exclude['light']))}'s,"
+        elif isinstance(light, tuple):
             whose = f"the {listed(light)} lights'"
         elif light == "B":
             whose = "the background's"
         elif light is not None:
             whose = f"{called(light)}'s" if str(light).startswith("O:") else f"the {called(light)} light's"
-        elif "light" in exclude:
-            whose = f"every light's but {listed(sorted(exclude['light']))}'s"
+        elif "light" in exclude or "group" in exclude:
+            avoided = [*(f"the {called(value)} group" for value in sorted(exclude.get("group", ()))),
+                       *sorted(exclude.get("light", ()))]
+            whose = f"every light's but {listed(avoided)}'s"
         else:
             whose = "every light's"
         kind = {frozenset({0}): "", frozenset({1}): "direct", frozenset({2}): "indirect",
@@ -246,7 +273,7 @@ class Node:
 
 
 def _word(attribute: str, value, names: dict[str, str]) -> str:
-    if attribute == "light":
+    if attribute in EMITTERS:
         return names.get(value, value)
     if attribute == "object":
         return "on_" + names.get(value, value)
@@ -267,11 +294,19 @@ def _label_list(values, labels: dict[str, str]) -> str:
     return "".join(f"'{labels[value]}'" for value in sorted(values, key=lambda value: labels[value]))
 
 
-def _end(equal, avoided: frozenset, labels: dict[str, str]) -> str:
-    """The emitter event: ``<L.'/World/Lights/key'>``, ``B``; or what avoids `avoided`:
-    ``(<L.[^'/World/Lights/key']>|O|B)``, ``[LOB]``."""
+def _end(include: dict, exclude: dict, labels: dict[str, str], members: dict[str, tuple[str, ...]]) -> str:
+    """The emitter event of a node's light and group terms: ``<L.'/World/Lights/key'>``,
+    ``B``, a group's lights ``<L.['/a''/b']>`` (less the lights it avoids); or what avoids
+    lights and groups: ``(<L.[^'/World/Lights/key']>|O|B)``, ``[LOB]``."""
+    equal = include.get("light")
+    avoided = set(exclude.get("light", frozenset()))
     if equal is not None:
         return "B" if equal == "B" else f"<{equal[0]}.'{labels[equal]}'>"
+    if "group" in include:
+        left = [light for light in members[include["group"]] if light not in avoided]
+        return f"<L.{_label_list(left, labels)}>" if len(left) == 1 else f"<L.[{_label_list(left, labels)}]>"
+    for group in exclude.get("group", ()):
+        avoided.update(members[group])
     parts = []
     for kind in "LO":
         listed = [value for value in avoided if value.startswith(kind + ":")]

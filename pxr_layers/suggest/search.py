@@ -104,10 +104,10 @@ class Searcher:
         self.nameless_weight = nameless_weight
         self.columns = {attribute: _object_column(atoms.values(attribute)) for attribute in ATTRIBUTES}
         self.lit = luminance(atoms.maps).sum(axis=1) > 0  # (a,) atoms that carry light
-        # (a,) int64 code of each atom's light, object, material: what a leaf is left with
+        # (a,) int64 code of each atom's light group, light, object, material: what a leaf is left with
         self.codes = {attribute: np.unique(np.array([str(value) for value in self.columns[attribute]]),
                                            return_inverse=True)[1].reshape(-1)
-                      for attribute in ("light", "object", "material")}
+                      for attribute in ("group", "light", "object", "material")}
         self.tokens = sorted({token for touched in self.columns[TOUCHES] for token in touched})
         token_column = {token: column for column, token in enumerate(self.tokens)}
         self.touch_matrix = np.zeros((len(atoms.keys), len(self.tokens)), bool)  # (a, tokens): atom touches token
@@ -135,6 +135,10 @@ class Searcher:
         """The two leaves of splitting `parent` where `equal` ((n,) bool over its atoms) holds:
         the smaller side summed per matte, the larger one the parent's sums less it."""
         node_equal, node_other = parent.node.split(attribute, value)
+        if attribute == "group":
+            left = set(self.columns["group"][parent.atoms[~equal]].tolist())
+            if len(left) == 1 and None not in left:  # every path of the other side ends at one other group
+                node_other = node_other.pinned("group", left.pop())
         small = equal if equal.sum() * 2 <= len(equal) else ~equal
         small_rows, large_rows = parent.atoms[small], parent.atoms[~small]
         small_mattes, small_sums = self._by_matte(small_rows)
@@ -183,11 +187,14 @@ class Searcher:
 
     def candidates(self, leaf: Leaf) -> list[tuple[tuple[str, object], Leaf, Leaf]]:
         """Every split of `leaf` whose sides both carry light: ((attribute, value), equal
-        side, other side), attributes in ATTRIBUTES order, values sorted."""
+        side, other side), attributes in ATTRIBUTES order, values sorted. A group or light
+        split that cuts the leaf's atoms as a group split before it did (a group of one
+        light, the other of two groups) is left out: the group's is the one kept."""
         cached = self._candidates.get(leaf.node)
         if cached is not None:
             return cached
         found = []
+        group_cuts: set[bytes] = set()  # the atoms group splits cut off, and what they leave
         include = dict(leaf.node.include)
         for attribute in ATTRIBUTES:
             if attribute in include or (attribute in COVARIANCE and not self.atoms.covariance):
@@ -211,6 +218,11 @@ class Searcher:
                 equal = np.asarray(equal, bool)
                 if equal.all() or not equal.any():
                     continue
+                if attribute in ("group", "light"):
+                    if equal.tobytes() in group_cuts:
+                        continue
+                    if attribute == "group":
+                        group_cuts.update((equal.tobytes(), (~equal).tobytes()))
                 first, second = self._sides(leaf, equal, attribute, value)
                 if first.energy > 0 and second.energy > 0:
                     found.append(((attribute, value), first, second))

@@ -87,7 +87,7 @@ def suggest(indexes: Sequence[PathIndex], k: int | None = None, *, strategy: str
     named = _named(best.leaves, atoms, searcher)
     shares = {name: float(leaf.energy / searcher.energy_total) for name, (leaf, _) in named.items()}
     order = sorted(named, key=lambda name: (-shares[name], name))
-    layers = {name: named[name][0].node.expression(atoms.labels) for name in order}
+    layers = {name: named[name][0].node.expression(atoms.labels, atoms.members) for name in order}
     checked = tuple(check_partition(index, layers) for index in indexes)
     already = _already(indexes, layers, exclude)
     log.info("suggested %d layers in %.2f s (read %.2f s, search %.2f s, check %.2f s)", len(layers),
