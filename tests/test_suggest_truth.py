@@ -57,10 +57,14 @@ STAGES = {
 }
 
 
-@pytest.fixture(scope="module", params=sorted(STAGES))
-def stage(request, tmp_path_factory):
-    """(name, index, truth (h, w), lit (h, w) bool, beauty (h, w, 3) float64) of one stage."""
-    name = request.param
+_BUILT: dict[str, tuple] = {}
+
+
+def built(name: str, tmp_path_factory) -> tuple:
+    """(name, index, truth (h, w), lit (h, w) bool, beauty (h, w, 3) float64) of one stage,
+    rendered once for the session."""
+    if name in _BUILT:
+        return _BUILT[name]
     builder, width, height, _ = STAGES[name]
     folder = tmp_path_factory.mktemp(name)
     path, truth_of = builder(folder, width, height)
@@ -73,7 +77,28 @@ def stage(request, tmp_path_factory):
     beauty = extract(index, {"beauty": lpe.BEAUTY}).layers["beauty"].astype(np.float64)
     luminance = beauty @ LUMINANCE
     lit = (truth >= 0) & (luminance > LIT * np.percentile(luminance[truth >= 0], 99))
-    return name, index, truth, lit, beauty
+    _BUILT[name] = (name, index, truth, lit, beauty)
+    return _BUILT[name]
+
+
+@pytest.fixture(params=sorted(STAGES))
+def stage(request, tmp_path_factory):
+    """Each stage in turn (built())."""
+    return built(request.param, tmp_path_factory)
+
+
+def _one_stage(name: str):
+    @pytest.fixture
+    def fixture(tmp_path_factory):
+        return built(name, tmp_path_factory)
+    fixture.__doc__ = f"The {name} stage (built())."
+    return fixture
+
+
+compartments = _one_stage("compartments")
+mirror = _one_stage("mirror")
+light_groups = _one_stage("light_groups")
+assets = _one_stage("assets")
 
 
 def dominant(layers: dict[str, np.ndarray]) -> np.ndarray:
@@ -118,22 +143,18 @@ def test_the_elbow_refines_the_truth(stage):
                 ", ".join(suggestion.layers), " ".join(f"{value:.3f}" for value in suggestion.objectives))
 
 
-def test_the_three_lights_are_named_and_explained(stage):
-    name, index, *_ = stage
-    if name != "compartments":
-        pytest.skip("the compartments' lights")
+def test_the_three_lights_are_named_and_explained(compartments):
+    name, index, *_ = compartments
     suggestion = suggest([index], 3)
     assert set(suggestion.layers) == {"red", "green", "blue"}
     assert suggestion.explanations["red"] == "the red light's light"
 
 
-def test_a_whole_path_touch_is_an_exact_split(stage):
+def test_a_whole_path_touch_is_an_exact_split(mirror):
     """The screen is seen only through the mirror: 'touches the screen' (at any bounce) is
     the mirror's half of the picture, and with its complement (a set difference) it
     partitions the paths and sums to the beauty."""
-    name, index, truth, lit, beauty = stage
-    if name != "mirror":
-        pytest.skip("the mirror stage's screen")
+    name, index, truth, lit, beauty = mirror
     atoms = gather([index])
     via, without = Node().split("touches", "object:/World/screen")
     present = [{"light": "L:/World/lamp", "object": None, "material": None}]
@@ -146,23 +167,19 @@ def test_a_whole_path_touch_is_an_exact_split(stage):
     assert adjusted_rand_index(dominant(layers)[lit], truth[lit]) >= 0.9
 
 
-def test_a_layer_already_in_the_stack_is_not_offered_again(stage):
+def test_a_layer_already_in_the_stack_is_not_offered_again(compartments):
     """Compared as the path classes it cuts, not as text: the green light by its prim name."""
-    name, index, *_ = stage
-    if name != "compartments":
-        pytest.skip("the compartments' lights")
+    name, index, *_ = compartments
     suggestion = suggest([index], 3, exclude=["C<RD>.*", "C.*<L.'green'>"])
     assert set(suggestion.layers) == {"red", "blue"} and suggestion.already == {"green": "C.*<L.'green'>"}
     assert set(suggest([index], 3, exclude=["C.*<L.'green'>L"]).layers) == {"red", "green", "blue"}
 
 
-def test_light_groups_are_suggested_by_name(stage):
+def test_light_groups_are_suggested_by_name(light_groups):
     """Two lights of group "rim" light the left boards, the key (group "front") the right one:
     the render records the groups in the index, and suggest, with K = 2 or by the elbow,
     gives the two groups, each one layer ending at its lights (ARI and the sum: above)."""
-    name, index, truth, lit, beauty = stage
-    if name != "light_groups":
-        pytest.skip("the light groups stage")
+    name, index, truth, lit, beauty = light_groups
     assert index.manifest["light_groups"] == {"/World/key": "front", "/World/rim_a": "rim", "/World/rim_b": "rim"}
     for k in (2, None):
         suggestion = suggest([index], k)
@@ -174,13 +191,11 @@ def test_light_groups_are_suggested_by_name(stage):
         assert_sums_to_beauty(layers, beauty)
 
 
-def test_assets_are_touched_by_name(stage):
+def test_assets_are_touched_by_name(assets):
     """Two component models of two meshes each: the render records the models, the atoms
     touch each model as an asset, and the two suggested layers are the chair's and the
     table's (by way of the chair, or never touching it: every path is camera, mesh, lamp)."""
-    name, index, truth, lit, beauty = stage
-    if name != "assets":
-        pytest.skip("the assets stage")
+    name, index, truth, lit, beauty = assets
     assert index.manifest["model_paths"] == ["/World/chair", "/World/table"]
     atoms = gather([index])
     assert {atoms.names["asset:/World/chair"], atoms.names["asset:/World/table"]} == {"chair", "table"}
