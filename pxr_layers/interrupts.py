@@ -2,7 +2,10 @@
 
 SIGTERM (what farm managers send before SIGKILL) raises :class:`~pxr_layers.errors.Terminated`,
 a KeyboardInterrupt, wherever Ctrl-C would raise, so the same clean-up runs
-(:func:`sigterm_raises`). Where an interrupt must not land at an arbitrary bytecode (in the
+(:func:`signals_raise`). Both are also noted (:func:`noted`): a native library that receives
+the interrupt while it loads turns it into an error of its own (pybind11's "ImportError:
+initialization failed", OpenColorIO's) or swallows it (USD's module loader prints a warning and
+goes on), and the command must still end as interrupted. Where an interrupt must not land at an arbitrary bytecode (in the
 middle of renaming a frame's files; in a garbage-collector callback of Dask, which prints
 it and goes on), :func:`recorded` makes both signals only record themselves, and
 :func:`raise_recorded` raises them where the caller chooses.
@@ -12,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 
@@ -20,23 +24,70 @@ from .errors import Terminated
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
+_NOTED: list[int] = []
+
+
 def _raise_terminated(signal_number, frame) -> None:
+    _NOTED.append(signal_number)
     raise Terminated(signal_number)
 
 
+def _raise_interrupt(signal_number, frame) -> None:
+    _NOTED.append(signal_number)
+    raise KeyboardInterrupt
+
+
+OURS = (signal.default_int_handler, _raise_interrupt, _raise_terminated)
+"""The handlers that raise: :func:`recorded` may stand in for them."""
+
+
+def noted() -> KeyboardInterrupt | None:
+    """The interrupt the handlers of :func:`signals_raise` raised last in its block (None:
+    none), as the exception it was: for an error a library made of it."""
+    if not _NOTED:
+        return None
+    return Terminated(_NOTED[-1]) if _NOTED[-1] == signal.SIGTERM else KeyboardInterrupt()
+
+
+def raise_if_swallowed() -> None:
+    """Raise again an interrupt that a library caught and dropped (llvmlite's ctypes callbacks
+    print it and return; USD's module loader prints it): our handler noted it, nothing unwound.
+    Long work calls this as it goes (progress.Progress.advance)."""
+    interrupt = noted()
+    if interrupt is not None:
+        raise interrupt
+
+
+def _quiet_interrupts(unraisable) -> None:
+    """sys.unraisablehook: an interrupt raised in a callback that cannot raise is not printed
+    (a traceback instead of our one line); :func:`raise_if_swallowed` raises it again."""
+    if unraisable.exc_type is not None and issubclass(unraisable.exc_type, KeyboardInterrupt):
+        return
+    sys.__unraisablehook__(unraisable)
+
+
 @contextlib.contextmanager
-def sigterm_raises() -> Iterator[None]:
-    """While the block runs, SIGTERM raises Terminated (unless a program embedding us has a
-    handler of its own)."""
-    previous = signal.getsignal(signal.SIGTERM)
-    if previous is not signal.SIG_DFL or threading.current_thread() is not threading.main_thread():
+def signals_raise() -> Iterator[None]:
+    """While the block runs, SIGTERM raises Terminated and SIGINT KeyboardInterrupt, both
+    noted (unless a program embedding us has handlers of its own)."""
+    _NOTED.clear()
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    signal.signal(signal.SIGTERM, _raise_terminated)
+    previous_hook, sys.unraisablehook = sys.unraisablehook, _quiet_interrupts
+    wanted = {signal.SIGTERM: (signal.SIG_DFL, _raise_terminated), signal.SIGINT: (signal.default_int_handler,
+                                                                                 _raise_interrupt)}
+    previous = {number: signal.getsignal(number) for number in wanted}
+    for number, (default, handler) in wanted.items():
+        if previous[number] is default:
+            signal.signal(number, handler)
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+        sys.unraisablehook = previous_hook
+        _NOTED.clear()
 
 
 @contextlib.contextmanager
@@ -52,13 +103,13 @@ def recorded() -> Iterator[list[int]]:
         return
     previous = {number: signal.getsignal(number) for number in SIGNALS}
     for number, handler in previous.items():
-        if handler in (signal.default_int_handler, _raise_terminated):
+        if handler in OURS:
             signal.signal(number, lambda signum, frame: received.append(signum))
     try:
         yield received
     finally:
         for number, handler in previous.items():
-            if handler in (signal.default_int_handler, _raise_terminated):
+            if handler in OURS:
                 signal.signal(number, handler)
 
 

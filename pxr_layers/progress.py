@@ -6,6 +6,8 @@ import logging
 import sys
 import time
 
+from .interrupts import raise_if_swallowed
+
 log = logging.getLogger("pxr_layers")
 
 
@@ -23,6 +25,7 @@ class Progress:
         self._last_decile = -1
 
     def advance(self, units: int) -> None:
+        raise_if_swallowed()  # a Ctrl-C a library caught and dropped ends the work here
         self.done += units
         if not self.enabled:
             return

@@ -552,3 +552,15 @@ def test_suggest_for_two_indexes_of_one_time_refuses_to_write_one_exr_twice(shot
     line = refused(capsys, shot / "look.exr", "suggest", str(shot / "cornell.pxlidx"), str(other / "cornell.pxlidx"),
                    "-k", "2", "-o", str(shot / "look.usda"))
     assert "would write it" in line and not (shot / "look.usda").exists()
+
+
+@pytest.mark.parametrize("delay", [0.3, 0.5, 0.6, 0.7])
+def test_ctrl_c_while_native_libraries_load_is_one_line(tmp_path, delay):
+    """USD's module loader swallows a KeyboardInterrupt (a printed warning) and pybind11's
+    turns it into "ImportError: initialization failed" (OpenColorIO): either way the command
+    ends as interrupted, in one line, whenever the signal lands in the start-up."""
+    process = start("render", CORNELL, "-o", str(tmp_path), "--resolution", "64", "64", "--spp", "256", "--quiet")
+    time.sleep(delay)  # within the start-up's imports, or the first moments of the render
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130 and stderr == "pxr-layers: interrupted; nothing was written\n", stderr

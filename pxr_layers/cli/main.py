@@ -16,7 +16,7 @@ import warnings
 
 from .. import __version__
 from ..errors import PxrLayersError, Terminated
-from ..interrupts import sigterm_raises
+from ..interrupts import noted, signals_raise
 from . import logging_flags
 
 SUBCOMMAND_NAMES = ("render", "demo", "index", "extract", "lpe", "job", "view", "suggest", "nuke")
@@ -74,7 +74,7 @@ def _warning_as_log_line(message, category, filename, lineno, file=None, line=No
 
 
 def main(argv: list[str] | None = None) -> int:
-    with sigterm_raises():  # SIGTERM unwinds like Ctrl-C: the same clean-up, exit 143
+    with signals_raise():  # SIGTERM unwinds like Ctrl-C: the same clean-up, exit 143
         return _command(argv)
 
 
@@ -106,6 +106,8 @@ def _command(argv: list[str] | None) -> int:
     except KeyboardInterrupt as interrupt:
         return _interrupted(interrupt)
     except OSError as error:
+        if noted():  # the interrupt, as a library reported it
+            return _interrupted(noted())
         if error.errno not in ENVIRONMENT_ERRNOS:
             return _internal_error(error)
         # The machine, not the input nor pxr-layers: a full disk, a quota or a permission met
@@ -116,6 +118,8 @@ def _command(argv: list[str] | None) -> int:
         print(f"pxr-layers: error: {where}{error.strerror or error} ({cause})", file=sys.stderr)
         return EXIT_USER_ERROR
     except Exception as error:
+        if noted():  # the interrupt, as a library reported it (pybind11: "initialization failed")
+            return _interrupted(noted())
         return _internal_error(error)
 
 

@@ -24,11 +24,18 @@ Modules, in the order a read uses them:
 * ``values``        attribute values of their schema's type, or a StageError naming them
 """
 
-from .schema import register as _register_schema
+from ..interrupts import raise_recorded, recorded
 
-_register_schema()  # before any stage is opened: USD ignores schemas registered later
+# USD's module loader (Tf.PreparePythonModule) turns a KeyboardInterrupt raised while it loads
+# its libraries into a printed warning and goes on: a Ctrl-C in those seconds would be lost and
+# the command would run on. The signal is held while this package loads USD, and raised after.
+with recorded() as _received:
+    from .schema import register as _register_schema
 
-from .shot import Shot, load_stage, open_request, open_shot  # noqa: E402  (after the registration)
+    _register_schema()  # before any stage is opened: USD ignores schemas registered later
+
+    from .shot import Shot, load_stage, open_request, open_shot  # (after the registration)
+raise_recorded(_received)
 
 
 def load_recipe(path, settings=None, *, recipe_layers=(), camera=None, per_light=None, check_colour=True):
