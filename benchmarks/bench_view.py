@@ -58,7 +58,7 @@ NEW_LAYER = "C<RD>.*<L.'key'>"
 CLICK_TO_PICTURE_TARGET = 1.0
 CLICK_TO_PATHS_TARGET = 0.2
 """A click on a pixel to its classes listed at 1080p (issue 38), in seconds."""
-REGRADE_VIEWPORT = {"width": 2720, "height": 1140}  # a canvas wider and taller than 1920×1080 between the panels
+REGRADE_VIEWPORT = {"width": 2780, "height": 1140}  # a canvas wider and taller than 1920×1080 between the panels
 HD_VIEWPORT = {"width": 1600, "height": 900}
 SCREENSHOT_VIEWPORT = {"width": 1600, "height": 900}
 
