@@ -206,16 +206,7 @@ def mirror(folder: Path, width: int = 64, height: int = 64):
     materials = _material("white") + _material("chrome", mirror=True)
     stage = _write(folder, "mirror", body, materials, width, height, camera_z)
 
-    def truth(w: int, h: int) -> np.ndarray:
-        sx, sy = camera_rays(w, h)
-        x, y = sx * (camera_z + 1.0), sy * (camera_z + 1.0)  # where the ray crosses z = -1
-        label = np.full((h, w), -1, np.int64)
-        inside = np.abs(y) < 1.6
-        label[inside & (x > -1.6) & (x < -0.02)] = 0
-        label[inside & (x > 0.02) & (x < 1.6)] = 1
-        return label
-
-    return stage, truth
+    return stage, _halves(camera_z + 1.0, 1.6, 0.02, 1.6)  # where the rays cross z = -1
 
 
 def textured(folder: Path, width: int = 64, height: int = 48):
@@ -230,16 +221,23 @@ def textured(folder: Path, width: int = 64, height: int = 48):
     materials = _material("printed", texture=TEXTURE) + _material("grey", (0.5, 0.5, 0.5))
     stage = _write(folder, "textured", body, materials, width, height, camera_z)
 
+    return stage, _halves(camera_z, 0.5, 0.1, 1.1)
+
+
+def _halves(distance: float, half_height: float, gap: float, extent: float):
+    """The truth of two panels side by side at `distance` (m) in front of the camera: 0 where
+    the central ray crosses them at -extent < x < -gap, 1 at gap < x < extent, |y| < half_height;
+    -1 elsewhere. Returns truth(w, h) -> (h, w) int64."""
     def truth(w: int, h: int) -> np.ndarray:
         sx, sy = camera_rays(w, h)
-        x, y = sx * camera_z, sy * camera_z
+        x, y = sx * distance, sy * distance
         label = np.full((h, w), -1, np.int64)
-        inside = np.abs(y) < 0.5
-        label[inside & (x > -1.1) & (x < -0.1)] = 0
-        label[inside & (x > 0.1) & (x < 1.1)] = 1
+        inside = np.abs(y) < half_height
+        label[inside & (x > -extent) & (x < -gap)] = 0
+        label[inside & (x > gap) & (x < extent)] = 1
         return label
 
-    return stage, truth
+    return truth
 
 
 def _board(x0: float, x1: float, y0: float, y1: float) -> list[tuple]:
