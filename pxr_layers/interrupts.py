@@ -44,9 +44,12 @@ OURS = (signal.default_int_handler, _raise_interrupt, _raise_terminated)
 def noted() -> KeyboardInterrupt | None:
     """The interrupt the handlers of :func:`signals_raise` raised last in its block (None:
     none), as the exception it was: for an error a library made of it."""
-    if not _NOTED:
-        return None
-    return Terminated(_NOTED[-1]) if _NOTED[-1] == signal.SIGTERM else KeyboardInterrupt()
+    return _interrupt(_NOTED[-1]) if _NOTED else None
+
+
+def _interrupt(signal_number: int) -> KeyboardInterrupt:
+    """The exception a signal raises: Terminated for SIGTERM, KeyboardInterrupt for SIGINT."""
+    return Terminated(signal_number) if signal_number == signal.SIGTERM else KeyboardInterrupt()
 
 
 def raise_if_swallowed() -> None:
@@ -64,6 +67,10 @@ def _quiet_interrupts(unraisable) -> None:
     if unraisable.exc_type is not None and issubclass(unraisable.exc_type, KeyboardInterrupt):
         return
     sys.__unraisablehook__(unraisable)
+
+
+def _silent(unraisable) -> None:
+    """sys.unraisablehook once an interrupt has ended the command (signals_raise)."""
 
 
 @contextlib.contextmanager
@@ -86,7 +93,9 @@ def signals_raise() -> Iterator[None]:
     finally:
         for number, handler in previous.items():
             signal.signal(number, handler)
-        sys.unraisablehook = previous_hook
+        # After an interrupt the process ends: objects it cut short in their constructors
+        # (llvmlite's) fail in their finalisers at exit, which is not the user's to read.
+        sys.unraisablehook = _silent if _NOTED else previous_hook
         _NOTED.clear()
 
 
@@ -116,4 +125,4 @@ def recorded() -> Iterator[list[int]]:
 def raise_recorded(received: list[int]) -> None:
     """Raise the first signal :func:`recorded` received: Terminated or KeyboardInterrupt."""
     if received:
-        raise Terminated(received[0]) if received[0] == signal.SIGTERM else KeyboardInterrupt
+        raise _interrupt(received[0])

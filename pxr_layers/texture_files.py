@@ -18,6 +18,8 @@ alpha unless told otherwise, and UsdUVTexture reads channels as stored.
 from __future__ import annotations
 
 import logging
+import os
+
 import numpy as np
 import OpenImageIO as oiio
 
@@ -223,3 +225,14 @@ def repaired(pixels: np.ndarray, light_ceiling: float | None = None) -> int:
         if too_bright is not None:
             pixels[too_bright] = light_ceiling
     return count
+
+
+def file_identity(path: str) -> tuple | None:
+    """What tells a file's content apart: path, device and inode, size, modification and
+    change times (a copy that keeps the old mtime, cp -p or rsync -a, still changes ctime);
+    None when it cannot be read."""
+    try:
+        status = os.stat(path)
+    except OSError:
+        return None
+    return (path, status.st_dev, status.st_ino, status.st_size, status.st_mtime_ns, status.st_ctime_ns)

@@ -253,7 +253,7 @@ def test_grade_from_json_passes_kelvin_through():
 
 
 def test_grade_from_json_checks_mask_names_against_the_render(session):
-    known = session.mask_names()
+    known = session.mask_names
     entry = {"mask": {"kind": "material", "names": ["/World/Materials/gren"]}}
     with pytest.raises(ViewError, match="layer 'key': mask: no material '/World/Materials/gren' in the render's "
                                         "Cryptomatte; nearest: /World/Materials/green"):

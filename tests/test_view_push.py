@@ -17,7 +17,7 @@ from pxr import Sdf, Usd, UsdLux
 from pxr_layers.errors import StageError
 from pxr_layers.layers.kelvin import KELVIN_MAX, KELVIN_MIN, KELVIN_STEP, kelvin_table
 from pxr_layers.layers.multipart import read_multipart
-from pxr_layers.layers.nuke import LayerGrade
+from pxr_layers.layers.nuke import LayerGrade, LayerMask
 from pxr_layers.lpe import per_light_passes
 from pxr_layers.stage.light_overrides import LightChange, ShotLight, check_stage, planned_edits
 from pxr_layers.stage.lights import blackbody_rgb
@@ -153,7 +153,7 @@ def test_other_layers_stay_compositing_grades_and_say_why(session, expression, w
 def test_solo_and_masks_are_not_light_edits(session):
     solo = classified(session, "C.*<L.'fill'>", LayerGrade(solo=True))
     assert "solo is a viewing state" in solo.why
-    plan = push.classify(session.index, [push.PushEntry("masked", "C.*<L.'fill'>", LayerGrade(), mask={"ids": [1]})])
+    plan = push.classify(session.index, [push.PushEntry("masked", "C.*<L.'fill'>", LayerGrade(mask=LayerMask("object", ("/World/fill",))))])
     assert "masked to objects" in plan.compositing[0].why
 
 

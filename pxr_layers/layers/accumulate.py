@@ -81,18 +81,14 @@ class LayerSums:
 
     def add_to_layer(self, layer: int, pixel: np.ndarray, rgb: np.ndarray) -> None:
         """Records (pixel (r,), rgb (r, 3)) that feed ``layer``, whatever their key says."""
-        self._add(pixel, rgb, np.zeros(len(pixel), np.int64), np.array([0, 1], np.int64),
-                  np.array([layer], np.int64))
-
-    @property
-    def sums(self) -> np.ndarray:
-        """(layers, pixels, 3) float64: every record added so far."""
-        return np.stack(self._channels, axis=-1).reshape(self._layers, self._pixels, 3)
+        pixel = np.asarray(pixel, np.int64)
+        if len(pixel) and (pixel.min() < 0 or pixel.max() >= self._pixels or not 0 <= layer < self._layers):
+            raise AssertionError("records outside the image or their layer sets")
+        self._add_at(layer * self._pixels + pixel, rgb)
 
     def images(self, height: int, width: int, spp: int) -> list[np.ndarray]:
         """Each layer's sums / spp as an (height, width, 3) float32 image (pixels = height ·
-        width), rounded once from float64: the same values as ``sums`` divided, without
-        its (layers, pixels, 3) copy."""
+        width), rounded once from float64 (no (layers, pixels, 3) copy of the sums)."""
         images = []
         for layer in range(self._layers):
             image = np.empty((height, width, 3), np.float32)

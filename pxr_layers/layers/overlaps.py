@@ -34,7 +34,7 @@ from ..colour import REC709_LUMINANCE
 from ..paths.reader import PathIndex
 from .accumulate import distinct
 from .extract import default_threads, keyed_chunks, plan_layers
-from .previews import _energy
+from .previews import image_energy
 
 log = logging.getLogger(__name__)
 
@@ -77,7 +77,8 @@ def overlaps(index: PathIndex, expressions: dict[str, str], beauty: np.ndarray |
     claimed = double = every = 0.0
     for chunk, key, unkeyed in keyed_chunks(index, plan, threads, every_class=beauty is None):
         luminance = chunk.rgb.astype(np.float64) @ weights
-        every += float(luminance.sum())
+        if beauty is None:  # else the beauty's own energy is the total
+            every += float(luminance.sum())
         if unkeyed:  # conditional layers past the key's bits (over 60 of them): per record
             members = plan.members(key)
             for row, matching in unkeyed:
@@ -93,7 +94,7 @@ def overlaps(index: PathIndex, expressions: dict[str, str], beauty: np.ndarray |
         shared = members[counts > 1]
         if len(shared):
             pair_sums += (shared.T * energy[counts > 1]) @ shared
-    total = _energy(beauty) if beauty is not None else every / spp
+    total = image_energy(beauty) if beauty is not None else every / spp
     claimed, double = claimed / spp, double / spp
 
     def share(value: float) -> float:

@@ -50,7 +50,8 @@ from pxr import Ar, Sdf, Usd
 
 from pxr_layers.inputs import input_problem
 from pxr_layers.scene import TextureHeader, TextureImage, WrapMode
-from pxr_layers.texture_files import MAX_TEXTURE_TEXELS, level_size, linear, read_header, read_level, repaired
+from pxr_layers.texture_files import (MAX_TEXTURE_TEXELS, file_identity, level_size, linear, read_header, read_level,
+                                      repaired)
 
 from .diagnostics import Diagnostics
 from .values import MAX_RADIANCE
@@ -99,30 +100,21 @@ _REMEMBERED: dict[tuple, _FileTexture] = {}
 _REMEMBERED_LOCK = threading.Lock()  # frames may be read on several threads of a process
 
 
-def _file_identity(path: str) -> tuple | None:
-    """What tells a file's content apart: path, device and inode, size, modification and
-    change times (a copy that keeps the old mtime, cp -p or rsync -a, still changes ctime)."""
-    try:
-        status = os.stat(path)
-    except OSError:
-        return None
-    return (path, status.st_dev, status.st_ino, status.st_size, status.st_mtime_ns, status.st_ctime_ns)
-
 
 def _texture_identity(resolved_path: str) -> tuple | None:
     """What tells a texture's content apart, None when nothing does (it is then not remembered).
 
-    A plain file: _file_identity. A package member ``pkg.usdz[inner]``: the package file's
+    A plain file: file_identity. A package member ``pkg.usdz[inner]``: the package file's
     identity and the member's name (a package's members change only with the package). Any
     other resolver path: the path and the modification time the resolver reports for it.
     """
     if not Ar.IsPackageRelativePath(resolved_path):
-        identity = _file_identity(resolved_path)
+        identity = file_identity(resolved_path)
         if identity is not None:
             return identity
     else:
         package, member = Ar.SplitPackageRelativePathOuter(resolved_path)
-        package_identity = _file_identity(package)
+        package_identity = file_identity(package)
         if package_identity is not None:
             return ("package member", package_identity, member)
     timestamp = Ar.GetResolver().GetModificationTimestamp(resolved_path, Ar.ResolvedPath(resolved_path))

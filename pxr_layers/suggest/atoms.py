@@ -232,13 +232,9 @@ def _touch_bits(index: PathIndex, event_values: list[dict], names: dict[str, str
     carries its token exactly when the LPE's glob matches one of the event's labels (an
     object, a material or a light under the root), so that atoms and expressions agree."""
     model_paths = index.manifest.get("model_paths") or ()
-    roots = set()
-    for values in event_values:
-        own = values.get("object")
-        if own:
-            root = asset_roots((own,), model_paths)[0]
-            if root != own and root.count("/") > 1:  # a top-level prim (/World) tells nothing apart
-                roots.add(root)
+    objects = sorted({values["object"] for values in event_values if values.get("object")})
+    roots = sorted({root for own, root in zip(objects, asset_roots(objects, model_paths))
+                    if root != own and root.count("/") > 1})  # a top-level prim (/World) tells nothing apart
     event_tokens: list[list[str]] = []
     for event, values in zip(index.events, event_values):
         found = []
@@ -250,7 +246,7 @@ def _touch_bits(index: PathIndex, event_values: list[dict], names: dict[str, str
         if material:
             found.append(f"material:{material}")
             names[f"material:{material}"], labels[f"material:{material}"] = names[material], labels[material]
-        for root in sorted(roots):
+        for root in roots:
             if any(label.startswith(root + "/") for label in event.labels):
                 token = f"asset:{root}"
                 found.append(token)
@@ -283,9 +279,7 @@ def _event_values(event: Event, paths: tuple[str, str], names: dict[str, str], l
     if event.type == "B":
         names["B"] = "background"
         return {"light": "B"}
-    material = material or None
-    if material:
-        names[material], labels[material] = material.rsplit("/", 1)[-1], material
+    material = _named_material(material, names, labels) if material else None
     names[own_path], labels[own_path] = event.name or own_path.rsplit("/", 1)[-1], own_path
     return {"type": event.type, "scatter": event.scatter, "object": own_path, "material": material}
 

@@ -49,10 +49,10 @@ TYPE_WORDS = dict(zip(SCATTERING_TYPES, ("", "transmitted", "volume"), strict=Tr
 DEPTH_WORDS = {frozenset({0}): "emission", frozenset({1}): "direct", frozenset({2}): "indirect",
                frozenset({0, 1}): "direct", frozenset({1, 2}): "bounced"}
 REST = "rest"
+"""The name of a layer that no split names (the whole of path space, or what a split left)."""
 LISTED_AT_MOST = 3
 """A node that avoids some lights (objects, materials) is named after those it is left with
 when they are this many or fewer: "fill_sky"."""
-"""The name of a layer that no split names (the whole of path space, or what a split left)."""
 
 
 @dataclass(frozen=True)

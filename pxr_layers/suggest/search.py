@@ -203,9 +203,11 @@ class Searcher:
             if attribute == TOUCHES:
                 held = self.touch_matrix[leaf.atoms]
                 avoided = dict(leaf.node.exclude).get(TOUCHES, frozenset())
-                values = [token for column_number, token in enumerate(self.tokens)
-                          if held[:, column_number].any() and token not in leaf.node.touched and token not in avoided]
-                sides = [held[:, self.tokens.index(token)] for token in values]
+                any_held = held.any(axis=0)
+                kept = [(number, token) for number, token in enumerate(self.tokens)
+                        if any_held[number] and token not in leaf.node.touched and token not in avoided]
+                values = [token for _, token in kept]
+                sides = [held[:, number] for number, _ in kept]
             elif attribute == "depth":
                 values = sorted(leaf.node.depths)[:-1]
                 sides = [column <= value for value in values]

@@ -57,17 +57,20 @@ def prepare(scene: SceneData, spec: RenderSpec, settings: TraceSettings) -> Inte
     world = build_world(scene, rows_needed(lanes, slots) if placing else 0)
     geometry = geometry_arrays(world)
     camera = ThinLensCamera.from_spec(spec)
-    finest = _texture_levels(scene, spec, settings, world, geometry, camera, lanes, slots)
+    caster = RayCaster(world)  # one BVH for the pre-pass and the frame
+    finest = _texture_levels(scene, spec, settings, world, geometry, camera, caster, lanes, slots)
     materials = MaterialTable(scene, world.primvar_columns, finest, settings.texture_memory)
-    integrator = _integrator(scene, spec.resolution, settings, world, geometry, camera, materials, lanes, slots)
+    integrator = _integrator(scene, spec.resolution, settings, world, geometry, camera, caster, materials, lanes, slots)
     if integrator.lights.darkness:
         log.warning("%s: %s", scene.stage_path, integrator.lights.darkness)
     return integrator
 
 
 def _integrator(scene: SceneData, resolution: tuple[int, int], settings: TraceSettings, world: World, geometry,
-                camera: ThinLensCamera, materials: MaterialTable, lanes: int, slots: int) -> Integrator:
-    """The Integrator of `world` with `materials`: its lights, norms, subjects and rows."""
+                camera: ThinLensCamera, caster: RayCaster, materials: MaterialTable, lanes: int,
+                slots: int) -> Integrator:
+    """The Integrator of `world` (its Embree scene `caster`) with `materials`: its lights,
+    norms, subjects and rows."""
     lights = LightSampler(scene, world, materials, geometry)
     bounce_norms = BounceNorms(scene, world, materials) if settings.norm_bounces > 0 else None
     pairs, triangle_subject, subject_first, subject_rank = _subjects(world)
@@ -83,7 +86,7 @@ def _integrator(scene: SceneData, resolution: tuple[int, int], settings: TraceSe
         material_names=tuple(m.name for m in scene.materials), material_paths=tuple(m.path for m in scene.materials),
         light_names=tuple(light.name for light in scene.lights), light_paths=tuple(light.path for light in scene.lights),
     )
-    return Integrator(world, geometry, materials, lights, camera, resolution, settings, scene.frame, RayCaster(world),
+    return Integrator(world, geometry, materials, lights, camera, resolution, settings, scene.frame, caster,
                       vocabulary, triangle_subject, bounce_norms, instance_rows)
 
 
@@ -102,7 +105,7 @@ sampling: they read whatever level is resident) is held from the level 8 steps a
 
 
 def _texture_levels(scene: SceneData, spec: RenderSpec, settings: TraceSettings, world: World, geometry,
-                    camera: ThinLensCamera, lanes: int, slots: int) -> dict[int, int | None] | None:
+                    camera: ThinLensCamera, caster: RayCaster, lanes: int, slots: int) -> dict[int, int | None] | None:
     """SceneData.textures index → the finest MIP level to hold (None: none), from a visibility
     pre-pass: the frame traced on a film 2^k times coarser, at as many samples a pixel as
     PREPASS_PATHS allows (at least 1, at most the frame's), the same depth and seed, with
@@ -125,7 +128,7 @@ def _texture_levels(scene: SceneData, spec: RenderSpec, settings: TraceSettings,
     spp = max(1, min(settings.spp, PREPASS_PATHS // (size[0] * size[1])))
     pre_pass = TraceSettings(spp=spp, max_depth=settings.max_depth, seed=settings.seed,
                              roulette_depth=settings.roulette_depth)
-    integrator = _integrator(scene, size, pre_pass, world, geometry, camera, probe, lanes, slots)
+    integrator = _integrator(scene, size, pre_pass, world, geometry, camera, caster, probe, lanes, slots)
     paths = size[0] * size[1] * spp
     for first in range(0, paths, DEFAULT_BATCH_PATHS):
         integrator.trace(first, min(first + DEFAULT_BATCH_PATHS, paths))

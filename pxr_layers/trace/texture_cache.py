@@ -64,6 +64,7 @@ from ..texture_files import (
     MAX_TEXTURE_TEXELS,
     as_stored,
     block_means,
+    file_identity,
     level_count,
     level_size,
     linear,
@@ -234,12 +235,8 @@ _LAST_LOCK = threading.Lock()
 
 def _pyramid_key(image: TextureImage, finest: int) -> tuple | None:
     """What tells a lazy image's pyramid apart: the file's identity, colour space and level."""
-    try:
-        status = os.stat(image.path)
-    except OSError:
-        return None
-    return (image.path, status.st_dev, status.st_ino, status.st_size, status.st_mtime_ns, status.st_ctime_ns,
-            image.color_space, finest)
+    identity = file_identity(image.path)
+    return None if identity is None else (*identity, image.color_space, finest)
 
 
 def _pyramid(image: TextureImage, finest: int) -> tuple[list[np.ndarray], int]:
@@ -304,9 +301,10 @@ def resident_textures(images: Sequence[TextureImage], finest: Sequence[int | Non
     with ThreadPoolExecutor(max(1, min(available_cores(), len(work)))) as pool:
         pyramids = dict(zip(work, pool.map(pyramid, work)))
     resident = _assemble(images, pyramids, chosen)  # the kept levels are views of its pools now
-    with _LAST_LOCK:
-        _LAST.clear()
-        _LAST.update(kept)
+    if any(images[index].pixels is None for index in work):  # a call that held no file keeps the last frame's
+        with _LAST_LOCK:
+            _LAST.clear()
+            _LAST.update(kept)
     return resident
 
 

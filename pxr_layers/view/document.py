@@ -32,9 +32,9 @@ from pathlib import Path
 
 from ..errors import PxrLayersError
 from ..outputs import write_atomically
-from ..recipe.model import LAYER_NAME, MAX_PREVIEW_STOPS
+from ..recipe.model import CRYPTOMATTE_KINDS, LAYER_NAME, MAX_PREVIEW_STOPS
 from ..layers.kelvin import KELVIN_MAX, KELVIN_MIN
-from .grades import MAX_TINT
+from .grades import MAX_MASK_NAMES, MAX_TINT
 
 log = logging.getLogger(__name__)
 
@@ -162,8 +162,10 @@ def _entries(entries, what: str) -> list[dict]:
         _bool(entry["solo"], f"{where}.solo")
         if entry["mask"] is not None:
             mask = _object(entry["mask"], {"kind", "names"}, f"{where}.mask")
-            _text(mask["kind"], f"{where}.mask.kind")
-            for name in _list(mask["names"], f"{where}.mask.names", 4096):
+            if mask["kind"] not in CRYPTOMATTE_KINDS:
+                raise DocumentError(f"{where}.mask.kind: one of {', '.join(CRYPTOMATTE_KINDS)}, not {_shown(mask['kind'])}")
+            # no names yet is a mask being picked (save refuses it: view/grades.py)
+            for name in _list(mask["names"], f"{where}.mask.names", MAX_MASK_NAMES):
                 if not isinstance(name, str) or len(name) > 4096:
                     raise DocumentError(f"{where}.mask.names: names (strings)")
     return entries

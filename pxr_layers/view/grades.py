@@ -16,10 +16,9 @@ the id optional (its default that of LayerGrade):
 
 from __future__ import annotations
 
-import math
 from collections.abc import Collection, Mapping
 
-from ..layers.kelvin import KELVIN_MAX, KELVIN_MIN
+from ..layers.kelvin import KELVIN_MAX, KELVIN_MIN, check_kelvin
 from ..layers.nuke import LayerGrade, LayerMask
 from ..errors import PxrLayersError
 from ..lpe.labels import closest_labels
@@ -82,11 +81,12 @@ def grade_from_json(entry: dict, what: str, *, known: Mapping[str, Collection[st
 
 
 def _kelvin(value, what: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or not KELVIN_MIN <= value <= KELVIN_MAX:
+    """check_kelvin's rule (layers/kelvin.py), as a 400 naming the layer."""
+    try:
+        return check_kelvin(value)
+    except ValueError:
         raise ViewError(f"{what}: kelvin is null or a colour temperature from {KELVIN_MIN:g} to {KELVIN_MAX:g} K, "
-                        f"not {_shown(value)}")
-    return float(value)
+                        f"not {_shown(value)}") from None
 
 
 def mask_from_json(value, what: str, known: Mapping[str, Collection[str]] | None = None) -> LayerMask | None:

@@ -20,6 +20,7 @@ an entry whose light another entry pushes too (their grades add up in the compos
 
 from __future__ import annotations
 
+import functools
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -27,25 +28,23 @@ from dataclasses import dataclass, field
 from ..errors import LpeError
 from ..layers.extract import class_matches
 from ..layers.nuke import LayerGrade
-from ..paths.events import SCATTERING_NAMES, SCATTERINGS
+from ..paths.events import SCATTERING_NAMES, SCATTERING_TYPE_NAMES, SCATTERING_TYPES, SCATTERINGS
 from ..paths.reader import PathIndex
 
-_TYPE_NAMES = {"R": "reflection", "T": "transmission", "V": "volume"}
+_TYPE_NAMES = dict(zip(SCATTERING_TYPES, SCATTERING_TYPE_NAMES, strict=True))
 
 
 @dataclass(frozen=True)
 class PushEntry:
-    """One stack entry: its shown name, its expression (None: unknown) and its grade; a grade
-    with a ``mask`` attribute that is not None (a Cryptomatte mask) is masked."""
+    """One stack entry: its shown name, its expression (None: unknown) and its grade."""
 
     name: str
     expression: str | None
     grade: LayerGrade
-    mask: object = None
 
     @property
     def masked(self) -> bool:
-        return self.mask is not None or getattr(self.grade, "mask", None) is not None
+        return self.grade.mask is not None
 
 
 @dataclass(frozen=True)
@@ -91,8 +90,10 @@ def light_path(event) -> str:
     return paths[0] if paths else event.name
 
 
+@functools.lru_cache(maxsize=8)
 def light_classes(index: PathIndex) -> dict[str, frozenset[int]]:
-    """prim path → the ids of the classes that end at that light."""
+    """prim path → the ids of the classes that end at that light (an index's classes do not
+    change: computed once per index)."""
     found: dict[str, set[int]] = defaultdict(set)
     for path_class in index.classes:
         end = index.events[path_class.event_ids[-1]]

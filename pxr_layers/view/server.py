@@ -296,9 +296,7 @@ async def _suggest(request: web.Request) -> web.Response:
 async def _save(request: web.Request) -> web.Response:
     body = await _json_body(request)
     session = request.app[SESSION_KEY]
-    overwrite = body.get("overwrite", False)
-    if not isinstance(overwrite, bool):
-        raise ViewError(f"overwrite must be true or false, not {overwrite!r}")
+    overwrite = _overwrite(body)
     written = await _blocking(request, session.save, body.get("name"), body.get("layers"),
                               body.get("exposure", 0.0), overwrite, body.get("document"))
     return web.json_response(written)
@@ -308,9 +306,7 @@ async def _push(request: web.Request) -> web.Response:
     """/api/push writes the grades of whole lights as light overrides; /api/pushable says,
     without writing, which entries would push and why the others stay compositing grades."""
     body = await _json_body(request)
-    overwrite = body.get("overwrite", False)
-    if not isinstance(overwrite, bool):
-        raise ViewError(f"overwrite must be true or false, not {overwrite!r}")
+    overwrite = _overwrite(body)
     session = request.app[SESSION_KEY]
     return web.json_response(await _blocking(request, session.push, body.get("name"), body.get("layers"),
                                              body.get("exposure", 0.0), overwrite))
@@ -319,6 +315,14 @@ async def _push(request: web.Request) -> web.Response:
 async def _pushable(request: web.Request) -> web.Response:
     body = await _json_body(request)
     return web.json_response(await _blocking(request, request.app[SESSION_KEY].pushable, body.get("layers")))
+def _overwrite(body: dict) -> bool:
+    """The body's "overwrite": a boolean (the page's overwrite box), false when left out."""
+    overwrite = body.get("overwrite", False)
+    if not isinstance(overwrite, bool):
+        raise ViewError(f"overwrite must be true or false, not {overwrite!r}")
+    return overwrite
+
+
 async def _document(request: web.Request) -> web.Response:
     body = await _json_body(request)
     return web.json_response(await _blocking(request, request.app[SESSION_KEY].put_document, body))

@@ -64,7 +64,7 @@ from ..recipe.model import (
 )
 from . import document as documents
 from . import inspect, push
-from .grades import ViewError, _shown, _stops, grade_from_json
+from .grades import ViewError, _shown, _stops, grade_from_json, mask_from_json
 
 log = logging.getLogger(__name__)
 
@@ -75,10 +75,9 @@ SAVE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*")
 MAX_NAME_CHARS = 120
 """Longest save or layer name (NAME.usda and its previews' names stay within the system's 255 bytes)."""
 MAX_SUGGESTED = 32
-
+"""Most layers /api/suggest makes at once."""
 MAX_OVERLAP_LAYERS = 256
 """Layers /api/overlaps compares at most (a stack is far smaller)."""
-"""Most layers /api/suggest makes at once."""
 VERSIONS = ("raw", "denoised")
 """The versions of a layer's pixels /api/image serves: as rendered, and from the denoised twin."""
 MASKS_CACHED = 32
@@ -139,7 +138,9 @@ class Session:
         self.lut: DisplayLut = bake_display_lut(product.ocio_config, product.display, product.view,
                                                 product.rendering_space)
         self.views = display_views(product.ocio_config, product.display)
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the index's reads and the stack's layers
+        self._document_lock = threading.Lock()  # the working state's file: not behind an extraction
+        self._push_lock = threading.Lock()  # a push's check and writes together
         self.cryptomattes = dict(cryptomattes or {})
         self._masks: OrderedDict[tuple[str, tuple[str, ...]], bytes] = OrderedDict()
         self._masks_lock = threading.Lock()
@@ -261,7 +262,7 @@ class Session:
             document = documents.checked(document)
         except documents.DocumentError as error:
             raise ViewError(f"document: {error}") from None
-        with self._lock:
+        with self._document_lock:  # self.layers only grows: read without the session's lock
             unknown = sorted(set(documents.sources(document)) - set(self.layers))
             if unknown:
                 raise ViewError(f"document: no layer {unknown[0]!r} in this session", 404)
@@ -350,10 +351,7 @@ class Session:
         """Extract a new layer from the index into the stack: /api/layer. The facts: classes
         matched, seconds, and the warnings of labels that name nothing in the index."""
         index = self._need_index("make a layer")
-        if not isinstance(name, str) or len(name) > MAX_NAME_CHARS or not LAYER_NAME.fullmatch(name) \
-                or name in NUKE_RESERVED_LAYERS:
-            raise ViewError(f"layer name {_shown(name)}: at most {MAX_NAME_CHARS} letters, digits and _, not starting with a digit, and none of "
-                            f"the layers Nuke keeps for itself ({', '.join(sorted(NUKE_RESERVED_LAYERS))})")
+        _check_layer_name(name)
         self.check(expression)
         start = time.perf_counter()
         with self._lock:
@@ -500,6 +498,7 @@ class Session:
 
     # -- masks
 
+    @functools.cached_property
     def mask_names(self) -> dict[str, frozenset[str]]:
         """kind → the names its Cryptomatte's manifest has (what a mask may name)."""
         return {kind: frozenset(matte.manifest) for kind, (_, matte) in self.cryptomattes.items()}
@@ -508,9 +507,7 @@ class Session:
         """(h, w) float32: the coverage of ``names`` in the Cryptomatte of ``kind``
         (layers.cryptomatte.coverage). ViewError (400) for an unknown kind or name, one line
         naming it and the nearest known."""
-        from .grades import mask_from_json  # grades.py builds on this module's ViewError
-
-        mask = mask_from_json({"kind": kind, "names": names}, "mask", self.mask_names())
+        mask = mask_from_json({"kind": kind, "names": names}, "mask", self.mask_names)
         return coverage(self.cryptomattes[mask.kind][1], mask.names)
 
     def mask(self, kind, names) -> bytes:
@@ -565,9 +562,7 @@ class Session:
         from ..stage.recipe_writer import write_recipe  # USD is imported only when saving
 
         index = self._need_index("save the stack (its layers are extracted from it)")
-        if not isinstance(name, str) or len(name) > MAX_NAME_CHARS or not SAVE_NAME.fullmatch(name):
-            raise ViewError(f"save name {_shown(name)}: at most {MAX_NAME_CHARS} letters, digits, _ and -, "
-                            "not starting with a digit or -")
+        _check_save_name(name, "save")
         exposure = _stops(exposure, "exposure")
         chosen, grades = self._stack(stack)
         look = self._look_document(document, stack, chosen, exposure, name)
@@ -618,11 +613,7 @@ class Session:
             layer = self.layer(entry.get("id"))
             if layer.kind == "beauty":
                 continue
-            layer_name = entry.get("name", layer.name)
-            if not isinstance(layer_name, str) or len(layer_name) > MAX_NAME_CHARS or not LAYER_NAME.fullmatch(layer_name) \
-                    or layer_name in NUKE_RESERVED_LAYERS:
-                raise ViewError(f"layer name {_shown(layer_name)}: at most {MAX_NAME_CHARS} letters, digits and _, "
-                                "not starting with a digit, and not a layer Nuke keeps for itself")
+            layer_name = _check_layer_name(entry.get("name", layer.name))
             if layer_name in grades:
                 raise ViewError(f"two layers of the stack are named {layer_name!r}")
             group = entry.get("group") or "inspector"
@@ -631,7 +622,7 @@ class Session:
             note = entry.get("note") or ""
             if not isinstance(note, str) or len(note) > documents.MAX_NOTE or not note.isprintable():
                 raise ViewError(f"layer {layer_name!r}: note is one line of at most {documents.MAX_NOTE} characters")
-            grade = grade_from_json(entry, f"layer {layer_name!r}", known=self.mask_names())
+            grade = grade_from_json(entry, f"layer {layer_name!r}", known=self.mask_names)
             try:
                 layers.append(Layer(layer_name, "lpe", layer.expression, exposure=grade.stops, tint=grade.tint,
                                     group=group, description=note))
@@ -650,8 +641,7 @@ class Session:
         shot's lights could not be read (their groups, animation...), else None."""
         index = self._need_index("push grades to lights")
         entries = self._push_entries(stack)
-        with self._lock:
-            plan, _, problem = self._push_plan(index, entries, need_stage=False)
+        plan, _, problem = self._push_plan(index, entries, need_stage=False)  # reads no records: no lock
         return {**plan.description(), "stage": problem}
 
     def push(self, name: str, stack: list[dict], exposure: float = 0.0, overwrite: bool = False) -> dict:
@@ -661,12 +651,10 @@ class Session:
         from ..stage.light_overrides import LightChange, write_push
 
         index = self._need_index("push grades to lights")
-        if not isinstance(name, str) or len(name) > MAX_NAME_CHARS or not SAVE_NAME.fullmatch(name):
-            raise ViewError(f"push name {_shown(name)}: at most {MAX_NAME_CHARS} letters, digits, _ and -, "
-                            "not starting with a digit or -")
+        _check_save_name(name, "push")
         exposure = _stops(exposure, "exposure")
         entries = self._push_entries(stack)
-        with self._lock:
+        with self._push_lock:
             plan, lights, _ = self._push_plan(index, entries, need_stage=True)
             if not plan.pushed:
                 raise ViewError("no layer of the stack is a grade of one whole light: nothing to push "
@@ -735,10 +723,11 @@ class Session:
             shown = entry.get("name", layer.name)
             shown = shown if isinstance(shown, str) and 0 < len(shown) <= MAX_NAME_CHARS else layer.name
             grade = grade_from_json(entry, f"layer {shown!r}")  # a mask's names need not be checked: it is not pushed
-            entries.append(push.PushEntry(shown, layer.expression, grade, entry.get("mask")))
+            entries.append(push.PushEntry(shown, layer.expression, grade))
         if len({entry.name for entry in entries}) != len(entries):
             raise ViewError("two layers of the stack have one name")
         return entries
+
     def _look_document(self, document, stack: list[dict], chosen: list[Layer], exposure: float,
                        name: str) -> dict | None:
         """The document a saved look opens with (view/document.py): the page's `document` with
@@ -764,13 +753,30 @@ class Session:
         document["exposure"] = exposure
         document["saved"] = {"name": name, "exposure": exposure,
                              "entries": [entry for entry in document["entries"] if entry["kind"] == "layer"]}
-        return json.loads(json.dumps(document))
+        return document
 
     def _need_index(self, what: str) -> PathIndex:
         if self.index is None:
             raise ViewError(f"cannot {what}: {self.folder} has no path index of this render "
                             "(render with an index, and view its folder)", 409)
         return self.index
+
+
+def _check_layer_name(name) -> str:
+    """`name` if it may name a layer of a look (an EXR part Nuke reads as its own layer)."""
+    if not isinstance(name, str) or len(name) > MAX_NAME_CHARS or not LAYER_NAME.fullmatch(name) \
+            or name in NUKE_RESERVED_LAYERS:
+        raise ViewError(f"layer name {_shown(name)}: at most {MAX_NAME_CHARS} letters, digits and _, not starting "
+                        f"with a digit, and none of the layers Nuke keeps for itself "
+                        f"({', '.join(sorted(NUKE_RESERVED_LAYERS))})")
+    return name
+
+
+def _check_save_name(name, what: str) -> None:
+    """`name` may name the files /api/save or /api/push writes (SAVE_NAME)."""
+    if not isinstance(name, str) or len(name) > MAX_NAME_CHARS or not SAVE_NAME.fullmatch(name):
+        raise ViewError(f"{what} name {_shown(name)}: at most {MAX_NAME_CHARS} letters, digits, _ and -, "
+                        "not starting with a digit or -")
 
 
 # --- opening helpers ----------------------------------------------------------------------

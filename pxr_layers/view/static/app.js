@@ -27,11 +27,11 @@ class ApiError extends Error {
   }
 }
 
-async function api(path, { method = 'GET', body, signal, binary = false } = {}) {
+async function api(path, { method = 'GET', body, signal, binary = false, keepalive = false } = {}) {
   const headers = { 'X-Pxr-Token': TOKEN };
   if (body !== undefined) headers['Content-Type'] = 'application/json';
   const response = await fetch(path, {
-    method, headers, signal, body: body === undefined ? undefined : JSON.stringify(body),
+    method, headers, signal, keepalive, body: body === undefined ? undefined : JSON.stringify(body),
   });
   if (!response.ok) {
     let message = `${response.status} ${response.statusText}`;
@@ -46,25 +46,24 @@ async function api(path, { method = 'GET', body, signal, binary = false } = {}) 
   return binary ? response : response.json();
 }
 
-/** An image of the stack: Float32Array of height × width × 3 linear RGB, top row first. */
-async function fetchImage(id, width, height) {
-  const version = state.doc.denoised ? 'denoised' : 'raw';
-  const response = await api(`/api/image/${encodeURIComponent(id)}?version=${version}`, { binary: true });
-  const data = new Float32Array(await response.arrayBuffer());
-  if (data.length !== width * height * 3) {
-    throw new Error(`image ${id}: ${data.length} floats, expected ${width}×${height}×3`);
-  }
+/** A binary answer of `count` little-endian float32 values (`what` names it in the error). */
+async function fetchFloats(path, count, what) {
+  const data = new Float32Array(await (await api(path, { binary: true })).arrayBuffer());
+  if (data.length !== count) throw new Error(`${what}: ${data.length} floats, expected ${count}`);
   return data;
 }
 
+/** An image of the stack: Float32Array of height × width × 3 linear RGB, top row first. */
+function fetchImage(id, width, height) {
+  const version = state.doc.denoised ? 'denoised' : 'raw';
+  return fetchFloats(`/api/image/${encodeURIComponent(id)}?version=${version}`, width * height * 3, `image ${id}`);
+}
+
 /** A mask's coverage (GET /api/mask): Float32Array of height × width, top row first. */
-async function fetchMask(mask, width, height) {
+function fetchMask(mask, width, height) {
   const query = new URLSearchParams({ kind: mask.kind });
   for (const name of mask.names) query.append('names', name);
-  const response = await api(`/api/mask?${query}`, { binary: true });
-  const data = new Float32Array(await response.arrayBuffer());
-  if (data.length !== width * height) throw new Error(`mask: ${data.length} floats, expected ${width}×${height}`);
-  return data;
+  return fetchFloats(`/api/mask?${query}`, width * height, 'mask');
 }
 
 // --- small helpers ------------------------------------------------------------------------
@@ -527,13 +526,10 @@ function schedulePersist() {
 function persistNow({ keepalive = false } = {}) {
   clearTimeout(persistTimer);
   persistTimer = 0;
-  const body = JSON.stringify(state.doc);
-  persisting = persisting.then(() => fetch('/api/document', {
-    method: 'PUT', keepalive, body, headers: { 'X-Pxr-Token': TOKEN, 'Content-Type': 'application/json' },
-  }).then(async (response) => {
-    if (!response.ok) setStatus(`the working state is not kept: ${(await response.json()).error}`, true);
-    pxrViewer.persisted += 1;
-  }).catch((error) => setStatus(`the working state is not kept: ${error.message}`, true)));
+  const body = structuredClone(state.doc);  // as it is now: later edits are the next write's
+  persisting = persisting.then(() => api('/api/document', { method: 'PUT', keepalive, body })
+    .then(() => { pxrViewer.persisted += 1; })
+    .catch((error) => setStatus(`the working state is not kept: ${error.message}`, true)));
   return persisting;
 }
 
