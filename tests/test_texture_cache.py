@@ -211,3 +211,17 @@ def test_a_texture_gone_by_render_time_is_a_warning_and_the_render_goes_on(tmp_p
     assert resident.info[seen, texture_cache.RESIDENT] == 0
     assert any(record.getMessage().startswith(f"cannot read texture {scene.textures[seen].path} (used by ")
                for record in caplog.records)
+
+
+def test_the_last_frames_pyramids_outlive_a_call_that_holds_no_file(tmp_path, monkeypatch):
+    """A frame's visibility pre-pass holds no file-backed level; the pyramids the previous
+    frame read stay for the next frame, which then reads no file."""
+    image = write(tmp_path / "tex.tif", np.random.default_rng(1).random((16, 16, 3)).astype(np.float32), oiio.FLOAT)
+    first = np.array(resident_textures([image], [0]).finest_linear(0))  # a frame
+    resident_textures([image], [None])  # the next frame's pre-pass: nothing held
+    reads = []
+    original = texture_cache.read_level
+    monkeypatch.setattr(texture_cache, "read_level", lambda *args, **kwargs: reads.append(args) or original(*args, **kwargs))
+    again = resident_textures([image], [0]).finest_linear(0)  # the next frame
+    assert reads == [], "the pyramid was read again from its file"
+    np.testing.assert_array_equal(again, first)
