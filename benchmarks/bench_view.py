@@ -13,7 +13,9 @@ live regrade, and the time from "add layer" to the new layer's picture (issue 20
    the common case: one slider dragged while the other layers keep their grades, whose frames
    add that layer to the rest summed once into a float texture (renderer.js).
    Headless Chromium has no GPU here: WebGL2 runs on SwiftShader, on the CPU; a desktop GPU is
-   much faster.
+   much faster. Last, the same browser's ceiling: a 1920×1080 shader that only reads and sums
+   2 images (what a dragged slider's frame must read) and 13 (every layer and the beauty),
+   without weights or the display transform; no regrade can be faster than that.
 2. Click to layer: the page on a 1920×1080, 64 spp index with its beauty beside it (``--index``;
    default: ``render/showcase.usda`` rendered so, which takes minutes on 2 cores). Time from the
    "add layer" click to the new layer's picture drawn (it is soloed) and done on the GPU, as
@@ -138,6 +140,54 @@ def regrade(context, url: str, frames: int) -> None:
     page.close()
 
 
+# What no regrade shader can beat in this browser: a 1920×1080 canvas whose fragment shader only
+# reads `reads` slices of a RGB32F texture array (the stack's format) and sums them (no weights,
+# masks or display transform), each frame finished by a one-pixel readback as drawFinished is.
+_FLOOR_PAGE = """<canvas width=1920 height=1080></canvas><script>
+const gl = document.querySelector('canvas').getContext('webgl2');
+const [W, H, SLICES] = [1920, 1080, 13];
+gl.bindTexture(gl.TEXTURE_2D_ARRAY, gl.createTexture());
+gl.texStorage3D(gl.TEXTURE_2D_ARRAY, 1, gl.RGB32F, W, H, SLICES);
+const noise = Float32Array.from({ length: W * H * 3 }, Math.random);
+for (let s = 0; s < SLICES; ++s) gl.texSubImage3D(gl.TEXTURE_2D_ARRAY, 0, 0, 0, s, W, H, 1, gl.RGB, gl.FLOAT, noise);
+gl.texParameteri(gl.TEXTURE_2D_ARRAY, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+gl.texParameteri(gl.TEXTURE_2D_ARRAY, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+function shader(type, source) {
+  const s = gl.createShader(type); gl.shaderSource(s, source); gl.compileShader(s); return s;
+}
+window.floorFps = (reads, frames) => {
+  const program = gl.createProgram();
+  gl.attachShader(program, shader(gl.VERTEX_SHADER, `#version 300 es
+void main() { gl_Position = vec4(vec2(float((gl_VertexID & 1) << 2), float((gl_VertexID & 2) << 1)) - 1.0, 0.0, 1.0); }`));
+  const sum = Array.from({ length: reads }, (_, s) => `texelFetch(u_images, ivec3(gl_FragCoord.xy, ${s}), 0).rgb`);
+  gl.attachShader(program, shader(gl.FRAGMENT_SHADER, `#version 300 es
+precision highp float; precision highp sampler2DArray;
+uniform sampler2DArray u_images; out vec4 colour;
+void main() { colour = vec4(${sum.join(' + ')}, 1.0); }`));
+  gl.linkProgram(program);
+  gl.useProgram(program);
+  const pixel = new Uint8Array(4);
+  const frame = () => { gl.drawArrays(gl.TRIANGLES, 0, 3); gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, pixel); };
+  frame();
+  const start = performance.now();
+  for (let n = 0; n < frames; ++n) frame();
+  return frames * 1000 / (performance.now() - start);
+};
+</script>"""
+
+
+def software_floor(context, frames: int) -> None:
+    """The frames per second of _FLOOR_PAGE's shader reading 2 images (a dragged slider's
+    least: the base and its layer) and REGRADE_LAYERS + 1 (every layer and the beauty)."""
+    page = context.new_page()
+    page.set_content(_FLOOR_PAGE)
+    reads = (2, REGRADE_LAYERS + 1)
+    fps = [page.evaluate("([reads, frames]) => floorFps(reads, frames)", [n, frames]) for n in reads]
+    print(f"  this browser's ceiling at 1920x1080, a shader that only reads and sums the images: "
+          + ", ".join(f"{n} images {rate:.1f} frames/s" for n, rate in zip(reads, fps)), flush=True)
+    page.close()
+
+
 def click_to_layer(context, url: str, repeats: int) -> None:
     page = open_inspector(context, url)
     state = page.evaluate("pxrViewer.state()")
@@ -233,6 +283,7 @@ def main() -> None:
         with serving(regrade_path) as url:
             context = launch(playwright, folder / "profile-regrade", REGRADE_VIEWPORT)
             regrade(context, url, args.frames)
+            software_floor(context, args.frames)
             context.close()
         if args.regrade_only:
             return

@@ -32,11 +32,13 @@ precision highp sampler3D;
 // frame then reads two layers, not all of them. It is the same sum, in another order (within
 // float32 rounding); at unit gains, and with the entry's weight back at 0, it is the beauty
 // exactly again.
+// The pass and each look's entry count are compiled in (programSource): a software WebGL
+// (SwiftShader, on machines without a GPU) runs a shader with a uniform loop and every pass's
+// code about twice as slowly as one unrolled for its stack with only its pass's code.
 const FRAGMENT_MAIN = `
 uniform sampler2DArray u_images;  // slice 0 the beauty, then the layers: linear RGB, top row first
 uniform sampler2DArray u_masks;   // mask coverages (red), top row first
 uniform highp sampler3D u_lut;
-uniform int u_count[2];            // entries of each look (the beauty not counted)
 uniform vec3 u_weight[2 * MAX_ENTRIES];  // a_i of each entry: look 0's, then look 1's
 uniform ivec2 u_slices[2 * MAX_ENTRIES]; // (image slice, mask slice or -1)
 uniform bool u_any_solo[2];
@@ -47,7 +49,6 @@ uniform vec2 u_origin;             // device pixels from the canvas's (or the ha
 uniform float u_scale;             // device pixels per image pixel
 uniform vec2 u_canvas;             // the canvas's size, device pixels
 uniform vec3 u_background;
-uniform int u_pass;                // 0 the looks; 1 the base (look 0 less entry u_active); 2 the base plus it
 uniform int u_active;              // look 0's entry being regraded, when the base serves
 uniform highp sampler2D u_base;    // look 0 less entry u_active, linear, before exposure (pass 1's output)
 out vec4 colour;
@@ -63,21 +64,12 @@ vec3 contribution(int set, int i, ivec2 texel, bool soloing) {
   return weight == vec3(0.0) ? vec3(0.0) : weight * texelFetch(u_images, ivec3(texel, slices.x), 0).rgb;
 }
 
-// A look at a pixel, linear, before its exposure; entry skip left out (-1: none).
-vec3 look(int set, ivec2 texel, int skip) {
-  bool soloing = u_any_solo[set];
-  vec3 rgb = soloing ? vec3(0.0) : texelFetch(u_images, ivec3(texel, 0), 0).rgb;
-  for (int i = 0; i < u_count[set]; ++i) {
-    if (i != skip) rgb += contribution(set, i, texel, soloing);
-  }
-  return rgb;
-}
+LOOKS
 
 void main() {
-  if (u_pass == 1) {  // the base: look 0 less its active entry, one fragment an image pixel
-    colour = vec4(look(0, ivec2(gl_FragCoord.xy), u_active), 1.0);
-    return;
-  }
+#if PASS == 1  // the base: look 0 less its active entry, one fragment an image pixel
+  colour = vec4(look0(ivec2(gl_FragCoord.xy), u_active), 1.0);
+#else
   // gl_FragCoord counts rows from the bottom; the images' rows run from the top.
   vec2 canvas_px = vec2(gl_FragCoord.x, u_canvas.y - gl_FragCoord.y);
   int set = 0;
@@ -93,12 +85,30 @@ void main() {
     return;
   }
   ivec2 texel = ivec2(image_px);
-  vec3 rgb = u_pass == 2
-    ? texelFetch(u_base, texel, 0).rgb + contribution(0, u_active, texel, u_any_solo[0])
-    : look(set, texel, -1);
+#if PASS == 2
+  vec3 rgb = texelFetch(u_base, texel, 0).rgb + contribution(0, u_active, texel, u_any_solo[0]);
+#else
+  vec3 rgb = set == 0 ? look0(texel, -1) : look1(texel, -1);
+#endif
   colour = vec4(displayLut(rgb * u_exposure_gain[set], u_lut), 1.0);  // NaN and infinities: as the previews
+#endif
 }
 `;
+
+/** GLSL of `vec3 lookS(ivec2 texel, int skip)`: look S at a pixel, linear, before its
+ *  exposure, entry `skip` left out (-1: none); its `count` entries unrolled. */
+function lookSource(set, count) {
+  const terms = Array.from({ length: count },
+    (_, i) => `  if (skip != ${i}) rgb += contribution(${set}, ${i}, texel, soloing);\n`);
+  return `vec3 look${set}(ivec2 texel, int skip) {
+  bool soloing = u_any_solo[${set}];
+  vec3 rgb = soloing ? vec3(0.0) : texelFetch(u_images, ivec3(texel, 0), 0).rgb;
+${terms.join('')}  return rgb;
+}`;
+}
+
+/** At most this many compiled programs are kept (a stack's size and pass each). */
+const PROGRAMS_KEPT = 16;
 
 export const BACKGROUND = [0.09, 0.094, 0.102];
 export const MODES = { one: 0, wipe: 1, side: 2 };
@@ -153,6 +163,7 @@ export class Renderer {
     // Each entry of each of the two looks takes two uniform vectors (weight, slices); leave some for the rest.
     this.maxEntries = Math.min(128, Math.floor((gl.getParameter(gl.MAX_FRAGMENT_UNIFORM_VECTORS) - 16) / 4));
     this.maxSlices = gl.getParameter(gl.MAX_ARRAY_TEXTURE_LAYERS);
+    this.programs = new Map();  // `${pass} ${count0} ${count1}` → {program, uniforms}, oldest first
     this.useDisplay(lutGlsl);
     this.images = new SliceArray(gl, 0, gl.RGB32F, gl.RGB);
     this.masks = new SliceArray(gl, 2, gl.R32F, gl.RED);
@@ -172,17 +183,41 @@ export class Renderer {
     this.masks.images = [];
   }
 
-  /** The shader with this display transform's GLSL (pxr_layers/layers/display_lut.py). */
+  /** The shaders use this display transform's GLSL (pxr_layers/layers/display_lut.py). It is
+   *  compiled at once, so a bad transform fails here rather than at the next frame. */
   useDisplay(lutGlsl) {
-    const gl = this.gl;
-    const program = this.link(`${FRAGMENT_HEAD}${lutGlsl}\n#define MAX_ENTRIES ${this.maxEntries}\n${FRAGMENT_MAIN}`);
-    if (this.program) gl.deleteProgram(this.program);
-    this.program = program;
-    this.uniforms = {};
-    for (const name of ['u_images', 'u_masks', 'u_lut', 'u_count', 'u_weight', 'u_slices', 'u_any_solo', 'u_exposure_gain',
-      'u_mode', 'u_wipe', 'u_origin', 'u_scale', 'u_canvas', 'u_background', 'u_pass', 'u_active', 'u_base']) {
-      this.uniforms[name] = gl.getUniformLocation(program, name);
+    for (const { program } of this.programs.values()) this.gl.deleteProgram(program);
+    this.programs.clear();
+    this.lutGlsl = lutGlsl;
+    this.programFor(0, [1, 0]);
+  }
+
+  /** The program of pass `pass` for looks of `counts` entries, compiled on first use. */
+  programFor(pass, counts) {
+    if (pass === 2) counts = [0, 0];  // pass 2 reads no look
+    const key = `${pass} ${counts[0]} ${counts[1]}`;
+    let compiled = this.programs.get(key);
+    if (compiled) {  // most recently used last
+      this.programs.delete(key);
+      this.programs.set(key, compiled);
+      return compiled;
     }
+    const looks = pass === 2 ? '' : `${lookSource(0, counts[0])}\n${lookSource(1, counts[1])}`;
+    const program = this.link(`${FRAGMENT_HEAD}${this.lutGlsl}\n#define MAX_ENTRIES ${this.maxEntries}\n`
+      + `#define PASS ${pass}\n${FRAGMENT_MAIN.replace('LOOKS', looks)}`);
+    const uniforms = {};
+    for (const name of ['u_images', 'u_masks', 'u_lut', 'u_weight', 'u_slices', 'u_any_solo', 'u_exposure_gain',
+      'u_mode', 'u_wipe', 'u_origin', 'u_scale', 'u_canvas', 'u_background', 'u_active', 'u_base']) {
+      uniforms[name] = this.gl.getUniformLocation(program, name);
+    }
+    compiled = { program, uniforms };
+    this.programs.set(key, compiled);
+    if (this.programs.size > PROGRAMS_KEPT) {
+      const [oldest, { program: dropped }] = this.programs.entries().next().value;
+      this.gl.deleteProgram(dropped);
+      this.programs.delete(oldest);
+    }
+    return compiled;
   }
 
   link(fragmentSource) {
@@ -246,7 +281,6 @@ export class Renderer {
    *  a base of the rest (FRAGMENT_MAIN). */
   draw(looks, view, mode = MODES.one, wipe = 0, active = -1) {
     const gl = this.gl;
-    const u = this.uniforms;
     const counts = [0, 0];
     const anySolo = [0, 0];
     const gains = [1, 1];
@@ -276,39 +310,41 @@ export class Renderer {
     gl.clearColor(...BACKGROUND, 1);
     gl.clear(gl.COLOR_BUFFER_BIT);
     const panels = mode === MODES.side ? [0, Math.floor(width / 2)] : [0];
-    gl.useProgram(this.program);
     this.images.bind();
     this.masks.bind();
     gl.activeTexture(gl.TEXTURE1);
     gl.bindTexture(gl.TEXTURE_3D, this.lut);
-    gl.uniform1i(u.u_images, 0);
-    gl.uniform1i(u.u_lut, 1);
-    gl.uniform1i(u.u_masks, 2);
-    gl.uniform1iv(u.u_count, counts);
-    gl.uniform3fv(u.u_weight, this.weight);
-    gl.uniform2iv(u.u_slices, this.slices);
-    gl.uniform1iv(u.u_any_solo, anySolo);
-    gl.uniform1fv(u.u_exposure_gain, gains);
-    gl.uniform1i(u.u_mode, mode);
-    gl.uniform1f(u.u_wipe, wipe);
-    gl.uniform2f(u.u_origin, view.x, view.y);
-    gl.uniform1f(u.u_scale, view.scale);
-    gl.uniform2f(u.u_canvas, width, height);
-    gl.uniform3fv(u.u_background, BACKGROUND);
-    gl.uniform1i(u.u_active, active);
-    gl.uniform1i(u.u_base, 3);
     gl.activeTexture(gl.TEXTURE3);
     gl.bindTexture(gl.TEXTURE_2D, null);  // not read while it is written
+    const use = (pass) => {
+      const { program, uniforms: u } = this.programFor(pass, counts);
+      gl.useProgram(program);
+      gl.uniform1i(u.u_images, 0);
+      gl.uniform1i(u.u_lut, 1);
+      gl.uniform1i(u.u_masks, 2);
+      gl.uniform1i(u.u_base, 3);
+      gl.uniform3fv(u.u_weight, this.weight);
+      gl.uniform2iv(u.u_slices, this.slices);
+      gl.uniform1iv(u.u_any_solo, anySolo);
+      gl.uniform1fv(u.u_exposure_gain, gains);
+      gl.uniform1i(u.u_mode, mode);
+      gl.uniform1f(u.u_wipe, wipe);
+      gl.uniform2f(u.u_origin, view.x, view.y);
+      gl.uniform1f(u.u_scale, view.scale);
+      gl.uniform2f(u.u_canvas, width, height);
+      gl.uniform3fv(u.u_background, BACKGROUND);
+      gl.uniform1i(u.u_active, active);
+    };
     if (plan.fill) {
+      use(1);
       gl.bindFramebuffer(gl.FRAMEBUFFER, this.base.framebuffer);
       gl.viewport(0, 0, this.width, this.height);
-      gl.uniform1i(u.u_pass, 1);
       gl.drawArrays(gl.TRIANGLES, 0, 3);
       gl.bindFramebuffer(gl.FRAMEBUFFER, null);
       gl.viewport(0, 0, width, height);
       this.base.key = plan.key;
     }
-    gl.uniform1i(u.u_pass, plan.pass);
+    use(plan.pass);
     this.lastPass = plan.pass;  // for the tests: 2 when the frame added one entry to the base
     gl.bindTexture(gl.TEXTURE_2D, plan.pass === 2 ? this.base.texture : null);
     gl.enable(gl.SCISSOR_TEST);
