@@ -124,6 +124,7 @@ def plan_frame(
     from ..stage.defaults import AUTO_CAMERA_PATH
 
     stage = request.stage
+    shot = shot or _open(request)  # once: the recipe and the index's stage names both read it
     if recipe is None:
         recipe = resolve_recipe(request, frame, shot)
     if request.cryptomattes:
@@ -142,7 +143,7 @@ def plan_frame(
             raise RenderSettingsError(f"denoising: {missing}")
     sources = raw_sources(recipe)
     crypto_sources = tuple(source for source in sources if source in CRYPTOMATTE_SOURCES)
-    model_paths, light_groups = stage_names(shot or _open(request), recipe, frame)
+    model_paths, light_groups = stage_names(shot, recipe, frame)
 
     if product_path is not None:
         outputs = {product.name: Path(product_path(product)) for product in recipe.products}
