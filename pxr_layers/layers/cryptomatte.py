@@ -34,6 +34,7 @@ import logging
 import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -155,6 +156,11 @@ class Cryptomatte:
     def depth(self) -> int:
         return self.ids.shape[2]
 
+    @cached_property
+    def names_by_id(self) -> dict[str, str]:
+        """id_hex → the manifest's first name of it (once: a click picks by it)."""
+        return {hex_id: name for name, hex_id in reversed(self.manifest.items())}
+
     def part_pixels(self, part: int) -> np.ndarray:
         """Part ``part`` (``NAME{part:02d}``) as (h, w, 4) float32: id, coverage of ranks 2·part, 2·part + 1."""
         height, width, depth = self.ids.shape
@@ -235,7 +241,7 @@ def names_at(cryptomatte: Cryptomatte, x: int, y: int) -> list[tuple[str, float]
     """The names ranked at pixel (x, y) (x from the left, y from the top) with their
     coverage, highest first: what a click on the pixel picks. Empty ranks are left out; an
     id the manifest does not name is given as its 8 hex digits."""
-    by_id = {hex_id: name for name, hex_id in reversed(cryptomatte.manifest.items())}  # the first name of an id
+    by_id = cryptomatte.names_by_id
     picked = []
     for slot in range(cryptomatte.depth):
         bits = int(cryptomatte.ids[y, x, slot:slot + 1].view(np.uint32)[0])
