@@ -289,14 +289,15 @@ def refine(
         fans = _fans(current, current.edge_sharpness > 0.0)
 
     smooth_limit = limit and scheme != "bilinear"
-    ring = _Ring.of(current, data, split) if smooth_limit else None
+    sums = _LimitSums.of(current, data, scheme, fans) if smooth_limit else None
     # Limit tangent masks, like limit position masks, weigh the last level's control points.
-    normals = _corner_normals(current, fans, data[:, :3], scheme, ring)
+    normals = _corner_normals(current, fans, data[:, :3], scheme, sums)
     if smooth_limit:
-        data = _limit_positions(current, data, scheme, ring)
+        data = _limit_positions(current, data, scheme, sums.ring)
+        del sums  # its tangents, 2 × (v, 3), served the normals only
         for index, (fvar_level, fvar_values) in enumerate(channels):
             if fvar_rules.scheme != "bilinear":
-                fvar_ring = _Ring.of(fvar_level, fvar_values, split)
+                fvar_ring = _LimitSums.of(fvar_level, fvar_values, scheme).ring
                 channels[index] = (
                     fvar_level, _limit_positions(fvar_level, fvar_values, scheme, fvar_ring)
                 )
@@ -988,30 +989,51 @@ def _blend_vertex_rules(
 
 
 @dataclass(frozen=True, eq=False)
-class _Ring:
-    """Per corner of a level, the data at the far end of its outgoing edge (e_j around the
-    corner's vertex) and, for quads, at the opposite corner (d_j): gathered once for the
-    limit position and tangent stencils, a row per column of the data so that the stencils'
-    sums run on contiguous rows.
+class _LimitSums:
+    """What the limit stencils sum over each vertex's corners. They weigh, per corner, e_j the
+    data at the far end of its outgoing edge and (catmullClark) d_j the data at its quad's
+    opposite corner: gathered one column of the data at a time, used by both sums, and let go
+    (gathered whole, (m, c) twice, they were a refine's largest arrays: fresh memory, slow to
+    touch).
 
-    edge     : (m, c)
-    diagonal : (m, c), None for triangles
+    ring     : (v, m) catmullClark: the sum of 4 e_j + d_j; loop: of e_j (_limit_positions)
+    tangents : the (v, 3) sums of OpenSubdiv's two limit tangent masks over the first 3
+               columns (the points; _tangent_weights), valid at smooth interior vertices;
+               None when not asked for
     """
 
-    edge: np.ndarray
-    diagonal: np.ndarray | None
+    ring: np.ndarray
+    tangents: tuple[np.ndarray, np.ndarray] | None
 
     @staticmethod
-    def of(level: _Level, data: np.ndarray, split: str) -> "_Ring":
-        columns = np.ascontiguousarray(data.T)
-        edge = np.take(columns, level.following_vertex(1), axis=1)
-        if split != "quads":
-            return _Ring(edge, None)
-        return _Ring(edge, np.take(columns, level.following_vertex(2), axis=1))
+    def of(level: _Level, data: np.ndarray, scheme: str, fans: _Fans | None = None) -> _LimitSums:
+        """The sums of the limit stencils of ``data`` on ``level``, with the tangents given its ``fans``."""
+        corner_vertex = level.corner_vertex
+        size = level.vertex_count
+        edge_end = level.following_vertex(1)
+        opposite = level.following_vertex(2) if scheme == "catmullClark" else None
+        weights = None if fans is None else _tangent_weights(level, fans, scheme)
+        ring = np.empty((size, data.shape[1]))
+        tangents = None if weights is None else (np.empty((size, 3)), np.empty((size, 3)))
+        for column, values in enumerate(np.ascontiguousarray(data.T)):
+            edge = np.take(values, edge_end)
+            diagonal = None if opposite is None else np.take(values, opposite)
+            ring[:, column] = np.bincount(
+                corner_vertex, weights=edge if diagonal is None else 4.0 * edge + diagonal, minlength=size
+            )
+            if tangents is None or column >= 3:
+                continue
+            for tangent, (edge_weight, diagonal_weight) in zip(tangents, weights):
+                terms = edge_weight * edge
+                if diagonal_weight is not None:
+                    terms += diagonal_weight * diagonal
+                tangent[:, column] = np.bincount(corner_vertex, weights=terms, minlength=size)
+        return _LimitSums(ring, tangents)
 
 
-def _limit_positions(level: _Level, data: np.ndarray, scheme: str, ring: _Ring) -> np.ndarray:
-    """(v, m) data pushed to the limit surface (OpenSubdiv's limit position masks)."""
+def _limit_positions(level: _Level, data: np.ndarray, scheme: str, ring_sum: np.ndarray) -> np.ndarray:
+    """(v, m) data pushed to the limit surface (OpenSubdiv's limit position masks); ``ring_sum``
+    is _LimitSums.ring of ``data``."""
     ends = level.edge_vertices
     size = level.vertex_count
     corner_vertex = level.corner_vertex
@@ -1024,15 +1046,13 @@ def _limit_positions(level: _Level, data: np.ndarray, scheme: str, ring: _Ring) 
         # Regular: (1/36) [1 4 1; 4 16 4; 1 4 1]; valence n: 1/(n(n+5)) per diagonal vertex.
         diagonal_weight = 1.0 / (n * (n + 5.0))
         self_weight = 1.0 - 5.0 * n * diagonal_weight
-        ring_sum = _scatter(corner_vertex, (4.0 * ring.edge + ring.diagonal).T, size)
         smooth = self_weight[:, None] * data + diagonal_weight[:, None] * ring_sum
         smooth = np.where((face_counts == 2)[:, None], data, smooth)  # OpenSubdiv: a corner
     else:
         # Loop's beta is positive for every valence, so the division is safe.
         loop_edge_weight, _ = _loop_vertex_weights(face_counts)
         edge_weight = 1.0 / (n + 3.0 / (8.0 * loop_edge_weight))
-        neighbour_sum = _scatter(corner_vertex, ring.edge.T, size)
-        smooth = (1.0 - n * edge_weight)[:, None] * data + edge_weight[:, None] * neighbour_sum
+        smooth = (1.0 - n * edge_weight)[:, None] * data + edge_weight[:, None] * ring_sum
     crease = (4.0 * data + _crease_neighbour_sum(ends, data, sharp, sharp, size)) / 6.0
     return np.where(
         (rule == _SMOOTH)[:, None], smooth, np.where((rule == _CREASE)[:, None], crease, data)
@@ -1229,13 +1249,13 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _corner_normals(
-    level: _Level, fans: _Fans, points: np.ndarray, scheme: str, ring: _Ring | None
+    level: _Level, fans: _Fans, points: np.ndarray, scheme: str, sums: _LimitSums | None
 ) -> tuple[np.ndarray, np.ndarray]:
     """The unit normal of each corner of the final level, as ((n, 3) values, (c,) index into
-    them per corner): limit normals given the ``ring`` of the limit stencils, area-weighted
-    normals without it (no limit step).
+    them per corner): limit normals given the ``sums`` of the limit stencils (with tangents),
+    area-weighted normals without them (no limit step).
 
-    With a ring, corners of smooth interior vertices get the limit normal of their vertex
+    With sums, corners of smooth interior vertices get the limit normal of their vertex
     (value v for vertex v); the others (boundaries, creases, corners, non-manifold fans: few)
     are handled per sector by _sector_normals, a value each after the vertices'. Without it
     every corner gets its sector's area-weighted normal.
@@ -1246,10 +1266,10 @@ def _corner_normals(
     sharp_edge_count = _bincount_ends(level.edge_vertices, sharp_edge, size)
     rule = _vertex_rules(level.vertex_sharpness, sharp_edge_count)
     face_counts = np.bincount(corner_vertex, minlength=size)
-    limit = ring is not None
+    limit = sums is not None
     if limit:
         whole_vertex = fans.manifold & fans.closed & (rule == _SMOOTH) & (face_counts >= 3)
-        vertex_normals = _smooth_limit_normals(level, fans, scheme, ring)
+        vertex_normals = _cross(*sums.tangents)  # tan1 x tan2
     else:
         # One sector (no sharp edge): the area-weighted normal of all the vertex's faces.
         whole_vertex = fans.manifold & fans.closed & (sharp_edge_count == 0)
@@ -1290,34 +1310,20 @@ def _corner_face_areas(level: _Level, points: np.ndarray, corners: np.ndarray) -
     return 0.5 * _cross(face[:, 2] - face[:, 0], face[:, 3] - face[:, 1])
 
 
-def _smooth_limit_normals(level: _Level, fans: _Fans, scheme: str, ring: _Ring) -> np.ndarray:
-    """(v, 3) limit normal tan1 x tan2 of each vertex, valid at smooth interior vertices.
-
-    OpenSubdiv's tangent masks weigh e_j, the far end of the edge of the j-th corner
-    counter-clockwise around the vertex, and (catmullClark) d_j, the diagonal vertex of that
-    corner's quad. The weights depend only on (valence, j): they are gathered from a table.
+def _tangent_weights(level: _Level, fans: _Fans, scheme: str) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """Per corner, the weights of its e_j and (catmullClark) d_j in OpenSubdiv's two limit
+    tangent masks of its vertex, j its rank counter-clockwise around the vertex: [(edge,
+    diagonal) of tan1, of tan2], (c,) each (diagonal None for loop). They depend only on
+    (valence, j): they are gathered from a table. Valid at smooth interior vertices.
     """
     corner_vertex = level.corner_vertex
-    size = level.vertex_count
     # Valences below 3 are never smooth here; clamping keeps their (unused) weights finite.
-    valence = np.maximum(np.bincount(corner_vertex, minlength=size), 3)
+    valence = np.maximum(np.bincount(corner_vertex, minlength=level.vertex_count), 3)
     corner_valence = valence[corner_vertex]
     tables, row_start = _tangent_weight_tables(valence, scheme)
     entry = row_start[corner_valence] + np.minimum(fans.position, corner_valence - 1)
-    edges = ring.edge[:3]
-    diagonals = None if ring.diagonal is None else ring.diagonal[:3]
-    tangents = []
-    for edge_table, diagonal_table in tables:
-        edge_weight = edge_table[entry]
-        diagonal_weight = None if diagonal_table is None else diagonal_table[entry]
-        tangent = np.empty((size, 3))
-        for axis in range(3):
-            weights = edge_weight * edges[axis]
-            if diagonal_weight is not None:
-                weights += diagonal_weight * diagonals[axis]
-            tangent[:, axis] = np.bincount(corner_vertex, weights=weights, minlength=size)
-        tangents.append(tangent)
-    return _cross(tangents[0], tangents[1])
+    return [(edge_table[entry], None if diagonal_table is None else diagonal_table[entry])
+            for edge_table, diagonal_table in tables]
 
 
 def _tangent_weight_tables(valence: np.ndarray, scheme: str):
