@@ -523,7 +523,7 @@ class _SubdivisionLevels:
             if key is None:
                 continue
             if key not in cages:
-                cage = read_cage(placement.prim, context.time, context.file)
+                cage = read_cage(placement.prim, context.time, context.file, measure_edges=subdiv_level is None)
                 if cage is None:  # nothing to refine: the key goes
                     self._key_of[_source_path(placement.prim)] = None
                     continue

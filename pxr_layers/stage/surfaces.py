@@ -73,28 +73,30 @@ class SubdivisionCage:
     """What choosing a subdivision mesh's level takes (:func:`read_cage`), object space.
 
     edge_length  : the cage edge that stands for the mesh (subdivision.cage_edge_length),
-                   stage units
+                   stage units; None when not measured (the level is not chosen by size)
     lower, upper : (3,) float64 bounds of its points, stage units
     triangles    : triangles it makes at each level 0 .. MAX_SUBDIV_LEVEL
     """
 
-    edge_length: float
+    edge_length: float | None
     lower: np.ndarray
     upper: np.ndarray
     triangles: tuple[int, ...]
 
 
-def read_cage(prim: Usd.Prim, time: Usd.TimeCode, file: str) -> SubdivisionCage | None:
+def read_cage(prim: Usd.Prim, time: Usd.TimeCode, file: str, *, measure_edges: bool = True) -> SubdivisionCage | None:
     """The cage of a UsdGeom.Mesh that subdivides (``subdivisionScheme`` other than none,
     catmullClark when unauthored); None for one that does not, has no faces, or has
     non-finite points (read_mesh notes those). Raises StageError as read_mesh does for the
-    same attributes (types, topology, a mesh past the triangle budget on its own)."""
+    same attributes (types, topology, a mesh past the triangle budget on its own).
+    measure_edges False leaves edge_length None: it takes a percentile over every edge, and
+    only a level chosen by size on the image needs it."""
     arrays = _cage_arrays(prim, time, file)
     if arrays is None:
         return None
     scheme, points, counts, indices = arrays
     return SubdivisionCage(
-        edge_length=subdivision.cage_edge_length(points, counts, indices),
+        edge_length=subdivision.cage_edge_length(points, counts, indices) if measure_edges else None,
         lower=points.min(axis=0),
         upper=points.max(axis=0),
         triangles=tuple(subdivision.refined_triangle_count(counts, level, scheme)
