@@ -104,12 +104,17 @@ def select(index: PathIndex, x0: int, y0: int, x1: int, y1: int, *, threads: int
     if not pixels:
         return empty
 
+    first, span = y0 * width + x0, (y1 - 1) * width + x1 - (y0 * width + x0)
+
     def inside(pixel: np.ndarray) -> np.ndarray:
-        """(r,) bool: in the rectangle (a range test first: rows are contiguous)."""
-        hit = (pixel >= y0 * width + x0) & (pixel < (y1 - 1) * width + x1)
-        if x1 - x0 < width:
-            column = pixel % width
-            hit &= (column >= x0) & (column < x1)
+        """(r,) bool: in the rectangle. pixel: (r,) int64. The rows' range first, in one
+        comparison (below it, pixel − first wraps to a huge unsigned value): a click tests
+        every record of the index, the columns only those few in range."""
+        hit = (pixel - first).view(np.uint64) < np.uint64(span)
+        if x1 - x0 < width and hit.any():
+            at = np.flatnonzero(hit)
+            column = pixel[at] % width
+            hit[at[(column < x0) | (column >= x1)]] = False
         return hit
 
     present: set[int] = set()
