@@ -36,6 +36,7 @@ frames (headless Chromium here has no GPU: SwiftShader, on the CPU).
 from __future__ import annotations
 
 import argparse
+import shutil
 import statistics
 import subprocess
 import sys
@@ -244,6 +245,17 @@ def screenshot(context, url: str, index: Path, path: Path) -> None:
     page.close()
 
 
+def render_copy(path: Path, folder: Path) -> Path:
+    """`path` (an output folder, .exr or .pxlidx) as a copy in `folder` of its render's index
+    and EXRs: the page keeps its working state beside the render it opens (TITLE.view.json),
+    so a run on the user's own output would change it and find the last run's layers there."""
+    source = path if path.is_dir() else path.parent
+    folder.mkdir()
+    for file in [*source.glob("*.pxlidx"), *source.glob("*.exr")]:
+        shutil.copy2(file, folder / file.name)
+    return folder if path.is_dir() else folder / path.name
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--regrade", type=Path, help="a 1920×1080 output (folder, .exr or .pxlidx) to regrade")
@@ -262,12 +274,12 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory(prefix="bench_view.") as scratch, sync_playwright() as playwright:
         folder = Path(scratch)
-        regrade_path = args.regrade
+        regrade_path = args.regrade and render_copy(args.regrade, folder / "regrade")
         if regrade_path is None:
             regrade_path = folder / "demo"
             render([SCRIPT, "demo", "-o", str(regrade_path), "--resolution", *map(str, REGRADE_RESOLUTION),
                     "--spp", "1", "-q"], "demo 1920x1080 1 spp")
-        hd = args.index
+        hd = args.index and render_copy(args.index, folder / "index")
         if hd is None and not args.regrade_only:
             hd = folder / "hd" / "showcase.pxlidx"
             stage = resources.files("pxr_layers.render").joinpath("showcase.usda")
