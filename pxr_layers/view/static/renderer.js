@@ -22,7 +22,7 @@ precision highp sampler3D;
 //   no layer soloed:   out = beauty + Σ_i (w_i − 1) · layer_i
 //   some layer soloed: out = Σ_{i soloed} w_i · layer_i
 //   then · 2^exposure, then the display LUT. At unit gains this is the beauty exactly:
-//   the weights are exactly 0 and the layers are not even read.
+//   the weights are exactly 0, so each (finite: renders hold no NaN) layer adds exactly 0.
 // Renderer.draw computes what does not vary over the image, each entry's a_i: g_i − 1 (no
 // solo), g_i (soloed), 0 (not soloed while others are); the shader applies the masks:
 //   unmasked: weight a_i;  masked: m_i · a_i (no solo), 1 + m_i · (a_i − 1) (soloed).
@@ -32,9 +32,10 @@ precision highp sampler3D;
 // frame then reads two layers, not all of them. It is the same sum, in another order (within
 // float32 rounding); at unit gains, and with the entry's weight back at 0, it is the beauty
 // exactly again.
-// The pass and each look's entry count are compiled in (programSource): a software WebGL
-// (SwiftShader, on machines without a GPU) runs a shader with a uniform loop and every pass's
-// code about twice as slowly as one unrolled for its stack with only its pass's code.
+// The pass, the mode, each look's entries and which of them are masked are compiled in (programFor): a
+// software WebGL (SwiftShader, on machines without a GPU) runs a shader with a uniform loop,
+// every pass's code and a mask test per entry two to four times as slowly as one unrolled
+// for its stack, with only its pass's code and its masked entries' tests.
 const FRAGMENT_MAIN = `
 uniform sampler2DArray u_images;  // slice 0 the beauty, then the layers: linear RGB, top row first
 uniform sampler2DArray u_masks;   // mask coverages (red), top row first
@@ -43,7 +44,6 @@ uniform vec3 u_weight[2 * MAX_ENTRIES];  // a_i of each entry: look 0's, then lo
 uniform ivec2 u_slices[2 * MAX_ENTRIES]; // (image slice, mask slice or -1)
 uniform bool u_any_solo[2];
 uniform float u_exposure_gain[2];  // 2^exposure
-uniform int u_mode;                // 0 one look, 1 wipe, 2 side by side
 uniform float u_wipe;              // device pixels from the canvas's left edge to the wipe line
 uniform vec2 u_origin;             // device pixels from the canvas's (or the half's) top-left corner to the image's
 uniform float u_scale;             // device pixels per image pixel
@@ -61,23 +61,26 @@ vec3 contribution(int set, int i, ivec2 texel, bool soloing) {
     float m = texelFetch(u_masks, ivec3(texel, slices.y), 0).r;
     weight = soloing ? (weight == vec3(0.0) ? weight : 1.0 + m * (weight - 1.0)) : m * weight;
   }
-  return weight == vec3(0.0) ? vec3(0.0) : weight * texelFetch(u_images, ivec3(texel, slices.x), 0).rgb;
+  return weight * texelFetch(u_images, ivec3(texel, slices.x), 0).rgb;
 }
 
 LOOKS
 
 void main() {
 #if PASS == 1  // the base: look 0 less its active entry, one fragment an image pixel
-  colour = vec4(look0(ivec2(gl_FragCoord.xy), u_active), 1.0);
+  colour = vec4(look0(ivec2(gl_FragCoord.xy)), 1.0);
 #else
   // gl_FragCoord counts rows from the bottom; the images' rows run from the top.
   vec2 canvas_px = vec2(gl_FragCoord.x, u_canvas.y - gl_FragCoord.y);
   int set = 0;
-  if (u_mode == 1) set = canvas_px.x >= u_wipe ? 1 : 0;
-  if (u_mode == 2 && canvas_px.x >= floor(u_canvas.x / 2.0)) {
+#if MODE == 1
+  set = canvas_px.x >= u_wipe ? 1 : 0;
+#elif MODE == 2
+  if (canvas_px.x >= floor(u_canvas.x / 2.0)) {
     set = 1;
     canvas_px.x -= floor(u_canvas.x / 2.0);
   }
+#endif
   vec2 image_px = floor((canvas_px - u_origin) / u_scale);
   ivec2 size = textureSize(u_images, 0).xy;
   if (any(lessThan(image_px, vec2(0.0))) || any(greaterThanEqual(image_px, vec2(size)))) {
@@ -87,27 +90,34 @@ void main() {
   ivec2 texel = ivec2(image_px);
 #if PASS == 2
   vec3 rgb = texelFetch(u_base, texel, 0).rgb + contribution(0, u_active, texel, u_any_solo[0]);
+#elif MODE == 0
+  vec3 rgb = look0(texel);
 #else
-  vec3 rgb = set == 0 ? look0(texel, -1) : look1(texel, -1);
+  vec3 rgb = set == 0 ? look0(texel) : look1(texel);
 #endif
   colour = vec4(displayLut(rgb * u_exposure_gain[set], u_lut), 1.0);  // NaN and infinities: as the previews
 #endif
 }
 `;
 
-/** GLSL of `vec3 lookS(ivec2 texel, int skip)`: look S at a pixel, linear, before its
- *  exposure, entry `skip` left out (-1: none); its `count` entries unrolled. */
-function lookSource(set, count) {
-  const terms = Array.from({ length: count },
-    (_, i) => `  if (skip != ${i}) rgb += contribution(${set}, ${i}, texel, soloing);\n`);
-  return `vec3 look${set}(ivec2 texel, int skip) {
+/** GLSL of `vec3 lookS(ivec2 texel)`: look S at a pixel, linear, before its exposure, its
+ *  entries unrolled (masked[i]: entry i has a mask; an unmasked one's weight is its a_i);
+ *  `skip`: entry u_active left out (pass 1). */
+function lookSource(set, masked, skip) {
+  const terms = masked.map((mask, i) => {
+    const at = `${set} * MAX_ENTRIES + ${i}`;
+    const term = mask ? `contribution(${set}, ${i}, texel, soloing)`
+      : `u_weight[${at}] * texelFetch(u_images, ivec3(texel, u_slices[${at}].x), 0).rgb`;
+    return `  ${skip ? `if (u_active != ${i}) ` : ''}rgb += ${term};\n`;
+  });
+  return `vec3 look${set}(ivec2 texel) {
   bool soloing = u_any_solo[${set}];
   vec3 rgb = soloing ? vec3(0.0) : texelFetch(u_images, ivec3(texel, 0), 0).rgb;
 ${terms.join('')}  return rgb;
 }`;
 }
 
-/** At most this many compiled programs are kept (a stack's size and pass each). */
+/** At most this many compiled programs are kept (a pass and a stack's masked entries each). */
 const PROGRAMS_KEPT = 16;
 
 export const BACKGROUND = [0.09, 0.094, 0.102];
@@ -189,25 +199,25 @@ export class Renderer {
     for (const { program } of this.programs.values()) this.gl.deleteProgram(program);
     this.programs.clear();
     this.lutGlsl = lutGlsl;
-    this.programFor(0, [1, 0]);
+    this.programFor(0, MODES.one, [[false], []]);
   }
 
-  /** The program of pass `pass` for looks of `counts` entries, compiled on first use. */
-  programFor(pass, counts) {
-    if (pass === 2) counts = [0, 0];  // pass 2 reads no look
-    const key = `${pass} ${counts[0]} ${counts[1]}`;
+  /** The program of pass `pass` in mode `mode` (MODES) for looks whose entries are masked or
+   *  not (`masked`: per look, a bool per entry), compiled on first use. */
+  programFor(pass, mode, masked) {
+    if (pass === 2) masked = [[], []];  // pass 2 reads no look
+    const key = `${pass} ${mode} ${masked.map((look) => look.map(Number).join('')).join(' ')}`;
     let compiled = this.programs.get(key);
     if (compiled) {  // most recently used last
       this.programs.delete(key);
       this.programs.set(key, compiled);
       return compiled;
     }
-    const looks = pass === 2 ? '' : `${lookSource(0, counts[0])}\n${lookSource(1, counts[1])}`;
+    const looks = pass === 2 ? '' : `${lookSource(0, masked[0], pass === 1)}\n${lookSource(1, masked[1], false)}`;
     const program = this.link(`${FRAGMENT_HEAD}${this.lutGlsl}\n#define MAX_ENTRIES ${this.maxEntries}\n`
-      + `#define PASS ${pass}\n${FRAGMENT_MAIN.replace('LOOKS', looks)}`);
+      + `#define PASS ${pass}\n#define MODE ${mode}\n${FRAGMENT_MAIN.replace('LOOKS', looks)}`);
     const uniforms = {};
-    for (const name of ['u_images', 'u_masks', 'u_lut', 'u_weight', 'u_slices', 'u_any_solo', 'u_exposure_gain',
-      'u_mode', 'u_wipe', 'u_origin', 'u_scale', 'u_canvas', 'u_background', 'u_active', 'u_base']) {
+    for (const name of ['u_images', 'u_masks', 'u_lut', 'u_weight', 'u_slices', 'u_any_solo', 'u_exposure_gain', 'u_wipe', 'u_origin', 'u_scale', 'u_canvas', 'u_background', 'u_active', 'u_base']) {
       uniforms[name] = this.gl.getUniformLocation(program, name);
     }
     compiled = { program, uniforms };
@@ -281,14 +291,13 @@ export class Renderer {
    *  a base of the rest (FRAGMENT_MAIN). */
   draw(looks, view, mode = MODES.one, wipe = 0, active = -1) {
     const gl = this.gl;
-    const counts = [0, 0];
+    const masked = [[], []];  // per look, per entry: its mask applies (programFor)
     const anySolo = [0, 0];
     const gains = [1, 1];
     looks.forEach((look, set) => {
       if (look.entries.length > this.maxEntries) {
         throw new Error(`at most ${this.maxEntries} layers fit in this browser's shader`);
       }
-      counts[set] = look.entries.length;
       gains[set] = 2 ** look.exposure;
       anySolo[set] = look.entries.some((entry) => entry.solo) ? 1 : 0;
       look.entries.forEach((entry, i) => {
@@ -297,7 +306,9 @@ export class Renderer {
         // a_i (the rule above), in float32 as the numpy reference computes g_i − 1
         const weight = anySolo[set] ? (entry.solo ? graded : [0, 0, 0]) : graded.map((g) => Math.fround(g) - 1);
         this.weight.set(weight, at * 3);
-        this.slices.set([entry.slice, anySolo[set] && !entry.solo ? -1 : (entry.maskSlice ?? -1)], at * 2);
+        const maskSlice = anySolo[set] && !entry.solo ? -1 : (entry.maskSlice ?? -1);
+        this.slices.set([entry.slice, maskSlice], at * 2);
+        masked[set].push(maskSlice >= 0);
       });
     });
     if (looks.length === 1) mode = MODES.one;
@@ -317,7 +328,7 @@ export class Renderer {
     gl.activeTexture(gl.TEXTURE3);
     gl.bindTexture(gl.TEXTURE_2D, null);  // not read while it is written
     const use = (pass) => {
-      const { program, uniforms: u } = this.programFor(pass, counts);
+      const { program, uniforms: u } = this.programFor(pass, mode, masked);
       gl.useProgram(program);
       gl.uniform1i(u.u_images, 0);
       gl.uniform1i(u.u_lut, 1);
@@ -327,7 +338,6 @@ export class Renderer {
       gl.uniform2iv(u.u_slices, this.slices);
       gl.uniform1iv(u.u_any_solo, anySolo);
       gl.uniform1fv(u.u_exposure_gain, gains);
-      gl.uniform1i(u.u_mode, mode);
       gl.uniform1f(u.u_wipe, wipe);
       gl.uniform2f(u.u_origin, view.x, view.y);
       gl.uniform1f(u.u_scale, view.scale);
