@@ -32,10 +32,10 @@ precision highp sampler3D;
 // frame then reads two layers, not all of them. It is the same sum, in another order (within
 // float32 rounding); at unit gains, and with the entry's weight back at 0, it is the beauty
 // exactly again.
-// The pass, the mode, each look's entries and which of them are masked are compiled in (programFor): a
-// software WebGL (SwiftShader, on machines without a GPU) runs a shader with a uniform loop,
-// every pass's code and a mask test per entry two to four times as slowly as one unrolled
-// for its stack, with only its pass's code and its masked entries' tests.
+// The pass, the compare mode, each look's entries and which of them are masked are compiled
+// in (programFor): a software WebGL (SwiftShader, on machines without a GPU) runs a shader
+// with a uniform loop, every pass's and mode's code and a mask test per entry two to four
+// times as slowly as one unrolled for its stack with only its own code and its masks' tests.
 const FRAGMENT_MAIN = `
 uniform sampler2DArray u_images;  // slice 0 the beauty, then the layers: linear RGB, top row first
 uniform sampler2DArray u_masks;   // mask coverages (red), top row first
@@ -173,7 +173,7 @@ export class Renderer {
     // Each entry of each of the two looks takes two uniform vectors (weight, slices); leave some for the rest.
     this.maxEntries = Math.min(128, Math.floor((gl.getParameter(gl.MAX_FRAGMENT_UNIFORM_VECTORS) - 16) / 4));
     this.maxSlices = gl.getParameter(gl.MAX_ARRAY_TEXTURE_LAYERS);
-    this.programs = new Map();  // `${pass} ${count0} ${count1}` → {program, uniforms}, oldest first
+    this.programs = new Map();  // programFor's key (pass, mode, masked entries) → {program, uniforms}, oldest first
     this.useDisplay(lutGlsl);
     this.images = new SliceArray(gl, 0, gl.RGB32F, gl.RGB);
     this.masks = new SliceArray(gl, 2, gl.R32F, gl.RED);
@@ -217,7 +217,8 @@ export class Renderer {
     const program = this.link(`${FRAGMENT_HEAD}${this.lutGlsl}\n#define MAX_ENTRIES ${this.maxEntries}\n`
       + `#define PASS ${pass}\n#define MODE ${mode}\n${FRAGMENT_MAIN.replace('LOOKS', looks)}`);
     const uniforms = {};
-    for (const name of ['u_images', 'u_masks', 'u_lut', 'u_weight', 'u_slices', 'u_any_solo', 'u_exposure_gain', 'u_wipe', 'u_origin', 'u_scale', 'u_canvas', 'u_background', 'u_active', 'u_base']) {
+    for (const name of ['u_images', 'u_masks', 'u_lut', 'u_weight', 'u_slices', 'u_any_solo', 'u_exposure_gain',
+      'u_wipe', 'u_origin', 'u_scale', 'u_canvas', 'u_background', 'u_active', 'u_base']) {
       uniforms[name] = this.gl.getUniformLocation(program, name);
     }
     compiled = { program, uniforms };
