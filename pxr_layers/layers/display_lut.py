@@ -16,8 +16,9 @@ twin)::
     u       = A · (L − L0) + B · (σ(L) − σ(L0))              σ(L) = 1 / (1 + 2^(pivot − L))
                                                               A, B: u(L0) = 0, u(hi) = 1,
                                                               the log2 term's share `weight`
-    v       = trilinear(table, u · (size − 1))               8 texelFetch neighbours, by hand:
-                                                              RGB32F is not filterable
+    v       = tetrahedral(table, u · (size − 1))             4 texelFetch, by hand (RGB32F is not
+                                                              filterable): c000, c111 and the two
+                                                              the fractions' order picks
     display = clamp(sRGB_encode(v), 0, 1)                    the canvas rounds · 255
 
 Why each step (measured on the pinned ACES 1.0 SDR view, size 65, against the processor's
@@ -34,9 +35,10 @@ unquantised output; "codes" are 8-bit code values):
   (``RRT_SAT``); on Rec.709 axes every display channel mixes three tone curves, and near a
   display primary's edge the large terms cancel, so 1-2 % interpolation error becomes
   several codes. The lattice's axes are therefore ``BASIS = RRT_SAT · AP1_FROM_REC709``: the
-  output is then close to a sum of one-axis curves, which trilinear interpolation follows
-  (a positive matrix: non-negative colours keep non-negative axes). For other configs it is
-  only a change of coordinates (still exact at the lattice points).
+  output is then close to a sum of one-axis curves, which the interpolation follows (on
+  such a sum tetrahedral interpolation, like trilinear, is the sum of each curve's linear
+  interpolation; a positive matrix: non-negative colours keep non-negative axes). For other
+  configs it is only a change of coordinates (still exact at the lattice points).
 - Along each axis the display-linear output is the tone curve, whose shape a logistic in
   log2 (``a / (a + 2^pivot)``) follows; spacing the lattice evenly in that curve makes the
   interpolated terms nearly linear. Pure logistic spacing starves the blacks and the
@@ -44,17 +46,30 @@ unquantised output; "codes" are 8-bit code values):
   dark-to-dim) still vary, so a share ``weight`` of plain log2 spacing is mixed in. A grid
   search over weight ∈ 0.15..0.6, pivot ∈ −3..0.5, the logistic's slope ∈ 0.8..1.6,
   lo ∈ −11..−9, hi ∈ 7..12 gave the defaults of :class:`Shaper` (slope 1, so no parameter).
+- Tetrahedral, not trilinear, interpolation: 4 texture reads instead of 8. Headless
+  Chromium's WebGL (SwiftShader, on the CPU) spends about 5 ms of a 1080p frame on each; with
+  2 layer reads before it, displayLut draws 17.0-18.5 frames/s against trilinear's 13.2-14.1
+  (about 56 ms a frame, not 73; a micro-benchmark on an idle 2-core machine). The cell's
+  tetrahedron is the path c000 → c111 along the axes in decreasing order of their
+  fractions, ``v = c0 + (c1 − c0)·f_max + (c2 − c1)·f_mid + (c3 − c2)·f_min``; ties go to r
+  before g before b (:func:`_tetrahedral`; the browser's interpolation gives the same
+  float32 bits, ties included, which a test checks). The vertices are chosen with step(),
+  not branches (SwiftShader runs both sides of a divergent branch). Its error is no larger
+  than trilinear's: the same worst, fewer values off by one (the figures below; trilinear's
+  in brackets, measured the same way on the same demo render).
 - Range: below 2^-10 on every axis ACES shows black; above 2^8 every channel is saturated
   (a Rec.709 primary at 2^11 is white); the previews' +inf (65504) clamps to 2^8.
 
 Result (pinned defaults, size 65; bake 0.1 s, plus 0.05 s for the processor the previews
 cache): the worst error found, hill-climbing from the worst of 1.6 M random colours, is
-0.80 codes, so no channel is ever more than one code from the PNG. Off by exactly one
-(rounding on the other side of a code boundary, about as often as the mean error): 1.5-2.7 %
-of channel values (4-8 % of pixels) on the tests' synthetic images; on the demo's Cornell
-box 3.7 % of the beauty's values (10.7 % of its pixels: dim, saturated walls, where the
-error is largest) and up to 12 % of a layer's pixels. Size 81 (6.4 MB, 0.18 s) gives a worst
-of 0.66 codes and 7.1 % of the beauty's pixels, size 97 (11 MB, 0.36 s) 4.9 %.
+0.80 codes [0.80], so no channel is ever more than one code from the PNG; the mean is 0.023
+codes [0.025]. Off by exactly one (rounding on the other side of a code boundary, about as
+often as the mean error): 1.1-2.5 % of channel values [1.3-2.7 %] (3-7 % of pixels [3.5-8 %])
+on the tests' synthetic images; on the demo's Cornell box 3.4 % of the beauty's values
+[3.9 %] (9.7 % of its pixels [11.2 %]: dim, saturated walls, where the error is largest) and
+up to 22 % of a layer's pixels [26 %] (the dim fill light's). Size 81 (6.4 MB, 0.18 s) gives
+a worst of 0.50 codes [0.67] and 6.7 % of the beauty's pixels [7.8 %], size 97 (11 MB,
+0.36 s) 0.35 codes [0.57] and 4.9 % [5.8 %].
 
 Below zero: float noise (−1e-3 on dim colours, a channel at −1 % of the others) is within one
 code; a channel further below zero than about 2 % of the others leaves the toe (axes below
@@ -214,29 +229,38 @@ def _decode(display: np.ndarray) -> np.ndarray:
     return np.where(display > SRGB_BREAK * 12.92, power, display / 12.92)
 
 
-def _trilinear(table: np.ndarray, u: np.ndarray) -> np.ndarray:
+def _tetrahedral(table: np.ndarray, u: np.ndarray) -> np.ndarray:
     """(..., 3) lattice coordinates in 0..1 → (..., 3) float32 values of ``table`` (size, size,
-    size, 3) [b, g, r], interpolated along r, then g, then b (GLSL: the body of displayLut)."""
+    size, 3) [b, g, r], interpolated in the tetrahedron of the cell that holds them (GLSL: the
+    body of displayLut, the same float32 operations in the same order).
+
+    The path c000 → c1 → c2 → c111 steps first along the axis of the largest fraction (ties to
+    the earlier axis, r before g before b), last along the smallest's (ties to the later axis):
+    so the three steps are distinct axes, and c1, c2 and the sorted fractions (exact: max, min
+    and the median of three are selections) are the same numbers in numpy and GLSL, ties
+    included (a grey's fractions are all equal).
+    """
     size = table.shape[0]
     scaled = u * FLOAT(size - 1)
     index = np.minimum(scaled.astype(np.int32), size - 2)  # ivec3() truncates; u ≥ 0
-    fraction = scaled - index.astype(FLOAT)
+    f = scaled - index.astype(FLOAT)
+    fr, fg, fb = f[..., 0], f[..., 1], f[..., 2]
+    first_r = (fr >= fg) & (fr >= fb)
+    first_g = ~first_r & (fg >= fb)
+    first = np.stack([first_r, first_g, ~first_r & ~first_g], axis=-1).astype(np.int32)
+    last_b = (fb <= fr) & (fb <= fg)
+    last_g = ~last_b & (fg <= fr)
+    last = np.stack([~last_b & ~last_g, last_g, last_b], axis=-1).astype(np.int32)
+    high = np.maximum(fr, np.maximum(fg, fb))[..., None]
+    low = np.minimum(fr, np.minimum(fg, fb))[..., None]
+    middle = np.maximum(np.minimum(fr, fg), np.minimum(np.maximum(fr, fg), fb))[..., None]
     flat = table.reshape(-1, 3)
-    base = (index[..., 2] * size + index[..., 1]) * size + index[..., 0]
-    fr, fg, fb = fraction[..., 0:1], fraction[..., 1:2], fraction[..., 2:3]
 
-    def texel(dr: int, dg: int, db: int) -> np.ndarray:
-        return flat[base + (db * size + dg) * size + dr]
+    def texel(at: np.ndarray) -> np.ndarray:
+        return flat[(at[..., 2] * size + at[..., 1]) * size + at[..., 0]]
 
-    c000, c100, c010, c110 = texel(0, 0, 0), texel(1, 0, 0), texel(0, 1, 0), texel(1, 1, 0)
-    c001, c101, c011, c111 = texel(0, 0, 1), texel(1, 0, 1), texel(0, 1, 1), texel(1, 1, 1)
-    c00 = c000 + (c100 - c000) * fr
-    c10 = c010 + (c110 - c010) * fr
-    c01 = c001 + (c101 - c001) * fr
-    c11 = c011 + (c111 - c011) * fr
-    c0 = c00 + (c10 - c00) * fg
-    c1 = c01 + (c11 - c01) * fg
-    return c0 + (c1 - c0) * fb
+    c0, c1, c2, c3 = texel(index), texel(index + first), texel(index + 1 - last), texel(index + 1)
+    return c0 + (c1 - c0) * high + (c2 - c1) * middle + (c3 - c2) * low
 
 
 LUT_GLSL = f"""\
@@ -247,21 +271,22 @@ vec3 displayLut(vec3 linearRgb, highp sampler3D lut) {{
     vec3 scaled = displayLutShaper(rgb) * float(size - 1);
     ivec3 index = min(ivec3(scaled), ivec3(size - 2));
     vec3 f = scaled - vec3(index);
-    vec3 c000 = texelFetch(lut, index, 0).rgb;
-    vec3 c100 = texelFetch(lut, index + ivec3(1, 0, 0), 0).rgb;
-    vec3 c010 = texelFetch(lut, index + ivec3(0, 1, 0), 0).rgb;
-    vec3 c110 = texelFetch(lut, index + ivec3(1, 1, 0), 0).rgb;
-    vec3 c001 = texelFetch(lut, index + ivec3(0, 0, 1), 0).rgb;
-    vec3 c101 = texelFetch(lut, index + ivec3(1, 0, 1), 0).rgb;
-    vec3 c011 = texelFetch(lut, index + ivec3(0, 1, 1), 0).rgb;
-    vec3 c111 = texelFetch(lut, index + ivec3(1, 1, 1), 0).rgb;
-    vec3 c00 = c000 + (c100 - c000) * f.x;
-    vec3 c10 = c010 + (c110 - c010) * f.x;
-    vec3 c01 = c001 + (c101 - c001) * f.x;
-    vec3 c11 = c011 + (c111 - c011) * f.x;
-    vec3 c0 = c00 + (c10 - c00) * f.y;
-    vec3 c1 = c01 + (c11 - c01) * f.y;
-    return clamp(displayLutEncode(c0 + (c1 - c0) * f.z), 0.0, 1.0);
+    // the tetrahedron: first the largest fraction's axis (ties to the earlier), last the
+    // smallest's (ties to the later); chosen with step(), as SwiftShader runs both sides of a branch
+    float firstR = step(f.y, f.x) * step(f.z, f.x);
+    float firstG = (1.0 - firstR) * step(f.z, f.y);
+    ivec3 first = ivec3(vec3(firstR, firstG, (1.0 - firstR) * (1.0 - firstG)));
+    float lastB = step(f.z, f.x) * step(f.z, f.y);
+    float lastG = (1.0 - lastB) * step(f.y, f.x);
+    ivec3 last = ivec3(vec3((1.0 - lastB) * (1.0 - lastG), lastG, lastB));
+    float high = max(f.x, max(f.y, f.z));
+    float low = min(f.x, min(f.y, f.z));
+    float middle = max(min(f.x, f.y), min(max(f.x, f.y), f.z));
+    vec3 c0 = texelFetch(lut, index, 0).rgb;
+    vec3 c1 = texelFetch(lut, index + first, 0).rgb;
+    vec3 c2 = texelFetch(lut, index + ivec3(1) - last, 0).rgb;
+    vec3 c3 = texelFetch(lut, index + ivec3(1), 0).rgb;
+    return clamp(displayLutEncode(c0 + (c1 - c0) * high + (c2 - c1) * middle + (c3 - c2) * low), 0.0, 1.0);
 }}
 """
 """GLSL of :func:`apply_display_lut` after the shaper (texture x = r, y = g, z = b)."""
@@ -346,7 +371,7 @@ def apply_display_lut(lut: DisplayLut, rgb: np.ndarray) -> np.ndarray:
     """
     pixels = np.asarray(rgb)[..., :3].astype(FLOAT)
     pixels = np.clip(np.nan_to_num(pixels, nan=0.0), -HALF_MAX, HALF_MAX)
-    return np.clip(_encode(_trilinear(lut.table, lut.shaper.apply(pixels))), FLOAT(0.0), FLOAT(1.0))
+    return np.clip(_encode(_tetrahedral(lut.table, lut.shaper.apply(pixels))), FLOAT(0.0), FLOAT(1.0))
 
 
 def lut_glsl(lut: DisplayLut) -> str:
