@@ -286,7 +286,7 @@ def main() -> None:
             render([SCRIPT, "render", str(stage), "--resolution", "1920", "1080", "--spp", "64", "--no-previews", "-q",
                     "-o", str(hd.parent)], "render + index 1920x1080 64 spp")
         if args.screenshot:
-            shown = args.screenshot_of or regrade_path
+            shown = render_copy(args.screenshot_of, folder / "shown") if args.screenshot_of else regrade_path
             with serving(shown) as url:
                 context = launch(playwright, folder / "profile-shot", SCREENSHOT_VIEWPORT)
                 screenshot(context, url, next((shown if shown.is_dir() else shown.parent).glob("*.pxlidx")),
