@@ -63,8 +63,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "command-line layers as INDEX-stem.layers.exr), or the .exr path when one EXR "
                         "is written (default: the index's directory)")
     parser.add_argument("--threads", type=positive_int, metavar="N",
-                        help="threads that read and decode the index's chunks (default: every core this "
-                        "process may use); the layers are the same, bit for bit, whatever N is")
+                        help="threads that read and decode the index's chunks for layers with covariance "
+                        "conditions (default: every core this process may use; chunks read without "
+                        "their covariance decode faster on one); the layers are the same, bit for bit, "
+                        "whatever N is")
     add_request_flags(parser, ("previews", "nuke_scripts", "cryptomattes", "denoise"), help={
         "denoise": "also write every EXR's denoised twin NAME.denoised.exr (the same parts and channels, colour "
         "layers denoised, the beauty their sum) with the albedo and normal guides of the render, read from its "

@@ -47,7 +47,7 @@ def add_search_options(parser: argparse.ArgumentParser, default_recipe: str | No
     parser.add_argument("--strategy", choices=STRATEGIES, default=STRATEGIES[0],
                         help=f"how the layers are searched for (default {STRATEGIES[0]}; docs/suggest.md)")
     parser.add_argument("--threads", type=positive_int, default=2, metavar="N",
-                        help="threads that read and decode each index's chunks (default 2)")
+                        help="threads that read and decode each index's chunks with their covariance (default 2)")
     parser.add_argument("--no-exr", action="store_true", help="write the recipe only, not the EXRs and previews")
     parser.add_argument("--no-previews", action="store_true", help="do not write the PNG previews and contact sheets")
 

@@ -38,7 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the port to listen on (default 0: a free one)")
     parser.add_argument("--no-browser", action="store_true", help="print the URL, do not open a browser")
     parser.add_argument("--threads", type=positive_int, metavar="N",
-                        help="threads that read the index (default: every core this process may use)")
+                        help="threads that read the index for layers with covariance conditions (default: "
+                        "every core this process may use; the rest reads faster on one)")
 
 
 def run(args: argparse.Namespace) -> int:
