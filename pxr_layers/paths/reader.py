@@ -401,9 +401,10 @@ class PathIndex:
 
         threads > 1: chunks read with their covariance (norms) are read, checked and decoded on
         that many threads (file reads, CRC-32, zstd and numpy's loops release the GIL; without
-        the covariance, on this thread: faster), at most CHUNKS_IN_FLIGHT_PER_THREAD per thread ahead of the consumer, and yielded in chunk
-        order: the same chunks, and the same first error (the first bad chunk in file order),
-        as with one thread. Closing the iterator early waits for the chunks being read.
+        the covariance, on this thread: faster), at most CHUNKS_IN_FLIGHT_PER_THREAD per thread
+        ahead of the consumer, and yielded in chunk order: the same chunks, and the same first
+        error (the first bad chunk in file order), as with one thread. Closing the iterator
+        early waits for the chunks being read.
         """
         wanted = self._wanted(classes)
         numbers = self._chunks_holding(wanted)
@@ -416,7 +417,7 @@ class PathIndex:
             read = _ChunkReader(file)
             # Without the covariance a chunk's decoding is many small numpy steps that hold the
             # GIL: a pool only adds contention (0.85-0.91x the one thread's speed on 2 cores, a
-            # 1080p, 64 spp index); the covariance's larger frames gain from it (1.34x).
+            # 1080p, 64 spp index); the covariance's larger frames gain from it (1.32x).
             if threads <= 1 or len(numbers) <= 1 or not norms:
                 for number, mixed in numbers:
                     yield self._read_chunk(read, number, norms, wanted if mixed else None, light)
